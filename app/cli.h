@@ -1,0 +1,42 @@
+// Command-line parsing for tinbuild's subcommands.
+//
+// Each command declares its options (name, value placeholder, help); parseArgs turns argv into
+// positionals and option values or throws UsageError, and formatHelp renders the same table as
+// `tinbuild COMMAND --help`, so help and parsing never drift apart.  "-" alone is a positional (stdin or
+// stdout); "--" ends option parsing.
+#pragma once
+
+#include <map>
+#include <string>
+#include <utility>
+#include <vector>
+
+namespace tinbuild::cli {
+
+struct OptionSpec {
+  OptionSpec(std::string n, std::string m, std::string h, std::string a = "")
+      : name(std::move(n)), metavar(std::move(m)), help(std::move(h)), alias(std::move(a)) {}
+  std::string name;     // "--depth" (or "-q")
+  std::string metavar;  // "K"; empty for a flag
+  std::string help;
+  std::string alias;    // optional short form, e.g. "-o"
+};
+
+class ParsedArgs {
+ public:
+  std::vector<std::string> positional;
+  bool has(const std::string& name) const { return values_.count(name) > 0; }
+  std::string get(const std::string& name, const std::string& fallback = "") const;
+  const std::vector<std::string>& all(const std::string& name) const;
+  int getInt(const std::string& name, int fallback, int lo, int hi) const;
+  double getDouble(const std::string& name, double fallback) const;
+  std::map<std::string, std::vector<std::string>> values_;
+};
+
+ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<OptionSpec>& specs,
+                     const std::string& command);
+
+std::string formatHelp(const std::string& synopsis, const std::string& description,
+                       const std::vector<OptionSpec>& specs);
+
+}  // namespace tinbuild::cli

@@ -1,0 +1,10 @@
+#include "app/commands.h"
+
+namespace tinbuild::app {
+
+const std::vector<Command>& commands() {
+  static const std::vector<Command> all = {infoCommand(), benchCommand()};
+  return all;
+}
+
+}  // namespace tinbuild::app

@@ -1,0 +1,27 @@
+// The subcommands of the tinbuild executable.  Each parses its arguments into an options struct and
+// calls one library entry point; main() maps exceptions to exit codes.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "app/cli.h"
+
+namespace tinbuild::app {
+
+struct Command {
+  std::string name;
+  std::string synopsis;
+  std::string summary;      // one line for `tinbuild help`
+  std::string description;  // paragraph for `tinbuild help COMMAND`
+  std::vector<cli::OptionSpec> options;
+  int (*run)(const cli::ParsedArgs& args);
+};
+
+const std::vector<Command>& commands();
+
+Command infoCommand();
+Command demoCommand();
+Command benchCommand();
+
+}  // namespace tinbuild::app

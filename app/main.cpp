@@ -1,0 +1,83 @@
+// tinbuild: streaming LIDAR to TIN and DEM.  main() dispatches to a subcommand and maps exceptions to
+// exit codes: 0 success, 1 data or runtime error, 2 usage error, 3 cancelled.
+#include <cstdio>
+#include <cstring>
+#include <iostream>
+#include <new>
+
+#include "app/commands.h"
+#include "app/version.h"
+#include "libterrain/error.h"
+
+namespace {
+
+void printOverview() {
+  std::cout << "tinbuild " << TINBUILD_VERSION
+            << ": streaming LIDAR (LAS/XYZ) to TIN and DEM\n\nusage: tinbuild COMMAND [ARGS...]\n\ncommands:\n";
+  for (const auto& c : tinbuild::app::commands()) {
+    std::string left = "  " + c.name;
+    std::cout << left << std::string(left.size() < 14 ? 14 - left.size() : 1, ' ') << c.summary << "\n";
+  }
+  std::cout << "  help          this overview, or `tinbuild help COMMAND` for one command\n"
+               "\nRun `tinbuild COMMAND --help` for a command's options.  Exit codes: 0 success, 1 data or\n"
+               "runtime error, 2 usage error, 3 cancelled.\n";
+}
+
+const tinbuild::app::Command* findCommand(const std::string& name) {
+  for (const auto& c : tinbuild::app::commands())
+    if (c.name == name) return &c;
+  return nullptr;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::vector<std::string> args(argv + 1, argv + argc);
+  try {
+    if (args.empty()) {
+      printOverview();
+      return 2;
+    }
+    const std::string name = args[0];
+    if (name == "--version" || name == "version") {
+      std::cout << "tinbuild " << TINBUILD_VERSION << "\n";
+      return 0;
+    }
+    if (name == "help" || name == "--help" || name == "-h") {
+      if (args.size() > 1) {
+        const auto* c = findCommand(args[1]);
+        if (!c) throw tinbuild::UsageError("no such command '" + args[1] + "'");
+        std::cout << tinbuild::cli::formatHelp(c->synopsis, c->description, c->options);
+      } else {
+        printOverview();
+      }
+      return 0;
+    }
+    const auto* c = findCommand(name);
+    if (!c) throw tinbuild::UsageError("unknown command '" + name + "' (run `tinbuild help`)");
+    std::vector<std::string> rest(args.begin() + 1, args.end());
+    for (const auto& a : rest) {
+      if (a == "--help" || a == "-h") {
+        std::cout << tinbuild::cli::formatHelp(c->synopsis, c->description, c->options);
+        return 0;
+      }
+    }
+    auto parsed = tinbuild::cli::parseArgs(rest, c->options, c->name);
+    return c->run(parsed);
+  } catch (const tinbuild::UsageError& e) {
+    std::cerr << "tinbuild: error: " << e.what() << "\n";
+    return 2;
+  } catch (const tinbuild::CancelledError&) {
+    std::cerr << "tinbuild: cancelled\n";
+    return 3;
+  } catch (const tinbuild::Error& e) {
+    std::cerr << "tinbuild: error: " << e.what() << "\n";
+    return 1;
+  } catch (const std::bad_alloc&) {
+    std::cerr << "tinbuild: error: out of memory\n";
+    return 1;
+  } catch (const std::exception& e) {
+    std::cerr << "tinbuild: error: " << e.what() << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,53 @@
+// Exact geometric predicates: orient2d and incircle, plus the symbolic perturbation that makes the
+// Delaunay triangulation of any point set unique.
+//
+// Every topological decision in tinbuild goes through these functions.  Each has a floating-point filter
+// with a proven error bound; when the filter cannot certify the sign, an exact evaluation with
+// floating-point expansions (error-free transformations: two-sum, two-product) decides.  Results are
+// exact for every finite double input.  No epsilons; never compile with -ffast-math.
+//
+// Conventions
+//   orient2d(a, b, c) > 0  <=> a, b, c turn counter-clockwise (c left of the directed line a->b)
+//   incircle(a, b, c, d) > 0 <=> d strictly inside the circle through a, b, c, given a, b, c CCW
+//   The returned doubles have the sign of the exact determinant (their magnitude is only approximate).
+//   The filter's error bounds, and why they hold, are derived in predicates.cpp; a filter failure costs an
+//   exact evaluation (counted in PredicateStats), never a wrong sign.
+//
+// Symbolic perturbation (ties)
+//   LIDAR coordinates are quantized, so four cocircular points are everywhere.  incirclePerturbed never
+//   returns 0 for four distinct points with a, b, c not collinear: it decides as if each point's lifted
+//   coordinate x^2 + y^2 were raised by eps^(k) with k smaller for lexicographically larger (x, then y)
+//   points, so the largest point's perturbation dominates.  The decision depends only on the points, never
+//   on the order in which a triangulator meets them, and it is the perturbation CGAL's
+//   Delaunay_triangulation_2 applies, so both produce the same triangulation.
+#pragma once
+
+#include <cstdint>
+
+namespace tinbuild {
+
+struct Point2 {
+  double x, y;
+};
+
+double orient2d(const Point2& a, const Point2& b, const Point2& c);
+double incircle(const Point2& a, const Point2& b, const Point2& c, const Point2& d);
+
+// Sign (+1 inside, -1 outside) of incircle(a, b, c, d) under the symbolic perturbation.  Requires
+// orient2d(a, b, c) > 0 and d distinct from a, b, c.  Never returns 0.
+int incirclePerturbed(const Point2& a, const Point2& b, const Point2& c, const Point2& d);
+
+// Lexicographic order on (x, y): the order the perturbation is defined by.
+inline bool lexLess(const Point2& p, const Point2& q) { return p.x < q.x || (p.x == q.x && p.y < q.y); }
+
+// How often each filter stage decided (for benchmarks and tests).  Counting is per thread and costs one
+// increment per call.
+struct PredicateStats {
+  std::uint64_t orientCalls = 0, orientExact = 0;
+  std::uint64_t incircleCalls = 0, incircleExact = 0;
+  std::uint64_t perturbedTies = 0;
+};
+PredicateStats& predicateStats();  // this thread's counters
+void resetPredicateStats();
+
+}  // namespace tinbuild

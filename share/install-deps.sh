@@ -1,0 +1,26 @@
+#!/usr/bin/env bash
+# Installs everything tinbuild needs to build and test on Debian 12, from Debian packages only.
+# Idempotent: when every package is already installed it changes nothing and returns quickly.
+set -euo pipefail
+packages=(
+  build-essential cmake g++ git
+  libgdal-dev gdal-bin          # GDAL: GeoTIFF, GeoPackage, OGR; gdalinfo/ogrinfo for tests
+  libproj-dev proj-bin          # PROJ: CRS and transformations; projinfo/cs2cs for tests
+  libgeographiclib-dev          # GeographicLib: UTM/UPS zones, geodesic areas
+  libgtest-dev libgmock-dev     # GoogleTest (tests only)
+  libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
+)
+missing=()
+for p in "${packages[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if [ ${#missing[@]} -eq 0 ]; then
+  echo "install-deps: all ${#packages[@]} packages present"
+  exit 0
+fi
+SUDO=""
+if [ "$(id -u)" -ne 0 ]; then SUDO="sudo"; fi
+echo "install-deps: installing ${missing[*]}"
+$SUDO apt-get update -qq
+DEBIAN_FRONTEND=noninteractive $SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}" >/dev/null
+echo "install-deps: done"
