@@ -24,8 +24,8 @@ int ParsedArgs::getInt(const std::string& name, int fallback, int lo, int hi) co
   int x = 0;
   auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), x);
   if (ec != std::errc() || p != v.data() + v.size() || x < lo || x > hi)
-    throw UsageError(name + " expects a whole number from " + std::to_string(lo) + " to " + std::to_string(hi) +
-                     ", got '" + v + "'");
+    throw UsageError(name + " expects a whole number from " + std::to_string(lo) + " to " +
+                     std::to_string(hi) + ", got '" + v + "'");
   return x;
 }
 
@@ -34,7 +34,8 @@ double ParsedArgs::getDouble(const std::string& name, double fallback) const {
   const std::string v = get(name);
   double x = 0;
   auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), x);
-  if (ec != std::errc() || p != v.data() + v.size()) throw UsageError(name + " expects a number, got '" + v + "'");
+  if (ec != std::errc() || p != v.data() + v.size())
+    throw UsageError(name + " expects a number, got '" + v + "'");
   return x;
 }
 
@@ -62,14 +63,16 @@ ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<Opt
     const OptionSpec* spec = nullptr;
     for (const auto& s : specs)
       if (s.name == name || (!s.alias.empty() && s.alias == name)) spec = &s;
-    if (!spec) throw UsageError(command + ": unknown option '" + name + "' (see tinbuild " + command + " --help)");
+    if (!spec)
+      throw UsageError(command + ": unknown option '" + name + "' (see tinbuild " + command + " --help)");
     if (spec->metavar.empty()) {
       if (hasInline) throw UsageError(command + ": option " + spec->name + " takes no value");
       out.values_[spec->name].push_back("");
       continue;
     }
     if (!hasInline) {
-      if (i + 1 >= args.size()) throw UsageError(command + ": option " + spec->name + " needs a value (" + spec->metavar + ")");
+      if (i + 1 >= args.size())
+        throw UsageError(command + ": option " + spec->name + " needs a value (" + spec->metavar + ")");
       value = args[++i];
     }
     out.values_[spec->name].push_back(value);
@@ -87,8 +90,10 @@ std::string formatHelp(const std::string& synopsis, const std::string& descripti
       std::string left = "  " + (s.alias.empty() ? "" : s.alias + ", ") + s.name;
       if (!s.metavar.empty()) left += " " + s.metavar;
       o << left;
-      if (left.size() < 30) o << std::string(30 - left.size(), ' ');
-      else o << "\n" << std::string(30, ' ');
+      if (left.size() < 30)
+        o << std::string(30 - left.size(), ' ');
+      else
+        o << "\n" << std::string(30, ' ');
       o << s.help << "\n";
     }
   }

@@ -19,7 +19,7 @@ struct OptionSpec {
   std::string name;     // "--depth" (or "-q")
   std::string metavar;  // "K"; empty for a flag
   std::string help;
-  std::string alias;    // optional short form, e.g. "-o"
+  std::string alias;  // optional short form, e.g. "-o"
 };
 
 class ParsedArgs {

@@ -17,15 +17,17 @@ int runBench(const cli::ParsedArgs& args) {
     ReaderOptions ro;
     ro.columns = args.get("--columns");
     const int repeats = args.getInt("--repeat", 5, 1, 1000);
-    std::printf("%-40s %12s %12s %10s %10s %12s %8s\n", "file", "MB", "points", "cat s", "read s", "Mpoints/s",
-                "ratio");
+    std::printf("%-40s %12s %12s %10s %10s %12s %8s\n", "file", "MB", "points", "cat s", "read s",
+                "Mpoints/s", "ratio");
     for (std::size_t i = 1; i < args.positional.size(); ++i) {
       auto r = benchmarkRead(args.positional[i], ro, repeats);
-      std::printf("%-40s %12.1f %12llu %10.4f %10.4f %12.1f %8.2f\n", r.path.c_str(), static_cast<double>(r.bytes) / 1e6,
-                  static_cast<unsigned long long>(r.points), r.rawSeconds, r.decodeSeconds,
-                  static_cast<double>(r.points) / r.decodeSeconds / 1e6, r.ratio());
+      std::printf("%-40s %12.1f %12llu %10.4f %10.4f %12.1f %8.2f\n", r.path.c_str(),
+                  static_cast<double>(r.bytes) / 1e6, static_cast<unsigned long long>(r.points), r.rawSeconds,
+                  r.decodeSeconds, static_cast<double>(r.points) / r.decodeSeconds / 1e6, r.ratio());
     }
-    std::printf("ratio = raw read time (cat FILE > /dev/null, warm cache) / tinbuild decode time; 1.0 = as fast as cat\n");
+    std::printf(
+        "ratio = raw read time (cat FILE > /dev/null, warm cache) / tinbuild decode time; 1.0 = as fast as "
+        "cat\n");
     return 0;
   }
   throw UsageError("bench: unknown benchmark '" + what + "' (available: read)");
@@ -34,14 +36,15 @@ int runBench(const cli::ParsedArgs& args) {
 }  // namespace
 
 Command benchCommand() {
-  return Command{"bench",
-                 "tinbuild bench read FILE... [--repeat N] [--columns SPEC]",
-                 "benchmarks (reader throughput against cat; CGAL peers come with the triangulator)",
-                 "bench read: decodes each file completely with the tinbuild reader and compares with the raw read\n"
-                 "speed of the same file from the page cache (what `cat FILE > /dev/null` does), best of N runs.",
-                 {{"--repeat", "N", "runs per side (best is kept; default 5)"},
-                  {"--columns", "SPEC", "XYZ input column mapping"}},
-                 runBench};
+  return Command{
+      "bench",
+      "tinbuild bench read FILE... [--repeat N] [--columns SPEC]",
+      "benchmarks (reader throughput against cat; CGAL peers come with the triangulator)",
+      "bench read: decodes each file completely with the tinbuild reader and compares with the raw read\n"
+      "speed of the same file from the page cache (what `cat FILE > /dev/null` does), best of N runs.",
+      {{"--repeat", "N", "runs per side (best is kept; default 5)"},
+       {"--columns", "SPEC", "XYZ input column mapping"}},
+      runBench};
 }
 
 }  // namespace tinbuild::app

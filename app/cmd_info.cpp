@@ -32,13 +32,19 @@ Command infoCommand() {
       "info",
       "tinbuild info INPUT... [--json] [--depth K] [--columns SPEC] [--a_srs CRS]",
       "header, CRS, bounds, counts by class, density, stream coherence",
-      "Prints what a surveyor wants to know before processing: format, version, point format, counts (total,\n"
-      "by class, by return, withheld, xy duplicates), header and actual bounds, scale/offset, CRS (name, EPSG\n"
+      "Prints what a surveyor wants to know before processing: format, version, point format, counts "
+      "(total,\n"
+      "by class, by return, withheld, xy duplicates), header and actual bounds, scale/offset, CRS (name, "
+      "EPSG\n"
       "codes, units, warnings), density and spacing, and the stream's spatial coherence at grid depth K:\n"
-      "occupied cells, average and maximum points per cell, and the stream width (the most points a chunking\n"
+      "occupied cells, average and maximum points per cell, and the stream width (the most points a "
+      "chunking\n"
       "finalizer must buffer).  Several inputs are read as one survey, in the order given.",
-      {{"--json", "", "machine-readable report (stable keys: points, bounds, crs.epsg, crs.vertical_epsg, crs.wkt, classes, width)"},
-       {"--depth", "K", "grid depth for the coherence figures (2^K x 2^K cells; default from the point count)"},
+      {{"--json", "",
+        "machine-readable report (stable keys: points, bounds, crs.epsg, crs.vertical_epsg, crs.wkt, "
+        "classes, width)"},
+       {"--depth", "K",
+        "grid depth for the coherence figures (2^K x 2^K cells; default from the point count)"},
        {"--columns", "SPEC", "XYZ input: columns by position, e.g. x,y,z,class,intensity,skip"},
        {"--skip-bad-lines", "", "XYZ input: skip and count malformed lines instead of failing"},
        {"--a_srs", "CRS", "assign a CRS (EPSG:n, WKT, PROJ string), overriding the file's"},

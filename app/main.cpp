@@ -12,8 +12,9 @@
 namespace {
 
 void printOverview() {
-  std::cout << "tinbuild " << TINBUILD_VERSION
-            << ": streaming LIDAR (LAS/XYZ) to TIN and DEM\n\nusage: tinbuild COMMAND [ARGS...]\n\ncommands:\n";
+  std::cout
+      << "tinbuild " << TINBUILD_VERSION
+      << ": streaming LIDAR (LAS/XYZ) to TIN and DEM\n\nusage: tinbuild COMMAND [ARGS...]\n\ncommands:\n";
   for (const auto& c : tinbuild::app::commands()) {
     std::string left = "  " + c.name;
     std::cout << left << std::string(left.size() < 14 ? 14 - left.size() : 1, ' ') << c.summary << "\n";

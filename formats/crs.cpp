@@ -77,7 +77,9 @@ const UnitCode* findUnit(int code) {
   return nullptr;
 }
 
-bool sameFactor(double a, double b) { return std::fabs(a - b) <= 1e-9 * std::max(std::fabs(a), std::fabs(b)); }
+bool sameFactor(double a, double b) {
+  return std::fabs(a - b) <= 1e-9 * std::max(std::fabs(a), std::fabs(b));
+}
 
 int authorityCode(const OGRSpatialReference& srs, const char* node) {
   const char* auth = srs.GetAuthorityName(node);
@@ -308,8 +310,7 @@ CrsInfo crsFromGeoKeys(const GeoKeyRecords& keys, const std::string& file, Diagn
   ensureGdal();
   std::string problem;
   auto entries = parseGeoKeyDirectory(keys, problem);
-  if (!problem.empty())
-    diag.warn("crs.geokeys_malformed", file, problem + "; using the well-formed keys");
+  if (!problem.empty()) diag.warn("crs.geokeys_malformed", file, problem + "; using the well-formed keys");
   auto keyValue = [&](std::uint16_t id) -> int {
     for (const auto& e : entries)
       if (e.id == id && e.location == 0) return e.value;
@@ -331,8 +332,8 @@ CrsInfo crsFromGeoKeys(const GeoKeyRecords& keys, const std::string& file, Diagn
   const int pcs = keyValue(kProjectedCSType);
   const int gcs = keyValue(kGeographicType);
   const int model = keyValue(kGTModelType);
-  const bool hasHorizontal = (pcs > 0 && pcs != 65535) || (gcs > 0 && gcs != 65535) || model == 1 ||
-                             model == 2;
+  const bool hasHorizontal =
+      (pcs > 0 && pcs != 65535) || (gcs > 0 && gcs != 65535) || model == 1 || model == 2;
   if (!hasHorizontal) {
     diag.warn("crs.geokeys_no_crs", file,
               "GeoTIFF keys are present but define no horizontal CRS (no projected or geographic "
@@ -369,7 +370,8 @@ CrsInfo crsFromGeoKeys(const GeoKeyRecords& keys, const std::string& file, Diagn
     ErrorCollector quiet;
     if (check.importFromWkt(info.wkt.c_str()) != OGRERR_NONE ||
         (!check.IsCompound() && !check.IsProjected()) ||
-        (check.IsProjected() && !check.GetAttrValue("PROJECTION") && !check.GetAttrValue("PROJCS|PROJECTION"))) {
+        (check.IsProjected() && !check.GetAttrValue("PROJECTION") &&
+         !check.GetAttrValue("PROJCS|PROJECTION"))) {
       std::string why = gdalMessages.empty() ? std::string("no projection defined") : gdalMessages.front();
       diag.warn("crs.geokeys_unusable", file,
                 "GeoTIFF keys do not define a usable CRS (" + why + "); treating the file as having no CRS");
@@ -384,18 +386,23 @@ CrsInfo crsFromGeoKeys(const GeoKeyRecords& keys, const std::string& file, Diagn
   }
 
   // The codes as the file states them; `epsg` stays what the CRS in effect is identified as.
-  if (pcs > 0 && pcs != kUserDefined && pcs != 65535) info.declaredEpsg = pcs;
-  else if (gcs > 0 && gcs != kUserDefined && gcs != 65535 && info.geographic) info.declaredEpsg = gcs;
+  if (pcs > 0 && pcs != kUserDefined && pcs != 65535)
+    info.declaredEpsg = pcs;
+  else if (gcs > 0 && gcs != kUserDefined && gcs != 65535 && info.geographic)
+    info.declaredEpsg = gcs;
   const int vcs = keyValue(kVerticalCSType);
   if (vcs > 0 && vcs != kUserDefined && vcs != 65535) {
     if (info.verticalEpsg == 0) info.verticalEpsg = vcs;
     OGRSpatialReference vertical;
     ErrorCollector quiet;
-    if (vertical.importFromEPSG(vcs) != OGRERR_NONE || !vertical.IsVertical()) {
-      diag.warn("crs.vertical_code_unknown", file,
-                "VerticalCSType " + std::to_string(vcs) +
-                    " is not a vertical CRS code in the EPSG registry (a vertical datum code used in its place?); "
-                    "the vertical CRS is reported as the file states it but cannot be used for transformations");
+    const bool known = vertical.importFromEPSG(vcs) == OGRERR_NONE && vertical.IsVertical();
+    if (known && info.verticalName.empty() && vertical.GetName()) info.verticalName = vertical.GetName();
+    if (!known) {
+      diag.warn(
+          "crs.vertical_code_unknown", file,
+          "VerticalCSType " + std::to_string(vcs) +
+              " is not a vertical CRS code in the EPSG registry (a vertical datum code used in its place?); "
+              "the vertical CRS is reported as the file states it but cannot be used for transformations");
       gdalMessages.clear();
     }
   }
@@ -467,7 +474,8 @@ CrsInfo crsFromWkt(const std::string& wktIn, const std::string& file, Diagnostic
   }
   if (err != OGRERR_NONE || srs.IsEmpty()) {
     std::string shown = wkt.size() > 60 ? wkt.substr(0, 60) + "..." : wkt;
-    diag.warn("crs.wkt_invalid", file, "the OGC WKT record does not parse as a CRS (\"" + shown + "\"); ignoring it");
+    diag.warn("crs.wkt_invalid", file,
+              "the OGC WKT record does not parse as a CRS (\"" + shown + "\"); ignoring it");
     return {};
   }
   if (srs.IsGeocentric()) {
@@ -488,7 +496,8 @@ CrsInfo crsFromUser(const std::string& text) {
     err = srs.SetFromUserInput(text.c_str());
   }
   if (err != OGRERR_NONE || srs.IsEmpty())
-    throw UsageError("cannot understand the CRS '" + text + "' (use EPSG:n, WKT, a PROJ string or a .prj file)");
+    throw UsageError("cannot understand the CRS '" + text +
+                     "' (use EPSG:n, WKT, a PROJ string or a .prj file)");
   return describe(srs, "user");
 }
 
@@ -497,8 +506,9 @@ void checkCoordinatesPlausible(const CrsInfo& crs, double minX, double minY, dou
   if (crs.empty() || !crs.geographic || !(minX <= maxX)) return;
   if (minX < -360 || maxX > 360 || minY < -90 || maxY > 90) {
     diag.warn("crs.coordinates_not_degrees", file,
-              "the CRS \"" + crs.name + "\" is geographic (degrees) but the coordinates span x " + std::to_string(minX) +
-                  " .. " + std::to_string(maxX) + ", y " + std::to_string(minY) + " .. " + std::to_string(maxY) +
+              "the CRS \"" + crs.name + "\" is geographic (degrees) but the coordinates span x " +
+                  std::to_string(minX) + " .. " + std::to_string(maxX) + ", y " + std::to_string(minY) +
+                  " .. " + std::to_string(maxY) +
                   ", which cannot be longitude/latitude: the CRS metadata is wrong (use --a_srs)");
   }
 }

@@ -19,18 +19,18 @@ namespace tinbuild {
 class Diagnostics;
 
 struct CrsInfo {
-  std::string wkt;            // WKT2 of the horizontal (or compound) CRS; empty = no CRS known
-  std::string name;           // e.g. "NAD83(HARN) / Oregon GIC Lambert (ft)"
-  int epsg = 0;               // horizontal EPSG code of the CRS in effect, 0 when none could be identified
-  int declaredEpsg = 0;       // the code the file states (GeoTIFF key), even when the CRS in effect differs
-  int verticalEpsg = 0;       // vertical CRS EPSG code, 0 when none
-  std::string verticalName;   // e.g. "NAVD88 height (ftUS)"
-  bool geographic = false;    // lon/lat degrees
-  std::string linearUnit;     // "metre", "US survey foot", "foot", "degree"
+  std::string wkt;           // WKT2 of the horizontal (or compound) CRS; empty = no CRS known
+  std::string name;          // e.g. "NAD83(HARN) / Oregon GIC Lambert (ft)"
+  int epsg = 0;              // horizontal EPSG code of the CRS in effect, 0 when none could be identified
+  int declaredEpsg = 0;      // the code the file states (GeoTIFF key), even when the CRS in effect differs
+  int verticalEpsg = 0;      // vertical CRS EPSG code, 0 when none
+  std::string verticalName;  // e.g. "NAVD88 height (ftUS)"
+  bool geographic = false;   // lon/lat degrees
+  std::string linearUnit;    // "metre", "US survey foot", "foot", "degree"
   double linearUnitToMetre = 1.0;
-  std::string verticalUnit;   // "" when unknown
+  std::string verticalUnit;  // "" when unknown
   double verticalUnitToMetre = 1.0;
-  std::string source;         // "geotiff-keys", "wkt", "wkt (liblas)", "user (--a_srs)", ""
+  std::string source;  // "geotiff-keys", "wkt", "wkt (liblas)", "user (--a_srs)", ""
 
   bool empty() const { return wkt.empty(); }
 };
@@ -48,7 +48,7 @@ struct GeoKeyEntry {
   std::uint16_t id = 0;
   std::uint16_t location = 0;  // 0 = value inline, 34736 doubles, 34737 ascii
   std::uint16_t count = 0;
-  std::uint16_t value = 0;     // inline value, or offset
+  std::uint16_t value = 0;  // inline value, or offset
 };
 
 // Parses the key directory; throws nothing, returns the keys that are well formed and sets `problem`

@@ -42,7 +42,9 @@ constexpr std::size_t kVlrHeader = 54;
 constexpr std::size_t kEvlrHeader = 60;
 constexpr std::size_t kStreamBlock = 4u << 20;
 
-std::string fmtCount(std::uint64_t n) { return std::to_string(n); }
+std::string fmtCount(std::uint64_t n) {
+  return std::to_string(n);
+}
 
 std::string fmtRange(double lo, double hi) {
   std::ostringstream s;
@@ -54,48 +56,76 @@ std::string fmtRange(double lo, double hi) {
 // Decodes `n` records of one layout family.  Legacy = formats 0-5, extended = 6-10.  The loop does no
 // allocation and no call per point; the compiler keeps the scale/offset in registers.
 template <bool kExtended>
+inline void decodeOne(const std::uint8_t* r, double sx, double sy, double sz, double ox, double oy, double oz,
+                      PointRecord& p) {
+  // Two roundings (product, then sum), never fused: the value every LAS tool computes.
+  const double px = static_cast<double>(le<std::int32_t>(r)) * sx;
+  const double py = static_cast<double>(le<std::int32_t>(r + 4)) * sy;
+  const double pz = static_cast<double>(le<std::int32_t>(r + 8)) * sz;
+  p.x = px + ox;
+  p.y = py + oy;
+  p.z = pz + oz;
+  p.intensity = le<std::uint16_t>(r + 12);
+  const std::uint8_t b14 = r[14], b15 = r[15];
+  if constexpr (kExtended) {
+    p.returnNumber = b14 & 0x0F;
+    p.numberOfReturns = static_cast<std::uint8_t>(b14 >> 4);
+    p.flags = b15 & 0x0F;  // synthetic, key-point, withheld, overlap: same bit order as PointFlag
+    p.classification = r[16];
+  } else {
+    p.returnNumber = b14 & 0x07;
+    p.numberOfReturns = (b14 >> 3) & 0x07;
+    p.classification = b15 & 0x1F;
+    p.flags = static_cast<std::uint8_t>(b15 >> 5);  // synthetic, key-point, withheld
+  }
+}
+
+// Decodes `n` records of one layout family.  Legacy = formats 0-5, extended = 6-10.  The loop does no
+// allocation and no call per point.  Bounds are accumulated in two interleaved sets so the min/max
+// dependency chains do not limit the loop to one point per min/max latency.
+template <bool kExtended>
 void decodeRecords(const std::uint8_t* src, std::size_t n, std::size_t stride, const double* scale,
                    const double* offset, PointRecord* out, Bounds3& bounds) {
   const double sx = scale[0], sy = scale[1], sz = scale[2];
   const double ox = offset[0], oy = offset[1], oz = offset[2];
-  double minX = bounds.minX, minY = bounds.minY, minZ = bounds.minZ;
-  double maxX = bounds.maxX, maxY = bounds.maxY, maxZ = bounds.maxZ;
-  for (std::size_t i = 0; i < n; ++i) {
-    const std::uint8_t* r = src + i * stride;
-    PointRecord& p = out[i];
-    // Two roundings (product, then sum), never fused: the value every LAS tool computes.
-    const double px = static_cast<double>(le<std::int32_t>(r)) * sx;
-    const double py = static_cast<double>(le<std::int32_t>(r + 4)) * sy;
-    const double pz = static_cast<double>(le<std::int32_t>(r + 8)) * sz;
-    p.x = px + ox;
-    p.y = py + oy;
-    p.z = pz + oz;
-    p.intensity = le<std::uint16_t>(r + 12);
-    const std::uint8_t b14 = r[14], b15 = r[15];
-    if constexpr (kExtended) {
-      p.returnNumber = b14 & 0x0F;
-      p.numberOfReturns = static_cast<std::uint8_t>(b14 >> 4);
-      p.flags = b15 & 0x0F;  // synthetic, key-point, withheld, overlap: same bit order as PointFlag
-      p.classification = r[16];
-    } else {
-      p.returnNumber = b14 & 0x07;
-      p.numberOfReturns = (b14 >> 3) & 0x07;
-      p.classification = b15 & 0x1F;
-      p.flags = static_cast<std::uint8_t>(b15 >> 5);  // synthetic, key-point, withheld
-    }
-    minX = std::min(minX, p.x);
-    maxX = std::max(maxX, p.x);
-    minY = std::min(minY, p.y);
-    maxY = std::max(maxY, p.y);
-    minZ = std::min(minZ, p.z);
-    maxZ = std::max(maxZ, p.z);
+  double minX0 = bounds.minX, minY0 = bounds.minY, minZ0 = bounds.minZ;
+  double maxX0 = bounds.maxX, maxY0 = bounds.maxY, maxZ0 = bounds.maxZ;
+  double minX1 = minX0, minY1 = minY0, minZ1 = minZ0, maxX1 = maxX0, maxY1 = maxY0, maxZ1 = maxZ0;
+  std::size_t i = 0;
+  for (; i + 2 <= n; i += 2) {
+    PointRecord& a = out[i];
+    PointRecord& b = out[i + 1];
+    decodeOne<kExtended>(src + i * stride, sx, sy, sz, ox, oy, oz, a);
+    decodeOne<kExtended>(src + (i + 1) * stride, sx, sy, sz, ox, oy, oz, b);
+    minX0 = std::min(minX0, a.x);
+    maxX0 = std::max(maxX0, a.x);
+    minY0 = std::min(minY0, a.y);
+    maxY0 = std::max(maxY0, a.y);
+    minZ0 = std::min(minZ0, a.z);
+    maxZ0 = std::max(maxZ0, a.z);
+    minX1 = std::min(minX1, b.x);
+    maxX1 = std::max(maxX1, b.x);
+    minY1 = std::min(minY1, b.y);
+    maxY1 = std::max(maxY1, b.y);
+    minZ1 = std::min(minZ1, b.z);
+    maxZ1 = std::max(maxZ1, b.z);
   }
-  bounds.minX = minX;
-  bounds.minY = minY;
-  bounds.minZ = minZ;
-  bounds.maxX = maxX;
-  bounds.maxY = maxY;
-  bounds.maxZ = maxZ;
+  if (i < n) {
+    PointRecord& a = out[i];
+    decodeOne<kExtended>(src + i * stride, sx, sy, sz, ox, oy, oz, a);
+    minX0 = std::min(minX0, a.x);
+    maxX0 = std::max(maxX0, a.x);
+    minY0 = std::min(minY0, a.y);
+    maxY0 = std::max(maxY0, a.y);
+    minZ0 = std::min(minZ0, a.z);
+    maxZ0 = std::max(maxZ0, a.z);
+  }
+  bounds.minX = std::min(minX0, minX1);
+  bounds.minY = std::min(minY0, minY1);
+  bounds.minZ = std::min(minZ0, minZ1);
+  bounds.maxX = std::max(maxX0, maxX1);
+  bounds.maxY = std::max(maxY0, maxY1);
+  bounds.maxZ = std::max(maxZ0, maxZ1);
 }
 
 int extraBytesTypeSize(int type, int options) {
@@ -216,8 +246,9 @@ void LasReader::parse() {
   const std::uint8_t rawFormat = h[104];
   const std::uint16_t headerSize = le<std::uint16_t>(h + 94);
   if (rawFormat & 0xC0)
-    throw DataError(file, "LAZ is not supported yet: decompress with laszip/pdal first "
-                          "(the point format byte has the compression bit set)");
+    throw DataError(file,
+                    "LAZ is not supported yet: decompress with laszip/pdal first "
+                    "(the point format byte has the compression bit set)");
   info_.versionMajor = h[24];
   info_.versionMinor = h[25];
   if (info_.versionMajor != 1)
@@ -280,7 +311,8 @@ void LasReader::parse() {
     static const char* axis[3] = {"x", "y", "z"};
     if (!(info_.scale[i] != 0.0) || !std::isfinite(info_.scale[i]))
       throw DataError(file, std::string("invalid ") + axis[i] + " scale factor " +
-                                std::to_string(info_.scale[i]) + " in the header (it must be finite and non-zero)");
+                                std::to_string(info_.scale[i]) +
+                                " in the header (it must be finite and non-zero)");
     if (!std::isfinite(info_.offset[i]))
       throw DataError(file, std::string("invalid ") + axis[i] + " offset in the header (not finite)");
     // Writers round header bounds in different ways; one scale unit of slack absorbs that.
@@ -320,8 +352,8 @@ void LasReader::parse() {
       throw DataError(file, "truncated: the point data should start at byte " + fmtCount(pointOffset_) +
                                 " but the input ends at byte " + fmtCount(avail));
   } else if (pointOffset_ > size_) {
-    throw DataError(file, "point data offset " + fmtCount(pointOffset_) + " lies beyond the end of the file (" +
-                              fmtCount(size_) + " bytes)");
+    throw DataError(file, "point data offset " + fmtCount(pointOffset_) +
+                              " lies beyond the end of the file (" + fmtCount(size_) + " bytes)");
   }
 
   // VLRs between the header and the point data.
@@ -358,7 +390,8 @@ void LasReader::parse() {
     const bool internalWaveform = (info_.globalEncoding & 0x2) != 0;
     if (internalWaveform && waveformStart > pointOffset_ && waveformStart <= size_) {
       end = std::min<std::uint64_t>(end, waveformStart);
-      info_.waveformBytes = (evlrStart > waveformStart && evlrStart <= size_ ? evlrStart : size_) - waveformStart;
+      info_.waveformBytes =
+          (evlrStart > waveformStart && evlrStart <= size_ ? evlrStart : size_) - waveformStart;
     }
     const std::uint64_t holds = (end - pointOffset_) / static_cast<std::uint64_t>(info_.recordLength);
     if (count > holds)
@@ -366,7 +399,8 @@ void LasReader::parse() {
                                 " points but the file holds " + fmtCount(holds) + " (" +
                                 fmtCount(end - pointOffset_) + " bytes of point data, " +
                                 std::to_string(info_.recordLength) + " bytes per record)");
-    const std::uint64_t trailing = end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
+    const std::uint64_t trailing =
+        end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
     if (trailing > 0 && evlrStart == 0 && !internalWaveform)
       info_.notes.push_back(fmtCount(trailing) + " bytes after the last point record are ignored");
 
@@ -394,8 +428,8 @@ void LasReader::parse() {
       }
       if (parsed < info_.evlrCount)
         diag_.warn("las.evlr_overrun", file,
-                   "the header declares " + fmtCount(info_.evlrCount) + " EVLRs but only " + fmtCount(parsed) +
-                       " lie within the file; the rest are ignored");
+                   "the header declares " + fmtCount(info_.evlrCount) + " EVLRs but only " +
+                       fmtCount(parsed) + " lie within the file; the rest are ignored");
     }
     info_.pointCount = count;
     info_.pointCountKnown = true;
@@ -406,8 +440,9 @@ void LasReader::parse() {
 
   for (const auto& v : vlrs_) {
     if (v.userId == "laszip encoded" && v.recordId == 22204)
-      throw DataError(file, "LAZ is not supported yet: decompress with laszip/pdal first "
-                            "(the file carries a LASzip VLR)");
+      throw DataError(file,
+                      "LAZ is not supported yet: decompress with laszip/pdal first "
+                      "(the file carries a LASzip VLR)");
   }
   if (info_.pointFormat >= 4 && info_.pointFormat != 6 && info_.pointFormat != 7 && info_.pointFormat != 8 &&
       info_.waveformBytes > 0)
@@ -438,7 +473,8 @@ void LasReader::checkExtraBytes() {
   }
   if (described == -2 || described > extra) {
     diag_.warn("las.extra_bytes_malformed", file,
-               "the Extra Bytes VLR describes " + (described < 0 ? std::string("unknown") : std::to_string(described)) +
+               "the Extra Bytes VLR describes " +
+                   (described < 0 ? std::string("unknown") : std::to_string(described)) +
                    " bytes per point but the records carry " + std::to_string(extra) +
                    " extra bytes; the description is ignored (extra bytes are skipped)");
   }
@@ -462,7 +498,8 @@ void LasReader::readCrs() {
           keys.directory[i] = le<std::uint16_t>(v.data.data() + 2 * i);
       } else if (v.recordId == 34736) {
         keys.doubles.resize(v.data.size() / 8);
-        for (std::size_t i = 0; i < keys.doubles.size(); ++i) keys.doubles[i] = le<double>(v.data.data() + 8 * i);
+        for (std::size_t i = 0; i < keys.doubles.size(); ++i)
+          keys.doubles[i] = le<double>(v.data.data() + 8 * i);
       } else if (v.recordId == 34737) {
         keys.ascii.assign(v.data.begin(), v.data.end());
       } else if (v.recordId == 2112) {
@@ -498,7 +535,8 @@ void LasReader::readCrs() {
                c.linearUnit;
       };
       diag_.warn("crs.geokeys_wkt_disagree", file,
-                 "the GeoTIFF keys say " + label(fromKeys) + " but the WKT says " + label(fromWkt) + "; using the " +
+                 "the GeoTIFF keys say " + label(fromKeys) + " but the WKT says " + label(fromWkt) +
+                     "; using the " +
                      (wktBit ? "WKT (the global encoding WKT bit is set)"
                              : "GeoTIFF keys (the global encoding WKT bit is not set)"));
     }
@@ -543,10 +581,11 @@ void LasReader::finishPass() {
   if (outside_ > 0) {
     const Bounds3& hb = info_.headerBounds;
     diag_.warn("las.points_outside_header_bounds", info_.path,
-               fmtCount(outside_) + " points lie outside the header bounds (header x " + fmtRange(hb.minX, hb.maxX) +
-                   " y " + fmtRange(hb.minY, hb.maxY) + " z " + fmtRange(hb.minZ, hb.maxZ) + "; actual x " +
-                   fmtRange(decoded_.minX, decoded_.maxX) + " y " + fmtRange(decoded_.minY, decoded_.maxY) +
-                   " z " + fmtRange(decoded_.minZ, decoded_.maxZ) + "); using the actual bounds",
+               fmtCount(outside_) + " points lie outside the header bounds (header x " +
+                   fmtRange(hb.minX, hb.maxX) + " y " + fmtRange(hb.minY, hb.maxY) + " z " +
+                   fmtRange(hb.minZ, hb.maxZ) + "; actual x " + fmtRange(decoded_.minX, decoded_.maxX) +
+                   " y " + fmtRange(decoded_.minY, decoded_.maxY) + " z " +
+                   fmtRange(decoded_.minZ, decoded_.maxZ) + "); using the actual bounds",
                outside_);
   }
 }

@@ -36,7 +36,7 @@ struct LasVlr {
   std::string description;
   std::uint64_t dataOffset = 0;  // absolute file offset of the payload
   std::uint64_t dataLength = 0;
-  bool extended = false;  // EVLR
+  bool extended = false;           // EVLR
   std::vector<std::uint8_t> data;  // payload (kept for the records tinbuild interprets)
 };
 

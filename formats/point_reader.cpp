@@ -19,7 +19,8 @@ namespace {
 // Presents another reader with the CRS replaced (--a_srs), so readers need not know about overrides.
 class CrsOverride : public PointReader {
  public:
-  CrsOverride(std::unique_ptr<PointReader> inner, CrsInfo crs) : inner_(std::move(inner)), info_(inner_->info()) {
+  CrsOverride(std::unique_ptr<PointReader> inner, CrsInfo crs)
+      : inner_(std::move(inner)), info_(inner_->info()) {
     info_.crs = std::move(crs);
   }
   const SourceInfo& info() const override {
@@ -79,8 +80,9 @@ std::unique_ptr<PointReader> openPointReader(const std::string& path, const Read
     CrsInfo crs = crsFromUser(options.assignSrs);
     crs.source = "user (--a_srs)";
     if (!reader->info().crs.empty() && !sameCrs(reader->info().crs, crs))
-      diag.warn("crs.overridden", path,
-                "the file's CRS \"" + reader->info().crs.name + "\" is replaced by --a_srs \"" + crs.name + "\"");
+      diag.warn(
+          "crs.overridden", path,
+          "the file's CRS \"" + reader->info().crs.name + "\" is replaced by --a_srs \"" + crs.name + "\"");
     reader = std::make_unique<CrsOverride>(std::move(reader), std::move(crs));
   }
   return reader;

@@ -26,16 +26,16 @@ class Diagnostics;
 // What an input says about itself (from its header, or from a first look at the data).
 struct SourceInfo {
   std::string path;
-  std::string format;           // "LAS", "XYZ"
+  std::string format;                      // "LAS", "XYZ"
   int versionMajor = 0, versionMinor = 0;  // LAS version
-  int pointFormat = -1;         // LAS point data record format 0..10, -1 for text
-  int recordLength = 0;         // LAS point record length in bytes
-  int extraBytesPerRecord = 0;  // bytes beyond the standard layout (skipped, counted)
-  std::uint64_t headerPointCount = 0;  // what the header claims (LAS)
-  std::uint64_t pointCount = 0;        // what the data holds (after checks); text: 0 until read once
+  int pointFormat = -1;                    // LAS point data record format 0..10, -1 for text
+  int recordLength = 0;                    // LAS point record length in bytes
+  int extraBytesPerRecord = 0;             // bytes beyond the standard layout (skipped, counted)
+  std::uint64_t headerPointCount = 0;      // what the header claims (LAS)
+  std::uint64_t pointCount = 0;            // what the data holds (after checks); text: 0 until read once
   bool pointCountKnown = false;
   std::uint64_t headerPointsByReturn[15] = {};
-  Bounds3 headerBounds;         // LAS header bounds (may disagree with the data)
+  Bounds3 headerBounds;  // LAS header bounds (may disagree with the data)
   bool hasHeaderBounds = false;
   double scale[3] = {1, 1, 1};
   double offset[3] = {0, 0, 0};
@@ -46,7 +46,7 @@ struct SourceInfo {
   std::uint32_t vlrCount = 0, evlrCount = 0;
   std::uint64_t waveformBytes = 0;  // internal waveform data (skipped, counted)
   CrsInfo crs;
-  std::vector<std::string> notes;   // human notes on repairs made while opening
+  std::vector<std::string> notes;  // human notes on repairs made while opening
 };
 
 // read() throws DataError on bad data; rewind() throws Error when the reader is not rewindable.

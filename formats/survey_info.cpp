@@ -101,12 +101,18 @@ void writeCrs(JsonWriter& j, const CrsInfo& c) {
     j.key("wkt").null();
   } else {
     j.key("name").value(c.name);
-    if (c.epsg) j.key("epsg").value(c.epsg);
-    else j.key("epsg").null();
-    if (c.declaredEpsg) j.key("declared_epsg").value(c.declaredEpsg);
-    else j.key("declared_epsg").null();
-    if (c.verticalEpsg) j.key("vertical_epsg").value(c.verticalEpsg);
-    else j.key("vertical_epsg").null();
+    if (c.epsg)
+      j.key("epsg").value(c.epsg);
+    else
+      j.key("epsg").null();
+    if (c.declaredEpsg)
+      j.key("declared_epsg").value(c.declaredEpsg);
+    else
+      j.key("declared_epsg").null();
+    if (c.verticalEpsg)
+      j.key("vertical_epsg").value(c.verticalEpsg);
+    else
+      j.key("vertical_epsg").null();
     j.key("vertical_name").value(c.verticalName);
     j.key("geographic").value(c.geographic);
     j.key("units").value(c.linearUnit);
@@ -150,7 +156,8 @@ std::string describeCrs(const CrsInfo& c) {
   if (c.empty()) return "none";
   std::string s = c.name;
   if (c.epsg) s += " (EPSG:" + std::to_string(c.epsg) + ")";
-  if (c.declaredEpsg && c.declaredEpsg != c.epsg) s += " (file states EPSG:" + std::to_string(c.declaredEpsg) + ")";
+  if (c.declaredEpsg && c.declaredEpsg != c.epsg)
+    s += " (file states EPSG:" + std::to_string(c.declaredEpsg) + ")";
   s += ", units " + c.linearUnit;
   if (c.verticalEpsg || !c.verticalName.empty()) {
     s += "; vertical " + (c.verticalName.empty() ? std::string("?") : c.verticalName);
@@ -170,11 +177,28 @@ std::string boundsText(const Bounds3& b) {
 }  // namespace
 
 const char* lasClassName(int code) {
-  static const char* names[] = {"never classified", "unclassified", "ground", "low vegetation",
-                                "medium vegetation", "high vegetation", "building", "low noise",
-                                "model key-point", "water", "rail", "road surface", "overlap (reserved)",
-                                "wire guard", "wire conductor", "transmission tower", "wire connector",
-                                "bridge deck", "high noise", "overhead structure", "ignored ground", "snow",
+  static const char* names[] = {"never classified",
+                                "unclassified",
+                                "ground",
+                                "low vegetation",
+                                "medium vegetation",
+                                "high vegetation",
+                                "building",
+                                "low noise",
+                                "model key-point",
+                                "water",
+                                "rail",
+                                "road surface",
+                                "overlap (reserved)",
+                                "wire guard",
+                                "wire conductor",
+                                "transmission tower",
+                                "wire connector",
+                                "bridge deck",
+                                "high noise",
+                                "overhead structure",
+                                "ignored ground",
+                                "snow",
                                 "temporal exclusion"};
   if (code >= 0 && code < static_cast<int>(sizeof names / sizeof names[0])) return names[code];
   return code < 64 ? "reserved" : "user defined";
@@ -190,14 +214,16 @@ InfoReport inspectSurvey(const InfoOptions& options, Diagnostics& diag) {
   ConcatStream stream(readers);
   SurveyStatsOptions so;
   so.depth = options.depth;
-  so.onPass1Batch = [&](const PointRecord* p, std::size_t n) { report.files[stream.current()].counts.add(p, n); };
+  so.onPass1Batch = [&](const PointRecord* p, std::size_t n) {
+    report.files[stream.current()].counts.add(p, n);
+  };
   report.stats = analyzeSurvey(stream, so);
 
   for (std::size_t i = 0; i < readers.size(); ++i) {
     report.files[i].source = readers[i]->info();
     const Bounds3& b = report.files[i].counts.bounds;
-    checkCoordinatesPlausible(report.files[i].source.crs, b.minX, b.minY, b.maxX, b.maxY, report.files[i].source.path,
-                              diag);
+    checkCoordinatesPlausible(report.files[i].source.crs, b.minX, b.minY, b.maxX, b.maxY,
+                              report.files[i].source.path, diag);
   }
   report.warnings = diag.entries();
   for (auto& f : report.files)
@@ -223,23 +249,33 @@ std::string formatInfoJson(const InfoReport& r) {
   j.beginObject();
   j.key("points").value(s.counts.points);
   j.key("bounds");
-  if (s.counts.bounds.empty()) j.null();
-  else writeBounds(j, s.counts.bounds);
+  if (s.counts.bounds.empty())
+    j.null();
+  else
+    writeBounds(j, s.counts.bounds);
   j.key("crs");
   writeCrs(j, r.crs);
   writeCounts(j, s.counts);
   j.key("duplicates_xy");
-  if (s.duplicatesKnown) j.value(s.duplicatesXY);
-  else j.null();
+  if (s.duplicatesKnown)
+    j.value(s.duplicatesXY);
+  else
+    j.null();
   j.key("area_km2");
-  if (r.areaKnown) j.value(r.areaKm2);
-  else j.null();
+  if (r.areaKnown)
+    j.value(r.areaKm2);
+  else
+    j.null();
   j.key("density_per_m2");
-  if (r.areaKnown && r.areaKm2 > 0) j.value(static_cast<double>(s.counts.points) / (r.areaKm2 * 1e6));
-  else j.null();
+  if (r.areaKnown && r.areaKm2 > 0)
+    j.value(static_cast<double>(s.counts.points) / (r.areaKm2 * 1e6));
+  else
+    j.null();
   j.key("width");
-  if (s.coherenceKnown) j.value(s.width);
-  else j.null();
+  if (s.coherenceKnown)
+    j.value(s.width);
+  else
+    j.null();
   j.key("coherence");
   if (s.coherenceKnown) {
     j.beginObject();
@@ -250,7 +286,8 @@ std::string formatInfoJson(const InfoReport& r) {
     j.key("average_per_cell").value(s.averagePerCell);
     j.key("max_per_cell").value(s.maxPerCell);
     j.key("width").value(s.width);
-    j.key("width_fraction").value(s.counts.points ? static_cast<double>(s.width) / static_cast<double>(s.counts.points) : 0.0);
+    j.key("width_fraction")
+        .value(s.counts.points ? static_cast<double>(s.width) / static_cast<double>(s.counts.points) : 0.0);
     j.endObject();
   } else {
     j.null();
@@ -279,8 +316,10 @@ std::string formatInfoJson(const InfoReport& r) {
     }
     j.key("points").value(f.counts.points);
     j.key("bounds");
-    if (f.counts.bounds.empty()) j.null();
-    else writeBounds(j, f.counts.bounds);
+    if (f.counts.bounds.empty())
+      j.null();
+    else
+      writeBounds(j, f.counts.bounds);
     j.key("crs");
     writeCrs(j, src.crs);
     writeCounts(j, f.counts);
@@ -307,24 +346,29 @@ std::string formatInfoText(const InfoReport& r) {
     o << value << "\n";
   };
   auto pct = [](std::uint64_t part, std::uint64_t whole) {
-    return whole ? fixed(100.0 * static_cast<double>(part) / static_cast<double>(whole), 1) + "%" : std::string("-");
+    return whole ? fixed(100.0 * static_cast<double>(part) / static_cast<double>(whole), 1) + "%"
+                 : std::string("-");
   };
   for (const auto& f : r.files) {
     const SourceInfo& src = f.source;
     o << src.path << "\n";
     if (src.format == "LAS") {
-      line("format", "LAS " + std::to_string(src.versionMajor) + "." + std::to_string(src.versionMinor) +
-                         ", point format " + std::to_string(src.pointFormat) + ", " +
-                         std::to_string(src.recordLength) + " bytes per record" +
-                         (src.extraBytesPerRecord ? " (" + std::to_string(src.extraBytesPerRecord) + " extra)" : ""));
+      line("format",
+           "LAS " + std::to_string(src.versionMajor) + "." + std::to_string(src.versionMinor) +
+               ", point format " + std::to_string(src.pointFormat) + ", " + std::to_string(src.recordLength) +
+               " bytes per record" +
+               (src.extraBytesPerRecord ? " (" + std::to_string(src.extraBytesPerRecord) + " extra)" : ""));
       if (!src.generatingSoftware.empty() || !src.systemIdentifier.empty())
-        line("software", src.generatingSoftware + (src.systemIdentifier.empty() ? "" : " / " + src.systemIdentifier));
-      if (src.creationYear) line("created", "day " + std::to_string(src.creationDay) + " of " + std::to_string(src.creationYear));
+        line("software",
+             src.generatingSoftware + (src.systemIdentifier.empty() ? "" : " / " + src.systemIdentifier));
+      if (src.creationYear)
+        line("created", "day " + std::to_string(src.creationDay) + " of " + std::to_string(src.creationYear));
       line("points", withCommas(f.counts.points) + " (header: " + withCommas(src.headerPointCount) + ")");
       line("scale", num(src.scale[0]) + " " + num(src.scale[1]) + " " + num(src.scale[2]));
       line("offset", num(src.offset[0], 12) + " " + num(src.offset[1], 12) + " " + num(src.offset[2], 12));
       line("header bounds", boundsText(src.headerBounds));
-      line("VLRs", std::to_string(src.vlrCount) + (src.evlrCount ? ", EVLRs " + std::to_string(src.evlrCount) : ""));
+      line("VLRs",
+           std::to_string(src.vlrCount) + (src.evlrCount ? ", EVLRs " + std::to_string(src.evlrCount) : ""));
     } else {
       line("format", src.format);
       line("points", withCommas(f.counts.points));
@@ -335,13 +379,16 @@ std::string formatInfoText(const InfoReport& r) {
     for (const auto& w : f.warnings)
       line("warning", w.firstMessage + (w.count > 1 ? " (" + withCommas(w.count) + " times)" : ""));
   }
-  if (r.files.size() > 1) o << "survey (" << r.files.size() << " files)\n";
-  else o << "survey\n";
+  if (r.files.size() > 1)
+    o << "survey (" << r.files.size() << " files)\n";
+  else
+    o << "survey\n";
   line("points", withCommas(s.counts.points));
   line("bounds", boundsText(s.counts.bounds));
   if (r.files.size() > 1) line("CRS", describeCrs(r.crs));
   if (r.areaKnown) {
-    line("area", fixed(r.areaKm2, 4) + " km2 (bounding box" + std::string(r.crs.geographic ? ", geodesic)" : ")"));
+    line("area",
+         fixed(r.areaKm2, 4) + " km2 (bounding box" + std::string(r.crs.geographic ? ", geodesic)" : ")"));
     if (r.areaKm2 > 0) {
       const double density = static_cast<double>(s.counts.points) / (r.areaKm2 * 1e6);
       line("density", fixed(density, 3) + " points/m2, spacing " + fixed(1.0 / std::sqrt(density), 3) + " m");
@@ -351,26 +398,28 @@ std::string formatInfoText(const InfoReport& r) {
   for (int i = 0; i < 256; ++i) {
     if (!s.counts.byClass[i]) continue;
     line(classes.empty() ? "classes" : "", std::to_string(i) + " " + lasClassName(i) + ": " +
-                                                withCommas(s.counts.byClass[i]) + " (" +
-                                                pct(s.counts.byClass[i], s.counts.points) + ")");
+                                               withCommas(s.counts.byClass[i]) + " (" +
+                                               pct(s.counts.byClass[i], s.counts.points) + ")");
     classes = "x";
   }
   std::string returns;
   for (int i = 0; i < 16; ++i) {
     if (!s.counts.byReturn[i]) continue;
-    returns += (returns.empty() ? "" : ", ") + (i == 0 ? std::string("unknown") : "#" + std::to_string(i)) + " " +
-               withCommas(s.counts.byReturn[i]);
+    returns += (returns.empty() ? "" : ", ") + (i == 0 ? std::string("unknown") : "#" + std::to_string(i)) +
+               " " + withCommas(s.counts.byReturn[i]);
   }
   if (!returns.empty()) line("returns", returns);
-  line("withheld", withCommas(s.counts.withheld) + (s.counts.synthetic ? ", synthetic " + withCommas(s.counts.synthetic) : "") +
+  line("withheld", withCommas(s.counts.withheld) +
+                       (s.counts.synthetic ? ", synthetic " + withCommas(s.counts.synthetic) : "") +
                        (s.counts.keyPoint ? ", key-point " + withCommas(s.counts.keyPoint) : "") +
                        (s.counts.overlap ? ", overlap " + withCommas(s.counts.overlap) : ""));
-  line("duplicates xy", s.duplicatesKnown ? withCommas(s.duplicatesXY) + " (" + pct(s.duplicatesXY, s.counts.points) + ")"
-                                          : "not counted (input read once, or too incoherent for the memory budget)");
+  line("duplicates xy", s.duplicatesKnown
+                            ? withCommas(s.duplicatesXY) + " (" + pct(s.duplicatesXY, s.counts.points) + ")"
+                            : "not counted (input read once, or too incoherent for the memory budget)");
   if (s.coherenceKnown) {
     line("coherence", "depth " + std::to_string(s.grid.depth) + " (" + std::to_string(s.grid.side()) + "x" +
-                          std::to_string(s.grid.side()) + " cells of " + num(s.grid.cellSize(), 6) + "): " +
-                          withCommas(s.occupiedCells) + " occupied, " + fixed(s.averagePerCell, 1) +
+                          std::to_string(s.grid.side()) + " cells of " + num(s.grid.cellSize(), 6) +
+                          "): " + withCommas(s.occupiedCells) + " occupied, " + fixed(s.averagePerCell, 1) +
                           " points/cell average, " + withCommas(s.maxPerCell) + " max");
     line("stream width", withCommas(s.width) + " points (" + pct(s.width, s.counts.points) +
                              " of the survey buffered at most by a chunking finalizer)");

@@ -33,8 +33,8 @@ struct FileReport {
 struct InfoReport {
   std::vector<FileReport> files;
   SurveyStats stats;
-  CrsInfo crs;             // the survey's CRS (the first file's; mismatches are warned about)
-  double areaKm2 = 0;      // of the xy bounding box (geodesic for geographic CRSs), 0 when unknown
+  CrsInfo crs;         // the survey's CRS (the first file's; mismatches are warned about)
+  double areaKm2 = 0;  // of the xy bounding box (geodesic for geographic CRSs), 0 when unknown
   bool areaKnown = false;
   std::vector<Diagnostics::Entry> warnings;  // all warnings, every file
 };

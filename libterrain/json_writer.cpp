@@ -12,11 +12,21 @@ std::string JsonWriter::escape(std::string_view s) {
   r += '"';
   for (char c : s) {
     switch (c) {
-      case '"': r += "\\\""; break;
-      case '\\': r += "\\\\"; break;
-      case '\n': r += "\\n"; break;
-      case '\r': r += "\\r"; break;
-      case '\t': r += "\\t"; break;
+      case '"':
+        r += "\\\"";
+        break;
+      case '\\':
+        r += "\\\\";
+        break;
+      case '\n':
+        r += "\\n";
+        break;
+      case '\r':
+        r += "\\r";
+        break;
+      case '\t':
+        r += "\\t";
+        break;
       default:
         if (static_cast<unsigned char>(c) < 0x20) {
           char buf[8];
@@ -56,12 +66,16 @@ JsonWriter& JsonWriter::beginObject() {
   return *this;
 }
 
-JsonWriter& JsonWriter::endObject() {
-  bool empty = firstInScope_.back();
+JsonWriter& JsonWriter::closeScope(char bracket) {
+  const bool empty = firstInScope_.back();
   firstInScope_.pop_back();
   if (!empty) newline();
-  out_ += '}';
+  out_ += bracket;
   return *this;
+}
+
+JsonWriter& JsonWriter::endObject() {
+  return closeScope('}');
 }
 
 JsonWriter& JsonWriter::beginArray() {
@@ -71,7 +85,9 @@ JsonWriter& JsonWriter::beginArray() {
   return *this;
 }
 
-JsonWriter& JsonWriter::endArray() { return endObject(), out_.back() = ']', *this; }
+JsonWriter& JsonWriter::endArray() {
+  return closeScope(']');
+}
 
 JsonWriter& JsonWriter::key(std::string_view k) {
   separate();

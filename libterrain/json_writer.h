@@ -35,6 +35,7 @@ class JsonWriter {
 
  private:
   void separate();
+  JsonWriter& closeScope(char bracket);
   void newline();
   std::string out_;
   std::vector<bool> firstInScope_;

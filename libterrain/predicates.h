@@ -38,7 +38,9 @@ double incircle(const Point2& a, const Point2& b, const Point2& c, const Point2&
 int incirclePerturbed(const Point2& a, const Point2& b, const Point2& c, const Point2& d);
 
 // Lexicographic order on (x, y): the order the perturbation is defined by.
-inline bool lexLess(const Point2& p, const Point2& q) { return p.x < q.x || (p.x == q.x && p.y < q.y); }
+inline bool lexLess(const Point2& p, const Point2& q) {
+  return p.x < q.x || (p.x == q.x && p.y < q.y);
+}
 
 // How often each filter stage decided (for benchmarks and tests).  Counting is per thread and costs one
 // increment per call.
