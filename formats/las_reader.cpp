@@ -55,77 +55,58 @@ std::string fmtRange(double lo, double hi) {
 
 // Decodes `n` records of one layout family.  Legacy = formats 0-5, extended = 6-10.  The loop does no
 // allocation and no call per point; the compiler keeps the scale/offset in registers.
-template <bool kExtended>
-inline void decodeOne(const std::uint8_t* r, double sx, double sy, double sz, double ox, double oy, double oz,
-                      PointRecord& p) {
-  // Two roundings (product, then sum), never fused: the value every LAS tool computes.
-  const double px = static_cast<double>(le<std::int32_t>(r)) * sx;
-  const double py = static_cast<double>(le<std::int32_t>(r + 4)) * sy;
-  const double pz = static_cast<double>(le<std::int32_t>(r + 8)) * sz;
-  p.x = px + ox;
-  p.y = py + oy;
-  p.z = pz + oz;
-  p.intensity = le<std::uint16_t>(r + 12);
-  const std::uint8_t b14 = r[14], b15 = r[15];
-  if constexpr (kExtended) {
-    p.returnNumber = b14 & 0x0F;
-    p.numberOfReturns = static_cast<std::uint8_t>(b14 >> 4);
-    p.flags = b15 & 0x0F;  // synthetic, key-point, withheld, overlap: same bit order as PointFlag
-    p.classification = r[16];
-  } else {
-    p.returnNumber = b14 & 0x07;
-    p.numberOfReturns = (b14 >> 3) & 0x07;
-    p.classification = b15 & 0x1F;
-    p.flags = static_cast<std::uint8_t>(b15 >> 5);  // synthetic, key-point, withheld
-  }
-}
-
-// Decodes `n` records of one layout family.  Legacy = formats 0-5, extended = 6-10.  The loop does no
-// allocation and no call per point.  Bounds are accumulated in two interleaved sets so the min/max
-// dependency chains do not limit the loop to one point per min/max latency.
+// Decodes `n` records of one layout family (legacy = formats 0-5, extended = 6-10) with no allocation
+// and no call per point.  Bounds are tracked on the raw integers (integer min/max has a one-cycle
+// dependency chain, where double min/max would bound the loop by its latency) and converted once per
+// batch: double(X) * scale + offset is monotonic in X, so the converted extremes are exactly the
+// extremes of the decoded coordinates.
 template <bool kExtended>
 void decodeRecords(const std::uint8_t* src, std::size_t n, std::size_t stride, const double* scale,
                    const double* offset, PointRecord* out, Bounds3& bounds) {
+  if (n == 0) return;
   const double sx = scale[0], sy = scale[1], sz = scale[2];
   const double ox = offset[0], oy = offset[1], oz = offset[2];
-  double minX0 = bounds.minX, minY0 = bounds.minY, minZ0 = bounds.minZ;
-  double maxX0 = bounds.maxX, maxY0 = bounds.maxY, maxZ0 = bounds.maxZ;
-  double minX1 = minX0, minY1 = minY0, minZ1 = minZ0, maxX1 = maxX0, maxY1 = maxY0, maxZ1 = maxZ0;
-  std::size_t i = 0;
-  for (; i + 2 <= n; i += 2) {
-    PointRecord& a = out[i];
-    PointRecord& b = out[i + 1];
-    decodeOne<kExtended>(src + i * stride, sx, sy, sz, ox, oy, oz, a);
-    decodeOne<kExtended>(src + (i + 1) * stride, sx, sy, sz, ox, oy, oz, b);
-    minX0 = std::min(minX0, a.x);
-    maxX0 = std::max(maxX0, a.x);
-    minY0 = std::min(minY0, a.y);
-    maxY0 = std::max(maxY0, a.y);
-    minZ0 = std::min(minZ0, a.z);
-    maxZ0 = std::max(maxZ0, a.z);
-    minX1 = std::min(minX1, b.x);
-    maxX1 = std::max(maxX1, b.x);
-    minY1 = std::min(minY1, b.y);
-    maxY1 = std::max(maxY1, b.y);
-    minZ1 = std::min(minZ1, b.z);
-    maxZ1 = std::max(maxZ1, b.z);
+  std::int32_t lo[3] = {INT32_MAX, INT32_MAX, INT32_MAX}, hi[3] = {INT32_MIN, INT32_MIN, INT32_MIN};
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* r = src + i * stride;
+    PointRecord& p = out[i];
+    const std::int32_t X = le<std::int32_t>(r), Y = le<std::int32_t>(r + 4), Z = le<std::int32_t>(r + 8);
+    lo[0] = std::min(lo[0], X);
+    hi[0] = std::max(hi[0], X);
+    lo[1] = std::min(lo[1], Y);
+    hi[1] = std::max(hi[1], Y);
+    lo[2] = std::min(lo[2], Z);
+    hi[2] = std::max(hi[2], Z);
+    // Two roundings (product, then sum), never fused: the value every LAS tool computes.
+    const double px = static_cast<double>(X) * sx;
+    const double py = static_cast<double>(Y) * sy;
+    const double pz = static_cast<double>(Z) * sz;
+    p.x = px + ox;
+    p.y = py + oy;
+    p.z = pz + oz;
+    p.intensity = le<std::uint16_t>(r + 12);
+    const std::uint8_t b14 = r[14], b15 = r[15];
+    if constexpr (kExtended) {
+      p.returnNumber = b14 & 0x0F;
+      p.numberOfReturns = static_cast<std::uint8_t>(b14 >> 4);
+      p.flags = b15 & 0x0F;  // synthetic, key-point, withheld, overlap: same bit order as PointFlag
+      p.classification = r[16];
+    } else {
+      p.returnNumber = b14 & 0x07;
+      p.numberOfReturns = (b14 >> 3) & 0x07;
+      p.classification = b15 & 0x1F;
+      p.flags = static_cast<std::uint8_t>(b15 >> 5);  // synthetic, key-point, withheld
+    }
   }
-  if (i < n) {
-    PointRecord& a = out[i];
-    decodeOne<kExtended>(src + i * stride, sx, sy, sz, ox, oy, oz, a);
-    minX0 = std::min(minX0, a.x);
-    maxX0 = std::max(maxX0, a.x);
-    minY0 = std::min(minY0, a.y);
-    maxY0 = std::max(maxY0, a.y);
-    minZ0 = std::min(minZ0, a.z);
-    maxZ0 = std::max(maxZ0, a.z);
+  const double s[3] = {sx, sy, sz}, o[3] = {ox, oy, oz};
+  double a[3], b[3];
+  for (int k = 0; k < 3; ++k) {
+    const double u = static_cast<double>(lo[k]) * s[k], v = static_cast<double>(hi[k]) * s[k];
+    a[k] = std::min(u + o[k], v + o[k]);
+    b[k] = std::max(u + o[k], v + o[k]);
   }
-  bounds.minX = std::min(minX0, minX1);
-  bounds.minY = std::min(minY0, minY1);
-  bounds.minZ = std::min(minZ0, minZ1);
-  bounds.maxX = std::max(maxX0, maxX1);
-  bounds.maxY = std::max(maxY0, maxY1);
-  bounds.maxZ = std::max(maxZ0, maxZ1);
+  bounds.add(a[0], a[1], a[2]);
+  bounds.add(b[0], b[1], b[2]);
 }
 
 int extraBytesTypeSize(int type, int options) {
@@ -410,7 +391,7 @@ void LasReader::parse() {
       std::uint32_t parsed = 0;
       if (evlrStart < pointOffset_ + count * static_cast<std::uint64_t>(info_.recordLength)) pos = size_ + 1;
       for (; parsed < info_.evlrCount; ++parsed) {
-        if (pos + kEvlrHeader > size_) break;
+        if (pos > size_ || size_ - pos < kEvlrHeader) break;  // (no overflow for absurd offsets)
         const std::uint8_t* v = base_ + pos;
         LasVlr vlr;
         vlr.extended = true;
@@ -419,7 +400,7 @@ void LasReader::parse() {
         vlr.dataLength = le<std::uint64_t>(v + 20);
         vlr.description = fixedString(v + 28, 32);
         vlr.dataOffset = pos + kEvlrHeader;
-        if (vlr.dataLength > size_ || vlr.dataOffset + vlr.dataLength > size_) break;
+        if (vlr.dataLength > size_ - vlr.dataOffset) break;
         // Keep payloads tinbuild interprets (CRS, extra bytes); skip the bulk ones (waveforms).
         if (vlr.userId == "LASF_Projection" || vlr.userId == "liblas" || vlr.userId == "LASF_Spec")
           vlr.data.assign(base_ + vlr.dataOffset, base_ + vlr.dataOffset + vlr.dataLength);

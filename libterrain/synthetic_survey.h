@@ -17,7 +17,7 @@
 //         undulates by a few decimetres;
 //       - a straight road along the valley on the far side of the floodplain: a flat 8 m embankment
 //         following the valley grade, blended into the terrain over 4 m shoulders.
-//     Cover        trees (a hashed cell grid, at most one tree per 7 m cell, crown radius 1.8-3.6 m,
+//     Cover        trees (a hashed cell grid, at most one tree per 7 m cell, crown radius 1.8-3.5 m,
 //                  height 5-25 m) where a forest mask is high: the valley walls, plateau patches and a
 //                  riparian belt along the river; shrubs (0.25-1.9 m) in patches; none on road or water.
 //     Flight       parallel strips flown along v in alternating directions, 25 % side overlap (spec),
@@ -53,7 +53,8 @@
 //     floating-point expressions are not contracted into fused multiply-adds: clang is told so by a
 //     pragma; GCC contracts only for targets with FMA (-march=native, aarch64), which must build with
 //     -ffp-contract=off as the exact predicates must.  (Checked: GCC and clang, -O0 to -O3, produce
-//     identical streams; the golden fingerprint test pins them.)  Different seeds give different terrain, cover and flight jitter.
+//     identical streams; the golden fingerprint test pins them.)  Different seeds give different terrain,
+//     cover and flight jitter.
 //   - Quantized: every coordinate is double(k) * quantum + origin (k integer), i.e. exactly the value a
 //     LAS reader decodes from a file written with scale = quantum and offset = origin (originZ for z).
 //   - bounds() is known before the first point and is a guaranteed superset of every generated

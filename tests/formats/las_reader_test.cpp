@@ -464,3 +464,23 @@ TEST(LasReader, LaszipVlrIsRefused) {
 
 }  // namespace
 }  // namespace tinbuild
+
+namespace tinbuild {
+namespace {
+
+// Regression (found by fuzz_las): an EVLR offset near 2^64 overflowed the bounds check.
+TEST(LasReader, AbsurdEvlrOffsetIsIgnored) {
+  Crafted c;
+  c.minor = 4;
+  c.format = 6;
+  auto b = craft(c);
+  put64(b, 235, ~std::uint64_t{0} - 10);  // start of first EVLR
+  put32(b, 243, 1);                       // one EVLR
+  Diagnostics diag;
+  LasReader r("crafted.las", b.data(), b.size(), diag);
+  EXPECT_EQ(readAll(r).size(), 3u);
+  EXPECT_EQ(diag.count("las.evlr_overrun"), 1u);
+}
+
+}  // namespace
+}  // namespace tinbuild

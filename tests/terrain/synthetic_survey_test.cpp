@@ -13,6 +13,11 @@
 
 #include "libterrain/error.h"
 
+// Decoding must round twice (multiply, then add), as every LAS reader does: no fused multiply-add.
+#if defined(__clang__)
+#pragma STDC FP_CONTRACT OFF
+#endif
+
 namespace tinbuild {
 namespace {
 
