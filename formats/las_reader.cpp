@@ -15,6 +15,7 @@
 #include "formats/stdin_source.h"
 #include "libterrain/diagnostics.h"
 #include "libterrain/error.h"
+#include "libterrain/work_crew.h"
 
 namespace tinbuild {
 
@@ -534,26 +535,53 @@ void LasReader::readCrs() {
 
 std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecord* out) {
   const auto stride = static_cast<std::size_t>(info_.recordLength);
-  Bounds3 batch;
-  if (info_.pointFormat >= 6)
-    decodeRecords<true>(src, n, stride, info_.scale, info_.offset, out, batch);
-  else
-    decodeRecords<false>(src, n, stride, info_.scale, info_.offset, out, batch);
-  if (info_.hasHeaderBounds && n > 0) {
+  // One part per crew thread, each with its own bounds and outside count, merged in part order.
+  struct Part {
+    Bounds3 bounds;
+    std::uint64_t outside = 0;
+  };
+  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
+  Part partial[kMaxDecodeThreads];
+  auto work = [&](int k) {
+    const std::size_t lo = n * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
+    const std::size_t hi = n * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
+    Part& part = partial[k];
+    if (info_.pointFormat >= 6)
+      decodeRecords<true>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo, part.bounds);
+    else
+      decodeRecords<false>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo, part.bounds);
+    if (!info_.hasHeaderBounds || hi == lo) return;
     const Bounds3& hb = info_.headerBounds;
+    const Bounds3& b = part.bounds;
     const double sx = boundsSlack_[0], sy = boundsSlack_[1], sz = boundsSlack_[2];
-    if (batch.minX < hb.minX - sx || batch.maxX > hb.maxX + sx || batch.minY < hb.minY - sy ||
-        batch.maxY > hb.maxY + sy || batch.minZ < hb.minZ - sz || batch.maxZ > hb.maxZ + sz) {
-      for (std::size_t i = 0; i < n; ++i) {
-        const PointRecord& p = out[i];
-        if (p.x < hb.minX - sx || p.x > hb.maxX + sx || p.y < hb.minY - sy || p.y > hb.maxY + sy ||
-            p.z < hb.minZ - sz || p.z > hb.maxZ + sz)
-          ++outside_;
+    if (b.minX < hb.minX - sx || b.maxX > hb.maxX + sx || b.minY < hb.minY - sy || b.maxY > hb.maxY + sy ||
+        b.minZ < hb.minZ - sz || b.maxZ > hb.maxZ + sz) {
+      for (std::size_t i = lo; i < hi; ++i) {
+        const PointRecord& q = out[i];
+        if (q.x < hb.minX - sx || q.x > hb.maxX + sx || q.y < hb.minY - sy || q.y > hb.maxY + sy ||
+            q.z < hb.minZ - sz || q.z > hb.maxZ + sz)
+          ++part.outside;
       }
     }
+  };
+  if (parts > 1)
+    crew_->run(parts, work);
+  else
+    work(0);
+  for (int k = 0; k < parts; ++k) {
+    decoded_.add(partial[k].bounds);
+    outside_ += partial[k].outside;
   }
-  decoded_.add(batch);
   return n;
+}
+
+void LasReader::setDecodeThreads(int threads) {
+  threads = std::clamp(threads, 1, kMaxDecodeThreads);
+  if (stream_ || threads == 1) {
+    crew_.reset();
+    return;
+  }
+  if (!crew_ || crew_->threads() != threads) crew_ = std::make_unique<WorkCrew>(threads);
 }
 
 void LasReader::finishPass() {

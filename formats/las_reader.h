@@ -30,6 +30,8 @@
 
 namespace tinbuild {
 
+class WorkCrew;
+
 struct LasVlr {
   std::string userId;
   std::uint16_t recordId = 0;
@@ -61,6 +63,11 @@ class LasReader : public PointReader {
   bool rewindable() const override { return !stream_; }
   void rewind() override;
 
+  // Decode large batches of a mapped file on this many threads (default 1).  The points, bounds and
+  // counts are identical for any number; stdin is always decoded on one thread.
+  static constexpr int kMaxDecodeThreads = 16;
+  void setDecodeThreads(int threads);
+
   const std::vector<LasVlr>& vlrs() const { return vlrs_; }
   // Bounds of the points decoded so far in this pass (complete after a full pass).
   const Bounds3& decodedBounds() const { return decoded_; }
@@ -77,6 +84,7 @@ class LasReader : public PointReader {
   std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
 
   Diagnostics& diag_;
+  std::unique_ptr<WorkCrew> crew_;
   SourceInfo info_;
   std::vector<LasVlr> vlrs_;
   // Whole-file bytes (mmap or caller's buffer), or nullptr in stream mode.

@@ -70,7 +70,9 @@ std::unique_ptr<PointReader> openPointReader(const std::string& path, const Read
   }
   std::unique_ptr<PointReader> reader;
   if (looksLikeLas(head, got)) {
-    reader = std::make_unique<LasReader>(path, diag);
+    auto las = std::make_unique<LasReader>(path, diag);
+    las->setDecodeThreads(options.decodeThreads);
+    reader = std::move(las);
   } else if (hasLazExtension(path)) {
     throw DataError(path, "LAZ is not supported yet: decompress with laszip/pdal first");
   } else {

@@ -2,7 +2,6 @@
 
 #include <cmath>
 #include <cstdio>
-#include <cstring>
 #include <unordered_map>
 
 #include "libterrain/predicates.h"
@@ -11,20 +10,6 @@ namespace tinbuild {
 
 namespace {
 
-std::uint64_t mix64(std::uint64_t z) {
-  z += 0x9E3779B97F4A7C15ull;
-  z = (z ^ (z >> 30)) * 0xBF58476D1CE4E5B9ull;
-  z = (z ^ (z >> 27)) * 0x94D049BB133111EBull;
-  return z ^ (z >> 31);
-}
-
-std::uint64_t bitsOf(double v) {
-  if (v == 0) v = 0;  // -0 and +0 are the same coordinate
-  std::uint64_t b;
-  std::memcpy(&b, &v, 8);
-  return b;
-}
-
 std::string pointText(double x, double y) {
   char buf[96];
   std::snprintf(buf, sizeof buf, "(%.17g, %.17g)", x, y);
@@ -32,13 +17,6 @@ std::string pointText(double x, double y) {
 }
 
 }  // namespace
-
-void XYFingerprint::add(double x, double y) {
-  const std::uint64_t h = mix64(bitsOf(x) ^ mix64(bitsOf(y)));
-  ++count;
-  sum += h;
-  mix += mix64(h);
-}
 
 void MeshVerifier::problem(const std::string& kind, const std::string& message) {
   for (auto& p : report_.problems) {

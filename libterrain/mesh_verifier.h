@@ -21,15 +21,9 @@
 #include <vector>
 
 #include "libterrain/mesh_sink.h"
+#include "libterrain/xy_fingerprint.h"
 
 namespace tinbuild {
-
-// Order-independent fingerprint of a set of (x, y) pairs.
-struct XYFingerprint {
-  std::uint64_t count = 0, sum = 0, mix = 0;
-  void add(double x, double y);
-  bool operator==(const XYFingerprint&) const = default;
-};
 
 struct MeshCheckReport {
   std::uint64_t vertices = 0, triangles = 0, interiorEdges = 0, hullEdges = 0, unusedVertices = 0;

@@ -44,7 +44,16 @@ void PointCounts::add(const PointCounts& o) {
 SurveyStats analyzeSurvey(PointStream& stream, const SurveyStatsOptions& options) {
   SurveyStats s;
   std::vector<PointRecord> batch(kBatch);
-  for (std::size_t n; (n = stream.read(batch.data(), batch.size())) > 0;) {
+  FilterCounts ignored;
+  auto next = [&]() -> std::size_t {
+    for (;;) {
+      std::size_t n = stream.read(batch.data(), batch.size());
+      if (n == 0) return 0;
+      if (options.filter) n = options.filter->apply(batch.data(), n, ignored);
+      if (n > 0) return n;
+    }
+  };
+  for (std::size_t n; (n = next()) > 0;) {
     s.counts.add(batch.data(), n);
     if (options.onPass1Batch) options.onPass1Batch(batch.data(), n);
   }
@@ -59,7 +68,7 @@ SurveyStats analyzeSurvey(PointStream& stream, const SurveyStatsOptions& options
   };
   std::unordered_map<std::uint64_t, CellCount> remaining;
   stream.rewind();
-  for (std::size_t n; (n = stream.read(batch.data(), batch.size())) > 0;)
+  for (std::size_t n; (n = next()) > 0;)
     for (std::size_t i = 0; i < n; ++i) ++remaining[s.grid.cellOf(batch[i].x, batch[i].y)].total;
   s.occupiedCells = remaining.size();
   for (auto& [cell, c] : remaining) {
@@ -74,7 +83,7 @@ SurveyStats analyzeSurvey(PointStream& stream, const SurveyStatsOptions& options
   std::unordered_map<std::uint64_t, std::vector<XY>> buffers;
   std::uint64_t buffered = 0, bufferedXY = 0;
   stream.rewind();
-  for (std::size_t n; (n = stream.read(batch.data(), batch.size())) > 0;) {
+  for (std::size_t n; (n = next()) > 0;) {
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint64_t cell = s.grid.cellOf(batch[i].x, batch[i].y);
       ++buffered;
@@ -96,7 +105,12 @@ SurveyStats analyzeSurvey(PointStream& stream, const SurveyStatsOptions& options
         remaining.erase(it);
         if (buf) {
           std::sort(buf->begin(), buf->end());
-          for (std::size_t j = 1; j < buf->size(); ++j) s.duplicatesXY += (*buf)[j] == (*buf)[j - 1];
+          for (std::size_t j = 0; j < buf->size(); ++j) {
+            if (j > 0 && (*buf)[j] == (*buf)[j - 1])
+              ++s.duplicatesXY;
+            else
+              s.distinctXY.add((*buf)[j].x, (*buf)[j].y);
+          }
           bufferedXY -= buf->size();
           buffers.erase(cell);
         }

@@ -7,7 +7,8 @@
 //           last point arrives; the stream width is the largest number of points buffered at once.
 //           The same buffers give exact xy duplicate counts per cell (duplicates share a cell), so
 //           memory stays proportional to the width; past the memory budget duplicates are not counted
-//           (reported as unknown, never guessed).
+//           (reported as unknown, never guessed).  The distinct (x, y) pairs are fingerprinted too, so
+//           `verify --points` can compare a mesh's vertices with its input.
 // A stream that cannot be rewound (stdin) gets pass 1 only; coherence and duplicates are unknown.
 #pragma once
 
@@ -18,7 +19,9 @@
 
 #include "libterrain/grid.h"
 #include "libterrain/point.h"
+#include "libterrain/point_filter.h"
 #include "libterrain/point_stream.h"
+#include "libterrain/xy_fingerprint.h"
 
 namespace tinbuild {
 
@@ -43,11 +46,14 @@ struct SurveyStats {
   std::uint64_t width = 0;  // max points a chunking finalizer buffers at once
   bool duplicatesKnown = false;
   std::uint64_t duplicatesXY = 0;  // points whose (x, y) repeats an earlier point's
+  XYFingerprint distinctXY;        // of the distinct (x, y) pairs, when duplicatesKnown
 };
 
 struct SurveyStatsOptions {
   int depth = -1;  // -1: chooseDepth(points)
   std::size_t memoryBudget = std::size_t{512} << 20;
+  // When set, only points this filter keeps are analyzed (counts, grid, duplicates, fingerprint).
+  const PointFilter* filter = nullptr;
   // Called after every batch of pass 1 with the batch (lets callers attribute counts per file).
   std::function<void(const PointRecord*, std::size_t)> onPass1Batch;
 };

@@ -1,0 +1,45 @@
+// A small crew of persistent worker threads for data-parallel loops inside one pipeline stage.
+//
+// run(parts, fn) calls fn(0) .. fn(parts-1), part 0 on the calling thread and the others on the crew,
+// and returns when all are done.  The threads are started once and sleep between jobs, so a job costs
+// a wake-up (microseconds), not a thread creation.  Results must not depend on which thread runs which
+// part: callers split work into fixed parts and merge them in part order, so output is identical for
+// any number of threads.  Exceptions thrown by a part are rethrown by run() (the first one).
+#pragma once
+
+#include <condition_variable>
+#include <cstddef>
+#include <exception>
+#include <functional>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+namespace tinbuild {
+
+class WorkCrew {
+ public:
+  explicit WorkCrew(int threads);  // total threads including the caller; 1 = no workers
+  ~WorkCrew();
+  WorkCrew(const WorkCrew&) = delete;
+  WorkCrew& operator=(const WorkCrew&) = delete;
+
+  int threads() const { return static_cast<int>(workers_.size()) + 1; }
+  void run(int parts, const std::function<void(int)>& fn);
+
+ private:
+  void loop(int index);
+
+  std::vector<std::thread> workers_;
+  std::mutex mutex_;
+  std::condition_variable wake_, done_;
+  const std::function<void(int)>* job_ = nullptr;
+  int parts_ = 0;
+  int nextPart_ = 0;
+  int running_ = 0;
+  unsigned generation_ = 0;
+  bool stop_ = false;
+  std::exception_ptr error_;
+};
+
+}  // namespace tinbuild
