@@ -3,7 +3,7 @@
 namespace tinbuild::app {
 
 const std::vector<Command>& commands() {
-  static const std::vector<Command> all = {infoCommand(), demoCommand(), benchCommand()};
+  static const std::vector<Command> all = {infoCommand(), demoCommand(), benchCommand(), finalizeCommand()};
   return all;
 }
 

@@ -23,5 +23,6 @@ const std::vector<Command>& commands();
 Command infoCommand();
 Command demoCommand();
 Command benchCommand();
+Command finalizeCommand();
 
 }  // namespace tinbuild::app

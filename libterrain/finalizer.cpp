@@ -1,1 +1,1404 @@
-// placeholder: being written
+#include "libterrain/finalizer.h"
+
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <sys/uio.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <cerrno>
+#include <charconv>
+#include <chrono>
+#include <climits>
+#include <cmath>
+#include <cstdlib>
+#include <cstring>
+#include <limits>
+#include <memory>
+#include <utility>
+
+#include "libterrain/diagnostics.h"
+#include "libterrain/error.h"
+
+namespace tinbuild {
+
+namespace {
+
+constexpr std::size_t kBatch = std::size_t{1} << 13;  // 256 KiB: decoded batches stay in L2
+constexpr std::uint32_t kNone = 0xffffffffu;
+constexpr int kMaxDepth = 15;
+constexpr int kMaxAutoDepth = 12;
+constexpr double kTargetPerCell = 2000;  // default depth: occupied cells hold at least this many on average
+
+std::uint64_t mix64(std::uint64_t z) {
+  z += 0x9e3779b97f4a7c15ULL;
+  z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+  z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+  return z ^ (z >> 31);
+}
+
+// Morton (Z-order) code of a cell: bit 2i = column bit i, bit 2i + 1 = row bit i.
+std::uint64_t spreadBits(std::uint64_t v) {
+  v &= 0xffffffffULL;
+  v = (v | (v << 16)) & 0x0000ffff0000ffffULL;
+  v = (v | (v << 8)) & 0x00ff00ff00ff00ffULL;
+  v = (v | (v << 4)) & 0x0f0f0f0f0f0f0f0fULL;
+  v = (v | (v << 2)) & 0x3333333333333333ULL;
+  v = (v | (v << 1)) & 0x5555555555555555ULL;
+  return v;
+}
+std::uint32_t compactBits(std::uint64_t v) {
+  v &= 0x5555555555555555ULL;
+  v = (v | (v >> 1)) & 0x3333333333333333ULL;
+  v = (v | (v >> 2)) & 0x0f0f0f0f0f0f0f0fULL;
+  v = (v | (v >> 4)) & 0x00ff00ff00ff00ffULL;
+  v = (v | (v >> 8)) & 0x0000ffff0000ffffULL;
+  v = (v | (v >> 16)) & 0x00000000ffffffffULL;
+  return static_cast<std::uint32_t>(v);
+}
+std::uint64_t morton(std::uint32_t col, std::uint32_t row) {
+  return spreadBits(col) | (spreadBits(row) << 1);
+}
+std::uint32_t mortonCol(std::uint64_t m) {
+  return compactBits(m);
+}
+std::uint32_t mortonRow(std::uint64_t m) {
+  return compactBits(m >> 1);
+}
+
+// Hilbert index of each cell of a 16 x 16 grid, table[y * 16 + x].
+struct HilbertTable {
+  std::array<std::uint8_t, 256> d{};
+  HilbertTable() {
+    for (int y = 0; y < 16; ++y)
+      for (int x = 0; x < 16; ++x) {
+        int rx = 0, ry = 0, dist = 0, px = x, py = y;
+        for (int s = 8; s > 0; s /= 2) {
+          rx = (px & s) > 0;
+          ry = (py & s) > 0;
+          dist += s * s * ((3 * rx) ^ ry);
+          if (ry == 0) {
+            if (rx == 1) {
+              px = 15 - px;
+              py = 15 - py;
+            }
+            std::swap(px, py);
+          }
+        }
+        d[static_cast<std::size_t>(y * 16 + x)] = static_cast<std::uint8_t>(dist);
+      }
+  }
+};
+const HilbertTable kHilbert;
+
+// GridSpec::column/row without std::floor (a slow instruction sequence on baseline x86-64).  f is
+// computed by the same two operations as GridSpec's, and for f > 0 floor(f) == trunc(f), so the results
+// are identical bit for bit (the property tests check membership against GridSpec itself).
+struct FastGrid {
+  explicit FastGrid(const GridSpec& g)
+      : originX(g.originX),
+        originY(g.originY),
+        scale(g.side() / g.size),
+        last(g.side() - 1),
+        depth(g.depth) {}
+  static std::uint32_t index(double f, double last) {
+    return !(f > 0) ? 0u : f >= last ? static_cast<std::uint32_t>(last) : static_cast<std::uint32_t>(f);
+  }
+  std::uint32_t column(double x) const { return index((x - originX) * scale, last); }
+  std::uint32_t row(double y) const { return index((y - originY) * scale, last); }
+  std::uint64_t key(double x, double y) const { return (std::uint64_t{row(y)} << depth) | column(x); }
+
+  double originX, originY, scale, last;
+  int depth;
+};
+
+// Fine (pass 2) and leaf (pass 3) tables are plain arrays indexed by cell key up to these depths, hashed
+// beyond (memory then follows the occupied cells only).
+constexpr int kDenseFineDepth = 9;   // 262,144 cells x 64 bytes
+constexpr int kDenseLeafDepth = 11;  // 4,194,304 cells x 4 bytes
+
+// Shortest text that reads back as the same double.
+std::string num(double v) {
+  char buf[32];
+  const auto r = std::to_chars(buf, buf + sizeof buf, v);
+  return std::string(buf, r.ptr);
+}
+
+std::string withCommas(std::uint64_t n) {
+  std::string s = std::to_string(n);
+  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
+  return s;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Temporary files: created with mkstemp and unlinked at once, so no exit path leaves one behind.
+
+class TempFile {
+ public:
+  TempFile(const std::string& dir, const char* stem) {
+    std::string base = dir;
+    if (base.empty()) {
+      const char* env = std::getenv("TMPDIR");
+      base = env && *env ? env : "/tmp";
+    }
+    std::string templ = base + "/tinbuild-" + stem + "-XXXXXX";
+    std::vector<char> name(templ.begin(), templ.end());
+    name.push_back('\0');
+    fd_ = ::mkstemp(name.data());
+    if (fd_ < 0)
+      throw DataError(base,
+                      std::string("cannot create a temporary ") + stem + " file: " + std::strerror(errno));
+    path_ = name.data();
+    ::unlink(path_.c_str());
+  }
+  ~TempFile() {
+    if (fd_ >= 0) ::close(fd_);
+  }
+  TempFile(const TempFile&) = delete;
+  TempFile& operator=(const TempFile&) = delete;
+
+  const std::string& path() const { return path_; }
+
+  void writeAt(std::uint64_t offset, const void* data, std::size_t size) {
+    const char* p = static_cast<const char*>(data);
+    while (size > 0) {
+      const ssize_t w = ::pwrite(fd_, p, size, static_cast<off_t>(offset));
+      if (w < 0) {
+        if (errno == EINTR) continue;
+        fail("cannot write");
+      }
+      p += w;
+      size -= static_cast<std::size_t>(w);
+      offset += static_cast<std::uint64_t>(w);
+    }
+  }
+  // Writes the buffers back to back at `offset`.
+  void writeAt(std::uint64_t offset, std::vector<iovec>& iov) {
+    std::size_t first = 0;
+    while (first < iov.size()) {
+      const int count = static_cast<int>(std::min<std::size_t>(iov.size() - first, IOV_MAX));
+      const ssize_t w = ::pwritev(fd_, iov.data() + first, count, static_cast<off_t>(offset));
+      if (w < 0) {
+        if (errno == EINTR) continue;
+        fail("cannot write");
+      }
+      offset += static_cast<std::uint64_t>(w);
+      std::size_t done = static_cast<std::size_t>(w);
+      while (first < iov.size() && done >= iov[first].iov_len) done -= iov[first++].iov_len;
+      if (done > 0) {  // partial write inside a buffer
+        iov[first].iov_base = static_cast<char*>(iov[first].iov_base) + done;
+        iov[first].iov_len -= done;
+      }
+    }
+  }
+  void readAt(std::uint64_t offset, void* data, std::size_t size) {
+    char* p = static_cast<char*>(data);
+    while (size > 0) {
+      const ssize_t r = ::pread(fd_, p, size, static_cast<off_t>(offset));
+      if (r < 0) {
+        if (errno == EINTR) continue;
+        fail("cannot read");
+      }
+      if (r == 0) throw DataError(path_, "temporary file shorter than written (was it truncated?)");
+      p += r;
+      size -= static_cast<std::size_t>(r);
+      offset += static_cast<std::uint64_t>(r);
+    }
+  }
+  // Gives disk space back once a range has been read for the last time (best effort).
+  void discard(std::uint64_t offset, std::uint64_t size) {
+#if defined(FALLOC_FL_PUNCH_HOLE) && defined(FALLOC_FL_KEEP_SIZE)
+    (void)::fallocate(fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(offset),
+                      static_cast<off_t>(size));
+#else
+    (void)offset;
+    (void)size;
+#endif
+  }
+
+ private:
+  [[noreturn]] void fail(const char* what) {
+    throw DataError(path_, std::string(what) + " temporary file: " + std::strerror(errno));
+  }
+  int fd_ = -1;
+  std::string path_;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Progress in GDAL's convention, scaled to a sub-range per pass, never going backwards.
+
+class Progress {
+ public:
+  Progress(ProgressFunc f, void* data) : f_(f), data_(data) {}
+  void stage(double from, double to, std::uint64_t expected, const char* message) {
+    from_ = from;
+    to_ = to;
+    expected_ = std::max<std::uint64_t>(expected, 1);
+    message_ = message;
+    update(0);
+  }
+  void update(std::uint64_t done) {
+    if (!f_) return;
+    const double t = std::min(1.0, static_cast<double>(done) / static_cast<double>(expected_));
+    last_ = std::max(last_, from_ + (to_ - from_) * t);
+    if (!f_(last_, message_, data_)) throw CancelledError();
+  }
+  void finish() {
+    if (f_ && !f_(1.0, "finalized", data_)) throw CancelledError();
+  }
+
+ private:
+  ProgressFunc f_;
+  void* data_;
+  double from_ = 0, to_ = 1, last_ = 0;
+  std::uint64_t expected_ = 1;
+  const char* message_ = "";
+};
+
+// ---------------------------------------------------------------------------------------------------
+// The inputs as one filtered sequence, pass after pass.  Non-rewindable inputs are spooled (filtered) in
+// the first pass and read back from the spool afterwards.
+
+class Sources {
+ public:
+  Sources(const std::vector<PointStream*>& inputs, const FinalizerOptions& options)
+      : inputs_(inputs), options_(options), spools_(inputs.size()) {
+    for (std::size_t i = 0; i < inputs_.size(); ++i)
+      if (!inputs_[i]) throw Error("finalizer: null input stream");
+  }
+
+  bool allRewindable() const {
+    for (auto* s : inputs_)
+      if (!s->rewindable()) return false;
+    return true;
+  }
+  std::string name(std::size_t i) const {
+    if (i < options_.inputNames.size() && !options_.inputNames[i].empty()) return options_.inputNames[i];
+    return "input " + std::to_string(i + 1);
+  }
+  std::size_t current() const { return std::min(current_, inputs_.size() - 1); }
+  std::uint64_t spooledBytes() const { return spooledBytes_; }
+
+  // Starts a pass.  The first pass must be allowed to spool when an input cannot be rewound.
+  void startPass(bool spool) {
+    ++pass_;
+    current_ = 0;
+    spooling_ = spool && pass_ == 1;
+    for (std::size_t i = 0; i < inputs_.size(); ++i) {
+      if (inputs_[i]->rewindable()) {
+        inputs_[i]->rewind();
+      } else if (pass_ == 1) {
+        if (!spooling_)
+          throw Error("finalizer: " + name(i) + " cannot be rewound and was not spooled (internal error)");
+        spools_[i].file = std::make_unique<TempFile>(options_.tempDir, "spool");
+        spools_[i].buffer.reserve(kBatch / 2);
+      } else {
+        spools_[i].readPos = 0;
+      }
+    }
+  }
+
+  // Fills `out` (room for kBatch) with the next filtered points; 0 at the end of the pass.
+  std::size_t next(PointRecord* out, FilterCounts& counts) {
+    while (current_ < inputs_.size()) {
+      Spool& spool = spools_[current_];
+      if (spool.file && pass_ > 1) {
+        const std::uint64_t left = (spool.bytes - spool.readPos) / sizeof(PointRecord);
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, kBatch));
+        if (n == 0) {
+          ++current_;
+          continue;
+        }
+        spool.file->readAt(spool.readPos, out, n * sizeof(PointRecord));
+        spool.readPos += n * sizeof(PointRecord);
+        counts.read += n;
+        counts.kept += n;
+        return n;
+      }
+      const std::size_t raw = inputs_[current_]->read(out, kBatch);
+      if (raw == 0) {
+        if (spool.file && spooling_) flushSpool(spool);
+        ++current_;
+        continue;
+      }
+      const std::size_t n = options_.filter.apply(out, raw, counts);
+      if (n == 0) continue;
+      if (spool.file && spooling_) {
+        spool.buffer.insert(spool.buffer.end(), out, out + n);
+        if (spool.buffer.size() >= kBatch / 2) flushSpool(spool);
+      }
+      return n;
+    }
+    return 0;
+  }
+
+ private:
+  struct Spool {
+    std::unique_ptr<TempFile> file;
+    std::vector<PointRecord> buffer;
+    std::uint64_t bytes = 0, readPos = 0;
+  };
+  void flushSpool(Spool& s) {
+    if (s.buffer.empty()) return;
+    const std::size_t size = s.buffer.size() * sizeof(PointRecord);
+    s.file->writeAt(s.bytes, s.buffer.data(), size);
+    s.bytes += size;
+    spooledBytes_ += size;
+    s.buffer.clear();
+  }
+
+  const std::vector<PointStream*>& inputs_;
+  const FinalizerOptions& options_;
+  std::vector<Spool> spools_;
+  std::size_t current_ = 0;
+  int pass_ = 0;
+  bool spooling_ = false;
+  std::uint64_t spooledBytes_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Reads one pass of the Sources on a background thread, a few batches ahead, so decoding and filtering
+// overlap the finalizer's work.  Batches come out in order; the consumer sees exactly the sequence a
+// direct loop would.  Exceptions of the reading side are rethrown by next().
+
+class Prefetcher {
+ public:
+  struct Batch {
+    const PointRecord* points = nullptr;
+    std::size_t n = 0;
+    std::uint64_t read = 0;  // points offered to the filter so far in this pass
+    std::size_t input = 0;   // the input the batch came from
+    Bounds3 bounds;          // of the batch's points (computed on the reading thread)
+  };
+
+  explicit Prefetcher(Sources& sources) : sources_(sources) {
+    for (auto& slot : slots_) slot.points.resize(kBatch);
+    thread_ = std::thread([this] { run(); });
+  }
+  ~Prefetcher() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  Prefetcher(const Prefetcher&) = delete;
+  Prefetcher& operator=(const Prefetcher&) = delete;
+
+  // The next batch (n == 0 at the end of the pass); the previous batch's memory is reused.
+  Batch next() {
+    std::unique_lock lock(mutex_);
+    if (holding_) {
+      holding_ = false;
+      ++tail_;
+      changed_.notify_all();
+    }
+    changed_.wait(lock, [&] { return head_ > tail_; });
+    Slot& slot = slots_[tail_ % kSlots];
+    if (slot.n == 0) {
+      if (error_) std::rethrow_exception(error_);
+      return {nullptr, 0, slot.read, slot.input, {}};
+    }
+    holding_ = true;
+    return {slot.points.data(), slot.n, slot.read, slot.input, slot.bounds};
+  }
+  // The filter counts of the pass; valid once next() has returned n == 0.
+  const FilterCounts& counts() const { return counts_; }
+
+ private:
+  static constexpr std::size_t kSlots = 4;
+  struct Slot {
+    std::vector<PointRecord> points;
+    std::size_t n = 0;
+    std::uint64_t read = 0;
+    std::size_t input = 0;
+    Bounds3 bounds;
+  };
+
+  void run() {
+    for (;;) {
+      Slot* slot;
+      {
+        std::unique_lock lock(mutex_);
+        changed_.wait(lock, [&] { return stop_ || head_ - tail_ < kSlots; });
+        if (stop_) return;
+        slot = &slots_[head_ % kSlots];
+      }
+      std::exception_ptr error;
+      try {
+        slot->n = sources_.next(slot->points.data(), counts_);
+        Bounds3 b;
+        for (std::size_t i = 0; i < slot->n; ++i)
+          b.add(slot->points[i].x, slot->points[i].y, slot->points[i].z);
+        slot->bounds = b;
+      } catch (...) {
+        error = std::current_exception();
+        slot->n = 0;
+      }
+      slot->read = counts_.read;
+      slot->input = sources_.current();
+      {
+        std::lock_guard lock(mutex_);
+        error_ = error;
+        ++head_;
+      }
+      changed_.notify_all();
+      if (slot->n == 0) return;
+    }
+  }
+
+  Sources& sources_;
+  std::array<Slot, kSlots> slots_;
+  FilterCounts counts_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::uint64_t head_ = 0, tail_ = 0;  // batches published / consumed
+  bool holding_ = false, stop_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Open-addressing hash from a cell key (row << depth | col) to a dense index.
+
+class CellIndex {
+ public:
+  explicit CellIndex(std::size_t expected = 1024) {
+    rehash(std::bit_ceil(std::max<std::size_t>(expected * 2, 64)));
+  }
+
+  std::uint32_t find(std::uint64_t key) const {
+    for (std::size_t i = mix64(key) & mask_;; i = (i + 1) & mask_) {
+      const Slot& s = slots_[i];
+      if (s.key == key) return s.index;
+      if (s.key == kEmpty) return kNone;
+    }
+  }
+  // The index stored for `key`, or `index` after inserting it (inserted = true).
+  std::uint32_t findOrInsert(std::uint64_t key, std::uint32_t index, bool& inserted) {
+    if ((size_ + 1) * 2 > slots_.size()) rehash(slots_.size() * 2);
+    for (std::size_t i = mix64(key) & mask_;; i = (i + 1) & mask_) {
+      Slot& s = slots_[i];
+      if (s.key == key) {
+        inserted = false;
+        return s.index;
+      }
+      if (s.key == kEmpty) {
+        s.key = key;
+        s.index = index;
+        ++size_;
+        inserted = true;
+        return index;
+      }
+    }
+  }
+  std::size_t bytes() const { return slots_.size() * sizeof(Slot); }
+
+ private:
+  static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
+  struct Slot {
+    std::uint64_t key = kEmpty;
+    std::uint32_t index = kNone;
+  };
+  void rehash(std::size_t capacity) {
+    std::vector<Slot> old(capacity);
+    old.swap(slots_);
+    mask_ = capacity - 1;
+    size_ = 0;
+    for (const Slot& s : old) {
+      if (s.key == kEmpty) continue;
+      bool inserted = false;
+      findOrInsert(s.key, s.index, inserted);
+    }
+  }
+  std::vector<Slot> slots_;
+  std::size_t mask_ = 0, size_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Page-sized blocks of points.
+
+class BlockPool {
+ public:
+  static constexpr std::size_t kRecords = 128;  // 4096 bytes
+  static constexpr std::size_t kBlockBytes = kRecords * sizeof(PointRecord);
+  static constexpr std::uint32_t kSlabShift = 6;  // 64 blocks (256 KiB) per slab
+
+  PointRecord* at(std::uint32_t id) {
+    return slabs_[id >> kSlabShift].get() + std::size_t{id & ((1u << kSlabShift) - 1)} * kRecords;
+  }
+  std::uint32_t allocate() {
+    if (free_.empty()) {
+      const auto base = static_cast<std::uint32_t>(slabs_.size() << kSlabShift);
+      slabs_.push_back(std::make_unique<PointRecord[]>(kRecords << kSlabShift));
+      for (std::uint32_t i = (1u << kSlabShift); i-- > 0;) free_.push_back(base + i);
+    }
+    const std::uint32_t id = free_.back();
+    free_.pop_back();
+    ++inUse_;
+    peak_ = std::max(peak_, inUse_);
+    return id;
+  }
+  void release(std::uint32_t id) {
+    free_.push_back(id);
+    --inUse_;
+  }
+  std::size_t inUse() const { return inUse_; }
+  std::size_t peak() const { return peak_; }
+
+ private:
+  std::vector<std::unique_ptr<PointRecord[]>> slabs_;
+  std::vector<std::uint32_t> free_;
+  std::size_t inUse_ = 0, peak_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------------
+
+struct FineCell {
+  std::uint64_t key = 0;  // row << fineDepth | col
+  std::uint64_t count = 0;
+  std::uint64_t candOrdinal = 0;  // the cell's first point
+  PointRecord cand;
+};
+
+// A quadtree node at some level (leaves included); arrays per level, Morton-sorted.
+struct Node {
+  std::uint64_t morton = 0;          // at its own level
+  std::uint32_t parent = kNone;      // index in the level above
+  std::uint32_t firstChild = kNone;  // index in the level below
+  std::uint32_t incomplete = 0;      // occupied children not yet complete
+  std::uint32_t sprinkle = kNone;    // leaf whose sprinkle point this node uses
+  std::uint8_t childCount = 0;
+  bool childrenSprinkled = false;
+};
+
+struct Leaf {
+  std::uint64_t remaining = 0;  // points of pass 3 still to come
+  std::uint64_t sprinkleOrdinal = 0;
+  PointRecord* tail = nullptr;  // where the next point of the chunk goes (in its last block)
+  std::uint32_t room = 0;       // free records at tail; 0 when there is no block to write into
+  std::uint32_t chunk = kNone;
+  std::uint64_t total = 0;
+  bool sprinkleEmitted = false;
+};
+
+struct Extent {
+  std::uint64_t offset, count;
+};
+
+struct Chunk {
+  std::uint32_t leaf = kNone;  // kNone: slot free
+  std::uint32_t lastFill = 0;  // records in blocks.back()
+  std::uint64_t inMemory = 0;
+  std::uint64_t spilled = 0;
+  std::vector<std::uint32_t> blocks;
+  std::vector<Extent> extents;  // spilled runs; all older than the in-memory records
+};
+
+class Finalizer {
+ public:
+  Finalizer(const std::vector<PointStream*>& inputs, const FinalizerOptions& options, PointSink& out,
+            Diagnostics& diag)
+      : options_(options),
+        out_(out),
+        diag_(diag),
+        sources_(inputs, options),
+        progress_(options.progress, options.progressData) {
+    if (inputs.empty()) throw Error("finalizer: no inputs");
+    if (options.depth > kMaxDepth) throw UsageError("--depth must be at most " + std::to_string(kMaxDepth));
+    budgetBlocks_ = std::max<std::size_t>(options.memoryBudget / BlockPool::kBlockBytes, 4);
+  }
+
+  FinalizerStats run() {
+    using Clock = std::chrono::steady_clock;
+    const bool rewindable = sources_.allRewindable();
+    const bool haveHeader =
+        options_.knownBounds && !options_.knownBounds->empty() && std::isfinite(options_.knownBounds->minX) &&
+        std::isfinite(options_.knownBounds->maxX) && std::isfinite(options_.knownBounds->minY) &&
+        std::isfinite(options_.knownBounds->maxY);
+    stats_.pass1Run = !haveHeader || !rewindable;
+    const double units = stats_.pass1Run ? 3 : 2;
+    double unit = 0;
+
+    std::uint64_t expected = options_.expectedPoints;
+    Bounds3 gridBounds;
+    if (stats_.pass1Run) {
+      const auto t0 = Clock::now();
+      progress_.stage(0, 1 / units, expected, "pass 1: bounds");
+      sources_.startPass(true);
+      Bounds3 b;
+      std::uint64_t n = 0;
+      {
+        Prefetcher reader(sources_);
+        for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
+          b.add(batch.bounds);
+          n += batch.n;
+          progress_.update(batch.read);
+        }
+        stats_.filter = reader.counts();
+      }
+      stats_.spooledBytes = sources_.spooledBytes();
+      stats_.pass1Seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+      firstCounts_ = stats_.filter;
+      firstCountsTaken_ = true;
+      if (n == 0) throw Error(noPointsMessage());
+      expected = n;
+      gridBounds = b;
+      unit = 1;
+    } else {
+      gridBounds = *options_.knownBounds;
+      if (options_.filter.clip) {
+        const ClipRect& c = *options_.filter.clip;
+        gridBounds.minX = std::max(gridBounds.minX, c.minX);
+        gridBounds.minY = std::max(gridBounds.minY, c.minY);
+        gridBounds.maxX = std::min(gridBounds.maxX, c.maxX);
+        gridBounds.maxY = std::min(gridBounds.maxY, c.maxY);
+      }
+      stats_.boundsFromHeader = true;
+    }
+
+    // Pass 2 (again over the real bounds when the header's turn out wrong).
+    const auto t2 = Clock::now();
+    const int fine = fineDepth(expected);
+    stats_.fineDepth = fine;
+    std::vector<FineCell> cells;
+    std::uint64_t known = stats_.pass1Run ? expected : 0;  // the filtered count, once a pass has seen it
+    for (;;) {
+      progress_.stage(unit / units, (unit + 1) / units, expected, "pass 2: counting points per cell");
+      const GridSpec g = makeGrid(gridBounds, fine);
+      Bounds3 real;
+      std::uint64_t n = 0;
+      cells = countCells(g, real, n);
+      ++stats_.pass2Runs;
+      if (n == 0) throw Error(noPointsMessage());
+      if (known != 0 && n != known)
+        throw Error("finalizer: the inputs yielded " + withCommas(known) + " points in one pass and " +
+                    withCommas(n) + " in the next (was a file modified while being read?)");
+      known = n;
+      if (stats_.boundsFromHeader) {
+        const double headerExtent =
+            std::max(gridBounds.maxX - gridBounds.minX, gridBounds.maxY - gridBounds.minY);
+        const double realExtent = std::max(real.maxX - real.minX, real.maxY - real.minY);
+        // Points a few ulps outside still fall in the edge cells within kCellTolerance (point_sink.h).
+        const double tol = kCellTolerance * g.size;
+        std::string why;
+        if (real.minX < gridBounds.minX - tol || real.maxX > gridBounds.maxX + tol ||
+            real.minY < gridBounds.minY - tol || real.maxY > gridBounds.maxY + tol) {
+          why = "points lie outside the header bounds (points: x " + num(real.minX) + " .. " +
+                num(real.maxX) + ", y " + num(real.minY) + " .. " + num(real.maxY) + "; header: x " +
+                num(gridBounds.minX) + " .. " + num(gridBounds.maxX) + ", y " + num(gridBounds.minY) +
+                " .. " + num(gridBounds.maxY) + ")";
+          diag_.warn("finalize.points_outside_header_bounds", "",
+                     why + "; counting again over the real bounds");
+        } else if (realExtent < 0.5 * headerExtent) {
+          why = "the points fill less than half of the header bounds";
+          diag_.warn("finalize.header_bounds_too_large", "", why + "; counting again over the real bounds");
+        }
+        if (!why.empty()) {
+          stats_.boundsFromHeader = false;
+          ++stats_.boundsRetries;
+          gridBounds = real;
+          expected = n;
+          continue;
+        }
+      }
+      stats_.points = n;
+      stats_.bounds = real;
+      break;
+    }
+    // FilterCounts of the first full pass; later passes must agree.
+    stats_.filter = firstCounts_;
+    buildTree(cells, gridBounds, fine);
+    stats_.pass2Seconds = std::chrono::duration<double>(Clock::now() - t2).count();
+    unit += 1;
+
+    const auto t3 = Clock::now();
+    progress_.stage(unit / units, 1.0, stats_.points, "pass 3: streaming chunks");
+    stream();
+    stats_.pass3Seconds = std::chrono::duration<double>(Clock::now() - t3).count();
+    progress_.finish();
+    return stats_;
+  }
+
+ private:
+  // ---- pass 2 -----------------------------------------------------------------------------------
+
+  // Two levels below the leaves (16 candidates per leaf), without exceeding depth 12 unless asked to.
+  int fineDepth(std::uint64_t expected) const {
+    if (options_.depth >= 0) return std::min(options_.depth + 2, std::max(options_.depth, kMaxAutoDepth));
+    if (expected == 0) return 10;
+    return std::min(kMaxAutoDepth, chooseDepth(expected) + 2);
+  }
+
+  std::vector<FineCell> countCells(const GridSpec& g, Bounds3& real, std::uint64_t& n) {
+    const bool dense = g.depth <= kDenseFineDepth;
+    std::vector<FineCell> cells(dense ? g.cellCount() : 0);
+    CellIndex index(dense ? 16 : 1024);
+    sources_.startPass(false);  // pass 1 ran (and spooled) whenever an input cannot be rewound
+    const FastGrid fg(g);
+    std::uint64_t memoKey = ~std::uint64_t{0};
+    std::uint32_t memo = kNone;
+    std::uint64_t ordinal = 0;
+    Bounds3 b;
+    Prefetcher reader(sources_);
+    for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
+      b.add(batch.bounds);
+      for (std::size_t i = 0; i < batch.n; ++i) {
+        const PointRecord& p = batch.points[i];
+        const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
+        const std::uint64_t key = (std::uint64_t{row} << fg.depth) | col;
+        FineCell* c;
+        if (dense) {
+          c = &cells[key];
+        } else {
+          if (key != memoKey) {
+            bool inserted = false;
+            memo = index.findOrInsert(key, static_cast<std::uint32_t>(cells.size()), inserted);
+            if (inserted) {
+              cells.emplace_back();
+              cells.back().key = key;
+            }
+            memoKey = key;
+          }
+          c = &cells[memo];
+        }
+        if (c->count++ == 0) {  // the first point of a fine cell is its sprinkle candidate
+          c->cand = p;
+          c->candOrdinal = ordinal;
+        }
+        ++ordinal;
+      }
+      progress_.update(batch.read);
+    }
+    const FilterCounts& counts = reader.counts();
+    stats_.fineTableBytes =
+        std::max<std::uint64_t>(stats_.fineTableBytes, cells.capacity() * sizeof(FineCell) + index.bytes());
+    if (dense) {  // keep the occupied cells only
+      std::size_t used = 0;
+      for (std::size_t key = 0; key < cells.size(); ++key) {
+        if (cells[key].count == 0) continue;
+        cells[used] = cells[key];
+        cells[used].key = key;
+        ++used;
+      }
+      cells.resize(used);
+      cells.shrink_to_fit();
+    }
+    if (!firstCountsTaken_) {
+      firstCounts_ = counts;
+      firstCountsTaken_ = true;
+    }
+    real = b;
+    n = ordinal;
+    return cells;
+  }
+
+  // Chooses the leaf depth, aggregates the fine cells into leaves, builds the quadtree above them and
+  // picks the sprinkle points.
+  void buildTree(std::vector<FineCell>& cells, const Bounds3& gridBounds, int fine) {
+    // Fine cells in Morton order.
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> order(cells.size());
+    for (std::size_t i = 0; i < cells.size(); ++i) {
+      const std::uint64_t key = cells[i].key;
+      const auto col = static_cast<std::uint32_t>(key & ((std::uint64_t{1} << fine) - 1));
+      const auto row = static_cast<std::uint32_t>(key >> fine);
+      order[i] = {morton(col, row), static_cast<std::uint32_t>(i)};
+    }
+    std::sort(order.begin(), order.end());
+
+    int depth = std::min(fine, options_.depth);
+    if (options_.depth < 0) {
+      // The largest depth whose occupied cells hold kTargetPerCell points on average.
+      depth = 0;
+      for (int l = fine; l > 0; --l) {
+        const int shift = 2 * (fine - l);
+        std::uint64_t occupied = 0, last = ~std::uint64_t{0};
+        for (const auto& o : order) {
+          const std::uint64_t m = o.first >> shift;
+          occupied += m != last;
+          last = m;
+        }
+        if (static_cast<double>(stats_.points) / static_cast<double>(occupied) >= kTargetPerCell) {
+          depth = l;
+          break;
+        }
+      }
+    }
+    depth_ = depth;
+    grid_ = makeGrid(gridBounds, depth);
+    stats_.grid = grid_;
+
+    // Leaves: runs of fine cells sharing the leaf's Morton prefix.
+    const int shift = 2 * (fine - depth);
+    const double cs = grid_.cellSize();
+    levels_.assign(static_cast<std::size_t>(depth) + 1, {});
+    std::vector<Node>& leafNodes = levels_[static_cast<std::size_t>(depth)];
+    for (std::size_t i = 0; i < order.size();) {
+      const std::uint64_t m = order[i].first >> shift;
+      const double cx = grid_.originX + (mortonCol(m) + 0.5) * cs;
+      const double cy = grid_.originY + (mortonRow(m) + 0.5) * cs;
+      Leaf leaf;
+      PointRecord best;
+      double bestDist = std::numeric_limits<double>::infinity();
+      std::uint64_t bestOrdinal = ~std::uint64_t{0};
+      for (; i < order.size() && (order[i].first >> shift) == m; ++i) {
+        const FineCell& f = cells[order[i].second];
+        leaf.total += f.count;
+        const double dx = f.cand.x - cx, dy = f.cand.y - cy, d = dx * dx + dy * dy;
+        if (d < bestDist || (d == bestDist && f.candOrdinal < bestOrdinal)) {
+          bestDist = d;
+          best = f.cand;
+          bestOrdinal = f.candOrdinal;
+        }
+      }
+      leaf.remaining = leaf.total;
+      leaf.sprinkleOrdinal = bestOrdinal;
+      Node node;
+      node.morton = m;
+      node.sprinkle = static_cast<std::uint32_t>(leaves_.size());
+      leafNodes.push_back(node);
+      leaves_.push_back(leaf);
+      sprinkles_.push_back(best);
+      stats_.maxPerCell = std::max(stats_.maxPerCell, leaf.total);
+    }
+    std::vector<FineCell>().swap(cells);
+    std::vector<std::pair<std::uint64_t, std::uint32_t>>().swap(order);
+    stats_.occupiedCells = leaves_.size();
+    stats_.averagePerCell = static_cast<double>(stats_.points) / static_cast<double>(leaves_.size());
+
+    // Levels above: parents take the child sprinkle closest to their centre.
+    for (int l = depth - 1; l >= 0; --l) {
+      std::vector<Node>& below = levels_[static_cast<std::size_t>(l) + 1];
+      std::vector<Node>& here = levels_[static_cast<std::size_t>(l)];
+      const double size = grid_.size / static_cast<double>(std::uint64_t{1} << l);
+      for (std::size_t i = 0; i < below.size();) {
+        const std::uint64_t m = below[i].morton >> 2;
+        Node node;
+        node.morton = m;
+        node.firstChild = static_cast<std::uint32_t>(i);
+        const double cx = grid_.originX + (mortonCol(m) + 0.5) * size;
+        const double cy = grid_.originY + (mortonRow(m) + 0.5) * size;
+        double bestDist = std::numeric_limits<double>::infinity();
+        for (; i < below.size() && (below[i].morton >> 2) == m; ++i) {
+          below[i].parent = static_cast<std::uint32_t>(here.size());
+          ++node.childCount;
+          const std::uint32_t s = below[i].sprinkle;
+          const double dx = sprinkles_[s].x - cx, dy = sprinkles_[s].y - cy, d = dx * dx + dy * dy;
+          if (d < bestDist ||
+              (d == bestDist && leaves_[s].sprinkleOrdinal < leaves_[node.sprinkle].sprinkleOrdinal)) {
+            bestDist = d;
+            node.sprinkle = s;
+          }
+        }
+        node.incomplete = node.childCount;
+        here.push_back(node);
+      }
+    }
+
+    // Pass 3 lookup: cell key -> leaf.
+    denseLeaves_ = depth <= kDenseLeafDepth;
+    if (denseLeaves_) leafDense_.assign(grid_.cellCount(), kNone);
+    leafIndex_ = CellIndex(denseLeaves_ ? 16 : leaves_.size());
+    for (std::size_t i = 0; i < leafNodes.size(); ++i) {
+      bool inserted = false;
+      const std::uint64_t key =
+          (std::uint64_t{mortonRow(leafNodes[i].morton)} << depth) | mortonCol(leafNodes[i].morton);
+      if (denseLeaves_)
+        leafDense_[key] = static_cast<std::uint32_t>(i);
+      else
+        leafIndex_.findOrInsert(key, static_cast<std::uint32_t>(i), inserted);
+    }
+    std::uint64_t nodes = 0;
+    for (const auto& lv : levels_) nodes += lv.size();
+    stats_.bookkeepingBytes = nodes * sizeof(Node) + leaves_.size() * (sizeof(Leaf) + sizeof(PointRecord)) +
+                              leafIndex_.bytes() + leafDense_.size() * sizeof(std::uint32_t);
+  }
+
+  // ---- pass 3 -----------------------------------------------------------------------------------
+
+  void stream() {
+    StreamInfo info;
+    info.grid = grid_;
+    info.bounds = stats_.bounds;
+    info.points = stats_.points;
+    info.crsWkt = options_.crsWkt;
+    for (int i = 0; i < 3; ++i) info.scale[i] = options_.scale[i];
+    out_.begin(info);
+    emitEmptyTags();
+
+    sources_.startPass(false);
+    const FastGrid fg(grid_);
+    std::uint64_t memoKey = ~std::uint64_t{0};
+    std::uint32_t memo = kNone;
+    std::uint64_t ordinal = 0;
+    Prefetcher reader(sources_);
+    std::size_t input = 0;
+    for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
+      input = batch.input;
+      for (std::size_t i = 0; i < batch.n; ++i) {
+        const PointRecord& p = batch.points[i];
+        const std::uint64_t key = fg.key(p.x, p.y);
+        if (denseLeaves_) {
+          memo = leafDense_[key];
+          if (memo == kNone) throw changedInput(input);
+        } else if (key != memoKey) {
+          memo = leafIndex_.find(key);
+          if (memo == kNone) throw changedInput(input);
+          memoKey = key;
+        }
+        Leaf& leaf = leaves_[memo];
+        if (leaf.remaining == 0) throw changedInput(input);
+        if (ordinal != leaf.sprinkleOrdinal) append(memo, p);
+        ++ordinal;
+        if (--leaf.remaining == 0) release(memo);
+      }
+      progress_.update(ordinal);
+    }
+    if (ordinal != stats_.points || released_ != leaves_.size()) throw changedInput(input);
+    out_.end();
+    stats_.peakPoolBytes = pool_.peak() * BlockPool::kBlockBytes;
+  }
+
+  void emitEmptyTags() {
+    for (int l = 0; l < depth_; ++l) {
+      const std::vector<Node>& here = levels_[static_cast<std::size_t>(l)];
+      const std::vector<Node>& below = levels_[static_cast<std::size_t>(l) + 1];
+      for (const Node& n : here) {
+        unsigned present = 0;
+        for (std::uint32_t c = 0; c < n.childCount; ++c)
+          present |= 1u << (below[n.firstChild + c].morton & 3);
+        for (unsigned q = 0; q < 4; ++q) {
+          if (present & (1u << q)) continue;
+          const std::uint64_t m = (n.morton << 2) | q;
+          tag(l + 1, m);
+          ++stats_.emptyTags;
+        }
+      }
+    }
+  }
+
+  void tag(int level, std::uint64_t m) {
+    CellTag t;
+    t.level = static_cast<std::uint8_t>(level);
+    t.col = mortonCol(m);
+    t.row = mortonRow(m);
+    out_.finalizeCell(t);
+    ++stats_.tags;
+  }
+
+  // The hot path touches the leaf only: its write position in the chunk's last block.
+  void append(std::uint32_t leafIndex, const PointRecord& p) {
+    Leaf& leaf = leaves_[leafIndex];
+    if (leaf.room == 0) newBlock(leafIndex);
+    *leaf.tail++ = p;
+    --leaf.room;
+    ++buffered_;
+    if (buffered_ > stats_.width) stats_.width = buffered_;
+    if (buffered_ - spilledWaiting_ > stats_.maxInMemoryPoints)
+      stats_.maxInMemoryPoints = buffered_ - spilledWaiting_;
+  }
+
+  // Gives the leaf's chunk a fresh block to write into (creating the chunk first if needed).
+  void newBlock(std::uint32_t leafIndex) {
+    if (leaves_[leafIndex].chunk == kNone) leaves_[leafIndex].chunk = newChunk(leafIndex);
+    const std::uint32_t b = allocateBlock();  // may spill chunks, this one included
+    Leaf& leaf = leaves_[leafIndex];
+    Chunk& c = chunks_[leaf.chunk];
+    syncChunk(c);
+    c.blocks.push_back(b);
+    c.lastFill = 0;
+    leaf.tail = pool_.at(b);
+    leaf.room = BlockPool::kRecords;
+  }
+
+  // Brings the chunk's counts up to date with its leaf's write position.
+  void syncChunk(Chunk& c) {
+    if (c.blocks.empty()) {
+      c.lastFill = 0;
+      c.inMemory = 0;
+      return;
+    }
+    c.lastFill = static_cast<std::uint32_t>(BlockPool::kRecords - leaves_[c.leaf].room);
+    c.inMemory = (c.blocks.size() - 1) * BlockPool::kRecords + c.lastFill;
+  }
+
+  std::uint32_t newChunk(std::uint32_t leafIndex) {
+    std::uint32_t ci;
+    if (!freeChunks_.empty()) {
+      ci = freeChunks_.back();
+      freeChunks_.pop_back();
+    } else {
+      ci = static_cast<std::uint32_t>(chunks_.size());
+      chunks_.emplace_back();
+    }
+    chunks_[ci].leaf = leafIndex;
+    return ci;
+  }
+
+  std::uint32_t allocateBlock() {
+    if (pool_.inUse() + 1 > budgetBlocks_ && pool_.inUse() > 0) spill();
+    return pool_.allocate();
+  }
+
+  // Writes the largest chunks held in memory to the spill file until the pool is at 3/4 of the budget.
+  void spill() {
+    ++stats_.spillEvents;
+    if (!spillFile_) spillFile_ = std::make_unique<TempFile>(options_.tempDir, "spill");
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> candidates;
+    for (std::uint32_t i = 0; i < chunks_.size(); ++i) {
+      if (chunks_[i].leaf == kNone) continue;
+      syncChunk(chunks_[i]);
+      if (chunks_[i].inMemory > 0) candidates.push_back({chunks_[i].inMemory, i});
+    }
+    std::sort(candidates.begin(), candidates.end(), [](const auto& a, const auto& b) {
+      return a.first > b.first || (a.first == b.first && a.second < b.second);
+    });
+    const std::size_t target = budgetBlocks_ * 3 / 4;
+    for (const auto& cand : candidates) {
+      if (pool_.inUse() <= target) break;
+      spillChunk(chunks_[cand.second]);
+    }
+  }
+
+  void spillChunk(Chunk& c) {
+    syncChunk(c);
+    std::vector<iovec>& iov = iov_;
+    iov.clear();
+    for (std::size_t i = 0; i < c.blocks.size(); ++i) {
+      const std::size_t records = i + 1 == c.blocks.size() ? c.lastFill : BlockPool::kRecords;
+      iov.push_back({pool_.at(c.blocks[i]), records * sizeof(PointRecord)});
+    }
+    const std::uint64_t bytes = c.inMemory * sizeof(PointRecord);
+    spillFile_->writeAt(spillEnd_, iov);
+    c.extents.push_back({spillEnd_, c.inMemory});
+    spillEnd_ += bytes;
+    stats_.spilledBytes += bytes;
+    ++stats_.spilledChunks;
+    for (std::uint32_t b : c.blocks) pool_.release(b);
+    c.blocks.clear();
+    c.lastFill = 0;
+    c.spilled += c.inMemory;
+    spilledWaiting_ += c.inMemory;
+    c.inMemory = 0;
+    leaves_[c.leaf].tail = nullptr;
+    leaves_[c.leaf].room = 0;
+  }
+
+  // The leaf is complete: sprinkle, chunk in BRIO order, tag.
+  void release(std::uint32_t leafIndex) {
+    // (a) Sprinkle points along the path from the root.
+    path_.clear();
+    std::uint32_t idx = leafIndex;
+    for (int l = depth_; l > 0; --l) {
+      idx = levels_[static_cast<std::size_t>(l)][idx].parent;
+      path_.push_back(idx);
+    }
+    sprinkleBatch_.clear();
+    addSprinkle(levels_[0][0].sprinkle);
+    for (int l = 0; l < depth_; ++l) {
+      Node& a = levels_[static_cast<std::size_t>(l)][path_[path_.size() - 1 - static_cast<std::size_t>(l)]];
+      if (a.childrenSprinkled) continue;
+      a.childrenSprinkled = true;
+      const std::vector<Node>& below = levels_[static_cast<std::size_t>(l) + 1];
+      for (std::uint32_t c = 0; c < a.childCount; ++c) addSprinkle(below[a.firstChild + c].sprinkle);
+    }
+    addSprinkle(leafIndex);  // depth 0: the root is the leaf
+    if (!sprinkleBatch_.empty()) {
+      out_.points(sprinkleBatch_.data(), sprinkleBatch_.size());
+      stats_.sprinkled += sprinkleBatch_.size();
+    }
+
+    // (b) The chunk, gathered in arrival order, released in BRIO order.
+    Leaf& leaf = leaves_[leafIndex];
+    if (leaf.chunk != kNone) {
+      Chunk& c = chunks_[leaf.chunk];
+      syncChunk(c);
+      const std::uint64_t n = c.spilled + c.inMemory;
+      // Segments in arrival order: the spilled runs (read back into one buffer), then the blocks in place.
+      segments_.clear();
+      if (c.spilled > 0) {
+        gather_.resize(c.spilled);
+        std::size_t pos = 0;
+        for (const Extent& e : c.extents) {
+          spillFile_->readAt(e.offset, gather_.data() + pos, e.count * sizeof(PointRecord));
+          spillFile_->discard(e.offset, e.count * sizeof(PointRecord));
+          pos += e.count;
+        }
+        segments_.push_back({gather_.data(), c.spilled});
+      }
+      for (std::size_t i = 0; i < c.blocks.size(); ++i)
+        segments_.push_back({pool_.at(c.blocks[i]),
+                             i + 1 == c.blocks.size() ? std::size_t{c.lastFill} : BlockPool::kRecords});
+      brio(levels_[static_cast<std::size_t>(depth_)][leafIndex].morton, n);
+      for (std::uint32_t b : c.blocks) pool_.release(b);
+      spilledWaiting_ -= c.spilled;
+      buffered_ -= n;
+      stats_.largestChunkBytes = std::max<std::uint64_t>(stats_.largestChunkBytes, n * sizeof(PointRecord));
+      c.blocks.clear();
+      c.extents.clear();
+      c.inMemory = c.spilled = 0;
+      c.lastFill = 0;
+      c.leaf = kNone;
+      freeChunks_.push_back(leaf.chunk);
+      leaf.chunk = kNone;
+      leaf.tail = nullptr;
+      leaf.room = 0;
+      out_.points(ordered_.data(), n);
+    }
+
+    // (c) One tag: the highest cell this leaf completes.
+    ++released_;
+    int level = depth_;
+    idx = leafIndex;
+    while (level > 0) {
+      const std::uint32_t parent = levels_[static_cast<std::size_t>(level)][idx].parent;
+      Node& p = levels_[static_cast<std::size_t>(level) - 1][parent];
+      if (--p.incomplete != 0) break;
+      idx = parent;
+      --level;
+    }
+    tag(level, levels_[static_cast<std::size_t>(level)][idx].morton);
+  }
+
+  void addSprinkle(std::uint32_t leafIndex) {
+    Leaf& leaf = leaves_[leafIndex];
+    if (leaf.sprinkleEmitted) return;
+    leaf.sprinkleEmitted = true;
+    sprinkleBatch_.push_back(sprinkles_[leafIndex]);
+  }
+
+  // segments_ (n points in arrival order) -> ordered_ in BRIO order: rounds rarest first, each round
+  // along a Hilbert curve over a 16 x 16 sub-grid of the leaf, arrival order within a sub-cell.
+  void brio(std::uint64_t leafMorton, std::size_t n) {
+    ordered_.resize(n);
+    if (n <= 2) {
+      std::size_t i = 0;
+      for (const Segment& seg : segments_)
+        for (std::size_t j = 0; j < seg.n; ++j) ordered_[i++] = seg.p[j];
+      return;
+    }
+    const int rounds = static_cast<int>(std::bit_width(n));  // levels 0 .. rounds-1; higher ones merge
+    const std::size_t buckets = static_cast<std::size_t>(rounds) * 256;
+    bucketCount_.assign(buckets + 1, 0);
+    keys_.resize(n);
+    const double cs = grid_.cellSize();
+    const double x0 = grid_.originX + mortonCol(leafMorton) * cs;
+    const double y0 = grid_.originY + mortonRow(leafMorton) * cs;
+    const double scale = 16.0 / cs;
+    const std::uint64_t leafSeed =
+        mix64(options_.seed ^ mix64(leafMorton * 4 + static_cast<std::uint64_t>(depth_)));
+    std::size_t i = 0;
+    for (const Segment& seg : segments_) {
+      for (std::size_t j = 0; j < seg.n; ++j, ++i) {
+        const std::uint64_t h = mix64(leafSeed + i * 0x9e3779b97f4a7c15ULL);
+        const int level = std::min(std::countr_zero(h | (std::uint64_t{1} << 63)), rounds - 1);
+        const double fx = (seg.p[j].x - x0) * scale, fy = (seg.p[j].y - y0) * scale;
+        const int qx = !(fx > 0) ? 0 : fx >= 15 ? 15 : static_cast<int>(fx);
+        const int qy = !(fy > 0) ? 0 : fy >= 15 ? 15 : static_cast<int>(fy);
+        const auto key = static_cast<std::uint32_t>((rounds - 1 - level) * 256 +
+                                                    kHilbert.d[static_cast<std::size_t>(qy * 16 + qx)]);
+        keys_[i] = key;
+        ++bucketCount_[key + 1];
+      }
+    }
+    for (std::size_t b = 1; b <= buckets; ++b) bucketCount_[b] += bucketCount_[b - 1];
+    i = 0;
+    for (const Segment& seg : segments_)
+      for (std::size_t j = 0; j < seg.n; ++j) ordered_[bucketCount_[keys_[i++]]++] = seg.p[j];
+  }
+
+  Error changedInput(std::size_t input) const {
+    return Error("finalizer: " + sources_.name(input) +
+                 " yielded different points in different passes (was it modified while being read?)");
+  }
+
+  std::string noPointsMessage() const {
+    const FilterCounts& c = firstCountsTaken_ ? firstCounts_ : stats_.filter;
+    std::string s = "no points left after filtering: " + withCommas(c.read) + " read";
+    if (c.byClass) {
+      s += ", " + withCommas(c.byClass) + " dropped by class (";
+      bool first = true;
+      for (int i = 0; i < 256; ++i)
+        if (c.droppedByClass[i]) {
+          s += (first ? "" : ", ") + std::to_string(i) + ": " + withCommas(c.droppedByClass[i]);
+          first = false;
+        }
+      s += ")";
+    }
+    if (c.withheld) s += ", " + withCommas(c.withheld) + " withheld";
+    if (c.byReturn) s += ", " + withCommas(c.byReturn) + " by return number";
+    if (c.clipped) s += ", " + withCommas(c.clipped) + " outside the clip rectangle";
+    return s;
+  }
+
+  const FinalizerOptions& options_;
+  PointSink& out_;
+  Diagnostics& diag_;
+  Sources sources_;
+  Progress progress_;
+  FinalizerStats stats_;
+  FilterCounts firstCounts_;
+  bool firstCountsTaken_ = false;
+
+  int depth_ = 0;
+  GridSpec grid_;
+  std::vector<std::vector<Node>> levels_;  // levels_[depth_] are the leaves
+  std::vector<Leaf> leaves_;
+  std::vector<PointRecord> sprinkles_;  // per leaf
+  CellIndex leafIndex_;
+  bool denseLeaves_ = false;
+  std::vector<std::uint32_t> leafDense_;
+
+  BlockPool pool_;
+  std::size_t budgetBlocks_ = 0;
+  std::vector<Chunk> chunks_;
+  std::vector<std::uint32_t> freeChunks_;
+  std::unique_ptr<TempFile> spillFile_;
+  std::uint64_t spillEnd_ = 0;
+  std::vector<iovec> iov_;
+  std::uint64_t buffered_ = 0, spilledWaiting_ = 0, released_ = 0;
+
+  std::vector<std::uint32_t> path_;
+  struct Segment {
+    const PointRecord* p;
+    std::size_t n;
+  };
+  std::vector<Segment> segments_;
+  std::vector<PointRecord> sprinkleBatch_, gather_, ordered_;
+  std::vector<std::uint32_t> keys_, bucketCount_;
+};
+
+}  // namespace
+
+FinalizerStats finalizePoints(const std::vector<PointStream*>& inputs, const FinalizerOptions& options,
+                              PointSink& out, Diagnostics& diag) {
+  Finalizer f(inputs, options, out, diag);
+  return f.run();
+}
+
+// ---------------------------------------------------------------------------------------------------
+// ConcurrentPointSink
+
+ConcurrentPointSink::ConcurrentPointSink(PointSink& downstream, std::size_t maxQueuedPoints)
+    : downstream_(downstream), maxQueued_(std::max<std::size_t>(maxQueuedPoints, 1)) {
+  thread_ = std::thread([this] { run(); });
+}
+
+ConcurrentPointSink::~ConcurrentPointSink() {
+  {
+    std::lock_guard lock(mutex_);
+    stop_ = true;
+  }
+  changed_.notify_all();
+  if (thread_.joinable()) thread_.join();
+}
+
+void ConcurrentPointSink::rethrowIfFailed() {
+  if (error_) {
+    std::exception_ptr e = error_;
+    std::rethrow_exception(e);
+  }
+}
+
+void ConcurrentPointSink::push(Item item, std::size_t points) {
+  std::unique_lock lock(mutex_);
+  changed_.wait(lock, [&] { return error_ || queuedPoints_ == 0 || queuedPoints_ + points <= maxQueued_; });
+  rethrowIfFailed();
+  queue_.push_back(std::move(item));
+  queuedPoints_ += points;
+  lock.unlock();
+  changed_.notify_all();
+}
+
+void ConcurrentPointSink::begin(const StreamInfo& info) {
+  Item item{Item::kBegin, {}, {}};
+  {
+    std::lock_guard lock(mutex_);
+    info_ = info;
+  }
+  push(std::move(item), 0);
+}
+
+void ConcurrentPointSink::points(const PointRecord* p, std::size_t n) {
+  if (n == 0) return;
+  Item item{Item::kPoints, {}, {}};
+  {
+    std::lock_guard lock(mutex_);
+    if (!spare_.empty()) {
+      item.points = std::move(spare_.back());
+      spare_.pop_back();
+    }
+  }
+  item.points.assign(p, p + n);
+  push(std::move(item), n);
+}
+
+void ConcurrentPointSink::finalizeCell(const CellTag& cell) {
+  push(Item{Item::kTag, cell, {}}, 0);
+}
+
+void ConcurrentPointSink::end() {
+  push(Item{Item::kEnd, {}, {}}, 0);
+  std::unique_lock lock(mutex_);
+  changed_.wait(lock, [&] { return finished_ || error_; });
+  rethrowIfFailed();
+}
+
+void ConcurrentPointSink::run() {
+  for (;;) {
+    Item item;
+    {
+      std::unique_lock lock(mutex_);
+      changed_.wait(lock, [&] { return stop_ || !queue_.empty(); });
+      if (stop_) return;  // the producer gave up: discard the rest
+      item = std::move(queue_.front());
+      queue_.pop_front();
+    }
+    const std::size_t n = item.points.size();
+    try {
+      switch (item.kind) {
+        case Item::kBegin: {
+          StreamInfo info;
+          {
+            std::lock_guard lock(mutex_);
+            info = info_;
+          }
+          downstream_.begin(info);
+          break;
+        }
+        case Item::kPoints:
+          downstream_.points(item.points.data(), n);
+          break;
+        case Item::kTag:
+          downstream_.finalizeCell(item.tag);
+          break;
+        case Item::kEnd:
+          downstream_.end();
+          break;
+      }
+    } catch (...) {
+      std::lock_guard lock(mutex_);
+      error_ = std::current_exception();
+      queue_.clear();
+      queuedPoints_ = 0;
+      changed_.notify_all();
+      return;
+    }
+    {
+      std::lock_guard lock(mutex_);
+      queuedPoints_ -= n;
+      if (item.kind == Item::kPoints && spare_.size() < 8) {
+        item.points.clear();
+        spare_.push_back(std::move(item.points));
+      }
+      if (item.kind == Item::kEnd) finished_ = true;
+    }
+    changed_.notify_all();
+    if (item.kind == Item::kEnd) return;
+  }
+}
+
+}  // namespace tinbuild

@@ -1,1 +1,861 @@
-// placeholder: being written
+// Property tests of the spatial finalizer: over many input orders, every point comes out exactly once,
+// every cell's tag follows its last point, nothing of a finalized cell follows its tag, sprinkle points
+// precede their cells, empty regions are tagged before the first point, and the output is a pure
+// function of input and options (also when spilling, spooling, or splitting the input into files).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <numeric>
+#include <random>
+#include <stdexcept>
+#include <string>
+#include <thread>
+#include <unordered_map>
+#include <vector>
+
+#include "libterrain/diagnostics.h"
+#include "libterrain/error.h"
+#include "libterrain/finalizer.h"
+#include "libterrain/survey_stats.h"
+#include "libterrain/synthetic_survey.h"
+#include "test_support.h"
+
+namespace tinbuild {
+namespace {
+
+// ---- inputs -------------------------------------------------------------------------------------------
+
+class VectorStream : public PointStream {
+ public:
+  explicit VectorStream(std::vector<PointRecord> pts, bool rewindable = true, std::size_t maxRead = 1000)
+      : pts_(std::move(pts)), rewindable_(rewindable), maxRead_(maxRead) {}
+  std::size_t read(PointRecord* out, std::size_t max) override {
+    const std::size_t n = std::min({max, maxRead_, pts_.size() - pos_});
+    std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_),
+              pts_.begin() + static_cast<std::ptrdiff_t>(pos_ + n), out);
+    pos_ += n;
+    return n;
+  }
+  bool rewindable() const override { return rewindable_; }
+  void rewind() override {
+    if (!rewindable_) throw Error("not rewindable");
+    pos_ = 0;
+    ++rewinds;
+  }
+  int rewinds = 0;
+
+ private:
+  std::vector<PointRecord> pts_;
+  bool rewindable_;
+  std::size_t maxRead_;
+  std::size_t pos_ = 0;
+};
+
+// Points of a SurveyGenerator; intensity replaced by the ordinal (mod 2^16) for readable failures.
+std::vector<PointRecord> generate(SurveySpec spec) {
+  SurveyGenerator gen(spec);
+  std::vector<PointRecord> pts(spec.points);
+  std::size_t got = 0;
+  while (got < pts.size())
+    got += gen.next(pts.data() + got, std::min<std::size_t>(pts.size() - got, 1 << 16));
+  return pts;
+}
+
+std::vector<PointRecord> randomPoints(std::size_t n, std::uint64_t seed, double side = 1000.0) {
+  std::mt19937_64 rng(seed);
+  std::uniform_int_distribution<int> q(0, static_cast<int>(side * 100));
+  std::vector<PointRecord> pts(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    pts[i].x = 300000.0 + q(rng) * 0.01;
+    pts[i].y = 5000000.0 + q(rng) * 0.01;
+    pts[i].z = 100.0 + static_cast<double>(q(rng) % 5000) * 0.01;
+    pts[i].intensity = static_cast<std::uint16_t>(i);
+    pts[i].classification = 2;
+    pts[i].returnNumber = 1;
+    pts[i].numberOfReturns = 1;
+  }
+  return pts;
+}
+
+// ---- the checking sink ----------------------------------------------------------------------------------
+
+struct Event {
+  enum Kind { kBegin, kPoints, kTag, kEnd } kind;
+  CellTag tag;
+  std::vector<PointRecord> points;
+};
+
+bool samePoint(const PointRecord& a, const PointRecord& b) {
+  return a.x == b.x && a.y == b.y && a.z == b.z && a.intensity == b.intensity &&
+         a.classification == b.classification && a.returnNumber == b.returnNumber &&
+         a.numberOfReturns == b.numberOfReturns && a.flags == b.flags;
+}
+bool pointLess(const PointRecord& a, const PointRecord& b) {
+  if (a.x != b.x) return a.x < b.x;
+  if (a.y != b.y) return a.y < b.y;
+  if (a.z != b.z) return a.z < b.z;
+  if (a.intensity != b.intensity) return a.intensity < b.intensity;
+  if (a.classification != b.classification) return a.classification < b.classification;
+  if (a.returnNumber != b.returnNumber) return a.returnNumber < b.returnNumber;
+  if (a.numberOfReturns != b.numberOfReturns) return a.numberOfReturns < b.numberOfReturns;
+  return a.flags < b.flags;
+}
+
+class RecordingSink : public PointSink {
+ public:
+  void begin(const StreamInfo& i) override {
+    info = i;
+    events.push_back({Event::kBegin, {}, {}});
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    events.push_back({Event::kPoints, {}, {p, p + n}});
+  }
+  void finalizeCell(const CellTag& c) override { events.push_back({Event::kTag, c, {}}); }
+  void end() override { events.push_back({Event::kEnd, {}, {}}); }
+
+  StreamInfo info;
+  std::vector<Event> events;
+};
+
+bool sameEvents(const std::vector<Event>& a, const std::vector<Event>& b) {
+  if (a.size() != b.size()) return false;
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    if (a[i].kind != b[i].kind) return false;
+    if (a[i].kind == Event::kTag &&
+        (a[i].tag.level != b[i].tag.level || a[i].tag.col != b[i].tag.col || a[i].tag.row != b[i].tag.row))
+      return false;
+    if (a[i].points.size() != b[i].points.size()) return false;
+    for (std::size_t j = 0; j < a[i].points.size(); ++j)
+      if (!samePoint(a[i].points[j], b[i].points[j])) return false;
+  }
+  return true;
+}
+
+template <class T>
+struct LevelStore {
+  explicit LevelStore(int level) : dense(level <= 10) {
+    if (dense) v.assign(std::size_t{1} << (2 * level), T{});
+  }
+  T& operator[](std::uint64_t k) { return dense ? v[k] : m[k]; }
+  T get(std::uint64_t k) const {
+    if (dense) return v[k];
+    auto it = m.find(k);
+    return it == m.end() ? T{} : it->second;
+  }
+  bool dense;
+  std::vector<T> v;
+  std::unordered_map<std::uint64_t, T> m;
+};
+
+// Checks every stream property against the (filtered) input.  Returns "" when all hold.
+std::string checkStream(const std::vector<PointRecord>& input, const RecordingSink& sink,
+                        bool expectEmptyTags = true) {
+  const auto& ev = sink.events;
+  if (ev.size() < 2 || ev.front().kind != Event::kBegin || ev.back().kind != Event::kEnd) return "begin/end";
+  for (std::size_t i = 1; i + 1 < ev.size(); ++i)
+    if (ev[i].kind == Event::kBegin || ev[i].kind == Event::kEnd) return "begin/end inside the stream";
+  const GridSpec& g = sink.info.grid;
+  if (sink.info.points != input.size()) return "info.points";
+  Bounds3 b;
+  for (const auto& p : input) b.add(p.x, p.y, p.z);
+  if (b.minX != sink.info.bounds.minX || b.maxX != sink.info.bounds.maxX || b.minY != sink.info.bounds.minY ||
+      b.maxY != sink.info.bounds.maxY || b.minZ != sink.info.bounds.minZ || b.maxZ != sink.info.bounds.maxZ)
+    return "info.bounds";
+
+  // Every input point exactly once (multiset of whole records).
+  std::vector<PointRecord> out;
+  for (const auto& e : ev) {
+    if (e.kind == Event::kPoints && e.points.empty()) return "empty batch";
+    out.insert(out.end(), e.points.begin(), e.points.end());
+  }
+  if (out.size() != input.size())
+    return "point count " + std::to_string(out.size()) + " != " + std::to_string(input.size());
+  std::vector<PointRecord> in = input;
+  std::sort(in.begin(), in.end(), pointLess);
+  std::sort(out.begin(), out.end(), pointLess);
+  for (std::size_t i = 0; i < in.size(); ++i)
+    if (!samePoint(in[i], out[i])) return "point multiset differs at " + std::to_string(i);
+
+  // Per level: points still to come, points emitted so far, finalized flags (arrays for shallow levels,
+  // hashes for deep ones).
+  const int depth = g.depth;
+  std::vector<LevelStore<std::int64_t>> remaining, emitted;
+  std::vector<LevelStore<std::uint8_t>> finalized;
+  for (int l = 0; l <= depth; ++l) {
+    remaining.emplace_back(l);
+    emitted.emplace_back(l);
+    finalized.emplace_back(l);
+  }
+  auto cellAt = [&](int l, std::uint32_t col, std::uint32_t row) { return (std::uint64_t{row} << l) | col; };
+  for (const auto& p : input) {
+    const std::uint32_t c = g.column(p.x), r = g.row(p.y);
+    for (int l = 0; l <= depth; ++l)
+      ++remaining[static_cast<std::size_t>(l)][cellAt(l, c >> (depth - l), r >> (depth - l))];
+  }
+  const auto occupied = remaining;  // input points per cell per level
+  auto isOccupied = [&](int l, std::uint32_t col, std::uint32_t row) {
+    return occupied[static_cast<std::size_t>(l)].get(cellAt(l, col, row)) > 0;
+  };
+  auto covered = [&](std::uint32_t c, std::uint32_t r) {
+    for (int l = 0; l <= depth; ++l)
+      if (finalized[static_cast<std::size_t>(l)].get(cellAt(l, c >> (depth - l), r >> (depth - l))))
+        return true;
+    return false;
+  };
+
+  bool sawPoint = false;
+  for (const auto& e : ev) {
+    if (e.kind == Event::kPoints) {
+      if (!sawPoint) {
+        sawPoint = true;
+        if (expectEmptyTags && depth <= 8) {
+          // Every empty leaf is covered by an up-front tag.
+          for (std::uint32_t r = 0; r < g.side(); ++r)
+            for (std::uint32_t c = 0; c < g.side(); ++c)
+              if (!isOccupied(depth, c, r) && !covered(c, r))
+                return "empty leaf (" + std::to_string(c) + "," + std::to_string(r) + ") not tagged up front";
+        }
+      }
+      for (const auto& p : e.points) {
+        const std::uint32_t c = g.column(p.x), r = g.row(p.y);
+        if (covered(c, r))
+          return "point in finalized cell (" + std::to_string(c) + "," + std::to_string(r) + ")";
+        for (int l = 0; l <= depth; ++l) {
+          const std::size_t k = cellAt(l, c >> (depth - l), r >> (depth - l));
+          --remaining[static_cast<std::size_t>(l)][k];
+          ++emitted[static_cast<std::size_t>(l)][k];
+        }
+      }
+    } else if (e.kind == Event::kTag) {
+      const CellTag& t = e.tag;
+      if (t.level > depth || t.col >= (1u << t.level) || t.row >= (1u << t.level)) return "tag outside grid";
+      if (remaining[t.level].get(cellAt(t.level, t.col, t.row)) != 0)
+        return "tag (" + std::to_string(t.level) + "," + std::to_string(t.col) + "," + std::to_string(t.row) +
+               ") before its last point";
+      if (!sawPoint && isOccupied(t.level, t.col, t.row)) return "occupied cell tagged before any point";
+      if (occupied[t.level].get(cellAt(t.level, t.col, t.row)) > 0) {
+        // Sprinkling: every occupied child of every ancestor of the tagged cell has a point out already.
+        for (int l = 0; l < t.level; ++l) {
+          const std::uint32_t ac = t.col >> (t.level - l), ar = t.row >> (t.level - l);
+          for (std::uint32_t q = 0; q < 4; ++q) {
+            const std::uint32_t cc = 2 * ac + (q & 1), cr = 2 * ar + (q >> 1);
+            if (isOccupied(l + 1, cc, cr) &&
+                emitted[static_cast<std::size_t>(l) + 1][cellAt(l + 1, cc, cr)] == 0)
+              return "no sprinkle point in (" + std::to_string(l + 1) + "," + std::to_string(cc) + "," +
+                     std::to_string(cr) + ") when (" + std::to_string(t.level) + "," + std::to_string(t.col) +
+                     "," + std::to_string(t.row) + ") was tagged";
+          }
+        }
+      }
+      finalized[t.level][cellAt(t.level, t.col, t.row)] = 1;
+    }
+  }
+  // At the end everything is tagged (the last tag is the root's).
+  for (const auto& p : input)
+    if (!covered(g.column(p.x), g.row(p.y))) return "a point's cell never tagged";
+  if (depth <= 8)
+    for (std::uint32_t r = 0; r < g.side(); ++r)
+      for (std::uint32_t c = 0; c < g.side(); ++c)
+        if (!covered(c, r)) return "leaf never tagged";
+  return "";
+}
+
+struct Result {
+  RecordingSink sink;
+  FinalizerStats stats;
+};
+
+Result finalize(const std::vector<PointRecord>& pts, FinalizerOptions o = {}, bool rewindable = true) {
+  Result r;
+  VectorStream s(pts, rewindable);
+  Diagnostics diag;
+  r.stats = finalizePoints({&s}, o, r.sink, diag);
+  return r;
+}
+
+FinalizerOptions noFilter(int depth = -1) {
+  FinalizerOptions o;
+  o.filter = PointFilter::none();
+  o.depth = depth;
+  return o;
+}
+
+void expectValid(const std::vector<PointRecord>& pts, const FinalizerOptions& o, const char* what) {
+  SCOPED_TRACE(what);
+  Result a = finalize(pts, o);
+  EXPECT_EQ(checkStream(pts, a.sink), "");
+  EXPECT_EQ(a.stats.points, pts.size());
+  EXPECT_EQ(a.stats.sprinkled, a.stats.occupiedCells);
+  Result b = finalize(pts, o);
+  EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events)) << "not deterministic";
+}
+
+// ---- orders ---------------------------------------------------------------------------------------------
+
+TEST(Finalizer, SortedReversedAndShuffledOrders) {
+  auto pts = randomPoints(20000, 1);
+  for (int depth : {-1, 0, 1, 3, 5}) {
+    std::sort(pts.begin(), pts.end(), pointLess);
+    expectValid(pts, noFilter(depth), "sorted");
+    std::reverse(pts.begin(), pts.end());
+    expectValid(pts, noFilter(depth), "reversed");
+    std::shuffle(pts.begin(), pts.end(), std::mt19937_64(7));
+    expectValid(pts, noFilter(depth), "shuffled");
+    // Sorted by y then x (row by row).
+    std::sort(pts.begin(), pts.end(), [](const PointRecord& a, const PointRecord& b) {
+      return a.y < b.y || (a.y == b.y && a.x < b.x);
+    });
+    expectValid(pts, noFilter(depth), "rows");
+  }
+}
+
+TEST(Finalizer, FlightStripsAndStripeAtTheEnd) {
+  SurveySpec spec;
+  spec.points = 200000;
+  spec.seed = 11;
+  auto strips = generate(spec);
+  expectValid(strips, noFilter(), "strips default depth");
+  expectValid(strips, noFilter(6), "strips depth 6");
+  spec.homeStrip = true;
+  auto home = generate(spec);
+  expectValid(home, noFilter(), "home strip default depth");
+  expectValid(home, noFilter(5), "home strip depth 5");
+  // The stripe flown on the way home keeps every cell it crosses open until the end.
+  Result r = finalize(home, noFilter(5));
+  Result plain = finalize(strips, noFilter(5));
+  EXPECT_GT(r.stats.width, 3 * plain.stats.width);
+  EXPECT_GT(r.stats.width, home.size() / 3);
+}
+
+TEST(Finalizer, OnePointPerCellThenTheRest) {
+  auto pts = randomPoints(30000, 3, 500);
+  const int depth = 4;
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  const GridSpec g = makeGrid(b, depth);
+  std::vector<PointRecord> firsts, rest;
+  std::vector<bool> seen(g.cellCount(), false);
+  for (const auto& p : pts) {
+    const auto c = g.cellOf(p.x, p.y);
+    (seen[c] ? rest : firsts).push_back(p);
+    seen[c] = true;
+  }
+  std::vector<PointRecord> order = firsts;
+  order.insert(order.end(), rest.begin(), rest.end());
+  expectValid(order, noFilter(depth), "one per cell first");
+  // And the mirror: all but one point per cell, then those.
+  std::vector<PointRecord> mirror = rest;
+  mirror.insert(mirror.end(), firsts.begin(), firsts.end());
+  expectValid(mirror, noFilter(depth), "one per cell last");
+}
+
+TEST(Finalizer, AllPointsInOneCellAndDuplicates) {
+  // All points in one leaf of a grid laid out by two outliers.
+  std::vector<PointRecord> pts = randomPoints(5000, 5, 1);
+  PointRecord far = pts[0];
+  far.x += 10000;
+  far.y += 10000;
+  pts.push_back(far);
+  expectValid(pts, noFilter(6), "one cell + outlier");
+  expectValid(pts, noFilter(), "one cell + outlier, default depth");
+
+  // Many exact duplicates (whole records identical) and xy duplicates with different z.
+  std::vector<PointRecord> dup;
+  auto base = randomPoints(300, 9, 50);
+  for (int k = 0; k < 20; ++k)
+    for (auto p : base) {
+      if (k % 2) p.z += 1;
+      dup.push_back(p);
+    }
+  std::shuffle(dup.begin(), dup.end(), std::mt19937_64(1));
+  expectValid(dup, noFilter(3), "duplicates");
+  // Every point identical.
+  std::vector<PointRecord> same(1000, base[0]);
+  expectValid(same, noFilter(), "all identical");
+  expectValid(same, noFilter(4), "all identical depth 4");
+}
+
+TEST(Finalizer, SingleAndTwoPoints) {
+  auto one = randomPoints(1, 2);
+  expectValid(one, noFilter(), "one point");
+  expectValid(one, noFilter(3), "one point depth 3");
+  auto two = randomPoints(2, 4);
+  expectValid(two, noFilter(), "two points");
+  expectValid(two, noFilter(5), "two points depth 5");
+  Result r = finalize(two, noFilter(5));
+  EXPECT_EQ(r.stats.occupiedCells, 2u);
+}
+
+TEST(Finalizer, DeepGrids) {
+  // Depths beyond the dense tables (hashed fine cells and leaves), up to the maximum.
+  auto pts = randomPoints(3000, 12);
+  for (int depth : {9, 10, 11, 12, 13, 15}) {
+    SCOPED_TRACE(depth);
+    expectValid(pts, noFilter(depth), "deep");
+  }
+  EXPECT_THROW(finalize(pts, noFilter(16)), Error);
+}
+
+TEST(Finalizer, LatticeAndUniformSurveys) {
+  SurveySpec spec;
+  spec.kind = SurveySpec::Kind::Lattice;
+  spec.points = 40000;
+  expectValid(generate(spec), noFilter(), "lattice");
+  spec.kind = SurveySpec::Kind::UniformRandom;
+  expectValid(generate(spec), noFilter(), "uniform");
+  expectValid(generate(spec), noFilter(7), "uniform depth 7");
+}
+
+TEST(Finalizer, RandomizedOrdersDepthsAndBudgets) {
+  std::mt19937_64 rng(2006);
+  for (int iter = 0; iter < 150; ++iter) {
+    SCOPED_TRACE(iter);
+    const std::size_t n = 1 + rng() % 4000;
+    // Clustered points: a few blobs of random size, some exact duplicates.
+    std::vector<PointRecord> pts = randomPoints(n, rng(), 1 + static_cast<double>(rng() % 2000));
+    const std::size_t blobs = 1 + rng() % 4;
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::size_t b = i % blobs;
+      pts[i].x = pts[i].x * static_cast<double>(b + 1) * 0.5 + static_cast<double>(b) * 137.0;
+      if (rng() % 50 == 0 && i > 0) pts[i] = pts[rng() % i];
+    }
+    switch (rng() % 4) {
+      case 0:
+        std::sort(pts.begin(), pts.end(), pointLess);
+        break;
+      case 1:
+        std::sort(pts.begin(), pts.end(), pointLess);
+        std::reverse(pts.begin(), pts.end());
+        break;
+      case 2:
+        break;  // random
+      default:
+        std::sort(pts.begin(), pts.end(),
+                  [](const PointRecord& a, const PointRecord& b) { return a.y < b.y; });
+    }
+    FinalizerOptions o = noFilter(static_cast<int>(rng() % 10) - 1);
+    if (rng() % 3 == 0) o.memoryBudget = 16 * 1024;
+    o.seed = rng();
+    Result a = finalize(pts, o, rng() % 4 != 0);
+    ASSERT_EQ(checkStream(pts, a.sink), "");
+    Result b = finalize(pts, o);
+    ASSERT_TRUE(sameEvents(a.sink.events, b.sink.events));
+  }
+}
+
+TEST(Finalizer, TheCheckerCatchesBrokenStreams) {
+  // The property checker itself must notice each kind of violation.
+  auto pts = randomPoints(5000, 21);
+  Result good = finalize(pts, noFilter(3));
+  ASSERT_EQ(checkStream(pts, good.sink), "");
+  auto& ev = good.sink.events;
+  std::size_t firstTag = 0, firstPoints = 0;
+  for (std::size_t i = 0; i < ev.size(); ++i) {
+    if (!firstPoints && ev[i].kind == Event::kPoints) firstPoints = i;
+    if (firstPoints && !firstTag && ev[i].kind == Event::kTag) firstTag = i;
+  }
+  {  // a point dropped
+    RecordingSink bad = good.sink;
+    bad.events[firstPoints].points.pop_back();
+    EXPECT_NE(checkStream(pts, bad), "");
+  }
+  {  // a point after its cell's tag
+    RecordingSink bad = good.sink;
+    Event moved{Event::kPoints, {}, {bad.events[firstTag - 1].points.back()}};
+    bad.events[firstTag - 1].points.pop_back();
+    if (bad.events[firstTag - 1].points.empty()) bad.events[firstTag - 1].points.push_back(moved.points[0]);
+    bad.events.insert(bad.events.end() - 1, moved);
+    EXPECT_NE(checkStream(pts, bad), "");
+  }
+  {  // a tag before its last point
+    RecordingSink bad = good.sink;
+    std::swap(bad.events[firstTag - 1], bad.events[firstTag]);
+    EXPECT_NE(checkStream(pts, bad), "");
+  }
+  {  // no sprinkling: each sprinkle point moved into its own cell's chunk
+    const GridSpec& g = good.sink.info.grid;
+    RecordingSink bad;
+    bad.info = good.sink.info;
+    std::vector<PointRecord> pending;
+    for (std::size_t i = 0; i < ev.size(); ++i) {
+      const Event& e = ev[i];
+      const bool sprinkleBatch =
+          e.kind == Event::kPoints && i + 1 < ev.size() && ev[i + 1].kind == Event::kPoints;
+      if (sprinkleBatch) {
+        pending.insert(pending.end(), e.points.begin(), e.points.end());
+        continue;
+      }
+      bad.events.push_back(e);
+      if (e.kind == Event::kPoints) {
+        const auto cell = g.cellOf(e.points[0].x, e.points[0].y);
+        for (std::size_t k = 0; k < pending.size();) {
+          if (g.cellOf(pending[k].x, pending[k].y) == cell) {
+            bad.events.back().points.push_back(pending[k]);
+            pending.erase(pending.begin() + static_cast<std::ptrdiff_t>(k));
+          } else {
+            ++k;
+          }
+        }
+      }
+    }
+    ASSERT_TRUE(pending.empty());
+    const std::string why = checkStream(pts, bad);
+    EXPECT_NE(why.find("no sprinkle point"), std::string::npos) << why;
+  }
+}
+
+// ---- memory ---------------------------------------------------------------------------------------------
+
+TEST(Finalizer, TinyBudgetSpillsAndGivesIdenticalOutput) {
+  SurveySpec spec;
+  spec.points = 150000;
+  spec.homeStrip = true;
+  const auto pts = generate(spec);
+  FinalizerOptions o = noFilter(5);
+  Result plain = finalize(pts, o);
+  EXPECT_EQ(plain.stats.spilledBytes, 0u);
+  o.memoryBudget = 64 * 1024;  // 16 blocks
+  o.tempDir = test::scratchDir().string();
+  Result spilled = finalize(pts, o);
+  EXPECT_GT(spilled.stats.spilledBytes, 0u);
+  EXPECT_GT(spilled.stats.spillEvents, 0u);
+  EXPECT_LE(spilled.stats.peakPoolBytes, 64u * 1024);
+  EXPECT_EQ(checkStream(pts, spilled.sink), "");
+  EXPECT_TRUE(sameEvents(plain.sink.events, spilled.sink.events));
+  EXPECT_EQ(plain.stats.width, spilled.stats.width);
+  // The spill file is unlinked: nothing is left in the temporary directory.
+  EXPECT_TRUE(std::filesystem::is_empty(o.tempDir));
+}
+
+TEST(Finalizer, EveryCellGetsOneLatePointWithinTheBudget) {
+  // The worst order: one point of every cell held back to the very end, so every cell stays open and the
+  // whole survey is buffered.  It must complete within a budget far below the survey's size.
+  SurveySpec spec;
+  spec.points = 300000;
+  const auto pts = generate(spec);
+  const int depth = 6;
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  const GridSpec g = makeGrid(b, depth);
+  std::vector<PointRecord> order, late;
+  std::vector<bool> seen(g.cellCount(), false);
+  for (const auto& p : pts) {
+    const auto c = g.cellOf(p.x, p.y);
+    (seen[c] ? order : late).push_back(p);
+    seen[c] = true;
+  }
+  order.insert(order.end(), late.begin(), late.end());
+  FinalizerOptions o = noFilter(depth);
+  o.memoryBudget = 1 << 20;  // 1 MiB for a 9.6 MB survey
+  o.tempDir = test::scratchDir().string();
+  Result r = finalize(order, o);
+  EXPECT_EQ(checkStream(order, r.sink), "");
+  // Everything but the late points waits (sprinkle points are held apart from the chunks).
+  EXPECT_LE(r.stats.width, pts.size() - late.size());
+  EXPECT_GE(r.stats.width + r.stats.occupiedCells, pts.size() - late.size());
+  EXPECT_LE(r.stats.peakPoolBytes, std::uint64_t{1} << 20);
+  EXPECT_GT(r.stats.spilledBytes, 8u * (1u << 20));
+  Result unlimited = finalize(order, noFilter(depth));
+  EXPECT_TRUE(sameEvents(unlimited.sink.events, r.sink.events));
+}
+
+TEST(Finalizer, WidthOfAFlightStripSurveyAtTheDefaultDepth) {
+  // 1M points (the 10M / 100M measurements are in the benchmark): the width equals what a chunking
+  // finalizer must buffer (survey_stats simulates exactly that, sprinkle points aside).
+  SurveySpec spec;
+  spec.points = 1000000;
+  spec.seed = 2006;
+  const auto pts = generate(spec);
+  Result r = finalize(pts, noFilter());
+  EXPECT_EQ(checkStream(pts, r.sink), "");
+  EXPECT_EQ(r.stats.grid.depth, chooseDepth(pts.size()));
+  VectorStream s(pts);
+  SurveyStatsOptions so;
+  const SurveyStats info = analyzeSurvey(s, so);
+  EXPECT_EQ(info.grid.depth, r.stats.grid.depth);
+  EXPECT_LE(r.stats.width, info.width);
+  EXPECT_GE(r.stats.width + r.stats.occupiedCells, info.width);
+  // 3 strips with 25 % side overlap: one strip's overlap band (~8 % of the points) must wait for the next,
+  // plus the cells (62 m at depth 3) the band straddles.
+  EXPECT_LT(static_cast<double>(r.stats.width), 0.2 * static_cast<double>(pts.size()));
+  EXPECT_EQ(r.stats.spilledBytes, 0u);
+}
+
+// ---- inputs ---------------------------------------------------------------------------------------------
+
+TEST(Finalizer, NonRewindableInputIsSpooledWithIdenticalOutput) {
+  SurveySpec spec;
+  spec.points = 50000;
+  const auto pts = generate(spec);
+  FinalizerOptions o = noFilter(4);
+  o.tempDir = test::scratchDir().string();
+  Result a = finalize(pts, o, true);
+  Result b = finalize(pts, o, false);
+  EXPECT_TRUE(b.stats.pass1Run);
+  EXPECT_EQ(b.stats.spooledBytes, pts.size() * sizeof(PointRecord));
+  EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events));
+  EXPECT_TRUE(std::filesystem::is_empty(o.tempDir));
+}
+
+TEST(Finalizer, ManyInputsReadAsOneSurvey) {
+  SurveySpec spec;
+  spec.points = 60000;
+  const auto pts = generate(spec);
+  Result whole = finalize(pts, noFilter(4));
+  std::vector<std::unique_ptr<VectorStream>> parts;
+  std::vector<PointStream*> inputs;
+  const std::size_t cuts[] = {0, 1, 20000, 20000, 59999, 60000};  // includes empty inputs
+  for (std::size_t i = 0; i + 1 < std::size(cuts); ++i) {
+    parts.push_back(std::make_unique<VectorStream>(
+        std::vector<PointRecord>(pts.begin() + static_cast<std::ptrdiff_t>(cuts[i]),
+                                 pts.begin() + static_cast<std::ptrdiff_t>(cuts[i + 1])),
+        i != 2 /* one of them is stdin-like */));
+    inputs.push_back(parts.back().get());
+  }
+  RecordingSink sink;
+  Diagnostics diag;
+  FinalizerOptions o = noFilter(4);
+  o.tempDir = test::scratchDir().string();
+  finalizePoints(inputs, o, sink, diag);
+  EXPECT_TRUE(sameEvents(whole.sink.events, sink.events));
+}
+
+TEST(Finalizer, TrustedHeaderBoundsSkipPassOne) {
+  SurveySpec spec;
+  spec.points = 50000;
+  const auto pts = generate(spec);
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  FinalizerOptions o = noFilter(4);
+  Result computed = finalize(pts, o);
+  EXPECT_TRUE(computed.stats.pass1Run);
+  o.knownBounds = b;
+  o.expectedPoints = pts.size();
+  VectorStream s(pts);
+  RecordingSink sink;
+  Diagnostics diag;
+  const FinalizerStats st = finalizePoints({&s}, o, sink, diag);
+  EXPECT_FALSE(st.pass1Run);
+  EXPECT_TRUE(st.boundsFromHeader);
+  EXPECT_EQ(st.pass2Runs, 1u);
+  EXPECT_EQ(s.rewinds, 2);  // passes 2 and 3
+  EXPECT_TRUE(sameEvents(computed.sink.events, sink.events));
+  EXPECT_TRUE(diag.entries().empty());
+}
+
+TEST(Finalizer, WrongHeaderBoundsAreDetectedAndRedone) {
+  SurveySpec spec;
+  spec.points = 50000;
+  const auto pts = generate(spec);
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  FinalizerOptions o = noFilter(4);
+  Result computed = finalize(pts, o);
+  // Too small: points outside.
+  Bounds3 small = b;
+  small.maxX -= 10;
+  o.knownBounds = small;
+  {
+    VectorStream s(pts);
+    RecordingSink sink;
+    Diagnostics diag;
+    const FinalizerStats st = finalizePoints({&s}, o, sink, diag);
+    EXPECT_EQ(st.boundsRetries, 1);
+    EXPECT_EQ(st.pass2Runs, 2u);
+    EXPECT_FALSE(st.boundsFromHeader);
+    EXPECT_GT(diag.count("finalize.points_outside_header_bounds"), 0u);
+    EXPECT_EQ(checkStream(pts, sink), "");
+    EXPECT_TRUE(sameEvents(computed.sink.events, sink.events));
+  }
+  // Far too large: the grid would waste most cells.
+  Bounds3 large = b;
+  large.maxX += 5 * (b.maxX - b.minX);
+  o.knownBounds = large;
+  {
+    VectorStream s(pts);
+    RecordingSink sink;
+    Diagnostics diag;
+    const FinalizerStats st = finalizePoints({&s}, o, sink, diag);
+    EXPECT_EQ(st.boundsRetries, 1);
+    EXPECT_EQ(diag.count("finalize.header_bounds_too_large"), 1u);
+    EXPECT_TRUE(sameEvents(computed.sink.events, sink.events));
+  }
+}
+
+// ---- filters --------------------------------------------------------------------------------------------
+
+TEST(Finalizer, DefaultFilterDropsWithheldAndNoiseAndCounts) {
+  SurveySpec spec;
+  spec.points = 300000;
+  auto pts = generate(spec);
+  for (std::size_t i = 0; i < pts.size(); i += 1000) pts[i].flags |= kFlagWithheld;
+  std::vector<PointRecord> kept;
+  std::uint64_t withheld = 0, noise = 0;
+  for (const auto& p : pts) {
+    if (p.flags & kFlagWithheld)
+      ++withheld;
+    else if (p.classification == 7 || p.classification == 18)
+      ++noise;
+    else
+      kept.push_back(p);
+  }
+  ASSERT_GT(noise, 0u);
+  FinalizerOptions o;  // default filter
+  o.depth = 4;
+  Result r = finalize(pts, o);
+  EXPECT_EQ(checkStream(kept, r.sink), "");
+  EXPECT_EQ(r.stats.filter.read, pts.size());
+  EXPECT_EQ(r.stats.filter.kept, kept.size());
+  EXPECT_EQ(r.stats.filter.withheld, withheld);
+  EXPECT_EQ(r.stats.filter.byClass, noise);
+  EXPECT_EQ(r.stats.filter.droppedByClass[7] + r.stats.filter.droppedByClass[18], noise);
+  EXPECT_EQ(r.stats.points, kept.size());
+}
+
+TEST(Finalizer, KeepClassReturnsAndClip) {
+  SurveySpec spec;
+  spec.points = 100000;
+  const auto pts = generate(spec);
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  FinalizerOptions o;
+  o.depth = 3;
+  o.filter.keepOnly({2, 9});
+  o.filter.firstOnly = true;
+  o.filter.clip = ClipRect{b.minX + 50, b.minY + 50, b.minX + 200, b.maxY - 30};
+  std::vector<PointRecord> kept;
+  for (const auto& p : pts)
+    if ((p.classification == 2 || p.classification == 9) && p.returnNumber == 1 &&
+        o.filter.clip->contains(p.x, p.y))
+      kept.push_back(p);
+  Result r = finalize(pts, o);
+  EXPECT_EQ(checkStream(kept, r.sink), "");
+  const FilterCounts& c = r.stats.filter;
+  EXPECT_EQ(c.kept, kept.size());
+  EXPECT_EQ(c.read, c.kept + c.dropped());
+  EXPECT_GT(c.byReturn, 0u);
+  EXPECT_GT(c.clipped, 0u);
+  // Last-only keeps points whose return number equals the number of returns.
+  PointFilter last = PointFilter::none();
+  last.lastOnly = true;
+  PointRecord p;
+  p.returnNumber = 1;
+  p.numberOfReturns = 2;
+  EXPECT_FALSE(last.accept(p));
+  p.returnNumber = 2;
+  EXPECT_TRUE(last.accept(p));
+  p.returnNumber = 0;  // not given: kept
+  EXPECT_TRUE(last.accept(p));
+}
+
+TEST(Finalizer, NoPointsLeftIsAClearError) {
+  auto pts = randomPoints(1000, 1);
+  for (auto& p : pts) p.classification = 7;
+  pts[0].flags = kFlagWithheld;
+  FinalizerOptions o;
+  try {
+    finalize(pts, o);
+    FAIL() << "no error";
+  } catch (const Error& e) {
+    const std::string m = e.what();
+    EXPECT_NE(m.find("no points left after filtering: 1,000 read"), std::string::npos) << m;
+    EXPECT_NE(m.find("999 dropped by class (7: 999)"), std::string::npos) << m;
+    EXPECT_NE(m.find("1 withheld"), std::string::npos) << m;
+  }
+  // Same through the header-bounds path (pass 1 skipped).
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  o.knownBounds = b;
+  EXPECT_THROW(finalize(pts, o), Error);
+  // And an empty input.
+  EXPECT_THROW(finalize({}, noFilter()), Error);
+}
+
+// ---- depth ----------------------------------------------------------------------------------------------
+
+TEST(Finalizer, DefaultDepthFollowsTheOccupiedArea) {
+  // A square survey gets chooseDepth(points); a narrow diagonal corridor of the same size gets finer cells.
+  auto square = randomPoints(200000, 3);
+  Result a = finalize(square, noFilter());
+  EXPECT_EQ(a.stats.grid.depth, chooseDepth(square.size()));
+  std::vector<PointRecord> corridor = square;
+  for (auto& p : corridor) {
+    const double t = (p.x - 300000.0) / 1000.0;  // 0..1
+    const double w = (p.y - 5000000.0) / 1000.0 * 20.0;
+    p.x = 300000.0 + t * 1000.0;
+    p.y = 5000000.0 + t * 1000.0 + w;
+  }
+  Result b = finalize(corridor, noFilter());
+  EXPECT_GT(b.stats.grid.depth, chooseDepth(corridor.size()));
+  EXPECT_GE(b.stats.averagePerCell, 2000.0);
+  EXPECT_EQ(checkStream(corridor, b.sink), "");
+}
+
+// ---- progress and concurrency -----------------------------------------------------------------------------
+
+TEST(Finalizer, ProgressIsMonotonicAndCancels) {
+  auto pts = randomPoints(300000, 8);
+  struct State {
+    double last = -1;
+    bool monotonic = true;
+    int calls = 0;
+    int cancelAt = -1;
+  } st;
+  auto fn = [](double c, const char*, void* d) -> int {
+    auto* s = static_cast<State*>(d);
+    if (c < s->last) s->monotonic = false;
+    s->last = c;
+    ++s->calls;
+    return s->cancelAt < 0 || s->calls < s->cancelAt;
+  };
+  FinalizerOptions o = noFilter();
+  o.progress = fn;
+  o.progressData = &st;
+  finalize(pts, o);
+  EXPECT_TRUE(st.monotonic);
+  EXPECT_EQ(st.last, 1.0);
+  EXPECT_GT(st.calls, 6);
+  State cancel;
+  cancel.cancelAt = 5;
+  o.progressData = &cancel;
+  EXPECT_THROW(finalize(pts, o), CancelledError);
+}
+
+TEST(Finalizer, ConcurrentSinkGivesTheSameSequence) {
+  SurveySpec spec;
+  spec.points = 100000;
+  const auto pts = generate(spec);
+  Result direct = finalize(pts, noFilter(5));
+  RecordingSink sink;
+  {
+    ConcurrentPointSink queue(sink, 4096);
+    VectorStream s(pts);
+    Diagnostics diag;
+    finalizePoints({&s}, noFilter(5), queue, diag);
+  }
+  EXPECT_TRUE(sameEvents(direct.sink.events, sink.events));
+
+  // A failing consumer stops the producer with the consumer's exception.
+  struct Failing : PointSink {
+    std::size_t seen = 0;
+    void begin(const StreamInfo&) override {}
+    void points(const PointRecord*, std::size_t n) override {
+      seen += n;
+      if (seen > 20000) throw DataError("out", "disk full");
+    }
+    void finalizeCell(const CellTag&) override {}
+    void end() override {}
+  } failing;
+  ConcurrentPointSink queue(failing, 4096);
+  VectorStream s(pts);
+  Diagnostics diag;
+  EXPECT_THROW(finalizePoints({&s}, noFilter(5), queue, diag), DataError);
+}
+
+}  // namespace
+}  // namespace tinbuild
