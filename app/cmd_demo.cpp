@@ -16,6 +16,7 @@ int runDemo(const cli::ParsedArgs& args) {
   if (args.positional.size() > 1) throw UsageError("demo: at most one output directory");
   const std::filesystem::path dir = args.positional.empty() ? "tinbuild-demo" : args.positional[0];
   const int millions = args.getInt("--points", 2, 1, 1000);
+  const double swath = args.getDouble("--swath", 500.0);
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) throw DataError(dir.string(), "cannot create the demo directory: " + ec.message());
@@ -26,6 +27,8 @@ int runDemo(const cli::ParsedArgs& args) {
   spec.kind = SurveySpec::Kind::FlightStrips;
   spec.points = static_cast<std::uint64_t>(millions) * 1000000u;
   spec.seed = 2006;
+  spec.swath = swath;
+  spec.homeStrip = args.has("--home-strip");
   const std::string las = (dir / "survey.las").string();
   std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << "\n";
   writeSyntheticSurveyLas(spec, las, 32610, 5703);
@@ -52,7 +55,9 @@ Command demoCommand() {
       "Synthesizes a realistic airborne survey (flight strips with overlap over a river valley, ground,\n"
       "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAS in\n"
       "DIR (default ./tinbuild-demo) and reports on it with `info`.",
-      {{"--points", "MILLIONS", "survey size in millions of points (default 2)"}},
+      {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
+       {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
+       {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"}},
       runDemo};
 }
 

@@ -3,7 +3,9 @@
 namespace tinbuild::app {
 
 const std::vector<Command>& commands() {
-  static const std::vector<Command> all = {infoCommand(), demoCommand(), benchCommand(), finalizeCommand()};
+  static const std::vector<Command> all = {infoCommand(),        buildCommand(),  finalizeCommand(),
+                                           triangulateCommand(), verifyCommand(), demoCommand(),
+                                           benchCommand()};
   return all;
 }
 

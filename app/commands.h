@@ -24,5 +24,8 @@ Command infoCommand();
 Command demoCommand();
 Command benchCommand();
 Command finalizeCommand();
+Command triangulateCommand();
+Command buildCommand();
+Command verifyCommand();
 
 }  // namespace tinbuild::app

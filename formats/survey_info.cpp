@@ -15,34 +15,6 @@ namespace tinbuild {
 
 namespace {
 
-// Reads several inputs as one stream, in order; knows which file the current batch came from.
-class ConcatStream : public PointStream {
- public:
-  explicit ConcatStream(std::vector<std::unique_ptr<PointReader>>& readers) : readers_(readers) {}
-  std::size_t read(PointRecord* out, std::size_t max) override {
-    while (current_ < readers_.size()) {
-      const std::size_t n = readers_[current_]->read(out, max);
-      if (n > 0) return n;
-      ++current_;
-    }
-    return 0;
-  }
-  bool rewindable() const override {
-    for (const auto& r : readers_)
-      if (!r->rewindable()) return false;
-    return true;
-  }
-  void rewind() override {
-    for (auto& r : readers_) r->rewind();
-    current_ = 0;
-  }
-  std::size_t current() const { return current_; }
-
- private:
-  std::vector<std::unique_ptr<PointReader>>& readers_;
-  std::size_t current_ = 0;
-};
-
 std::string withCommas(std::uint64_t n) {
   std::string s = std::to_string(n);
   for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
@@ -211,7 +183,9 @@ InfoReport inspectSurvey(const InfoOptions& options, Diagnostics& diag) {
   for (const auto& path : options.inputs) readers.push_back(openPointReader(path, options.reader, diag));
   report.files.resize(readers.size());
 
-  ConcatStream stream(readers);
+  std::vector<PointStream*> parts;
+  for (auto& r : readers) parts.push_back(r.get());
+  ConcatPointStream stream(parts);
   SurveyStatsOptions so;
   so.depth = options.depth;
   so.onPass1Batch = [&](const PointRecord* p, std::size_t n) {

@@ -6,6 +6,7 @@
 #pragma once
 
 #include <cstddef>
+#include <vector>
 
 #include "libterrain/point.h"
 
@@ -19,6 +20,35 @@ class PointStream {
   virtual bool rewindable() const = 0;
   // Starts the next pass at the first point.  Throws Error when not rewindable.
   virtual void rewind() = 0;
+};
+
+// Several streams read as one, in order (a survey of many tiles).  current() tells which stream the
+// last batch came from.  Rewindable when every part is.
+class ConcatPointStream : public PointStream {
+ public:
+  explicit ConcatPointStream(std::vector<PointStream*> parts) : parts_(std::move(parts)) {}
+  std::size_t read(PointRecord* out, std::size_t max) override {
+    while (current_ < parts_.size()) {
+      const std::size_t n = parts_[current_]->read(out, max);
+      if (n > 0) return n;
+      ++current_;
+    }
+    return 0;
+  }
+  bool rewindable() const override {
+    for (const auto* p : parts_)
+      if (!p->rewindable()) return false;
+    return true;
+  }
+  void rewind() override {
+    for (auto* p : parts_) p->rewind();
+    current_ = 0;
+  }
+  std::size_t current() const { return current_; }
+
+ private:
+  std::vector<PointStream*> parts_;
+  std::size_t current_ = 0;
 };
 
 }  // namespace tinbuild

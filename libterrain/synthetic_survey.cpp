@@ -365,6 +365,8 @@ SurveyGenerator::Impl::Impl(const SurveySpec& s) : spec(s) {
     throw UsageError("synthetic survey: origin and base elevation must be finite");
   if (!(spec.sideOverlap >= 0 && spec.sideOverlap <= 0.9))
     throw UsageError("synthetic survey: side overlap must lie in [0, 0.9]");
+  if (!(spec.swath >= 10.0) || !std::isfinite(spec.swath))
+    throw UsageError("synthetic survey: swath must be at least 10 metres");
   if (spec.points > kMaxPoints) throw UsageError("synthetic survey: at most 10^12 points");
   q = spec.quantum;
   total = spec.points;
@@ -375,7 +377,7 @@ SurveyGenerator::Impl::Impl(const SurveySpec& s) : spec(s) {
   double L = std::sqrt(static_cast<double>(total)) * spec.spacing;
   switch (spec.kind) {
     case SurveySpec::Kind::FlightStrips: {
-      const double nominalSwath = 500.0;
+      const double nominalSwath = spec.swath;
       const double stepFraction = 1.0 - spec.sideOverlap;
       normalStrips = 3;
       if (L > nominalSwath) {

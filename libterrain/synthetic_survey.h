@@ -87,6 +87,7 @@ struct SurveySpec {
   std::uint64_t seed = 1;
   double baseElevation = 120.0;  // valley floor height at the upstream edge (m)
   double sideOverlap = 0.25;     // FlightStrips: fraction of a swath shared with the next strip
+  double swath = 500.0;          // FlightStrips: nominal swath width (m); strips are fitted to the area
   bool homeStrip = false;        // FlightStrips: add a last strip crossing the area diagonally
   bool markOverlap = false;      // FlightStrips: flag points in a previous strip's swath kFlagOverlap
 };

@@ -1,0 +1,309 @@
+// The pipeline commands: finalize, triangulate, build.  They share the option tables (inputs, filters,
+// finalizer) and the parsing into PipelineOptions; each calls one entry point of formats/pipeline.h, then
+// prints the summary and writes the `--report` JSON.
+#include <unistd.h>
+
+#include <charconv>
+#include <cmath>
+#include <cstdio>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include "app/commands.h"
+#include "formats/output_file.h"
+#include "formats/pipeline.h"
+#include "libterrain/error.h"
+
+namespace tinbuild::app {
+
+namespace {
+
+std::vector<std::string> splitList(const std::string& s) {
+  std::vector<std::string> out;
+  std::size_t start = 0;
+  for (;;) {
+    const std::size_t comma = s.find(',', start);
+    out.push_back(s.substr(start, comma == std::string::npos ? std::string::npos : comma - start));
+    if (comma == std::string::npos) break;
+    start = comma + 1;
+  }
+  return out;
+}
+
+int parseClassCode(const std::string& option, const std::string& text) {
+  int v = -1;
+  auto [p, ec] = std::from_chars(text.data(), text.data() + text.size(), v);
+  if (ec != std::errc() || p != text.data() + text.size() || v < 0 || v > 255)
+    throw UsageError(option +
+                     " expects class codes 0..255 separated by commas (ranges like 3-5 allowed), got '" +
+                     text + "'");
+  return v;
+}
+
+// "2,8" or "3-5,9" -> codes.
+std::vector<int> parseClassList(const std::string& option, const std::string& list) {
+  std::vector<int> codes;
+  for (const auto& item : splitList(list)) {
+    const std::size_t dash = item.find('-');
+    if (dash != std::string::npos && dash > 0) {
+      const int lo = parseClassCode(option, item.substr(0, dash));
+      const int hi = parseClassCode(option, item.substr(dash + 1));
+      if (lo > hi) throw UsageError(option + ": empty range '" + item + "'");
+      for (int c = lo; c <= hi; ++c) codes.push_back(c);
+    } else {
+      codes.push_back(parseClassCode(option, item));
+    }
+  }
+  return codes;
+}
+
+ClipRect parseClip(const std::string& text) {
+  const auto parts = splitList(text);
+  double v[4] = {};
+  bool ok = parts.size() == 4;
+  for (std::size_t i = 0; ok && i < 4; ++i) {
+    auto [p, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
+    ok = ec == std::errc() && p == parts[i].data() + parts[i].size() && std::isfinite(v[i]);
+  }
+  if (!ok || !(v[0] < v[2]) || !(v[1] < v[3]))
+    throw UsageError("--clip expects xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got '" + text +
+                     "'");
+  return ClipRect{v[0], v[1], v[2], v[3]};
+}
+
+struct ProgressState {
+  std::string message;
+  int percent = -1;
+};
+
+int drawProgress(double complete, const char* message, void* data) {
+  auto* s = static_cast<ProgressState*>(data);
+  const int pct = static_cast<int>(complete * 100);
+  if (pct != s->percent || s->message != message) {
+    s->percent = pct;
+    s->message = message;
+    std::fprintf(stderr, "\r%-40s %3d%%", message, pct);
+    if (complete >= 1.0) std::fprintf(stderr, "\n");
+    std::fflush(stderr);
+  }
+  return 1;
+}
+
+// Options every command that reads survey files understands.
+std::vector<cli::OptionSpec> inputOptions() {
+  return {{"--depth", "K", "finalizer grid depth 0..15 (default: cells of a few thousand points)"},
+          {"--memory", "MB", "memory budget for waiting chunks; beyond it they spill to disk (default 512)"},
+          {"--keep-class", "LIST", "keep only these classes, e.g. 2,8 or 2-5 (default: all but 7 and 18)"},
+          {"--drop-class", "LIST", "drop these classes too"},
+          {"--keep-withheld", "", "keep points flagged withheld (dropped by default)"},
+          {"--first-only", "", "keep first returns only (points without return numbers are kept)"},
+          {"--last-only", "", "keep last returns only"},
+          {"--clip", "XMIN,YMIN,XMAX,YMAX", "keep points inside this rectangle"},
+          {"--columns", "SPEC", "XYZ input: columns by position, e.g. x,y,z,class,intensity,skip"},
+          {"--skip-bad-lines", "", "XYZ input: skip and count malformed lines instead of failing"},
+          {"--a_srs", "CRS", "assign a CRS (EPSG:n, WKT, PROJ string), overriding the files'"},
+          {"--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)"},
+          {"--compute-bounds", "", "compute the bounds in a first pass instead of using the LAS headers'"}};
+}
+
+std::vector<cli::OptionSpec> triangulatorOptions() {
+  return {{"--duplicates", "RULE",
+           "which of several points with equal x,y survives: lowest (default), highest, first"}};
+}
+
+std::vector<cli::OptionSpec> reportOptions() {
+  return {{"--report", "FILE.json", "machine-readable run report (counts, grid, width, memory, timings)"},
+          {"-q", "", "no summary, progress or warnings on stderr (warnings stay in the report)", "--quiet"}};
+}
+
+template <class... Lists>
+std::vector<cli::OptionSpec> join(std::vector<cli::OptionSpec> first, const Lists&... rest) {
+  (first.insert(first.end(), rest.begin(), rest.end()), ...);
+  return first;
+}
+
+void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
+  o.inputs = args.positional;
+  FinalizerOptions& fo = o.finalizer;
+  fo.depth = args.getInt("--depth", -1, 0, 15);
+  fo.memoryBudget = static_cast<std::size_t>(args.getInt("--memory", 512, 1, 1 << 22)) << 20;
+  fo.tempDir = args.get("--temp-dir");
+  if (args.has("--keep-class")) {
+    fo.filter.dropClasses.set();
+    for (int c : parseClassList("--keep-class", args.get("--keep-class")))
+      fo.filter.dropClasses.reset(static_cast<std::size_t>(c));
+  }
+  if (args.has("--drop-class"))
+    for (int c : parseClassList("--drop-class", args.get("--drop-class")))
+      fo.filter.dropClasses.set(static_cast<std::size_t>(c));
+  fo.filter.dropWithheld = !args.has("--keep-withheld");
+  fo.filter.firstOnly = args.has("--first-only");
+  fo.filter.lastOnly = args.has("--last-only");
+  if (args.has("--clip")) fo.filter.clip = parseClip(args.get("--clip"));
+  o.reader.columns = args.get("--columns");
+  o.reader.skipBadLines = args.has("--skip-bad-lines");
+  o.reader.assignSrs = args.get("--a_srs");
+  o.computeBounds = args.has("--compute-bounds");
+}
+
+void parseTriangulatorOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
+  if (args.has("--duplicates")) {
+    auto rule = parseDuplicateRule(args.get("--duplicates"));
+    if (!rule)
+      throw UsageError("--duplicates expects lowest, highest or first, got '" + args.get("--duplicates") +
+                       "'");
+    o.delaunay.duplicates = *rule;
+  }
+}
+
+// Runs a pipeline command with the shared diagnostics, progress, summary and report handling.
+template <class Run>
+int runWithReport(const cli::ParsedArgs& args, PipelineOptions& o, Run run) {
+  const bool quiet = args.has("-q");
+  Diagnostics diag;
+  if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  ProgressState progress;
+  if (!quiet && ::isatty(STDERR_FILENO)) {
+    o.finalizer.progress = drawProgress;
+    o.finalizer.progressData = &progress;
+  }
+  const RunReport report = run(o, diag);
+  if (!quiet) std::cerr << formatRunSummary(report);
+  if (args.has("--report")) {
+    OutputFile f(args.get("--report"));
+    f.write(formatRunJson(report));
+    f.commit();
+  }
+  return 0;
+}
+
+void refuseBinaryToTerminal(const std::string& output, const char* command) {
+  if (output == "-" && ::isatty(STDOUT_FILENO))
+    throw UsageError(std::string(command) +
+                     ": refusing to write a binary stream to a terminal (redirect stdout or name a file)");
+}
+
+int runFinalizeCommand(const cli::ParsedArgs& args) {
+  PipelineOptions o;
+  parseInputOptions(args, o);
+  if (o.inputs.empty()) throw UsageError("finalize: give at least one input file (or - for stdin)");
+  if (!args.has("-o") || args.get("-o").empty())
+    throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  o.finalizedOutput = args.get("-o");
+  refuseBinaryToTerminal(o.finalizedOutput, "finalize");
+  return runWithReport(args, o, runFinalize);
+}
+
+int runTriangulateCommand(const cli::ParsedArgs& args) {
+  PipelineOptions o;
+  parseTriangulatorOptions(args, o);
+  if (args.positional.size() != 1)
+    throw UsageError(
+        "triangulate: give exactly one finalized point stream (a file from `tinbuild finalize`, or -)");
+  if (!args.has("-o") || args.get("-o").empty())
+    throw UsageError("triangulate: give the output mesh: -o FILE.smb, -o FILE.sma, or -o - (SMB on stdout)");
+  o.meshOutput = args.get("-o");
+  refuseBinaryToTerminal(o.meshOutput, "triangulate");
+  const std::string input = args.positional[0];
+  return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
+    return runTriangulate(input, opts, diag);
+  });
+}
+
+int runBuildCommand(const cli::ParsedArgs& args) {
+  PipelineOptions o;
+  parseInputOptions(args, o);
+  parseTriangulatorOptions(args, o);
+  if (o.inputs.empty()) throw UsageError("build: give at least one input file (or - for stdin)");
+  if (!args.has("--mesh")) throw UsageError("build: name an output: --mesh FILE.smb|FILE.sma");
+  o.meshOutput = args.get("--mesh");
+  refuseBinaryToTerminal(o.meshOutput, "build");
+  return runWithReport(args, o, runBuild);
+}
+
+int runVerifyCommand(const cli::ParsedArgs& args) {
+  if (args.positional.size() != 1)
+    throw UsageError("verify: give exactly one streaming mesh (.smb or .sma, or -)");
+  PipelineOptions o;
+  parseInputOptions(args, o);
+  o.inputs = args.all("--points");
+  for (const auto& extra : args.all("--points"))
+    if (extra.empty()) throw UsageError("verify: --points needs a file");
+  const bool quiet = args.has("-q") || args.has("--json");
+  Diagnostics diag;
+  if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  const VerifyReport report = runVerify(args.positional[0], o, diag);
+  std::cout << (args.has("--json") ? formatVerifyJson(report) : formatVerifyText(report));
+  return report.ok() ? 0 : 1;
+}
+
+}  // namespace
+
+Command verifyCommand() {
+  return Command{
+      "verify",
+      "tinbuild verify MESH [--points INPUT]... [filter options] [--json]",
+      "check a streaming mesh independently (valid, CCW, Delaunay, hull, all points used)",
+      "Reads a streaming mesh (.smb/.sma, or - for stdin) and checks it without trusting its writer: every\n"
+      "index refers to a live vertex and every vertex is finalized; every triangle is counter-clockwise;\n"
+      "every interior edge is locally Delaunay by the exact predicate (with the symbolic perturbation); the\n"
+      "boundary is one convex counter-clockwise cycle whose area equals the sum of the triangle areas.  "
+      "With\n"
+      "--points (repeat it per file) it also checks that the mesh's vertices are exactly the distinct x,y "
+      "of\n"
+      "those inputs after the same filters `build` applies.  Memory follows the mesh's width.  Exit code 0\n"
+      "when everything holds, 1 otherwise.",
+      join({{"--points", "INPUT", "an input of the mesh (repeat for several files)"},
+            {"--json", "", "machine-readable result"}},
+           inputOptions(), reportOptions()),
+      runVerifyCommand};
+}
+
+Command finalizeCommand() {
+  return Command{
+      "finalize",
+      "tinbuild finalize INPUT... -o FILE|- [--depth K] [--memory MB] [--keep-class LIST] [--drop-class "
+      "LIST]\n"
+      "                  [--first-only] [--last-only] [--clip xmin,ymin,xmax,ymax] [--report FILE.json] [-q]",
+      "write the finalized point stream (the paper's spfinalize)",
+      "Reads the inputs (LAS or XYZ, several files as one survey, in the order given) three times -- bounds\n"
+      "(skipped when the LAS headers' bounds look sane; they are verified), points per cell of a 2^K x 2^K\n"
+      "grid, then the stream -- and writes the finalized point stream: points in spatially coherent chunks\n"
+      "(one per grid cell, in a biased randomized insertion order, sprinkle points first), each followed by\n"
+      "a finalization tag, exact coordinates; `tinbuild triangulate` reads it.  Incoherent input spills\n"
+      "waiting chunks to a temporary file beyond --memory.  Stdin is spooled to a temporary file.",
+      join({{"-o", "FILE", "output finalized stream (- = stdout)", "--output"}}, inputOptions(),
+           reportOptions()),
+      runFinalizeCommand};
+}
+
+Command triangulateCommand() {
+  return Command{
+      "triangulate",
+      "tinbuild triangulate FILE|- -o MESH|- [--duplicates lowest|highest|first] [--report FILE.json] [-q]",
+      "triangulate a finalized point stream into a streaming mesh (the paper's spdelaunay2d)",
+      "Reads a finalized point stream (from `tinbuild finalize`, a file or stdin) and writes its Delaunay\n"
+      "triangulation as a streaming mesh (.smb binary or .sma ASCII; - writes SMB to stdout).  Triangles "
+      "are\n"
+      "written as soon as no future point can destroy them, so memory follows the stream's width.\n"
+      "Example: tinbuild finalize tiles/*.las -o - | tinbuild triangulate - -o tin.smb",
+      join({{"-o", "MESH", "output streaming mesh (.smb, .sma, or - for SMB on stdout)", "--output"}},
+           triangulatorOptions(), reportOptions()),
+      runTriangulateCommand};
+}
+
+Command buildCommand() {
+  return Command{
+      "build",
+      "tinbuild build INPUT... --mesh FILE.smb|.sma [OPTIONS]",
+      "the main job: LIDAR to TIN in one streaming pass",
+      "Finalizes the inputs and triangulates them in one process (finalizer and triangulator on two\n"
+      "threads with a bounded queue between them), writing the TIN as a streaming mesh while the\n"
+      "triangulation runs.  Memory follows the stream's width, not the survey's size.",
+      join({{"--mesh", "FILE", "TIN as a streaming mesh (.smb binary, .sma ASCII)"}}, inputOptions(),
+           triangulatorOptions(), reportOptions()),
+      runBuildCommand};
+}
+
+}  // namespace tinbuild::app

@@ -1,0 +1,526 @@
+#include "formats/pipeline.h"
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+
+#include "formats/finalized_stream.h"
+#include "formats/streaming_mesh.h"
+#include "libterrain/error.h"
+#include "libterrain/json_writer.h"
+#include "libterrain/survey_stats.h"
+
+namespace tinbuild {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+std::string withCommas(std::uint64_t n) {
+  std::string s = std::to_string(n);
+  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
+  return s;
+}
+
+std::string fmt(const char* format, double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, format, v);
+  return buf;
+}
+
+std::string bytesText(std::uint64_t b) {
+  if (b < 1024) return std::to_string(b) + " B";
+  if (b < (1u << 20)) return fmt("%.1f KiB", static_cast<double>(b) / 1024);
+  if (b < (1u << 30)) return fmt("%.1f MiB", static_cast<double>(b) / (1 << 20));
+  return fmt("%.2f GiB", static_cast<double>(b) / (1 << 30));
+}
+
+// The LAS headers' bounds, when every input is LAS and every header looks sane.
+bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Bounds3& out,
+                  std::uint64_t& points) {
+  Bounds3 all;
+  points = 0;
+  for (const auto& r : readers) {
+    const SourceInfo& s = r->info();
+    if (s.format != "LAS" || !s.hasHeaderBounds || s.path == "-") return false;
+    const Bounds3& b = s.headerBounds;
+    for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
+      if (!std::isfinite(v) || std::fabs(v) > 1e15) return false;
+    if (!(b.minX <= b.maxX && b.minY <= b.maxY && b.minZ <= b.maxZ)) return false;
+    if (s.headerPointCount == 0) continue;  // an empty file says nothing
+    // A degenerate box with many points is suspicious enough to compute the bounds instead.
+    if (s.headerPointCount > 1 && b.minX == b.maxX && b.minY == b.maxY) return false;
+    all.add(b);
+    points += s.headerPointCount;
+  }
+  if (all.empty()) return false;
+  out = all;
+  return true;
+}
+
+// Opened inputs with the finalizer options completed from them (CRS, trusted bounds, common scale).
+struct OpenedInputs {
+  std::vector<std::unique_ptr<PointReader>> readers;
+  std::vector<PointStream*> streams;
+  CrsInfo crs;
+};
+
+OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnostics& diag) {
+  if (o.inputs.empty()) throw UsageError("give at least one input file (or - for stdin)");
+  int stdinCount = 0;
+  for (const auto& i : o.inputs) stdinCount += i == "-";
+  if (stdinCount > 1) throw UsageError("stdin (-) can be read only once");
+  OpenedInputs in;
+  for (const auto& path : o.inputs) {
+    in.readers.push_back(openPointReader(path, o.reader, diag));
+    in.streams.push_back(in.readers.back().get());
+  }
+  in.crs = in.readers.front()->info().crs;
+  for (std::size_t i = 1; i < in.readers.size(); ++i) {
+    const CrsInfo& c = in.readers[i]->info().crs;
+    if (!sameCrs(in.crs, c))
+      diag.warn("crs.inputs_differ", o.inputs[i],
+                "its CRS (" + (c.empty() ? std::string("none") : c.name) + ") differs from " + o.inputs[0] +
+                    " (" + (in.crs.empty() ? std::string("none") : in.crs.name) +
+                    "); the output carries the first file's CRS");
+  }
+  if (in.crs.empty())
+    diag.warn("crs.none", "",
+              "the survey has no CRS: outputs are written without one (use --a_srs to assign it)");
+  fo.crsWkt = in.crs.wkt;
+  fo.inputNames = o.inputs;
+  Bounds3 hb;
+  std::uint64_t headerPoints = 0;
+  if (!o.computeBounds && headerBounds(in.readers, hb, headerPoints)) {
+    fo.knownBounds = hb;
+    fo.expectedPoints = headerPoints;
+  }
+  bool sameScale = true;
+  const SourceInfo& first = in.readers.front()->info();
+  for (const auto& r : in.readers) {
+    const SourceInfo& s = r->info();
+    sameScale = sameScale && s.hasScale && s.scale[0] == first.scale[0] && s.scale[1] == first.scale[1] &&
+                s.scale[2] == first.scale[2];
+  }
+  if (sameScale)
+    for (int i = 0; i < 3; ++i) fo.scale[i] = first.scale[i];
+  return in;
+}
+
+std::uint64_t fileSize(const std::string& path) {
+  std::error_code ec;
+  if (path == "-") return 0;
+  const auto n = std::filesystem::file_size(path, ec);
+  return ec ? 0 : static_cast<std::uint64_t>(n);
+}
+
+void finish(RunReport& r, const Diagnostics& diag, Clock::time_point t0) {
+  r.warnings = diag.entries();
+  r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  r.peakRssBytes = peakRssBytes();
+}
+
+void writeBounds(JsonWriter& j, const Bounds3& b) {
+  if (b.empty()) {
+    j.null();
+    return;
+  }
+  j.beginObject();
+  j.key("min").beginArray().value(b.minX).value(b.minY).value(b.minZ).endArray();
+  j.key("max").beginArray().value(b.maxX).value(b.maxY).value(b.maxZ).endArray();
+  j.endObject();
+}
+
+void writePass(JsonWriter& j, bool run, double seconds, std::uint64_t points) {
+  j.beginObject();
+  j.key("run").value(run);
+  j.key("seconds").value(seconds);
+  j.key("points_per_second").value(run && seconds > 0 ? static_cast<double>(points) / seconds : 0.0);
+  j.endObject();
+}
+
+}  // namespace
+
+std::uint64_t peakRssBytes() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
+  return 0;
+}
+
+RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "finalize";
+  r.inputs = o.inputs;
+  if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+  FinalizedStreamWriter writer(o.finalizedOutput);
+  // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
+  r.finalizer = finalizePoints(in.streams, fo, writer, diag);
+  r.haveFinalizer = true;
+  r.outputs = {o.finalizedOutput};
+  r.outputBytes = writer.bytesWritten();
+  finish(r, diag, t0);
+  return r;
+}
+
+RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "triangulate";
+  r.inputs = {finalizedInput};
+  if (o.meshOutput.empty()) throw UsageError("triangulate: give the output mesh: -o FILE.smb|FILE.sma|-");
+  auto mesh = openMeshWriter(o.meshOutput);
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  StreamingDelaunay delaunay(*mesh, dopt);
+  const StreamInfo info = readFinalizedStream(finalizedInput, delaunay);
+  if (!info.crsWkt.empty()) {
+    try {
+      r.crs = crsFromUser(info.crsWkt);
+    } catch (const Error&) {
+      r.crs.wkt = info.crsWkt;
+    }
+  }
+  r.delaunay = delaunay.stats();
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  r.outputs = {o.meshOutput};
+  r.outputBytes = fileSize(o.meshOutput);
+  finish(r, diag, t0);
+  return r;
+}
+
+RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "build";
+  r.inputs = o.inputs;
+  if (o.meshOutput.empty()) throw UsageError("build: name at least one output (--mesh FILE)");
+  FinalizerOptions fo = o.finalizer;
+  // Open the output before any work, so an unwritable target fails at once.
+  auto mesh = openMeshWriter(o.meshOutput);
+  OpenedInputs in = openInputs(o, fo, diag);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  StreamingDelaunay delaunay(*mesh, dopt);
+  {
+    // The triangulator runs on its own thread behind a bounded queue; the event order is unchanged,
+    // so the output does not depend on thread timing.
+    ConcurrentPointSink queue(delaunay);
+    r.finalizer = finalizePoints(in.streams, fo, queue, diag);
+  }
+  r.haveFinalizer = true;
+  r.delaunay = delaunay.stats();
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  r.outputs = {o.meshOutput};
+  r.outputBytes = fileSize(o.meshOutput);
+  finish(r, diag, t0);
+  return r;
+}
+
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  VerifyReport r;
+  r.mesh = mesh;
+  MeshVerifier verifier;
+  readStreamingMesh(mesh, verifier);
+  r.check = verifier.report();
+  if (!o.inputs.empty()) {
+    std::vector<std::unique_ptr<PointReader>> readers;
+    std::vector<PointStream*> parts;
+    for (const auto& path : o.inputs) {
+      readers.push_back(openPointReader(path, o.reader, diag));
+      parts.push_back(readers.back().get());
+    }
+    ConcatPointStream stream(parts);
+    if (!stream.rewindable())
+      throw UsageError("verify --points: the inputs must be files (they are read several times)");
+    SurveyStatsOptions so;
+    so.filter = &o.finalizer.filter;
+    so.memoryBudget = o.finalizer.memoryBudget;
+    const SurveyStats stats = analyzeSurvey(stream, so);
+    r.pointsChecked = true;
+    r.inputPoints = stats.counts.points;
+    r.pointsCountable = stats.duplicatesKnown || stats.counts.points == 0;
+    r.inputDuplicates = stats.duplicatesXY;
+    r.inputDistinct = stats.distinctXY.count;
+    r.pointsMatch = r.pointsCountable && stats.distinctXY == r.check.fingerprint;
+  }
+  r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return r;
+}
+
+std::string formatVerifyText(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  std::string o = r.mesh + ": " + withCommas(c.vertices) + " vertices, " + withCommas(c.triangles) +
+                  " triangles, " + withCommas(c.interiorEdges) +
+                  " interior edges checked locally Delaunay (exact), " + withCommas(c.hullEdges) +
+                  " hull edges; at most " + withCommas(c.maxLiveVertices) + " live vertices and " +
+                  withCommas(c.maxOpenEdges) + " open edges; " + fmt("%.2f s", r.seconds) + "\n";
+  if (c.ok()) {
+    o += "  mesh: valid streaming mesh, counter-clockwise, Delaunay, convex hull covered (hull area " +
+         fmt("%.6g", c.hullArea) + " = sum of triangle areas)\n";
+  } else {
+    for (const auto& p : c.problems)
+      o += "  problem: " + p.kind + " (" + withCommas(p.count) + "x): " + p.first + "\n";
+  }
+  if (r.pointsChecked) {
+    if (!r.pointsCountable)
+      o += "  points: could not be compared (the inputs are too incoherent for the memory budget; raise "
+           "--memory)\n";
+    else if (r.pointsMatch)
+      o += "  points: every input point is used: the " + withCommas(r.inputDistinct) + " distinct xy of " +
+           withCommas(r.inputPoints) + " input points (after filters; " + withCommas(r.inputDuplicates) +
+           " duplicates) are exactly the mesh's vertices\n";
+    else
+      o += "  points: MISMATCH: the inputs have " + withCommas(r.inputDistinct) + " distinct xy (of " +
+           withCommas(r.inputPoints) + " points after filters), the mesh has " + withCommas(c.vertices) +
+           " vertices, and the sets differ\n";
+  }
+  o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
+  return o;
+}
+
+std::string formatVerifyJson(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  JsonWriter j;
+  j.beginObject();
+  j.key("mesh").value(r.mesh);
+  j.key("ok").value(r.ok());
+  j.key("vertices").value(c.vertices);
+  j.key("triangles").value(c.triangles);
+  j.key("interior_edges").value(c.interiorEdges);
+  j.key("hull_edges").value(c.hullEdges);
+  j.key("hull_area").value(c.hullArea);
+  j.key("triangle_area").value(c.triangleArea);
+  j.key("max_live_vertices").value(c.maxLiveVertices);
+  j.key("max_open_edges").value(c.maxOpenEdges);
+  j.key("problems").beginArray();
+  for (const auto& p : c.problems) {
+    j.beginObject();
+    j.key("kind").value(p.kind);
+    j.key("first").value(p.first);
+    j.key("count").value(p.count);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("points");
+  if (!r.pointsChecked) {
+    j.null();
+  } else {
+    j.beginObject();
+    j.key("input_points").value(r.inputPoints);
+    j.key("input_distinct_xy").value(r.inputDistinct);
+    j.key("input_duplicates").value(r.inputDuplicates);
+    j.key("comparable").value(r.pointsCountable);
+    j.key("match").value(r.pointsMatch);
+    j.endObject();
+  }
+  j.key("seconds").value(r.seconds);
+  j.endObject();
+  return j.str() + "\n";
+}
+
+std::string formatRunSummary(const RunReport& r) {
+  std::string o;
+  auto line = [&](const std::string& label, const std::string& text) {
+    o += "  " + label + std::string(label.size() < 10 ? 10 - label.size() : 1, ' ') + text + "\n";
+  };
+  auto rate = [](std::uint64_t n, double t) {
+    return t > 0 ? fmt("%.1f", static_cast<double>(n) / t / 1e6) : "-";
+  };
+  std::string outs;
+  for (const auto& p : r.outputs) outs += (outs.empty() ? "" : ", ") + p;
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    const FilterCounts& f = s.filter;
+    o += "tinbuild " + r.command + ": " + withCommas(f.read) + " points read from " +
+         std::to_string(r.inputs.size()) + (r.inputs.size() == 1 ? " file" : " files") + ", " +
+         withCommas(s.points) + " streamed";
+  } else {
+    o += "tinbuild " + r.command + ": " + withCommas(r.delaunay.pointsIn) + " points read from " +
+         r.inputs.front();
+  }
+  o += "; wrote " + outs + (r.outputBytes ? " (" + bytesText(r.outputBytes) + ")" : "") + " in " +
+       fmt("%.2f", r.seconds) + " s, peak memory " + bytesText(r.peakRssBytes) + "\n";
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    const FilterCounts& f = s.filter;
+    if (f.dropped()) {
+      std::string d = withCommas(f.dropped()) + " dropped:";
+      if (f.withheld) d += " " + withCommas(f.withheld) + " withheld;";
+      if (f.byClass) {
+        d += " " + withCommas(f.byClass) + " by class (";
+        bool first = true;
+        for (int c = 0; c < 256; ++c)
+          if (f.droppedByClass[c]) {
+            d += (first ? "" : ", ") + std::to_string(c) + ": " + withCommas(f.droppedByClass[c]);
+            first = false;
+          }
+        d += ");";
+      }
+      if (f.byReturn) d += " " + withCommas(f.byReturn) + " by return;";
+      if (f.clipped) d += " " + withCommas(f.clipped) + " outside --clip;";
+      d.pop_back();
+      line("filter", d);
+    }
+    line("grid", "depth " + std::to_string(s.grid.depth) + " (" + std::to_string(s.grid.side()) + " x " +
+                     std::to_string(s.grid.side()) + " cells of " + fmt("%.4g", s.grid.cellSize()) + "), " +
+                     withCommas(s.occupiedCells) + " occupied, " + fmt("%.0f", s.averagePerCell) +
+                     " points per cell on average, " + withCommas(s.maxPerCell) + " at most" +
+                     (s.boundsFromHeader ? "; bounds from the LAS headers" : ""));
+    line(
+        "width",
+        withCommas(s.width) + " points buffered at most (" +
+            fmt("%.2f", s.points ? 100.0 * static_cast<double>(s.width) / static_cast<double>(s.points) : 0) +
+            "% of the stream); pool peak " + bytesText(s.peakPoolBytes) + ", spilled " +
+            bytesText(s.spilledBytes) + (s.spooledBytes ? ", spooled " + bytesText(s.spooledBytes) : ""));
+    line("passes",
+         (s.pass1Run ? "1: " + fmt("%.3f s", s.pass1Seconds) + " (" + rate(f.read, s.pass1Seconds) + " M/s), "
+                     : std::string("1: skipped (LAS header bounds), ")) +
+             "2: " + fmt("%.3f s", s.pass2Seconds) + " (" + rate(f.read * s.pass2Runs, s.pass2Seconds) +
+             " M/s), 3: " + fmt("%.3f s", s.pass3Seconds) + " (" + rate(f.read, s.pass3Seconds) + " M/s)");
+  }
+  if (r.haveDelaunay) {
+    const DelaunayStats& d = r.delaunay;
+    line("TIN", withCommas(d.verticesOut) + " vertices, " + withCommas(d.trianglesEmitted) + " triangles" +
+                    (d.duplicatesDropped ? ", " + withCommas(d.duplicatesDropped) +
+                                               " xy duplicates dropped (kept the " + r.duplicateRule + ")"
+                                         : std::string()));
+    line("memory", "at most " + withCommas(d.maxActiveTriangles) + " active triangles and " +
+                       withCommas(d.maxActiveVertices) + " active vertices (" + bytesText(d.peakBytes) +
+                       " triangulator arrays)");
+  }
+  return o;
+}
+
+std::string formatRunJson(const RunReport& r) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("command").value(r.command);
+  j.key("inputs").beginArray();
+  for (const auto& i : r.inputs) j.value(i);
+  j.endArray();
+  j.key("outputs").beginArray();
+  for (const auto& p : r.outputs) j.value(p);
+  j.endArray();
+  j.key("output_bytes").value(r.outputBytes);
+  j.key("crs").beginObject();
+  if (r.crs.empty()) {
+    j.key("name").null();
+    j.key("epsg").null();
+    j.key("wkt").null();
+  } else {
+    j.key("name").value(r.crs.name);
+    if (r.crs.epsg)
+      j.key("epsg").value(r.crs.epsg);
+    else
+      j.key("epsg").null();
+    j.key("units").value(r.crs.linearUnit);
+    j.key("wkt").value(r.crs.wkt);
+  }
+  j.endObject();
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    j.key("filter").value(r.filter);
+    j.key("points_read").value(s.filter.read);
+    j.key("points_streamed").value(s.points);
+    j.key("filtered").beginObject();
+    j.key("withheld").value(s.filter.withheld);
+    j.key("class").value(s.filter.byClass);
+    j.key("return").value(s.filter.byReturn);
+    j.key("clip").value(s.filter.clipped);
+    j.key("by_class").beginObject();
+    for (int c = 0; c < 256; ++c)
+      if (s.filter.droppedByClass[c]) j.key(std::to_string(c)).value(s.filter.droppedByClass[c]);
+    j.endObject();
+    j.endObject();
+    j.key("bounds");
+    writeBounds(j, s.bounds);
+    j.key("grid").beginObject();
+    j.key("depth").value(s.grid.depth);
+    j.key("origin").beginArray().value(s.grid.originX).value(s.grid.originY).endArray();
+    j.key("size").value(s.grid.size);
+    j.key("cell_size").value(s.grid.cellSize());
+    j.key("fine_depth").value(s.fineDepth);
+    j.key("bounds_from_header").value(s.boundsFromHeader);
+    j.key("bounds_retries").value(s.boundsRetries);
+    j.endObject();
+    j.key("occupied_cells").value(s.occupiedCells);
+    j.key("average_per_cell").value(s.averagePerCell);
+    j.key("max_per_cell").value(s.maxPerCell);
+    j.key("width").value(s.width);
+    j.key("width_fraction")
+        .value(s.points ? static_cast<double>(s.width) / static_cast<double>(s.points) : 0.0);
+    j.key("max_in_memory_points").value(s.maxInMemoryPoints);
+    j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBudget));
+    j.key("peak_pool_bytes").value(s.peakPoolBytes);
+    j.key("largest_chunk_bytes").value(s.largestChunkBytes);
+    j.key("bookkeeping_bytes").value(s.bookkeepingBytes);
+    j.key("fine_table_bytes").value(s.fineTableBytes);
+    j.key("spilled_bytes").value(s.spilledBytes);
+    j.key("spilled_chunks").value(s.spilledChunks);
+    j.key("spill_events").value(s.spillEvents);
+    j.key("spooled_bytes").value(s.spooledBytes);
+    j.key("sprinkled").value(s.sprinkled);
+    j.key("tags").value(s.tags);
+    j.key("empty_tags").value(s.emptyTags);
+    j.key("passes").beginObject();
+    j.key("pass1");
+    writePass(j, s.pass1Run, s.pass1Seconds, s.filter.read);
+    j.key("pass2");
+    writePass(j, true, s.pass2Seconds, s.filter.read * s.pass2Runs);
+    j.key("pass2_runs").value(s.pass2Runs);
+    j.key("pass3");
+    writePass(j, true, s.pass3Seconds, s.filter.read);
+    j.endObject();
+  }
+  if (r.haveDelaunay) {
+    const DelaunayStats& d = r.delaunay;
+    j.key("triangulation").beginObject();
+    j.key("points_in").value(d.pointsIn);
+    j.key("vertices").value(d.verticesOut);
+    j.key("triangles").value(d.trianglesEmitted);
+    j.key("duplicates_dropped").value(d.duplicatesDropped);
+    j.key("duplicate_rule").value(r.duplicateRule);
+    j.key("max_active_triangles").value(d.maxActiveTriangles);
+    j.key("max_active_vertices").value(d.maxActiveVertices);
+    j.key("peak_bytes").value(d.peakBytes);
+    j.key("walk_steps").value(d.walkSteps);
+    j.key("restarts_leaf").value(d.restartsLeaf);
+    j.key("restarts_neighbour").value(d.restartsNeighbour);
+    j.key("restarts_exhaustive").value(d.restartsExhaustive);
+    j.key("certification_checks").value(d.certificationChecks);
+    j.endObject();
+  }
+  j.key("seconds").value(r.seconds);
+  j.key("peak_rss_bytes").value(r.peakRssBytes);
+  j.key("warnings").beginArray();
+  for (const auto& e : r.warnings) {
+    j.beginObject();
+    j.key("kind").value(e.kind);
+    j.key("file").value(e.file);
+    j.key("message").value(e.firstMessage);
+    j.key("count").value(e.count);
+    j.endObject();
+  }
+  j.endArray();
+  j.endObject();
+  return j.str() + "\n";
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,84 @@
+// The streaming pipeline as library entry points: finalize, triangulate, build.
+//
+//   inputs (LAS/XYZ) -> readers -> filter -> finalizer -> [queue] -> streaming Delaunay -> mesh writer
+//
+// runFinalize writes the finalized point stream; runTriangulate turns one into a streaming mesh;
+// runBuild does both in one process, the finalizer and the triangulator on two threads with a bounded
+// queue between them (the finalized stream never touches the disk).  All three open the inputs the same
+// way: every file is checked, the CRSs must agree (a mismatch is a warning naming both), LAS header
+// bounds are used when every header looks sane (the finalizer verifies them and falls back to computed
+// bounds), and a common scale is passed on.  Each returns a RunReport for the summary on stderr and the
+// `--report` JSON.  Outputs are written to temporary names and renamed only on success.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "formats/crs.h"
+#include "formats/point_reader.h"
+#include "libterrain/diagnostics.h"
+#include "libterrain/finalizer.h"
+#include "libterrain/mesh_verifier.h"
+#include "libterrain/streaming_delaunay.h"
+
+namespace tinbuild {
+
+struct PipelineOptions {
+  std::vector<std::string> inputs;
+  ReaderOptions reader;
+  FinalizerOptions finalizer;  // depth, memory, temp dir, filter, progress; CRS and bounds are filled in
+  bool computeBounds = false;  // do not trust the LAS headers' bounds
+  DelaunayOptions delaunay;
+  std::string finalizedOutput;  // runFinalize: the finalized stream ("-" = stdout)
+  std::string meshOutput;       // runBuild / runTriangulate: .sma or .smb ("-" = SMB on stdout)
+};
+
+struct RunReport {
+  std::string command;
+  std::vector<std::string> inputs;
+  std::vector<std::string> outputs;
+  std::uint64_t outputBytes = 0;
+  CrsInfo crs;
+  std::string filter;  // what the filter drops, in words
+  bool haveFinalizer = false;
+  FinalizerStats finalizer;
+  std::size_t memoryBudget = 0;
+  bool haveDelaunay = false;
+  DelaunayStats delaunay;
+  std::string duplicateRule;
+  std::vector<Diagnostics::Entry> warnings;
+  double seconds = 0;
+  std::uint64_t peakRssBytes = 0;
+};
+
+RunReport runFinalize(const PipelineOptions& options, Diagnostics& diag);
+RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& options,
+                         Diagnostics& diag);
+RunReport runBuild(const PipelineOptions& options, Diagnostics& diag);
+
+// `tinbuild verify`: checks a streaming mesh file independently (libterrain/mesh_verifier.h) and, when
+// options.inputs is not empty, that its vertices are exactly the distinct (x, y) of those inputs after
+// options.finalizer.filter.  Memory is bounded by the mesh's and the survey's stream width.
+struct VerifyReport {
+  std::string mesh;
+  MeshCheckReport check;
+  bool pointsChecked = false;
+  bool pointsCountable = true;  // false: the inputs were too incoherent for the memory budget
+  std::uint64_t inputPoints = 0, inputDistinct = 0, inputDuplicates = 0;
+  bool pointsMatch = false;
+  double seconds = 0;
+  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch); }
+};
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);
+std::string formatVerifyText(const VerifyReport& report);
+std::string formatVerifyJson(const VerifyReport& report);
+
+// The human summary (a few lines for stderr) and the JSON report (stable keys, see docs/usage.md).
+std::string formatRunSummary(const RunReport& report);
+std::string formatRunJson(const RunReport& report);
+
+// This process's peak resident set size so far (VmHWM), in bytes; 0 when unknown.
+std::uint64_t peakRssBytes();
+
+}  // namespace tinbuild
