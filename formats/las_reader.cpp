@@ -611,6 +611,7 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
   if (!stream_) {
     decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
     nextPoint_ += n;
+    releaseConsumed(pointOffset_ + nextPoint_ * stride);
     if (nextPoint_ == info_.pointCount) finishPass();
     return n;
   }
@@ -633,9 +634,22 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
   return n;
 }
 
+void LasReader::releaseConsumed(std::uint64_t upTo) {
+  // The mapping's pages stay in the page cache, but counted in this process's RSS they would make a
+  // streaming run look as large as its input: drop the pages already decoded, 32 MiB at a time.
+  constexpr std::uint64_t kChunk = std::uint64_t{32} << 20;
+  if (!mapping_ || upTo < released_ + kChunk) return;
+  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+  const std::uint64_t end = upTo / page * page;
+  if (end <= released_) return;
+  ::madvise(static_cast<std::uint8_t*>(mapping_) + released_, end - released_, MADV_DONTNEED);
+  released_ = end;
+}
+
 void LasReader::rewind() {
   if (stream_) throw Error(info_.path + ": standard input can be read only once");
   nextPoint_ = 0;
+  released_ = 0;
   decoded_ = Bounds3{};
   outside_ = 0;
 }

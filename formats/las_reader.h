@@ -81,7 +81,8 @@ class LasReader : public PointReader {
   void checkExtraBytes();
   void finishPass();
   std::size_t decode(const std::uint8_t* src, std::size_t n, PointRecord* out);
-  std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
+  std::size_t fillStream(std::size_t want);
+  void releaseConsumed(std::uint64_t upTo);  // stdin: ensure `want` bytes buffered, returns available
 
   Diagnostics& diag_;
   std::unique_ptr<WorkCrew> crew_;
@@ -100,6 +101,7 @@ class LasReader : public PointReader {
 
   std::uint64_t pointOffset_ = 0;
   std::uint64_t nextPoint_ = 0;  // index of the next point to decode in this pass
+  std::uint64_t released_ = 0;   // mapping bytes [0, released_) dropped from the RSS in this pass
   Bounds3 decoded_;
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};
