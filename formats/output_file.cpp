@@ -18,6 +18,14 @@ OutputFile::OutputFile(std::string path, std::size_t bufferSize)
     fd_ = STDOUT_FILENO;
     return;
   }
+  struct stat st {};
+  if (::stat(path_.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode)) {
+    // A device or FIFO (/dev/null, a named pipe): write to it directly; there is nothing to rename.
+    fd_ = ::open(path_.c_str(), O_WRONLY | O_CLOEXEC);
+    if (fd_ < 0) throw DataError(path_, std::string("cannot open for writing: ") + std::strerror(errno));
+    direct_ = true;
+    return;
+  }
   std::string tmpl = path_ + ".tmp-XXXXXX";
   std::vector<char> name(tmpl.begin(), tmpl.end());
   name.push_back('\0');
@@ -36,6 +44,11 @@ OutputFile::~OutputFile() {
 
 void OutputFile::discard() noexcept {
   if (path_ == "-") return;
+  if (direct_) {
+    if (fd_ >= 0) ::close(fd_);
+    fd_ = -1;
+    return;
+  }
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
   if (!tempPath_.empty()) ::unlink(tempPath_.c_str());
@@ -74,6 +87,12 @@ void OutputFile::commit() {
   if (committed_) return;
   flush();
   if (path_ == "-") {
+    committed_ = true;
+    return;
+  }
+  if (direct_) {
+    ::close(fd_);
+    fd_ = -1;
     committed_ = true;
     return;
   }

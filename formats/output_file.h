@@ -4,7 +4,8 @@
 // the temporary file onto PATH.  Destroying an OutputFile that was not committed (an error, a
 // cancellation, an exception unwinding) removes the temporary file, so no partial output is ever left
 // looking complete.  "-" writes to stdout (nothing to rename).  Write errors (a full disk) throw a
-// DataError naming PATH and the system's reason, and the temporary file is removed.
+// DataError naming PATH and the system's reason, and the temporary file is removed.  A PATH that is a
+// device or FIFO (/dev/null, a named pipe) is written directly.
 #pragma once
 
 #include <cstddef>
@@ -44,6 +45,7 @@ class OutputFile {
   std::string path_, tempPath_;
   int fd_ = -1;
   bool committed_ = false;
+  bool direct_ = false;  // a device or FIFO written in place
   std::vector<std::uint8_t> buffer_;
   std::size_t used_ = 0;
   std::uint64_t written_ = 0;
