@@ -227,9 +227,12 @@ int runVerifyCommand(const cli::ParsedArgs& args) {
     throw UsageError("verify: give exactly one streaming mesh (.smb or .sma, or -)");
   PipelineOptions o;
   parseInputOptions(args, o);
+  // `--points a.las b.las ...`: the option takes the first file, the shell's other words follow as
+  // positionals after the mesh.
   o.inputs = args.all("--points");
-  for (const auto& extra : args.all("--points"))
-    if (extra.empty()) throw UsageError("verify: --points needs a file");
+  if (o.inputs.empty() && args.positional.size() > 1)
+    throw UsageError("verify: give one mesh; name the inputs with --points INPUT...");
+  o.inputs.insert(o.inputs.end(), args.positional.begin() + 1, args.positional.end());
   const bool quiet = args.has("-q") || args.has("--json");
   Diagnostics diag;
   if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
@@ -243,7 +246,7 @@ int runVerifyCommand(const cli::ParsedArgs& args) {
 Command verifyCommand() {
   return Command{
       "verify",
-      "tinbuild verify MESH [--points INPUT]... [filter options] [--json]",
+      "tinbuild verify MESH [--points INPUT...] [filter options] [--json]",
       "check a streaming mesh independently (valid, CCW, Delaunay, hull, all points used)",
       "Reads a streaming mesh (.smb/.sma, or - for stdin) and checks it without trusting its writer: every\n"
       "index refers to a live vertex and every vertex is finalized; every triangle is counter-clockwise;\n"
@@ -254,7 +257,7 @@ Command verifyCommand() {
       "of\n"
       "those inputs after the same filters `build` applies.  Memory follows the mesh's width.  Exit code 0\n"
       "when everything holds, 1 otherwise.",
-      join({{"--points", "INPUT", "an input of the mesh (repeat for several files)"},
+      join({{"--points", "INPUT...", "the inputs the mesh was built from (with the same filter options)"},
             {"--json", "", "machine-readable result"}},
            inputOptions(), reportOptions()),
       runVerifyCommand};
