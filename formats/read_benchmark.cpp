@@ -37,7 +37,7 @@ double decodeAll(const std::string& path, const ReaderOptions& options, std::uin
   const auto t0 = Clock::now();
   Diagnostics diag;
   auto reader = openPointReader(path, options, diag);
-  std::vector<PointRecord> batch(1 << 15);
+  std::vector<PointRecord> batch(std::size_t{1} << 18);  // 8 MiB: large enough to amortize the decode crew's wake-ups
   points = 0;
   double acc = 0;
   for (std::size_t n; (n = reader->read(batch.data(), batch.size())) > 0;) {
