@@ -1,6 +1,6 @@
 // Streaming Delaunay triangulation (see the header for the design).  Layout of this file:
-//   1. inline predicate filters (the filters of predicates.cpp, inlined for the hot loops)
-//   2. certification geometry: conservative circumdisks, half-planes, rectangles
+//   1. predicates and conservative circumdisks (from delaunay_predicates.h), ghost conflicts
+//   2. certification geometry: cell squares, half-planes
 //   3. the finalization quadtree and the leaf-list hash table
 //   4. the triangulator: location, Bowyer-Watson insertion, certification, output
 #include "libterrain/streaming_delaunay.h"
@@ -14,6 +14,7 @@
 #include <string>
 #include <vector>
 
+#include "libterrain/delaunay_predicates.h"
 #include "libterrain/diagnostics.h"
 #include "libterrain/error.h"
 #include "libterrain/predicates.h"
@@ -41,12 +42,12 @@ std::optional<DelaunayOptions::DuplicateRule> parseDuplicateRule(std::string_vie
 
 namespace {
 
-constexpr std::uint32_t kNone = 0xFFFFFFFFu;         // no neighbour (freed space), no list entry, no leaf
-constexpr std::uint32_t kInfinite = 0;               // vertex index of the point at infinity
-constexpr std::uint32_t kFreeMark = 0xFFFFFFFFu;     // Tri::prev of a slot on the free list
-constexpr std::uint32_t kCavityMark = 0xFFFFFFFEu;   // Tri::prev of a triangle in the current cavity
-constexpr std::uint32_t kSentinelMark = 0xFFFFFFFEu; // Tri::v[0] of a leaf list's sentinel slot
-constexpr std::uint64_t kNoId = ~std::uint64_t{0};   // Vertex::id before the vertex is written
+constexpr std::uint32_t kNone = 0xFFFFFFFFu;          // no neighbour (freed space), no list entry, no leaf
+constexpr std::uint32_t kInfinite = 0;                // vertex index of the point at infinity
+constexpr std::uint32_t kFreeMark = 0xFFFFFFFFu;      // Tri::prev of a free slot
+constexpr std::uint32_t kCavityMark = 0xFFFFFFFEu;    // Tri::prev of a triangle in the current cavity
+constexpr std::uint32_t kSentinelMark = 0xFFFFFFFEu;  // Tri::v[0] of a leaf list's sentinel slot
+constexpr std::uint64_t kNoId = ~std::uint64_t{0};    // Vertex::id before the vertex is written
 constexpr std::uint64_t kNoLeaf = ~std::uint64_t{0};
 
 constexpr int kNext[3] = {1, 2, 0};
@@ -54,48 +55,16 @@ constexpr int kPrev[3] = {2, 0, 1};
 constexpr int kMod3[6] = {0, 1, 2, 0, 1, 2};
 
 // ---------------------------------------------------------------------------------------------------------
-// 1. Inline predicate filters.
-//
-// predicates.cpp derives these filters and their error bounds (kOrientBound, kIncircleBound: the same
-// constants); when a filter certifies the sign it is the exact sign, otherwise the library predicate
-// decides (exactly, and with the symbolic perturbation for incircle).  Inlining them here keeps the walk
-// and the cavity search free of calls in the common case; the decisions are those of predicates.h.
-constexpr double kU = 0x1p-53;
-constexpr double kOrientBound = (3.0 + 32.0 * kU) * kU;
-constexpr double kIncircleBound = (10.0 + 256.0 * kU) * kU;
-
-inline double orient(const Point2& a, const Point2& b, const Point2& c) {
-  const double acx = a.x - c.x, bcx = b.x - c.x;
-  const double acy = a.y - c.y, bcy = b.y - c.y;
-  const double left = acx * bcy;
-  const double right = acy * bcx;
-  const double det = left - right;
-  const double bound = kOrientBound * (std::fabs(left) + std::fabs(right));
-  if (std::fabs(det) > bound) [[likely]]
-    return det;
-  return orient2d(a, b, c);
-}
-
-// +1 when d is inside the circle through a, b, c (counter-clockwise), -1 outside; never 0 (perturbation).
-inline int inCircle(const Point2& a, const Point2& b, const Point2& c, const Point2& d) {
-  const double adx = a.x - d.x, ady = a.y - d.y;
-  const double bdx = b.x - d.x, bdy = b.y - d.y;
-  const double cdx = c.x - d.x, cdy = c.y - d.y;
-  const double bdxcdy = bdx * cdy, cdxbdy = cdx * bdy;
-  const double cdxady = cdx * ady, adxcdy = adx * cdy;
-  const double adxbdy = adx * bdy, bdxady = bdx * ady;
-  const double alift = adx * adx + ady * ady;
-  const double blift = bdx * bdx + bdy * bdy;
-  const double clift = cdx * cdx + cdy * cdy;
-  const double det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady);
-  const double perm = (std::fabs(bdxcdy) + std::fabs(cdxbdy)) * alift +
-                      (std::fabs(cdxady) + std::fabs(adxcdy)) * blift +
-                      (std::fabs(adxbdy) + std::fabs(bdxady)) * clift;
-  const double bound = kIncircleBound * perm;
-  if (det > bound) return 1;
-  if (det < -bound) return -1;
-  return incirclePerturbed(a, b, c, d);
-}
+// 1. Predicates and conservative circumdisks: delaunay_predicates.h (inline front ends returning exactly
+//    the signs of predicates.h).
+using delaunay::circumDisk;
+using delaunay::Disk;
+using delaunay::inCircle;
+using delaunay::insideRect;
+using delaunay::intersects;
+using delaunay::orient;
+using delaunay::prepareIntersects;
+using delaunay::Rect;
 
 inline bool sameXY(const Point2& a, const Point2& b) {
   return a.x == b.x && a.y == b.y;
@@ -125,89 +94,6 @@ inline bool ghostConflict(const Point2& a, const Point2& b, const Point2& p) {
 // squares.  The arrival check admits a point of leaf (col, row) only inside the leaf square grown by h
 // (each corner fl(x0 - h), fl(x1 + h)); a certification test grows any cell by the same h, computed the
 // same way, so it covers every point any leaf below it can still receive.
-
-struct Rect {
-  double x0, y0, x1, y1;
-};
-
-// A closed disk that contains a triangle's exact circumdisk.
-//
-// Derivation.  With B = b - a, C = c - a (exact), the circumcentre is a + (Nx, Ny) / (2D),
-//   D = Bx Cy - By Cx,  Nx = Cy |B|^2 - By |C|^2,  Ny = Bx |C|^2 - Cx |B|^2.
-// Computed in doubles (u = 2^-53, gamma_k = ku / (1 - ku)), each term carries the rounding of the
-// differences (1 each), the squares and their sum (|B|^2 gets gamma_4 relative), the products and the
-// final subtraction: |d - D| <= gamma_4 (|Bx Cy| + |By Cx|) <= 8u md and |nx - Nx| <= gamma_7 (|Cy |B|^2|
-// + |By |C|^2|) <= 16u mx, where md and mx are the same sums of absolute values as computed (whose own
-// rounding the doubled constants absorb).  With rho = 8u md / |d| (required < 1/4, otherwise the
-// triangle is treated as touching everything: a nearly flat triangle whose centre is not known),
-//   |nx / (2d) - Nx / (2D)| <= (16u mx / (2|d|) + rho |nx / (2d)|) / (1 - rho),
-// and ux = fl(fl(nx) * fl(1 / (2d))) rounds twice more (at most (2u + u^2) |ux|), so
-// ex = 1.5 (16u mx / (2|d|) + (rho + 3u) |ux|) bounds the error of ux (1.5 > (4/3)(1 + 8u) covers
-// 1 / (1 - rho), the reciprocal's rounding of 1 / (2|d|) in the first term, and the bound's own rounding).  The
-// centre c' = fl(a + u) adds u |c'| per coordinate.  A point q of the exact disk (centre C, radius
-// r = |U|) satisfies |q - c'| <= r + |C - c'| <= |u| + 2 (ex + ey) + u (|c'x| + |c'y|), and
-// |u| <= sqrt(ux^2 + uy^2) (1 + 3u); R below is that bound with doubled constants.
-struct Disk {
-  double cx = 0, cy = 0;
-  double r = 0;         // radius bound R
-  double rInside = 0;   // R plus the rounding of cx - R etc. (for "disk inside a rectangle")
-  double r2 = 0;        // R^2 (1 + 16u): compared with a rounded squared distance
-  bool everything = false;
-};
-
-Disk circumDisk(const Point2& a, const Point2& b, const Point2& c) {
-  Disk disk;
-  const double bx = b.x - a.x, by = b.y - a.y;
-  const double cx = c.x - a.x, cy = c.y - a.y;
-  const double bl = bx * bx + by * by, cl = cx * cx + cy * cy;
-  const double t1 = bx * cy, t2 = by * cx;
-  const double d = t1 - t2;
-  const double md = std::fabs(t1) + std::fabs(t2);
-  if (!(std::fabs(d) > 32.0 * kU * md)) {  // rho = 8u md / |d| would not be below 1/4
-    disk.everything = true;
-    return disk;
-  }
-  const double n1 = cy * bl, n2 = by * cl;
-  const double m1 = bx * cl, m2 = cx * bl;
-  const double inv = 1.0 / (2.0 * d);
-  const double ux = (n1 - n2) * inv;
-  const double uy = (m1 - m2) * inv;
-  const double ainv = std::fabs(inv);
-  const double rho = 16.0 * kU * md * ainv;  // 8u md / |d|, up to the reciprocal's rounding
-  // ex + ey of the derivation above.
-  const double e = 1.5 * (16.0 * kU * (std::fabs(n1) + std::fabs(n2) + std::fabs(m1) + std::fabs(m2)) * ainv +
-                          (rho + 3.0 * kU) * (std::fabs(ux) + std::fabs(uy)));
-  disk.cx = a.x + ux;
-  disk.cy = a.y + uy;
-  const double r = std::sqrt(ux * ux + uy * uy);
-  const double mag = std::fabs(disk.cx) + std::fabs(disk.cy);
-  disk.r = r * (1.0 + 8.0 * kU) + 2.0 * e + 2.0 * kU * mag;
-  disk.rInside = disk.r + 4.0 * kU * (mag + disk.r);
-  if (!std::isfinite(disk.rInside)) disk.everything = true;
-  return disk;
-}
-
-// R^2 (1 + 16u), for intersects() (computed only when the cheap test did not decide).
-inline void prepareIntersects(Disk& d) {
-  d.r2 = (d.r * d.r) * (1.0 + 16.0 * kU);
-}
-
-// May the disk meet the rectangle?  Never false when the disk (c', R) meets it: the computed distance is
-// at most the exact one times (1 + u)^4, r2 covers that.
-inline bool intersects(const Disk& d, const Rect& r) {
-  if (d.everything) return true;
-  const double dx = std::max(std::max(r.x0 - d.cx, d.cx - r.x1), 0.0);
-  const double dy = std::max(std::max(r.y0 - d.cy, d.cy - r.y1), 0.0);
-  return dx * dx + dy * dy <= d.r2;
-}
-
-// Is the disk inside the rectangle, with a margin of at least `margin` on every side?  (True only when
-// provably so.)
-inline bool insideWithMargin(const Disk& d, const Rect& r) {
-  if (d.everything) return false;
-  return d.cx - d.rInside >= r.x0 && d.cx + d.rInside <= r.x1 && d.cy - d.rInside >= r.y0 &&
-         d.cy + d.rInside <= r.y1;
-}
 
 // The region a ghost triangle may still conflict with: the closed half-plane left of a -> b.  A closed
 // rectangle meets it iff one of its corners does (exact orient2d on the corners).
@@ -420,7 +306,7 @@ struct Vertex {
   std::uint32_t tri;   // a live triangle using it (kept while the vertex's leaf is unfinalized)
 };
 
-struct Frame {  // one triangle of the cavity search: edges base + k for k in [k, end)
+struct Frame {  // a triangle of the deep cavity search: its edges (base + k) mod 3, k = k .. end - 1
   std::uint32_t t;
   int base, k, end;
 };
@@ -439,7 +325,7 @@ struct StreamingDelaunay::Impl {
 
   bool begun = false, ended = false;
   GridSpec grid;
-  double h = 0;                 // cell growth for arrival checks and certification
+  double h = 0;                  // cell growth for arrival checks and certification
   std::vector<double> cellSize;  // per level: size * 2^-L
 
   std::vector<Tri> tris;
@@ -547,26 +433,27 @@ struct StreamingDelaunay::Impl {
   }
 
   std::size_t bytes() const {
-    return tris.capacity() * sizeof(Tri) + verts.capacity() * sizeof(Vertex) + xy.capacity() * sizeof(Point2) +
-           pending.capacity() * sizeof(std::uint32_t) + freeTris.capacity() * 4 + freeVerts.capacity() * 4 + stack.capacity() * sizeof(Frame) +
+    return tris.capacity() * sizeof(Tri) + verts.capacity() * sizeof(Vertex) +
+           xy.capacity() * sizeof(Point2) + pending.capacity() * sizeof(std::uint32_t) +
+           freeTris.capacity() * 4 + freeVerts.capacity() * 4 + stack.capacity() * sizeof(Frame) +
            boundary.capacity() * sizeof(BoundaryEdge) + cavity.capacity() * 4 + fresh.capacity() * 4 +
-           found.capacity() * sizeof(found[0]) + jump.capacity() * 8 + cellSize.capacity() * sizeof(double) + tree.bytes() +
-           leaves.bytes();
+           found.capacity() * sizeof(found[0]) + jump.capacity() * 8 + cellSize.capacity() * sizeof(double) +
+           tree.bytes() + leaves.bytes();
   }
   void updatePeak() { stats.peakBytes = std::max<std::uint64_t>(stats.peakBytes, bytes()); }
 
   // ----- lifecycle -----------------------------------------------------------------------------------------
   void begin(const StreamInfo& info) {
     if (info.grid.depth < 0 || info.grid.depth > 30)
-      throw Error("streaming Delaunay: grid depth " + std::to_string(info.grid.depth) + " out of range 0..30");
+      throw Error("streaming Delaunay: grid depth " + std::to_string(info.grid.depth) +
+                  " out of range 0..30");
     if (!(info.grid.size > 0) || !std::isfinite(info.grid.size) || !std::isfinite(info.grid.originX) ||
         !std::isfinite(info.grid.originY))
       throw Error("streaming Delaunay: invalid grid in the stream header");
     stats = DelaunayStats{};
     grid = info.grid;
-    h = kCellTolerance * grid.size +
-        8.0 * std::numeric_limits<double>::epsilon() *
-            (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
+    h = kCellTolerance * grid.size + 8.0 * std::numeric_limits<double>::epsilon() *
+                                         (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
     cellSize.assign(static_cast<std::size_t>(grid.depth) + 1, 0.0);
     for (int l = 0; l <= grid.depth; ++l) cellSize[l] = std::ldexp(grid.size, -l);
     tris.clear();
@@ -787,8 +674,9 @@ struct StreamingDelaunay::Impl {
       }
       linkAfter(s, ids[j]);
     }
-    std::sort(edges.begin(), edges.end(),
-              [](const HalfEdge& x, const HalfEdge& y) { return x.lo < y.lo || (x.lo == y.lo && x.hi < y.hi); });
+    std::sort(edges.begin(), edges.end(), [](const HalfEdge& x, const HalfEdge& y) {
+      return x.lo < y.lo || (x.lo == y.lo && x.hi < y.hi);
+    });
     for (std::size_t i = 0; i + 1 < edges.size(); i += 2) {
       assert(edges[i].lo == edges[i + 1].lo && edges[i].hi == edges[i + 1].hi);
       tris[edges[i].code >> 2].n[edges[i].code & 3] = edges[i + 1].code;
@@ -826,8 +714,7 @@ struct StreamingDelaunay::Impl {
       }
     }
     // The differences v - p of the current triangle's vertices are carried along: a step loads only the
-    // one new vertex.  The filter below is orient()'s, on the same differences (orient(a, b, p) computes
-    // a - p and b - p first), so it decides exactly as orient2d; when it cannot, orient2d does.
+    // one new vertex (orient(a, b, p) computes exactly these differences first).
     const Tri* const tr = tris.data();
     const Point2* const P = xy.data();
     double dx[3], dy[3];
@@ -850,12 +737,7 @@ struct StreamingDelaunay::Impl {
       // p strictly beyond edge i (from v[i+1] to v[i+2])?
       auto beyond = [&](int i) {
         const int a = kNext[i], b = kPrev[i];
-        const double left = dx[a] * dy[b];
-        const double right = dy[a] * dx[b];
-        const double det = left - right;
-        if (std::fabs(det) > kOrientBound * (std::fabs(left) + std::fabs(right))) [[likely]]
-          return det < 0;
-        return orient2d(P[T.v[a]], P[T.v[b]], p) < 0;
+        return delaunay::orientFromDifferences(dx[a], dy[a], dx[b], dy[b], P[T.v[a]], P[T.v[b]], p) < 0;
       };
       // Cross an edge that has p strictly beyond it; prefer one with a live triangle behind it (any such
       // choice keeps the walk acyclic in a Delaunay triangulation).  Fail only when every edge p lies
@@ -929,8 +811,11 @@ struct StreamingDelaunay::Impl {
     return w != Walk::Failed;
   }
 
-  // On the ray from q through p (q, p, x collinear, x != q)?  Lexicographic order is the order along the line.
-  static bool onRay(const Point2& q, const Point2& x, const Point2& p) { return lexLess(q, x) == lexLess(q, p); }
+  // On the ray from q through p (q, p, x collinear, x != q)?  Lexicographic order is the order along the
+  // line.
+  static bool onRay(const Point2& q, const Point2& x, const Point2& p) {
+    return lexLess(q, x) == lexLess(q, p);
+  }
 
   // Straight-line walk along the segment from vertex q (a corner of live triangle t) to p.  When q and p lie
   // in the same unfinalized leaf (its grown square), every triangle the segment meets is live: its disk
@@ -1078,7 +963,8 @@ struct StreamingDelaunay::Impl {
       for (int dc = -1; dc <= 1; ++dc) {
         const std::int64_t c = std::int64_t{curCol} + dc, r = std::int64_t{curRow} + dr;
         if ((dr == 0 && dc == 0) || c < 0 || r < 0 || c >= side || r >= side) continue;
-        const std::uint32_t s = leaves.find(leafKey(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)));
+        const std::uint32_t s =
+            leaves.find(leafKey(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)));
         if (s == kNone) continue;
         if ((dr == 0 || dc == 0) && walkFromHint(s, p, w, result)) return w;
         around[count++] = s;
@@ -1089,10 +975,12 @@ struct StreamingDelaunay::Impl {
     int tries = 0;
     for (std::int64_t ring = 2; ring <= 8 && tries < 6; ++ring)
       for (std::int64_t dr = -ring; dr <= ring && tries < 6; ++dr)
-        for (std::int64_t dc = -ring; dc <= ring && tries < 6; dc += (dr == -ring || dr == ring) ? 1 : 2 * ring) {
+        for (std::int64_t dc = -ring; dc <= ring && tries < 6;
+             dc += (dr == -ring || dr == ring) ? 1 : 2 * ring) {
           const std::int64_t c = std::int64_t{curCol} + dc, r = std::int64_t{curRow} + dr;
           if (c < 0 || r < 0 || c >= side || r >= side) continue;
-          const std::uint32_t s = leaves.find(leafKey(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)));
+          const std::uint32_t s =
+              leaves.find(leafKey(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)));
           if (s == kNone || tris[s].v[1] == kNone) continue;
           ++tries;
           if (walkFromHint(s, p, w, result)) return w;
@@ -1364,8 +1252,10 @@ struct StreamingDelaunay::Impl {
     const double x = d.everything ? cell.x0 : std::min(std::max(d.cx, cell.x0), cell.x1);
     const double y = d.everything ? cell.y0 : std::min(std::max(d.cy, cell.y0), cell.y1);
     const double maxIndex = static_cast<double>((1u << k) - 1u);
-    col = (c << k) + static_cast<std::uint32_t>(std::min(std::max(std::floor((x - cell.x0) / s), 0.0), maxIndex));
-    row = (r << k) + static_cast<std::uint32_t>(std::min(std::max(std::floor((y - cell.y0) / s), 0.0), maxIndex));
+    col = (c << k) +
+          static_cast<std::uint32_t>(std::min(std::max(std::floor((x - cell.x0) / s), 0.0), maxIndex));
+    row = (r << k) +
+          static_cast<std::uint32_t>(std::min(std::max(std::floor((y - cell.y0) / s), 0.0), maxIndex));
   }
 
   // ... for a half-plane: descend, taking a child the half-plane may meet.
@@ -1442,7 +1332,7 @@ struct StreamingDelaunay::Impl {
       const Disk d = circumDisk(pt(T.v[0]), pt(T.v[1]), pt(T.v[2]));
       // Cheap test: inside the new final region, 2h away from its border (a neighbour's points come at
       // most h inside it), so no unfinalized leaf can reach the disk.
-      if (insideWithMargin(d, inner)) {
+      if (insideRect(d, inner)) {
         ++stats.certifiedCheap;
         emit(t);
         return;
@@ -1460,7 +1350,8 @@ struct StreamingDelaunay::Impl {
   void finalizeCell(const CellTag& tag) {
     if (!begun || ended) throw Error("streaming Delaunay: finalizeCell() outside begin()/end()");
     const int level = tag.level;
-    if (level > grid.depth || tag.col >= (std::uint64_t{1} << level) || tag.row >= (std::uint64_t{1} << level))
+    if (level > grid.depth || tag.col >= (std::uint64_t{1} << level) ||
+        tag.row >= (std::uint64_t{1} << level))
       throw Error("streaming Delaunay: finalization tag (" + std::to_string(level) + ", " +
                   std::to_string(tag.col) + ", " + std::to_string(tag.row) + ") outside the grid of depth " +
                   std::to_string(grid.depth));
@@ -1483,7 +1374,8 @@ struct StreamingDelaunay::Impl {
     } else {
       const std::uint64_t mask = (std::uint64_t{1} << grid.depth) - 1;
       leaves.forEach([&](std::uint64_t key, std::uint32_t s) {
-        if (((key & mask) >> k) == tag.col && ((key >> grid.depth) >> k) == tag.row) found.emplace_back(key, s);
+        if (((key & mask) >> k) == tag.col && ((key >> grid.depth) >> k) == tag.row)
+          found.emplace_back(key, s);
       });
     }
     // The cheap test may use the largest final cell around the tagged one.

@@ -7,8 +7,9 @@
 // written to the MeshSink at once and its memory reused.  Memory is proportional to the stream's width
 // (the points of unfinished cells and the triangles along their border), not to its length.
 //
-// Output is canonical.  Every topological decision goes through the exact predicates of predicates.h,
-// cocircular ties broken by incirclePerturbed (CGAL's perturbation), and the space beyond the hull is
+// Output is canonical.  Every topological decision goes through the exact predicates of predicates.h
+// (through the inline front ends of delaunay_predicates.h, which return the same signs faster),
+// cocircular ties broken by incirclePerturbed's rule (CGAL's perturbation), and the space beyond the hull is
 // handled symbolically (a point at infinity, as in CGAL) rather than with a finite super-triangle, so the
 // set of triangles emitted is exactly CGAL's Delaunay_triangulation_2 of the distinct xy points: it does
 // not depend on the grid depth, the order of cells, batch sizes or thread timing.  Only the order of the
@@ -19,7 +20,8 @@
 //     neighbours n[0..2], neighbour i lying across the edge opposite vertex i (from v[i+1] to v[i+2]).
 //     A neighbour is stored as 4 * triangle + (its index of the shared edge); kNone (all bits set) means
 //     "nothing there any more": the neighbour was final and has been written and freed.
-//   - Vertex 0 is the point at infinity.  A ghost triangle (a, b, oo) stands for the open half-plane left
+//   - Vertex 0 is the point at infinity (no coordinates; never passed to a predicate).  A ghost triangle (a,
+//   b, oo) stands for the open half-plane left
 //     of a -> b, outside the hull edge b -> a; ghosts are never written.  A point conflicts with a ghost
 //     when it lies strictly left of a -> b, or on the open segment ab (CGAL's rule), and with a finite
 //     triangle when incirclePerturbed says it is inside the circumcircle.
@@ -51,9 +53,17 @@
 // are grown by the same h in every certification, so "no future point can lie in the disk" is proven, not
 // assumed.  Space outside the grid square never receives points and counts as final.
 //
-// Point location walks (visibility walk with exact orient2d) from the most recently created triangle.  If
-// the walk runs into freed space it restarts from a triangle parked at the point's leaf, then at the
-// eight neighbouring leaves, then scans all active triangles; each kind of restart is counted in Stats.
+// Point location: a visibility walk with exact orient2d, from the triangle of the last vertex inserted in
+// the same 1/32 x 1/32 sub-square of the current leaf (the finalizer's BRIO rounds restart their
+// space-filling curve), else from the most recently created triangle.  If the walk runs into freed space
+// it restarts (each kind counted in DelaunayStats):
+//   leaf        a straight-line walk from the last vertex inserted in the point's leaf.  Every triangle
+//               that meets an unfinalized leaf's grown square is live (its disk meets the square), so a
+//               segment inside that convex square never meets freed space: this cannot fail;
+//   neighbour   the same from an edge-adjacent unfinalized leaf (two grown squares sharing a side form a
+//               convex rectangle), then visibility walks from the neighbours' lists, then straight walks
+//               from the nearest leaves with vertices (up to 8 cells away);
+//   exhaustive  a scan of all live triangles (needed only for a first point far from any data).
 //
 // Points before the first non-collinear triple are held back (the 1-D phase): when a point off their line
 // arrives, the collinear points and it are triangulated as a fan; a stream that never leaves the line (or
@@ -95,18 +105,18 @@ const char* duplicateRuleName(DelaunayOptions::DuplicateRule rule);
 std::optional<DelaunayOptions::DuplicateRule> parseDuplicateRule(std::string_view name);
 
 struct DelaunayStats {
-  std::uint64_t pointsIn = 0;           // points received
-  std::uint64_t verticesOut = 0;        // vertices written
-  std::uint64_t duplicatesDropped = 0;  // points dropped as xy duplicates (pointsIn = verticesOut + this)
+  std::uint64_t pointsIn = 0;              // points received
+  std::uint64_t verticesOut = 0;           // vertices written
+  std::uint64_t duplicatesDropped = 0;     // points dropped as xy duplicates (pointsIn = verticesOut + this)
   std::uint64_t duplicatesAfterWrite = 0;  // of those, met a survivor already written (kept as is; never
                                            // happens for a valid stream, see the essay)
   std::uint64_t trianglesEmitted = 0;
-  std::uint64_t maxActiveTriangles = 0;  // live triangles at once, ghosts included
-  std::uint64_t maxActiveVertices = 0;   // live vertices at once (including points held in the 1-D phase)
-  std::uint64_t walkSteps = 0;           // triangles visited by point location
-  std::uint64_t restartsLeaf = 0;        // walk restarted from the point's leaf list
-  std::uint64_t restartsNeighbour = 0;   // ... from the neighbouring leaves' lists
-  std::uint64_t restartsExhaustive = 0;  // ... by scanning all active triangles
+  std::uint64_t maxActiveTriangles = 0;   // live triangles at once, ghosts included
+  std::uint64_t maxActiveVertices = 0;    // live vertices at once (including points held in the 1-D phase)
+  std::uint64_t walkSteps = 0;            // triangles visited by point location
+  std::uint64_t restartsLeaf = 0;         // walk restarted from the point's leaf list
+  std::uint64_t restartsNeighbour = 0;    // ... from the neighbouring leaves' lists
+  std::uint64_t restartsExhaustive = 0;   // ... by scanning all active triangles
   std::uint64_t certificationChecks = 0;  // triangles (and ghosts) examined when their leaf finalized
   std::uint64_t certifiedCheap = 0;       // of those, final by the cheap test (disk inside the new region)
   std::uint64_t parked = 0;               // of those, parked again on another unfinalized leaf

@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <functional>
 #include <iostream>
 #include <map>
 #include <random>
@@ -21,6 +22,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/delaunay_predicates.h"
 #include "libterrain/diagnostics.h"
 #include "libterrain/error.h"
 #include "libterrain/grid.h"
@@ -112,7 +114,8 @@ struct Feed {
 
 class TestFinalizer {
  public:
-  TestFinalizer(PointSink& sink, const GridSpec& grid, const Feed& feed) : sink_(sink), grid_(grid), feed_(feed) {
+  TestFinalizer(PointSink& sink, const GridSpec& grid, const Feed& feed)
+      : sink_(sink), grid_(grid), feed_(feed) {
     for (int l = 0; l <= grid.depth; ++l) final_.emplace_back(std::size_t{1} << (2 * l), 0);
   }
 
@@ -294,10 +297,11 @@ void expectSameTriangles(const std::vector<Tri6>& ours, const std::vector<Tri6>&
   std::set_difference(ours.begin(), ours.end(), theirs.begin(), theirs.end(), std::back_inserter(onlyOurs));
   std::set_difference(theirs.begin(), theirs.end(), ours.begin(), ours.end(), std::back_inserter(onlyTheirs));
   EXPECT_TRUE(onlyOurs.empty() && onlyTheirs.empty())
-      << what << ": " << onlyOurs.size() << " triangles only ours, " << onlyTheirs.size() << " only the reference";
+      << what << ": " << onlyOurs.size() << " triangles only ours, " << onlyTheirs.size()
+      << " only the reference";
   for (std::size_t i = 0; i < std::min<std::size_t>(onlyOurs.size(), 3); ++i)
-    ADD_FAILURE() << "only ours: (" << onlyOurs[i][0] << "," << onlyOurs[i][1] << ") (" << onlyOurs[i][2] << ","
-                  << onlyOurs[i][3] << ") (" << onlyOurs[i][4] << "," << onlyOurs[i][5] << ")";
+    ADD_FAILURE() << "only ours: (" << onlyOurs[i][0] << "," << onlyOurs[i][1] << ") (" << onlyOurs[i][2]
+                  << "," << onlyOurs[i][3] << ") (" << onlyOurs[i][4] << "," << onlyOurs[i][5] << ")";
 }
 
 void expectMatchesCgal(const Points& pts, const Result& r, const char* what) {
@@ -588,14 +592,132 @@ TEST(StreamingDelaunay, TinyAndHugeExtents) {
 }
 
 // ---------------------------------------------------------------------------------------------------------
+// The inline predicate front ends and the conservative circumdisk (delaunay_predicates.h).
+
+bool sameXY(const Point2& a, const Point2& b) {
+  return a.x == b.x && a.y == b.y;
+}
+
+int sign(double v) {
+  return (v > 0) - (v < 0);
+}
+
+TEST(StreamingDelaunay, PredicateFrontEndsAgreeWithLibrary) {
+  std::mt19937_64 rng(17);
+  struct Set {
+    const char* name;
+    std::function<Point2()> draw;
+  };
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  auto pick = [&](int n) {
+    return static_cast<double>(static_cast<int>(rng() % static_cast<std::uint64_t>(n)));
+  };
+  const std::vector<Set> sets = {
+      {"random",
+       [&] {
+         return Point2{uni(0, 1), uni(0, 1)};
+       }},
+      {"lattice 0.5 at UTM",
+       [&] {
+         return Point2{500000 + 0.5 * pick(6), 4100000 + 0.5 * pick(6)};
+       }},
+      {"lattice 0.01 at UTM",
+       [&] {
+         return Point2{500000.01 + 0.01 * pick(5), 4100000.01 + 0.01 * pick(5)};
+       }},
+      {"quantized 1 cm",
+       [&] {
+         return Point2{(50000000 + pick(6)) * 0.01, (410000000 + pick(6)) * 0.01};
+       }},
+      {"small integers, mixed signs",
+       [&] {
+         return Point2{pick(7) - 3, pick(7) - 3};
+       }},
+      {"huge",
+       [&] {
+         return Point2{1e30 * (pick(5) + 1), 1e30 * (pick(5) - 2)};
+       }},
+      {"tiny",
+       [&] {
+         return Point2{1e-30 * pick(5), 1e-30 * pick(5)};
+       }},
+  };
+  for (const Set& set : sets) {
+    int orientZero = 0, ties = 0, checked = 0;
+    for (int i = 0; i < 20000; ++i) {
+      Point2 a = set.draw(), b = set.draw(), c = set.draw();
+      const Point2 d = set.draw();
+      const double o = orient2d(a, b, c);
+      ASSERT_EQ(sign(delaunay::orient(a, b, c)), sign(o)) << set.name;
+      if (o == 0) {
+        ++orientZero;
+        continue;
+      }
+      if (o < 0) std::swap(a, b);
+      if (sameXY(d, a) || sameXY(d, b) || sameXY(d, c)) continue;
+      ++checked;
+      ties += incircle(a, b, c, d) == 0;
+      ASSERT_EQ(delaunay::inCircle(a, b, c, d), incirclePerturbed(a, b, c, d)) << set.name;
+    }
+    std::cout << "[ PREDS    ] " << set.name << ": " << checked << " incircle checks, " << ties
+              << " exact ties, " << orientZero << " collinear triples\n";
+  }
+}
+
+TEST(StreamingDelaunay, CircumdiskContainsTheExactCircle) {
+  // Nearly flat triangles at UTM coordinates (the centre is far away and badly conditioned) and ordinary
+  // ones: the vertices lie on the exact circle, so they must lie in the computed disk; so must points the
+  // exact incircle puts inside.  Distances are measured in long double (more precise than the bound's
+  // margin for the ill-conditioned cases, which is what this test is about).
+  std::mt19937_64 rng(23);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  int everything = 0, tested = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const Point2 a{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    const Point2 b{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    // c: near the segment's midpoint, off it by 0 .. 2^k ulps.
+    const double ulp = std::nextafter(4100000.0, 5e6) - 4100000.0;
+    const double off = ulp * std::ldexp(1.0, static_cast<int>(rng() % 40)) * (rng() % 2 ? 1 : -1);
+    Point2 c{(a.x + b.x) / 2 + off * (a.y - b.y) / 100, (a.y + b.y) / 2 + off * (b.x - a.x) / 100};
+    if (i % 4 == 0) c = Point2{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    Point2 p = a, q = b;
+    const double o = orient2d(p, q, c);
+    if (o == 0) continue;
+    if (o < 0) std::swap(p, q);
+    const delaunay::Disk disk = delaunay::circumDisk(p, q, c);
+    if (disk.everything) {
+      ++everything;
+      continue;
+    }
+    ++tested;
+    auto inside = [&](const Point2& v) {
+      const long double dx = static_cast<long double>(v.x) - disk.cx,
+                        dy = static_cast<long double>(v.y) - disk.cy;
+      return std::sqrt(dx * dx + dy * dy) <= static_cast<long double>(disk.r);
+    };
+    ASSERT_TRUE(inside(p) && inside(q) && inside(c)) << "triangle " << i;
+    for (int k = 0; k < 20; ++k) {
+      const Point2 s{p.x + (c.x - p.x) * uni(-1, 2), p.y + (q.y - p.y) * uni(-1, 2)};
+      if (incircle(p, q, c, s) >= 0) {
+        ASSERT_TRUE(inside(s)) << "triangle " << i;
+      }
+    }
+  }
+  std::cout << "[ DISKS    ] " << tested << " disks checked, " << everything
+            << " too flat (touch everything)\n";
+  EXPECT_GT(tested, 10000);
+}
+
+// ---------------------------------------------------------------------------------------------------------
 // Streaming behaviour.
 
 TEST(StreamingDelaunay, MemoryFollowsStreamWidth) {
   const Points pts = survey(SurveySpec::Kind::FlightStrips, 1000000, 1);
   const Result r = triangulate(pts, 7);
-  std::cout << "[ STREAM   ] 1M flight-strip points, depth 7: " << r.triangles.size() << " triangles, max active "
-            << r.stats.maxActiveTriangles << " triangles, " << r.stats.maxActiveVertices << " vertices, peak "
-            << static_cast<double>(r.stats.peakBytes) / 1e6 << " MB; restarts leaf/neighbour/exhaustive " << r.stats.restartsLeaf << "/"
+  std::cout << "[ STREAM   ] 1M flight-strip points, depth 7: " << r.triangles.size()
+            << " triangles, max active " << r.stats.maxActiveTriangles << " triangles, "
+            << r.stats.maxActiveVertices << " vertices, peak " << static_cast<double>(r.stats.peakBytes) / 1e6
+            << " MB; restarts leaf/neighbour/exhaustive " << r.stats.restartsLeaf << "/"
             << r.stats.restartsNeighbour << "/" << r.stats.restartsExhaustive << "\n";
   EXPECT_LT(r.stats.maxActiveTriangles, r.triangles.size() / 10);
   EXPECT_LT(r.stats.maxActiveVertices, r.vertices.size() / 10);
@@ -626,7 +748,8 @@ TEST(StreamingDelaunay, TrianglesAreWrittenEarly) {
     }
   }
   for (std::uint64_t c = 0; c < count.size(); ++c)
-    if (count[c] == 0) dt.finalizeCell(CellTag{6, static_cast<std::uint32_t>(c % 64), static_cast<std::uint32_t>(c / 64)});
+    if (count[c] == 0)
+      dt.finalizeCell(CellTag{6, static_cast<std::uint32_t>(c % 64), static_cast<std::uint32_t>(c / 64)});
   const std::size_t before = sink.triangles.size();
   dt.end();
   EXPECT_EQ(sink.errors, 0u) << sink.firstError;
@@ -706,7 +829,8 @@ struct Event {
 };
 
 void brio(Points& pts, std::size_t b, std::size_t e, const GridSpec& grid, std::mt19937_64& rng) {
-  std::shuffle(pts.begin() + static_cast<std::ptrdiff_t>(b), pts.begin() + static_cast<std::ptrdiff_t>(e), rng);
+  std::shuffle(pts.begin() + static_cast<std::ptrdiff_t>(b), pts.begin() + static_cast<std::ptrdiff_t>(e),
+               rng);
   const double scale = 65535.0 / grid.size;
   auto key = [&](const PointRecord& p) {
     return hilbertIndex(static_cast<std::uint32_t>((p.x - grid.originX) * scale),
@@ -735,9 +859,10 @@ std::vector<Event> prepare(Points& pts, const GridSpec& grid) {
   std::mt19937_64 rng(1);
   for (std::uint64_t c = 0; c < count.size(); ++c)
     if (count[c] == 0)
-      events.push_back(Event{true, 0, 0,
-                             CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
-                                     static_cast<std::uint32_t>(c / grid.side())}});
+      events.push_back(
+          Event{true, 0, 0,
+                CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
+                        static_cast<std::uint32_t>(c / grid.side())}});
   for (const auto& p : pts) {
     const std::uint64_t c = grid.cellOf(p.x, p.y);
     auto& b = buckets[c];
@@ -747,9 +872,10 @@ std::vector<Event> prepare(Points& pts, const GridSpec& grid) {
       ordered.insert(ordered.end(), b.begin(), b.end());
       brio(ordered, start, ordered.size(), grid, rng);
       events.push_back(Event{false, start, ordered.size(), {}});
-      events.push_back(Event{true, 0, 0,
-                             CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
-                                     static_cast<std::uint32_t>(c / grid.side())}});
+      events.push_back(
+          Event{true, 0, 0,
+                CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
+                        static_cast<std::uint32_t>(c / grid.side())}});
       buckets.erase(c);
     }
   }
@@ -764,8 +890,9 @@ TEST(StreamingDelaunay, DISABLED_Benchmark) {
     const char* name;
     SurveySpec::Kind kind;
   };
-  for (const Case& c : {Case{"uniform", SurveySpec::Kind::UniformRandom}, Case{"strips", SurveySpec::Kind::FlightStrips},
-                        Case{"lattice", SurveySpec::Kind::Lattice}}) {
+  for (const Case& c :
+       {Case{"uniform", SurveySpec::Kind::UniformRandom}, Case{"strips", SurveySpec::Kind::FlightStrips},
+        Case{"lattice", SurveySpec::Kind::Lattice}}) {
     Points pts = survey(c.kind, n, 1);
     const int depth = std::max(chooseDepth(pts.size()), 1);
     const GridSpec grid = makeGrid(boundsOf(pts), depth);
@@ -802,12 +929,14 @@ TEST(StreamingDelaunay, DISABLED_Benchmark) {
 #endif
     const DelaunayStats& s = dt.stats();
     std::cout << "[ BENCH    ] " << c.name << " " << n << " depth " << depth << ": ours " << ours << " s ("
-              << static_cast<double>(n) / ours / 1e6 << " Mpts/s), CGAL " << theirs << " s, ratio " << theirs / ours
-              << "; max active tris " << s.maxActiveTriangles << ", verts " << s.maxActiveVertices << ", peak "
-              << static_cast<double>(s.peakBytes) / 1e6 << " MB; walk steps/pt " << static_cast<double>(s.walkSteps) / static_cast<double>(n) << "; restarts "
-              << s.restartsLeaf << "/" << s.restartsNeighbour << "/" << s.restartsExhaustive << "; cert checks "
-              << s.certificationChecks << " (cheap " << s.certifiedCheap << ", parked " << s.parked
-              << "); exact incircle " << ps.incircleExact << ", ties " << ps.perturbedTies << "\n";
+              << static_cast<double>(n) / ours / 1e6 << " Mpts/s), CGAL " << theirs << " s, ratio "
+              << theirs / ours << "; max active tris " << s.maxActiveTriangles << ", verts "
+              << s.maxActiveVertices << ", peak " << static_cast<double>(s.peakBytes) / 1e6
+              << " MB; walk steps/pt " << static_cast<double>(s.walkSteps) / static_cast<double>(n)
+              << "; restarts " << s.restartsLeaf << "/" << s.restartsNeighbour << "/" << s.restartsExhaustive
+              << "; cert checks " << s.certificationChecks << " (cheap " << s.certifiedCheap << ", parked "
+              << s.parked << "); exact incircle " << ps.incircleExact << ", ties " << ps.perturbedTies
+              << "\n";
   }
 }
 
