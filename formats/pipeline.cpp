@@ -11,6 +11,7 @@
 #include "formats/streaming_mesh.h"
 #include "libterrain/error.h"
 #include "libterrain/json_writer.h"
+#include "libterrain/report_text.h"
 #include "libterrain/survey_stats.h"
 
 namespace tinbuild {
@@ -18,25 +19,6 @@ namespace tinbuild {
 namespace {
 
 using Clock = std::chrono::steady_clock;
-
-std::string withCommas(std::uint64_t n) {
-  std::string s = std::to_string(n);
-  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
-  return s;
-}
-
-std::string fmt(const char* format, double v) {
-  char buf[64];
-  std::snprintf(buf, sizeof buf, format, v);
-  return buf;
-}
-
-std::string bytesText(std::uint64_t b) {
-  if (b < 1024) return std::to_string(b) + " B";
-  if (b < (1u << 20)) return fmt("%.1f KiB", static_cast<double>(b) / 1024);
-  if (b < (1u << 30)) return fmt("%.1f MiB", static_cast<double>(b) / (1 << 20));
-  return fmt("%.2f GiB", static_cast<double>(b) / (1 << 30));
-}
 
 // The LAS headers' bounds, when every input is LAS and every header looks sane.
 bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Bounds3& out,
@@ -121,17 +103,6 @@ void finish(RunReport& r, const Diagnostics& diag, Clock::time_point t0) {
   r.warnings = diag.entries();
   r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
   r.peakRssBytes = peakRssBytes();
-}
-
-void writeBounds(JsonWriter& j, const Bounds3& b) {
-  if (b.empty()) {
-    j.null();
-    return;
-  }
-  j.beginObject();
-  j.key("min").beginArray().value(b.minX).value(b.minY).value(b.minZ).endArray();
-  j.key("max").beginArray().value(b.maxX).value(b.maxY).value(b.maxZ).endArray();
-  j.endObject();
 }
 
 void writePass(JsonWriter& j, bool run, double seconds, std::uint64_t points) {
@@ -270,10 +241,10 @@ std::string formatVerifyText(const VerifyReport& r) {
                   " triangles, " + withCommas(c.interiorEdges) +
                   " interior edges checked locally Delaunay (exact), " + withCommas(c.hullEdges) +
                   " hull edges; at most " + withCommas(c.maxLiveVertices) + " live vertices and " +
-                  withCommas(c.maxOpenEdges) + " open edges; " + fmt("%.2f s", r.seconds) + "\n";
+                  withCommas(c.maxOpenEdges) + " open edges; " + formatDouble("%.2f s", r.seconds) + "\n";
   if (c.ok()) {
     o += "  mesh: valid streaming mesh, counter-clockwise, Delaunay, convex hull covered (hull area " +
-         fmt("%.6g", c.hullArea) + " = sum of triangle areas)\n";
+         formatDouble("%.6g", c.hullArea) + " = sum of triangle areas)\n";
   } else {
     for (const auto& p : c.problems)
       o += "  problem: " + p.kind + " (" + withCommas(p.count) + "x): " + p.first + "\n";
@@ -341,7 +312,7 @@ std::string formatRunSummary(const RunReport& r) {
     o += "  " + label + std::string(label.size() < 10 ? 10 - label.size() : 1, ' ') + text + "\n";
   };
   auto rate = [](std::uint64_t n, double t) {
-    return t > 0 ? fmt("%.1f", static_cast<double>(n) / t / 1e6) : "-";
+    return t > 0 ? formatDouble("%.1f", static_cast<double>(n) / t / 1e6) : "-";
   };
   std::string outs;
   for (const auto& p : r.outputs) outs += (outs.empty() ? "" : ", ") + p;
@@ -356,7 +327,7 @@ std::string formatRunSummary(const RunReport& r) {
          r.inputs.front();
   }
   o += "; wrote " + outs + (r.outputBytes ? " (" + bytesText(r.outputBytes) + ")" : "") + " in " +
-       fmt("%.2f", r.seconds) + " s, peak memory " + bytesText(r.peakRssBytes) + "\n";
+       formatDouble("%.2f", r.seconds) + " s, peak memory " + bytesText(r.peakRssBytes) + "\n";
   if (r.haveFinalizer) {
     const FinalizerStats& s = r.finalizer;
     const FilterCounts& f = s.filter;
@@ -379,21 +350,25 @@ std::string formatRunSummary(const RunReport& r) {
       line("filter", d);
     }
     line("grid", "depth " + std::to_string(s.grid.depth) + " (" + std::to_string(s.grid.side()) + " x " +
-                     std::to_string(s.grid.side()) + " cells of " + fmt("%.4g", s.grid.cellSize()) + "), " +
-                     withCommas(s.occupiedCells) + " occupied, " + fmt("%.0f", s.averagePerCell) +
-                     " points per cell on average, " + withCommas(s.maxPerCell) + " at most" +
+                     std::to_string(s.grid.side()) + " cells of " + formatDouble("%.4g", s.grid.cellSize()) +
+                     "), " + withCommas(s.occupiedCells) + " occupied, " +
+                     formatDouble("%.0f", s.averagePerCell) + " points per cell on average, " +
+                     withCommas(s.maxPerCell) + " at most" +
                      (s.boundsFromHeader ? "; bounds from the LAS headers" : ""));
     line(
         "width",
         withCommas(s.width) + " points buffered at most (" +
-            fmt("%.2f", s.points ? 100.0 * static_cast<double>(s.width) / static_cast<double>(s.points) : 0) +
+            formatDouble(
+                "%.2f", s.points ? 100.0 * static_cast<double>(s.width) / static_cast<double>(s.points) : 0) +
             "% of the stream); pool peak " + bytesText(s.peakPoolBytes) + ", spilled " +
             bytesText(s.spilledBytes) + (s.spooledBytes ? ", spooled " + bytesText(s.spooledBytes) : ""));
-    line("passes",
-         (s.pass1Run ? "1: " + fmt("%.3f s", s.pass1Seconds) + " (" + rate(f.read, s.pass1Seconds) + " M/s), "
-                     : std::string("1: skipped (LAS header bounds), ")) +
-             "2: " + fmt("%.3f s", s.pass2Seconds) + " (" + rate(f.read * s.pass2Runs, s.pass2Seconds) +
-             " M/s), 3: " + fmt("%.3f s", s.pass3Seconds) + " (" + rate(f.read, s.pass3Seconds) + " M/s)");
+    line("passes", (s.pass1Run ? "1: " + formatDouble("%.3f s", s.pass1Seconds) + " (" +
+                                     rate(f.read, s.pass1Seconds) + " M/s), "
+                               : std::string("1: skipped (LAS header bounds), ")) +
+                       "2: " + formatDouble("%.3f s", s.pass2Seconds) + " (" +
+                       rate(f.read * s.pass2Runs, s.pass2Seconds) +
+                       " M/s), 3: " + formatDouble("%.3f s", s.pass3Seconds) + " (" +
+                       rate(f.read, s.pass3Seconds) + " M/s)");
   }
   if (r.haveDelaunay) {
     const DelaunayStats& d = r.delaunay;
@@ -450,7 +425,7 @@ std::string formatRunJson(const RunReport& r) {
     j.endObject();
     j.endObject();
     j.key("bounds");
-    writeBounds(j, s.bounds);
+    writeBoundsJson(j, s.bounds);
     j.key("grid").beginObject();
     j.key("depth").value(s.grid.depth);
     j.key("origin").beginArray().value(s.grid.originX).value(s.grid.originY).endArray();
@@ -509,16 +484,8 @@ std::string formatRunJson(const RunReport& r) {
   }
   j.key("seconds").value(r.seconds);
   j.key("peak_rss_bytes").value(r.peakRssBytes);
-  j.key("warnings").beginArray();
-  for (const auto& e : r.warnings) {
-    j.beginObject();
-    j.key("kind").value(e.kind);
-    j.key("file").value(e.file);
-    j.key("message").value(e.firstMessage);
-    j.key("count").value(e.count);
-    j.endObject();
-  }
-  j.endArray();
+  j.key("warnings");
+  writeWarningsJson(j, r.warnings);
   j.endObject();
   return j.str() + "\n";
 }

@@ -10,16 +10,11 @@
 
 #include "libterrain/error.h"
 #include "libterrain/json_writer.h"
+#include "libterrain/report_text.h"
 
 namespace tinbuild {
 
 namespace {
-
-std::string withCommas(std::uint64_t n) {
-  std::string s = std::to_string(n);
-  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
-  return s;
-}
 
 std::string num(double v, int precision = 10) {
   char buf[64];
@@ -55,13 +50,6 @@ double bboxAreaKm2(const Bounds3& b, const CrsInfo& crs, bool& known) {
     return (b.maxX - b.minX) * m * (b.maxY - b.minY) * m / 1e6;
   }
   return 0;
-}
-
-void writeBounds(JsonWriter& j, const Bounds3& b) {
-  j.beginObject();
-  j.key("min").beginArray().value(b.minX).value(b.minY).value(b.minZ).endArray();
-  j.key("max").beginArray().value(b.maxX).value(b.maxY).value(b.maxZ).endArray();
-  j.endObject();
 }
 
 void writeCrs(JsonWriter& j, const CrsInfo& c) {
@@ -109,19 +97,6 @@ void writeCounts(JsonWriter& j, const PointCounts& c) {
   j.key("synthetic").value(c.synthetic);
   j.key("key_point").value(c.keyPoint);
   j.key("overlap").value(c.overlap);
-}
-
-void writeWarnings(JsonWriter& j, const std::vector<Diagnostics::Entry>& w) {
-  j.beginArray();
-  for (const auto& e : w) {
-    j.beginObject();
-    j.key("kind").value(e.kind);
-    j.key("file").value(e.file);
-    j.key("message").value(e.firstMessage);
-    j.key("count").value(e.count);
-    j.endObject();
-  }
-  j.endArray();
 }
 
 std::string describeCrs(const CrsInfo& c) {
@@ -223,10 +198,7 @@ std::string formatInfoJson(const InfoReport& r) {
   j.beginObject();
   j.key("points").value(s.counts.points);
   j.key("bounds");
-  if (s.counts.bounds.empty())
-    j.null();
-  else
-    writeBounds(j, s.counts.bounds);
+  writeBoundsJson(j, s.counts.bounds);
   j.key("crs");
   writeCrs(j, r.crs);
   writeCounts(j, s.counts);
@@ -279,7 +251,7 @@ std::string formatInfoJson(const InfoReport& r) {
       j.key("extra_bytes").value(src.extraBytesPerRecord);
       j.key("header_points").value(src.headerPointCount);
       j.key("header_bounds");
-      writeBounds(j, src.headerBounds);
+      writeBoundsJson(j, src.headerBounds);
       j.key("scale").beginArray().value(src.scale[0]).value(src.scale[1]).value(src.scale[2]).endArray();
       j.key("offset").beginArray().value(src.offset[0]).value(src.offset[1]).value(src.offset[2]).endArray();
       j.key("global_encoding").value(static_cast<unsigned>(src.globalEncoding));
@@ -290,10 +262,7 @@ std::string formatInfoJson(const InfoReport& r) {
     }
     j.key("points").value(f.counts.points);
     j.key("bounds");
-    if (f.counts.bounds.empty())
-      j.null();
-    else
-      writeBounds(j, f.counts.bounds);
+    writeBoundsJson(j, f.counts.bounds);
     j.key("crs");
     writeCrs(j, src.crs);
     writeCounts(j, f.counts);
@@ -301,12 +270,12 @@ std::string formatInfoJson(const InfoReport& r) {
     for (const auto& n : src.notes) j.value(n);
     j.endArray();
     j.key("warnings");
-    writeWarnings(j, f.warnings);
+    writeWarningsJson(j, f.warnings);
     j.endObject();
   }
   j.endArray();
   j.key("warnings");
-  writeWarnings(j, r.warnings);
+  writeWarningsJson(j, r.warnings);
   j.endObject();
   return j.str() + "\n";
 }
