@@ -1,0 +1,63 @@
+// Shared pieces of tinbuild-bench (see the essay at the top of tinbuild_bench.cpp).
+#pragma once
+
+#include <cstdint>
+#include <stdexcept>
+#include <string>
+#include <vector>
+
+namespace tinbuild::bench {
+
+// A benchmark failure or a bad command line: printed as "tinbuild-bench: error: ..." with exit code 1.
+class BenchError : public std::runtime_error {
+ public:
+  explicit BenchError(const std::string& message) : std::runtime_error(message) {}
+};
+
+// What a child process cost, measured by the parent.
+struct ChildRun {
+  double seconds = 0;         // wall time from just before fork() to wait4() returning
+  std::int64_t maxRssKb = 0;  // the child's peak resident set (rusage.ru_maxrss from wait4, KiB)
+  std::string output;         // the child's stdout when captured, else empty
+};
+
+// Runs `exe args...` (fork + execv, no shell) and waits for it with wait4().  stdin is inherited,
+// stderr passes through; stdout is captured into ChildRun::output when `captureStdout`, inherited
+// otherwise.  Throws BenchError when the child cannot be started, is killed or exits non-zero.
+ChildRun runChild(const std::string& exe, const std::vector<std::string>& args, bool captureStdout);
+
+// The running executable (readlink /proc/self/exe).
+std::string selfExecutable();
+
+// The CGAL peer, run in a child process (`tinbuild-bench cgal-child LAS`): reads LAS with the default
+// build filter into a vector of Epick points, times Delaunay_triangulation_2 range insertion, prints one
+// line "insert_seconds load_seconds points vertices faces load_rss_kb" on stdout.
+int cgalChildMain(const std::vector<std::string>& args);
+
+// `tinbuild-bench stream ...`: a finalized stream of uniform random points on stdout (stream_generator.cpp).
+int streamMain(const std::vector<std::string>& args);
+
+// Small command-line helpers shared by the subcommands.
+class Args {
+ public:
+  Args(std::string command, std::vector<std::string> args)
+      : command_(std::move(command)), args_(std::move(args)) {}
+  // Value of `--name V` (the last one wins); `fallback` when absent.  Marks it as consumed.
+  std::string value(const std::string& name, const std::string& fallback = "");
+  bool flag(const std::string& name);
+  std::uint64_t count(const std::string& name, std::uint64_t fallback, std::uint64_t lo, std::uint64_t hi);
+  double number(const std::string& name, double fallback, double lo, double hi);
+  bool has(const std::string& name) const;
+  // Throws BenchError naming the first argument nobody consumed.
+  void finish() const;
+
+ private:
+  std::string command_;
+  std::vector<std::string> args_;
+  std::vector<bool> used_ = std::vector<bool>(args_.size(), false);
+};
+
+// Parses "1000000", "1e6", "10M", "1G" (decimal suffixes k, M, G) into a count.
+std::uint64_t parseCount(const std::string& text, const std::string& what);
+
+}  // namespace tinbuild::bench
