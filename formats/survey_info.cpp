@@ -334,7 +334,7 @@ std::string formatInfoText(const InfoReport& r) {
          fixed(r.areaKm2, 4) + " km2 (bounding box" + std::string(r.crs.geographic ? ", geodesic)" : ")"));
     if (r.areaKm2 > 0) {
       const double density = static_cast<double>(s.counts.points) / (r.areaKm2 * 1e6);
-      line("density", fixed(density, 3) + " points/m2, spacing " + fixed(1.0 / std::sqrt(density), 3) + " m");
+      line("density", num(density, 4) + " points/m2, spacing " + num(1.0 / std::sqrt(density), 4) + " m");
     }
   }
   std::string classes;
