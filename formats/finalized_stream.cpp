@@ -1,4 +1,5 @@
 #include "formats/finalized_stream.h"
+#include "formats/output_file.h"
 
 #include <fcntl.h>
 #include <sys/stat.h>
@@ -15,6 +16,7 @@
 
 #include "formats/stdin_source.h"
 #include "libterrain/error.h"
+#include "libterrain/report_text.h"
 
 namespace tinbuild {
 
@@ -102,25 +104,6 @@ std::string errnoText() {
   return std::strerror(errno);
 }
 
-std::string withCommas(std::uint64_t n) {
-  std::string s = std::to_string(n);
-  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
-  return s;
-}
-
-std::string temporaryName(const std::string& path, unsigned attempt) {
-  static std::atomic<std::uint64_t> counter{0};
-  std::uint64_t h = static_cast<std::uint64_t>(::getpid()) * 0x9e3779b97f4a7c15ULL;
-  h ^= static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
-  h ^= (counter.fetch_add(1) + attempt) * 0xbf58476d1ce4e5b9ULL;
-  h ^= h >> 31;
-  h *= 0x94d049bb133111ebULL;
-  h ^= h >> 29;
-  char suffix[16];
-  std::snprintf(suffix, sizeof suffix, "%08x", static_cast<unsigned>(h & 0xffffffffu));
-  return path + ".tmp-" + suffix;
-}
-
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------------
@@ -194,12 +177,7 @@ FinalizedStreamWriter::FinalizedStreamWriter(const std::string& path,
     ownFd_ = true;
     return;
   }
-  for (unsigned attempt = 0; fd_ < 0; ++attempt) {
-    tempPath_ = temporaryName(path_, attempt);
-    fd_ = ::open(tempPath_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd_ < 0 && (errno != EEXIST || attempt >= 100))
-      throw DataError(path_, "cannot create " + tempPath_ + ": " + errnoText());
-  }
+  fd_ = createTemporaryBeside(path_, tempPath_);
   ownFd_ = true;
 }
 

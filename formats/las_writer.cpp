@@ -1,4 +1,5 @@
 #include "formats/las_writer.h"
+#include "formats/output_file.h"
 
 #include <fcntl.h>
 #include <unistd.h>
@@ -65,19 +66,6 @@ void today(int& dayOfYear, int& year) {
   const year_month_day ymd{day};
   year = static_cast<int>(ymd.year());
   dayOfYear = static_cast<int>((day - sys_days{ymd.year() / January / 1}).count()) + 1;
-}
-
-std::string temporaryName(const std::string& path, unsigned attempt) {
-  static std::atomic<std::uint64_t> counter{0};
-  std::uint64_t h = static_cast<std::uint64_t>(::getpid()) * 0x9e3779b97f4a7c15ULL;
-  h ^= static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
-  h ^= (counter.fetch_add(1) + attempt) * 0xbf58476d1ce4e5b9ULL;
-  h ^= h >> 31;
-  h *= 0x94d049bb133111ebULL;
-  h ^= h >> 29;
-  char suffix[16];
-  std::snprintf(suffix, sizeof suffix, "%08x", static_cast<unsigned>(h & 0xffffffffu));
-  return path + ".tmp-" + suffix;
 }
 
 void appendVlr(std::vector<std::uint8_t>& out, std::uint16_t recordId, const std::string& description,
@@ -214,12 +202,7 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
   const std::size_t records = std::max<std::size_t>(1, options_.bufferBytes / recordLength_);
   buffer_.resize(records * recordLength_);
 
-  for (unsigned attempt = 0; fd_ < 0; ++attempt) {
-    tempPath_ = temporaryName(path_, attempt);
-    fd_ = ::open(tempPath_.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd_ < 0 && (errno != EEXIST || attempt >= 100))
-      throw DataError(path_, "cannot create " + tempPath_ + ": " + errnoText());
-  }
+  fd_ = createTemporaryBeside(path_, tempPath_);
   try {
     const auto head = header();
     writeAt(0, head.data(), head.size());

@@ -1,16 +1,45 @@
 #include "formats/output_file.h"
 
 #include <fcntl.h>
-#include <stdlib.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <atomic>
 #include <cerrno>
+#include <chrono>
+#include <cstdio>
 #include <cstring>
 
 #include "libterrain/error.h"
 
 namespace tinbuild {
+
+namespace {
+
+std::string temporaryName(const std::string& path, unsigned attempt) {
+  static std::atomic<std::uint64_t> counter{0};
+  std::uint64_t h = static_cast<std::uint64_t>(::getpid()) * 0x9e3779b97f4a7c15ULL;
+  h ^= static_cast<std::uint64_t>(std::chrono::steady_clock::now().time_since_epoch().count());
+  h ^= (counter.fetch_add(1) + attempt) * 0xbf58476d1ce4e5b9ULL;
+  h ^= h >> 31;
+  h *= 0x94d049bb133111ebULL;
+  h ^= h >> 29;
+  char suffix[16];
+  std::snprintf(suffix, sizeof suffix, "%08x", static_cast<unsigned>(h & 0xffffffffu));
+  return path + ".tmp-" + suffix;
+}
+
+}  // namespace
+
+int createTemporaryBeside(const std::string& path, std::string& tempPath) {
+  for (unsigned attempt = 0;; ++attempt) {
+    tempPath = temporaryName(path, attempt);
+    const int fd = ::open(tempPath.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
+    if (fd >= 0) return fd;
+    if (errno != EEXIST || attempt >= 100)
+      throw DataError(path, "cannot create " + tempPath + ": " + std::strerror(errno));
+  }
+}
 
 OutputFile::OutputFile(std::string path, std::size_t bufferSize)
     : path_(std::move(path)), buffer_(bufferSize) {
@@ -26,16 +55,7 @@ OutputFile::OutputFile(std::string path, std::size_t bufferSize)
     direct_ = true;
     return;
   }
-  std::string tmpl = path_ + ".tmp-XXXXXX";
-  std::vector<char> name(tmpl.begin(), tmpl.end());
-  name.push_back('\0');
-  fd_ = ::mkstemp(name.data());
-  if (fd_ < 0) throw DataError(path_, std::string("cannot create output: ") + std::strerror(errno));
-  tempPath_ = name.data();
-  // mkstemp creates 0600; give the file the permissions a plain open(2) would (0666 less the umask).
-  const mode_t mask = ::umask(0);
-  ::umask(mask);
-  ::fchmod(fd_, 0666 & ~mask);
+  fd_ = createTemporaryBeside(path_, tempPath_);
 }
 
 OutputFile::~OutputFile() {

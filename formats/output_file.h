@@ -15,6 +15,11 @@
 
 namespace tinbuild {
 
+// Creates a new, empty file beside PATH under a unique temporary name (PATH.tmp-XXXXXXXX, created with
+// O_EXCL and mode 0666 less the umask) and returns its descriptor; `tempPath` receives the name.
+// Throws DataError naming PATH when it cannot.  Every writer that renames on success starts here.
+int createTemporaryBeside(const std::string& path, std::string& tempPath);
+
 class OutputFile {
  public:
   explicit OutputFile(std::string path, std::size_t bufferSize = std::size_t{1} << 20);
