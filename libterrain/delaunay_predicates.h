@@ -17,13 +17,24 @@
 //   stage 3  the library predicate (exact expansions), and for an exact incircle tie the symbolic
 //            perturbation, written out below exactly as incirclePerturbed defines it (predicates.cpp
 //            derives it): the first nonzero coefficient in decreasing lexicographic order of the points.
+// inCircle2 runs two stage-1 filters in the two lanes of an SSE2 register (the cavity search tests a
+// triangle's two far neighbours together); each lane computes exactly the scalar filter's doubles.
+//
+// Certification's disks: circumdiskInside, a division-free sufficient test (2R against the rectangle,
+// derived below), which decides most triangles; circumDisk, a sharper conservative disk (one division,
+// one square root) for the others and for the quadtree search.
 #pragma once
 
 #include <algorithm>
 #include <bit>
 #include <cmath>
 #include <cstdint>
+#include <limits>
 #include <utility>
+
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
 
 #include "libterrain/predicates.h"
 
@@ -125,7 +136,8 @@ inline int perturbedTie(const Point2& a, const Point2& b, const Point2& c, const
 }
 
 // Same result as incirclePerturbed(a, b, c, d): +1 inside, -1 outside, never 0.
-inline int inCircle(const Point2& a, const Point2& b, const Point2& c, const Point2& d) {
+[[gnu::always_inline]] inline int inCircle(const Point2& a, const Point2& b, const Point2& c,
+                                           const Point2& d) {
   const double adx = a.x - d.x, ady = a.y - d.y;
   const double bdx = b.x - d.x, bdy = b.y - d.y;
   const double cdx = c.x - d.x, cdy = c.y - d.y;
@@ -143,6 +155,57 @@ inline int inCircle(const Point2& a, const Point2& b, const Point2& c, const Poi
   if (det > bound) return 1;
   if (det < -bound) return -1;
   return inCircleSlow(det, a, b, c, d);
+}
+
+// inCircle for two triangles against the same point: bit 0 of the result is inCircle(a1, b1, c1, d) > 0,
+// bit 1 the same for (a2, b2, c2).  With SSE2 the two filters run in the two lanes of one register: the
+// same operations on the same operands in the same order (no FMA: -ffp-contract=off), so each lane holds
+// exactly the doubles the scalar filter computes, and a lane it cannot decide goes to the same stages 2
+// and 3 with its own determinant.
+[[gnu::always_inline]] inline unsigned inCircle2(const Point2& a1, const Point2& b1, const Point2& c1,
+                                                 const Point2& a2, const Point2& b2, const Point2& c2,
+                                                 const Point2& d) {
+#if defined(__SSE2__)
+  const __m128d px = _mm_set1_pd(d.x), py = _mm_set1_pd(d.y);
+  // Lane 0 from the first triangle, lane 1 from the second; coordinates relative to d.
+  auto lanes = [&](const Point2& u, const Point2& v, __m128d& x, __m128d& y) {
+    const __m128d U = _mm_loadu_pd(&u.x), V = _mm_loadu_pd(&v.x);
+    x = _mm_sub_pd(_mm_unpacklo_pd(U, V), px);
+    y = _mm_sub_pd(_mm_unpackhi_pd(U, V), py);
+  };
+  __m128d adx, ady, bdx, bdy, cdx, cdy;
+  lanes(a1, a2, adx, ady);
+  lanes(b1, b2, bdx, bdy);
+  lanes(c1, c2, cdx, cdy);
+  const __m128d bdxcdy = _mm_mul_pd(bdx, cdy), cdxbdy = _mm_mul_pd(cdx, bdy);
+  const __m128d cdxady = _mm_mul_pd(cdx, ady), adxcdy = _mm_mul_pd(adx, cdy);
+  const __m128d adxbdy = _mm_mul_pd(adx, bdy), bdxady = _mm_mul_pd(bdx, ady);
+  const __m128d alift = _mm_add_pd(_mm_mul_pd(adx, adx), _mm_mul_pd(ady, ady));
+  const __m128d blift = _mm_add_pd(_mm_mul_pd(bdx, bdx), _mm_mul_pd(bdy, bdy));
+  const __m128d clift = _mm_add_pd(_mm_mul_pd(cdx, cdx), _mm_mul_pd(cdy, cdy));
+  const __m128d det = _mm_add_pd(_mm_add_pd(_mm_mul_pd(alift, _mm_sub_pd(bdxcdy, cdxbdy)),
+                                            _mm_mul_pd(blift, _mm_sub_pd(cdxady, adxcdy))),
+                                 _mm_mul_pd(clift, _mm_sub_pd(adxbdy, bdxady)));
+  const __m128d absMask = _mm_castsi128_pd(_mm_set1_epi64x(0x7FFFFFFFFFFFFFFF));
+  auto abs = [&](__m128d v) { return _mm_and_pd(v, absMask); };
+  const __m128d perm = _mm_add_pd(_mm_add_pd(_mm_mul_pd(_mm_add_pd(abs(bdxcdy), abs(cdxbdy)), alift),
+                                             _mm_mul_pd(_mm_add_pd(abs(cdxady), abs(adxcdy)), blift)),
+                                  _mm_mul_pd(_mm_add_pd(abs(adxbdy), abs(bdxady)), clift));
+  const __m128d bound = _mm_mul_pd(_mm_set1_pd(kIncircleBound), perm);
+  const unsigned inside = static_cast<unsigned>(_mm_movemask_pd(_mm_cmpgt_pd(det, bound)));
+  const unsigned outside =
+      static_cast<unsigned>(_mm_movemask_pd(_mm_cmplt_pd(det, _mm_xor_pd(bound, _mm_set1_pd(-0.0)))));
+  if ((inside | outside) == 3) [[likely]]
+    return inside;
+  double dets[2];
+  _mm_storeu_pd(dets, det);
+  unsigned result = inside;
+  if (!((inside | outside) & 1u) && inCircleSlow(dets[0], a1, b1, c1, d) > 0) result |= 1u;
+  if (!((inside | outside) & 2u) && inCircleSlow(dets[1], a2, b2, c2, d) > 0) result |= 2u;
+  return result;
+#else
+  return (inCircle(a1, b1, c1, d) > 0 ? 1u : 0u) | (inCircle(a2, b2, c2, d) > 0 ? 2u : 0u);
+#endif
 }
 
 // ---------------------------------------------------------------------------------------------------------
@@ -230,6 +293,46 @@ inline bool insideRect(const Disk& d, const Rect& r) {
   if (d.everything) return false;
   return d.cx - d.rInside >= r.x0 && d.cx + d.rInside <= r.x1 && d.cy - d.rInside >= r.y0 &&
          d.cy + d.rInside <= r.y1;
+}
+
+// Is the triangle's closed circumdisk inside the closed rectangle?  True only when provably so.  The first
+// test of certification (most triangles pass it): no division and no square root, unlike circumDisk.
+//
+// Derivation (u = 2^-53).  With B = b - a, C = c - a, E = c - b and D = Bx Cy - By Cx (twice the signed
+// area), the circumradius is R = |B| |C| |E| / (2 |D|).  Every point q of the disk is within 2R of each
+// vertex (|q - v| <= |q - centre| + |centre - v|), so qx >= max(ax, bx, cx) - 2R, qx <= min(ax, bx, cx) + 2R,
+// and alike in y: the disk lies in the rectangle when 2R <= M = min(max x - x0, x1 - min x, max y - y0,
+// y1 - min y), that is when |B|^2 |C|^2 |E|^2 <= M^2 D^2.  Rounding, given the gates below (which keep
+// every product normal and finite; an underflowing square inside a sum of at least 2^-300 is off by less
+// than 2^-1074, far below the slack of the constants):
+//   - computed differences carry a factor (1 + d), |d| <= u, squares two more, the sum one: bl >= |B|^2
+//     (1 - u)^4, and P = fl(fl(bl cl) el) >= |B|^2 |C|^2 |E|^2 (1 - u)^14, so the exact left side is at
+//     most P (1 + 15u);
+//   - m = min of fl(max x - x0), ... <= M (1 + u) (rounding is monotone, so m > 0 means every exact
+//     difference is positive), hence M >= m (1 - u);
+//   - |d - D| <= 5u md with d, md as in circumDisk, and 8u md is exact (md >= 2^-900), so
+//     dl = fl(|d| - 8u md) <= (|D| - 3u md)(1 + u): |D| >= dl (1 - u) when dl > 0;
+//   - Q = fl(fl(m dl)^2) <= (m dl)^2 (1 + u)^3, so M^2 D^2 >= (m dl)^2 (1 - u)^4 >= Q (1 - 8u).
+// Then fl(P (1 + 64u)) <= Q gives P (1 + 15u) <= P (1 + 64u) (1 - u) (1 - 8u) <= fl(P (1 + 64u)) (1 - 8u)
+// <= Q (1 - 8u) <= M^2 D^2.  Overflow gives inf or NaN, which fails a comparison or the test Q <= max.
+// The bound 2R is twice the extent of the disk around its centre; a triangle it cannot place is given to
+// circumDisk and insideRect, which are sharper and dearer.
+inline bool circumdiskInside(const Point2& a, const Point2& b, const Point2& c, const Rect& r) {
+  const double bx = b.x - a.x, by = b.y - a.y;
+  const double cx = c.x - a.x, cy = c.y - a.y;
+  const double ex = c.x - b.x, ey = c.y - b.y;
+  const double bl = bx * bx + by * by, cl = cx * cx + cy * cy, el = ex * ex + ey * ey;
+  const double t1 = bx * cy, t2 = by * cx;
+  const double md = std::fabs(t1) + std::fabs(t2);
+  const double dl = std::fabs(t1 - t2) - 8.0 * kU * md;
+  const double mx =
+      std::min(std::max(std::max(a.x, b.x), c.x) - r.x0, r.x1 - std::min(std::min(a.x, b.x), c.x));
+  const double my =
+      std::min(std::max(std::max(a.y, b.y), c.y) - r.y0, r.y1 - std::min(std::min(a.y, b.y), c.y));
+  const double m = std::min(mx, my);
+  if (!(m > 0 && dl > 0 && std::min(std::min(bl, cl), el) >= 0x1p-300 && md >= 0x1p-900)) return false;
+  const double q = (m * dl) * (m * dl);
+  return q <= std::numeric_limits<double>::max() && bl * cl * el * (1.0 + 64.0 * kU) <= q;
 }
 
 }  // namespace tinbuild::delaunay

@@ -1036,7 +1036,7 @@ struct StreamingDelaunay::Impl {
 
   std::size_t nCavity = 0, nBoundary = 0;
 
-  void markCavity(std::uint32_t t) {
+  [[gnu::always_inline]] void markCavity(std::uint32_t t) {
     Tri* const tr = tris.data();
     const std::uint32_t pv = tr[t].prev, nx = tr[t].next;
     tr[pv].next = nx;
@@ -1047,13 +1047,33 @@ struct StreamingDelaunay::Impl {
   }
 
   // Is the neighbour behind code a new cavity triangle?  (kNone and inner edges are not.)
-  bool conflictsAcross(std::uint32_t code, const Point2& p) const {
+  [[gnu::always_inline]] bool conflictsAcross(std::uint32_t code, const Point2& p) const {
     if (code == kNone) return false;
     const std::uint32_t u = code >> 2;
     return tris[u].prev != kCavityMark && conflicts(u, p);
   }
 
-  void boundaryEdge(const Tri& T, int i) {
+  // Both at once: when both neighbours are finite triangles outside the cavity (the usual case), their
+  // incircle filters share one SSE2 register (inCircle2).
+  [[gnu::always_inline]] void conflictsAcross2(std::uint32_t c1, std::uint32_t c2, const Point2& p, bool& in1,
+                                               bool& in2) const {
+    if (c1 != kNone && c2 != kNone) {
+      const Tri &U1 = tris[c1 >> 2], &U2 = tris[c2 >> 2];
+      const std::uint32_t low = std::min(std::min(std::min(U1.v[0], U1.v[1]), std::min(U1.v[2], U2.v[0])),
+                                         std::min(U2.v[1], U2.v[2]));
+      if (U1.prev != kCavityMark && U2.prev != kCavityMark && low != kInfinite) {
+        const unsigned in = delaunay::inCircle2(pt(U1.v[0]), pt(U1.v[1]), pt(U1.v[2]), pt(U2.v[0]),
+                                                pt(U2.v[1]), pt(U2.v[2]), p);
+        in1 = (in & 1u) != 0;
+        in2 = (in & 2u) != 0;
+        return;
+      }
+    }
+    in1 = conflictsAcross(c1, p);
+    in2 = conflictsAcross(c2, p);
+  }
+
+  [[gnu::always_inline]] void boundaryEdge(const Tri& T, int i) {
     if (nBoundary == boundary.size()) grow(boundary, nBoundary);
     boundary[nBoundary++] = BoundaryEdge{T.v[kNext[i]], T.v[kPrev[i]], T.n[i]};
   }
@@ -1070,8 +1090,8 @@ struct StreamingDelaunay::Impl {
     }
     const int i1 = kNext[j], i2 = kPrev[j];
     const std::uint32_t c1 = tris[t].n[i1], c2 = tris[t].n[i2];
-    const bool in1 = conflictsAcross(c1, p);
-    const bool in2 = conflictsAcross(c2, p);
+    bool in1, in2;
+    conflictsAcross2(c1, c2, p, in1, in2);
     if (in1) {
       markCavity(c1 >> 2);
       searchFrom(c1 >> 2, static_cast<int>(c1 & 3), p, depth + 1);
@@ -1147,17 +1167,23 @@ struct StreamingDelaunay::Impl {
     const std::uint32_t s = currentSentinel();  // before taking slots: may allocate one
     const std::size_t k = nb;
     Vertex* const vx = verts.data();
-    if (fresh.size() < k) fresh.resize(2 * k);
+    if (fresh.size() < k + 1) fresh.resize(2 * k + 1);
     std::uint32_t* fr = fresh.data();
+    // Vertex use counts: the cavity's triangles go, each boundary vertex gains two.  The point at infinity
+    // has a Vertex slot too, whose count nobody reads: updating it saves a branch per vertex.
     for (std::size_t m = 0; m < nc; ++m) {
       const std::uint32_t t = cv[m];
       fr[m] = t;
-      for (const std::uint32_t v : tris[t].v)
-        if (v != kInfinite) --vx[v].uses;
+      const Tri& T = tris[t];
+      --vx[T.v[0]].uses;
+      --vx[T.v[1]].uses;
+      --vx[T.v[2]].uses;
     }
     for (std::size_t m = nc; m < k; ++m) fr[m] = allocTri();
+    fr[k] = fr[0];
     Tri* const tw = tris.data();  // allocTri may have moved the array
     std::uint32_t first = tw[s].next;
+    std::uint32_t before = fr[k - 1];
     for (std::size_t m = 0; m < k; ++m) {
       const BoundaryEdge& e = bd[m];
       assert(e.b == bd[m + 1 == k ? 0 : m + 1].a);
@@ -1166,18 +1192,17 @@ struct StreamingDelaunay::Impl {
       T.v[0] = e.a;
       T.v[1] = e.b;
       T.v[2] = vp;
-      T.n[0] = fr[m + 1 == k ? 0 : m + 1] * 4 + 1;
-      T.n[1] = fr[m == 0 ? k - 1 : m - 1] * 4 + 0;
+      T.n[0] = fr[m + 1] * 4 + 1;
+      T.n[1] = before * 4 + 0;
       T.n[2] = e.outside;
+      before = t;
       if (e.outside != kNone) tw[e.outside >> 2].n[e.outside & 3] = t * 4 + 2;
       // Linked after the sentinel, in one chain: s -> fr[k-1] -> ... -> fr[0] -> old first.
       T.next = first;
       tw[first].prev = t;
       first = t;
-      if (e.a != kInfinite) {
-        vx[e.a].uses += 2;  // each boundary vertex starts one edge and ends one
-        vx[e.a].tri = t;
-      }
+      vx[e.a].uses += 2;  // each boundary vertex starts one edge and ends one
+      vx[e.a].tri = t;    // (for the point at infinity: never read)
     }
     tw[s].next = first;
     tw[first].prev = s;
@@ -1191,33 +1216,40 @@ struct StreamingDelaunay::Impl {
   }
 
   // ----- certification and output -------------------------------------------------------------------------
-  std::uint64_t writeVertexIfNew(std::uint32_t v) {
+  [[gnu::always_inline]] std::uint64_t writeVertexIfNew(std::uint32_t v) {
+    const std::uint64_t id = verts[v].id;
+    return id != kNoId ? id : writeVertex(v);
+  }
+  [[gnu::noinline]] std::uint64_t writeVertex(std::uint32_t v) {
     Vertex& V = verts[v];
-    if (V.id == kNoId) {
-      V.id = nextId++;
-      ++stats.verticesOut;
-      out.vertex(V.id, xy[v].x, xy[v].y, V.z);
-    }
+    V.id = nextId++;
+    ++stats.verticesOut;
+    out.vertex(V.id, xy[v].x, xy[v].y, V.z);
     return V.id;
   }
 
-  void finalizeVertex(std::uint32_t v) {
+  [[gnu::noinline]] void finalizeVertex(std::uint32_t v) {
     out.finalizeVertex(writeVertexIfNew(v));
     freeVertex(v);
   }
 
   // Frees a triangle that is not on any list: neighbours see kNone, vertices lose a use.
-  void release(std::uint32_t t) {
-    const Tri T = tris[t];
-    for (int i = 0; i < 3; ++i)
-      if (T.n[i] != kNone) tris[T.n[i] >> 2].n[T.n[i] & 3] = kNone;
+  [[gnu::always_inline]] void release(std::uint32_t t) {
+    Tri* const tr = tris.data();
+    const std::uint32_t n0 = tr[t].n[0], n1 = tr[t].n[1], n2 = tr[t].n[2];
+    const std::uint32_t v0 = tr[t].v[0], v1 = tr[t].v[1], v2 = tr[t].v[2];
+    if (n0 != kNone) tr[n0 >> 2].n[n0 & 3] = kNone;
+    if (n1 != kNone) tr[n1 >> 2].n[n1 & 3] = kNone;
+    if (n2 != kNone) tr[n2 >> 2].n[n2 & 3] = kNone;
     freeTriSlot(t);
     --activeTris;
-    for (const std::uint32_t v : T.v)
-      if (v != kInfinite && --verts[v].uses == 0) finalizeVertex(v);
+    Vertex* const vx = verts.data();
+    if (v0 != kInfinite && --vx[v0].uses == 0) finalizeVertex(v0);
+    if (v1 != kInfinite && --vx[v1].uses == 0) finalizeVertex(v1);
+    if (v2 != kInfinite && --vx[v2].uses == 0) finalizeVertex(v2);
   }
 
-  void emit(std::uint32_t t) {
+  [[gnu::always_inline]] void emit(std::uint32_t t) {
     const Tri& T = tris[t];
     const std::uint64_t a = writeVertexIfNew(T.v[0]);
     const std::uint64_t b = writeVertexIfNew(T.v[1]);
@@ -1315,8 +1347,24 @@ struct StreamingDelaunay::Impl {
   }
 
   // A parked triangle whose leaf just became final (`region`: the newly final cell's nominal square).
-  void certify(std::uint32_t t, const Rect& inner) {
+  // A parked triangle whose leaf just became final (`inner`: the largest final cell around it, shrunk by
+  // 2h).  The common case inline: a finite triangle whose disk lies inside `inner` (a neighbour's points
+  // come at most h inside it, so no unfinalized leaf can reach the disk) by the division-free bound.
+  [[gnu::always_inline]] void certify(std::uint32_t t, const Rect& inner) {
     ++stats.certificationChecks;
+    const Tri& T = tris[t];
+    if (std::min(std::min(T.v[0], T.v[1]), T.v[2]) != kInfinite &&
+        delaunay::circumdiskInside(pt(T.v[0]), pt(T.v[1]), pt(T.v[2]), inner)) {
+      ++stats.certifiedCheap;
+      emit(t);
+      return;
+    }
+    certifySlow(t, inner);
+  }
+
+  // The rest: ghosts (their half-plane), then the sharper disk of circumDisk against `inner`, then a
+  // search of the finalization quadtree; an open leaf the shape may meet gets the triangle parked.
+  [[gnu::noinline]] void certifySlow(std::uint32_t t, const Rect& inner) {
     const Tri& T = tris[t];
     const int inf = ghostIndex(T);
     std::uint32_t col = 0, row = 0;
@@ -1330,8 +1378,6 @@ struct StreamingDelaunay::Impl {
       }
     } else {
       const Disk d = circumDisk(pt(T.v[0]), pt(T.v[1]), pt(T.v[2]));
-      // Cheap test: inside the new final region, 2h away from its border (a neighbour's points come at
-      // most h inside it), so no unfinalized leaf can reach the disk.
       if (insideRect(d, inner)) {
         ++stats.certifiedCheap;
         emit(t);

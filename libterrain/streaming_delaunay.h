@@ -33,10 +33,13 @@
 //            unfinalized leaf cell that its (closed) circumdisk may touch; a new triangle is parked on
 //            the leaf of the point that created it (its circumcircle passes through that point, so it can
 //            not be final yet).  A triangle is looked at again only when its leaf is finalized.
-//   final    when its leaf is finalized, a parked triangle is certified: first the cheap test (its disk,
-//            with a rigorous error bound, lies inside the newly final region shrunk by the cell
-//            tolerance), then a descent of the finalization quadtree with the disk (false positives only).
-//            If an unfinalized leaf may still meet the disk, the triangle is parked there instead.
+//   final    when its leaf is finalized, a parked triangle is certified: first the cheap tests (its disk
+//            lies inside the newly final region shrunk by the cell tolerance: a division-free bound,
+//            2R <= distance from the vertices' bounding box to the region's far sides, then the sharper
+//            circumDisk, both with rigorous error bounds), then a descent of the finalization quadtree
+//            with the disk (false positives only).  If an unfinalized leaf may still meet the disk, the
+//            triangle is parked there instead.  The circumdisk is computed only here, never at creation:
+//            most triangles die in a later cavity before their leaf finalizes.
 //   written  a final finite triangle is passed to MeshSink::triangle at once; each of its vertices is
 //            written (MeshSink::vertex) just before the first triangle that uses it.
 //   freed    its slot goes on the free list; neighbours now see kNone.  A vertex counts its live

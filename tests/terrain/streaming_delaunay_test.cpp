@@ -708,6 +708,98 @@ TEST(StreamingDelaunay, CircumdiskContainsTheExactCircle) {
   EXPECT_GT(tested, 10000);
 }
 
+TEST(StreamingDelaunay, PairedIncircleAgreesWithLibrary) {
+  // inCircle2 (two filters in one SSE2 register) against incirclePerturbed, lane by lane, on random points
+  // and on lattices (exact ties: a lane the filter cannot decide goes to the slow stages alone).
+  std::mt19937_64 rng(29);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  auto pick = [&](int n) {
+    return static_cast<double>(static_cast<int>(rng() % static_cast<std::uint64_t>(n)));
+  };
+  const std::vector<std::function<Point2()>> sets = {
+      [&] {
+        return Point2{uni(0, 1), uni(0, 1)};
+      },
+      [&] {
+        return Point2{500000 + 0.5 * pick(6), 4100000 + 0.5 * pick(6)};
+      },
+      [&] {
+        return Point2{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+      },
+      [&] {
+        return Point2{1e-30 * pick(5), 1e-30 * pick(5)};
+      },
+  };
+  int checked = 0;
+  for (const auto& draw : sets) {
+    for (int i = 0; i < 20000; ++i) {
+      const Point2 d = draw();
+      std::array<Point2, 3> t[2];
+      bool ok = true;
+      for (auto& tri : t) {
+        tri = {draw(), draw(), draw()};
+        const double o = orient2d(tri[0], tri[1], tri[2]);
+        if (o < 0) std::swap(tri[0], tri[1]);
+        ok = ok && o != 0 && !sameXY(d, tri[0]) && !sameXY(d, tri[1]) && !sameXY(d, tri[2]);
+      }
+      if (!ok) continue;
+      ++checked;
+      const unsigned both = delaunay::inCircle2(t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], d);
+      ASSERT_EQ((both & 1u) != 0, incirclePerturbed(t[0][0], t[0][1], t[0][2], d) > 0) << i;
+      ASSERT_EQ((both & 2u) != 0, incirclePerturbed(t[1][0], t[1][1], t[1][2], d) > 0) << i;
+    }
+  }
+  EXPECT_GT(checked, 20000);
+}
+
+TEST(StreamingDelaunay, DivisionFreeDiskBoundIsConservative) {
+  // circumdiskInside claims 2R <= M (M: the least distance from the vertices' bounding box to the far
+  // sides of the rectangle), which puts the disk inside.  Rectangles are drawn with M within a relative
+  // 1e-17 .. 1e-9 of 2R on either side; whenever the test says yes, 2R <= M must hold (checked in long
+  // double), and points the exact incircle puts in the disk must lie in the rectangle.
+  std::mt19937_64 rng(31);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  int accepted = 0, rejectedOutside = 0;
+  for (int i = 0; i < 40000; ++i) {
+    const double base = i % 2 ? 0.0 : 500000.0;
+    Point2 a{base + uni(0, 10), base + uni(0, 10)}, b{base + uni(0, 10), base + uni(0, 10)};
+    const Point2 c{base + uni(0, 10), base + uni(0, 10)};
+    const double o = orient2d(a, b, c);
+    if (o == 0) continue;
+    if (o < 0) std::swap(a, b);
+    using L = long double;
+    auto sq = [](L x, L y) { return x * x + y * y; };
+    const L bx = L(b.x) - a.x, by = L(b.y) - a.y, cx = L(c.x) - a.x, cy = L(c.y) - a.y;
+    const L ex = L(c.x) - b.x, ey = L(c.y) - b.y;
+    const L twoR = std::sqrt(sq(bx, by) * sq(cx, cy) * sq(ex, ey)) / std::fabs(bx * cy - by * cx);
+    const double rel = std::ldexp(1.0, -static_cast<int>(30 + rng() % 27)) * (rng() % 2 ? 1 : -1);
+    const L m = twoR * (1 + static_cast<L>(rel));
+    const double minX = std::min({a.x, b.x, c.x}), maxX = std::max({a.x, b.x, c.x});
+    const double minY = std::min({a.y, b.y, c.y}), maxY = std::max({a.y, b.y, c.y});
+    // The far sides at distance m (rounded to doubles: the distances actually used are recomputed).
+    const delaunay::Rect r{static_cast<double>(maxX - m - (rng() % 2 ? uni(0, 1e-3) : 0.0) * twoR),
+                           static_cast<double>(maxY - m), static_cast<double>(minX + m),
+                           static_cast<double>(minY + m + (rng() % 2 ? uni(0, 1e-3) : 0.0) * twoR)};
+    const L trueM = std::min({L(maxX) - r.x0, L(r.x1) - minX, L(maxY) - r.y0, L(r.y1) - minY});
+    if (!delaunay::circumdiskInside(a, b, c, r)) {
+      rejectedOutside += twoR > trueM;
+      continue;
+    }
+    ++accepted;
+    ASSERT_LE(twoR, trueM * (1 + 1e-15L)) << i;
+    for (int k = 0; k < 20; ++k) {
+      const Point2 s{a.x + uni(-2, 2) * static_cast<double>(twoR),
+                     a.y + uni(-2, 2) * static_cast<double>(twoR)};
+      if (incircle(a, b, c, s) >= 0) {
+        ASSERT_TRUE(s.x >= r.x0 && s.x <= r.x1 && s.y >= r.y0 && s.y <= r.y1) << i;
+      }
+    }
+  }
+  std::cout << "[ DISKS    ] division-free bound: " << accepted << " accepted, " << rejectedOutside
+            << " rejected with 2R > M\n";
+  EXPECT_GT(accepted, 5000);
+}
+
 // ---------------------------------------------------------------------------------------------------------
 // Streaming behaviour.
 
