@@ -1,4 +1,6 @@
+#include <algorithm>
 #include <iostream>
+#include <thread>
 
 #include "app/commands.h"
 #include "formats/survey_info.h"
@@ -17,6 +19,8 @@ int runInfo(const cli::ParsedArgs& args) {
   o.reader.columns = args.get("--columns");
   o.reader.skipBadLines = args.has("--skip-bad-lines");
   o.reader.assignSrs = args.get("--a_srs");
+  // info only reads: decode large LAS batches on every core.
+  o.reader.decodeThreads = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   Diagnostics diag;
   const bool quiet = args.has("-q") || o.json;
   if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
