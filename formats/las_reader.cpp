@@ -636,8 +636,8 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
 
 void LasReader::releaseConsumed(std::uint64_t upTo) {
   // The mapping's pages stay in the page cache, but counted in this process's RSS they would make a
-  // streaming run look as large as its input: drop the pages already decoded, 4 MiB at a time.
-  constexpr std::uint64_t kChunk = std::uint64_t{4} << 20;
+  // streaming run look as large as its input: drop the pages already decoded, 1 MiB at a time.
+  constexpr std::uint64_t kChunk = std::uint64_t{1} << 20;
   if (!mapping_ || upTo < released_ + kChunk) return;
   const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
   const std::uint64_t end = upTo / page * page;

@@ -89,6 +89,8 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   }
   if (sameScale)
     for (int i = 0; i < 3; ++i) fo.scale[i] = first.scale[i];
+  // The run carries the CRS as WKT from here on: give PROJ's caches back before the buffers grow.
+  releaseCrsCaches();
   return in;
 }
 
