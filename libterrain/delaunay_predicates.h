@@ -3,8 +3,9 @@
 //
 // Every function here returns exactly the sign the predicates of predicates.h return (the tests check
 // them against orient2d / incirclePerturbed); they are only faster in the common cases:
-//   stage 1  the floating-point filter of predicates.cpp, same constants (kOrientBound, kIncircleBound,
-//            derived there), inlined so the walk and the cavity search make no call;
+//   stage 1  the floating-point filter of predicates.cpp, the same constants (kOrientErrorBound,
+//            kIncircleErrorBound from predicates.h, derived in predicates.cpp), inlined so the walk and
+//            the cavity search make no call;
 //   stage 2  when stage 1 cannot decide, a cheap proof that the floating-point evaluation was exact:
 //            every coordinate difference is exact (Sterbenz: y/2 <= x <= 2y) and all of them are integer
 //            multiples of one power of two 2^e with magnitudes below 2^(e+B).  Then, for orient2d (B = 26)
@@ -15,8 +16,8 @@
 //            LIDAR neighbourhoods (coordinates k * 0.5 around 500000) pass this test, so an exact
 //            cocircular tie costs some forty instructions instead of an expansion evaluation;
 //   stage 3  the library predicate (exact expansions), and for an exact incircle tie the symbolic
-//            perturbation, written out below exactly as incirclePerturbed defines it (predicates.cpp
-//            derives it): the first nonzero coefficient in decreasing lexicographic order of the points.
+//            perturbation through perturbedTieSign (predicates.h), the one definition incirclePerturbed
+//            uses too: the first nonzero coefficient in decreasing lexicographic order of the points.
 // inCircle2 runs two stage-1 filters in the two lanes of an SSE2 register (the cavity search tests a
 // triangle's two far neighbours together); each lane computes exactly the scalar filter's doubles.
 //
@@ -40,9 +41,9 @@
 
 namespace tinbuild::delaunay {
 
-inline constexpr double kU = 0x1p-53;
-inline constexpr double kOrientBound = (3.0 + 32.0 * kU) * kU;      // = predicates.cpp
-inline constexpr double kIncircleBound = (10.0 + 256.0 * kU) * kU;  // = predicates.cpp
+inline constexpr double kU = kPredicateUnit;
+inline constexpr double kOrientBound = kOrientErrorBound;  // the constants of predicates.cpp
+inline constexpr double kIncircleBound = kIncircleErrorBound;
 
 // x - y is exact when y/2 <= x <= 2y (Sterbenz), for x, y of either sign.
 inline bool sterbenz(double x, double y) {
@@ -97,29 +98,8 @@ inline double orient(const Point2& a, const Point2& b, const Point2& c) {
 // The symbolic perturbation of an exact incircle tie (a, b, c counter-clockwise, d distinct from them):
 // as incirclePerturbed, the first nonzero coefficient in decreasing lexicographic order decides.
 inline int perturbedTie(const Point2& a, const Point2& b, const Point2& c, const Point2& d) {
-  const Point2* p[4] = {&a, &b, &c, &d};
-  int order[4] = {0, 1, 2, 3};
-  for (int i = 1; i < 4; ++i)
-    for (int j = i; j > 0 && lexLess(*p[order[j - 1]], *p[order[j]]); --j) std::swap(order[j - 1], order[j]);
-  for (const int i : order) {
-    double o = 0;
-    switch (i) {
-      case 0:
-        o = orient(d, b, c);
-        break;
-      case 1:
-        o = orient(a, d, c);
-        break;
-      case 2:
-        o = orient(a, b, d);
-        break;
-      default:
-        return -1;  // d's coefficient is -orient2d(a, b, c) < 0
-    }
-    if (o > 0) return 1;
-    if (o < 0) return -1;
-  }
-  return -1;
+  return perturbedTieSign(a, b, c, d,
+                          [](const Point2& p, const Point2& q, const Point2& r) { return orient(p, q, r); });
 }
 
 // Stages 2 and 3 of incircle (det: the filter's value), out of line.

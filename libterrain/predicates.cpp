@@ -72,9 +72,10 @@ thread_local PredicateStats tStats;
 // final sum).  As for orient2d, |det| > fl(C * perm) certifies the sign when
 // C >= (1 + u) eta_10 / (1 - u)^12 = 10u + 175u^2 + O(u^3).  We take C = (10 + 256u) u (exact; Shewchuk's
 // iccerrboundA is 10u + 96u^2 for his slightly different accounting).
-constexpr double kU = 0x1p-53;
-constexpr double kOrientBound = (3.0 + 32.0 * kU) * kU;
-constexpr double kIncircleBound = (10.0 + 256.0 * kU) * kU;
+// (The constants are kOrientErrorBound and kIncircleErrorBound in predicates.h.)
+constexpr double kU = kPredicateUnit;
+constexpr double kOrientBound = kOrientErrorBound;
+constexpr double kIncircleBound = kIncircleErrorBound;
 
 // ---------------------------------------------------------------------------------------------------------
 // Error-free transformations (round to nearest even, no overflow).
@@ -368,31 +369,8 @@ int incirclePerturbed(const Point2& a, const Point2& b, const Point2& c, const P
   if (det < 0) return -1;
   ++tStats.perturbedTies;
 
-  const Point2* p[4] = {&a, &b, &c, &d};
-  int order[4] = {0, 1, 2, 3};
-  // Insertion sort, decreasing lexicographic order (four distinct points).
-  for (int i = 1; i < 4; ++i)
-    for (int j = i; j > 0 && lexLess(*p[order[j - 1]], *p[order[j]]); --j) std::swap(order[j - 1], order[j]);
-
-  for (const int i : order) {
-    double o = 0;
-    switch (i) {
-      case 0:
-        o = orient2d(d, b, c);
-        break;
-      case 1:
-        o = orient2d(a, d, c);
-        break;
-      case 2:
-        o = orient2d(a, b, d);
-        break;
-      default:
-        return -1;  // d's coefficient -orient2d(a, b, c) < 0: d is outside
-    }
-    if (o > 0) return 1;
-    if (o < 0) return -1;
-  }
-  return -1;  // unreachable: d is one of the four
+  return perturbedTieSign(
+      a, b, c, d, [](const Point2& p, const Point2& q, const Point2& r) { return orient2d(p, q, r); });
 }
 
 PredicateStats& predicateStats() {

@@ -42,6 +42,49 @@ inline bool lexLess(const Point2& p, const Point2& q) {
   return p.x < q.x || (p.x == q.x && p.y < q.y);
 }
 
+// The filters' relative error bounds (derived in predicates.cpp): the sign of the double evaluation is
+// certain when |det| > bound * permanent.  Shared with the triangulator's inline front ends
+// (delaunay_predicates.h), so both filters use the very same constants.
+inline constexpr double kPredicateUnit = 0x1p-53;
+inline constexpr double kOrientErrorBound = (3.0 + 32.0 * kPredicateUnit) * kPredicateUnit;
+inline constexpr double kIncircleErrorBound = (10.0 + 256.0 * kPredicateUnit) * kPredicateUnit;
+
+// The symbolic perturbation's decision for an exact incircle tie (a, b, c counter-clockwise, d distinct
+// from them), given an exact orientation predicate: the first nonzero coefficient in decreasing
+// lexicographic order of the four points decides (derivation in predicates.cpp).  One definition for
+// incirclePerturbed and the triangulator's inline front end.
+template <class Orient>
+int perturbedTieSign(const Point2& a, const Point2& b, const Point2& c, const Point2& d, Orient orient) {
+  const Point2* p[4] = {&a, &b, &c, &d};
+  int order[4] = {0, 1, 2, 3};
+  // Insertion sort, decreasing lexicographic order (four distinct points).
+  for (int i = 1; i < 4; ++i)
+    for (int j = i; j > 0 && lexLess(*p[order[j - 1]], *p[order[j]]); --j) {
+      const int t = order[j - 1];
+      order[j - 1] = order[j];
+      order[j] = t;
+    }
+  for (const int i : order) {
+    double o = 0;
+    switch (i) {
+      case 0:
+        o = orient(d, b, c);
+        break;
+      case 1:
+        o = orient(a, d, c);
+        break;
+      case 2:
+        o = orient(a, b, d);
+        break;
+      default:
+        return -1;  // d's coefficient -orient2d(a, b, c) < 0: d is outside
+    }
+    if (o > 0) return 1;
+    if (o < 0) return -1;
+  }
+  return -1;  // unreachable: d is one of the four
+}
+
 // How often each filter stage decided (for benchmarks and tests).  Counting is per thread and costs one
 // increment per call.
 struct PredicateStats {
