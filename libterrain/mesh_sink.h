@@ -16,6 +16,8 @@
 
 namespace tinbuild {
 
+class ActiveRegion;  // mesh_tee.h
+
 struct MeshInfo {
   Bounds3 bounds;              // of all vertices (known in advance from the finalizer)
   std::uint64_t vertices = 0;  // expected count when known (0 = unknown)
@@ -29,6 +31,9 @@ class MeshSink {
   virtual void vertex(std::uint64_t id, double x, double y, double z) = 0;
   virtual void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) = 0;
   virtual void finalizeVertex(std::uint64_t id) = 0;
+  // After each finalization event, when every triangle it made final has been written (see mesh_tee.h):
+  // lets consumers with per-area state find the areas no later triangle can reach.  Default: ignored.
+  virtual void checkpoint(const ActiveRegion& region) { (void)region; }
   virtual void end() = 0;
 };
 

@@ -5,6 +5,8 @@
 //   4. the triangulator: location, Bowyer-Watson insertion, certification, output
 #include "libterrain/streaming_delaunay.h"
 
+#include "libterrain/mesh_tee.h"
+
 #include <algorithm>
 #include <array>
 #include <cassert>
@@ -1437,6 +1439,64 @@ struct StreamingDelaunay::Impl {
       freeTriSlot(s);
     }
     updatePeak();
+    out.checkpoint(region_);
+  }
+
+  // What MeshSink::checkpoint consumers may ask: does an active triangle or ghost still meet a rectangle?
+  struct OpenRegion : ActiveRegion {
+    const Impl& impl;
+    explicit OpenRegion(const Impl& i) : impl(i) {}
+    std::uint64_t activeTriangles() const override { return impl.activeTris; }
+    void markOpen(const Box2* rects, std::size_t n, bool* open) const override { impl.markOpen(rects, n, open); }
+  };
+  OpenRegion region_{*this};
+
+  void markOpen(const Box2* rects, std::size_t n, bool* open) const {
+    if (n == 0) return;
+    if (!twoD) {  // no triangulation yet: any later triangle may appear anywhere
+      for (std::size_t i = 0; i < n; ++i) open[i] = true;
+      return;
+    }
+    Box2 all = rects[0];
+    for (std::size_t i = 1; i < n; ++i) {
+      all.minX = std::min(all.minX, rects[i].minX);
+      all.minY = std::min(all.minY, rects[i].minY);
+      all.maxX = std::max(all.maxX, rects[i].maxX);
+      all.maxY = std::max(all.maxY, rects[i].maxY);
+    }
+    for (std::uint32_t t = 0; t < tris.size(); ++t) {
+      const Tri& T = tris[t];
+      if (T.prev == kFreeMark || T.v[0] == kSentinelMark) continue;
+      const int g = ghostIndex(T);
+      if (g < 0) {
+        // A finite triangle: its closed bounding box (exact comparisons, no rounding).
+        const Point2& a = xy[T.v[0]];
+        const Point2& b = xy[T.v[1]];
+        const Point2& c = xy[T.v[2]];
+        const double x0 = std::min(a.x, std::min(b.x, c.x)), x1 = std::max(a.x, std::max(b.x, c.x));
+        const double y0 = std::min(a.y, std::min(b.y, c.y)), y1 = std::max(a.y, std::max(b.y, c.y));
+        if (x1 < all.minX || x0 > all.maxX || y1 < all.minY || y0 > all.maxY) continue;
+        for (std::size_t i = 0; i < n; ++i)
+          if (!open[i] && !(x1 < rects[i].minX || x0 > rects[i].maxX || y1 < rects[i].minY ||
+                            y0 > rects[i].maxY))
+            open[i] = true;
+      } else {
+        // A ghost: later triangles beyond hull edge b -> a lie in the closed half-plane left of a -> b.
+        // A rectangle meets it iff one of its corners does (exact orient2d).
+        const Point2& a = xy[T.v[(g + 1) % 3]];
+        const Point2& b = xy[T.v[(g + 2) % 3]];
+        for (std::size_t i = 0; i < n; ++i) {
+          if (open[i]) continue;
+          const Box2& r = rects[i];
+          const Point2 corners[4] = {{r.minX, r.minY}, {r.maxX, r.minY}, {r.maxX, r.maxY}, {r.minX, r.maxY}};
+          for (const Point2& q : corners)
+            if (orient2d(a, b, q) >= 0) {
+              open[i] = true;
+              break;
+            }
+        }
+      }
+    }
   }
 
   void end() {

@@ -1,0 +1,330 @@
+#include "libterrain/dem_rasterizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "libterrain/error.h"
+#include "libterrain/predicates.h"
+
+namespace tinbuild {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = 180.0 / kPi;
+
+std::int64_t floorDiv(std::int64_t a, std::int64_t b) {
+  std::int64_t q = a / b;
+  if ((a % b != 0) && ((a < 0) != (b < 0))) --q;
+  return q;
+}
+
+// Grid line k and pixel centre k: the single formulas every part of the rasterizer uses.
+inline double gridLine(double origin, double step, std::int64_t k) {
+  return origin + static_cast<double>(k) * step;
+}
+inline double centre(double origin, double step, std::int64_t k) {
+  return origin + (static_cast<double>(k) + 0.5) * step;
+}
+
+// The pixel k with gridLine(k) <= v < gridLine(k + 1).
+std::int64_t pixelOf(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::floor((v - origin) / step));
+  while (gridLine(origin, step, k) > v) --k;
+  while (gridLine(origin, step, k + 1) <= v) ++k;
+  return k;
+}
+
+// The first k with centre(k) >= v, and the last k with centre(k) <= v.
+std::int64_t firstCentreAtOrAfter(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::ceil((v - origin) / step - 0.5));
+  while (centre(origin, step, k) < v) ++k;
+  while (centre(origin, step, k - 1) >= v) --k;
+  return k;
+}
+std::int64_t lastCentreAtOrBefore(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::floor((v - origin) / step - 0.5));
+  while (centre(origin, step, k) > v) --k;
+  while (centre(origin, step, k + 1) <= v) ++k;
+  return k;
+}
+
+// Does the counter-clockwise edge u -> v include p?  Strictly left: yes; exactly on the line: by the
+// (eps, eps^2) rule of the header.  A double filter first, the exact predicate when it cannot decide.
+inline bool edgeIncludes(const Point2& u, const Point2& v, const Point2& p) {
+  const double l = (u.x - p.x) * (v.y - p.y);
+  const double r = (u.y - p.y) * (v.x - p.x);
+  const double det = l - r;
+  const double bound = kOrientErrorBound * (std::fabs(l) + std::fabs(r));
+  double sign = det;
+  if (!(det > bound || -det > bound)) sign = orient2d(u, v, p);
+  if (sign > 0) return true;
+  if (sign < 0) return false;
+  return v.y < u.y || (v.y == u.y && v.x > u.x);
+}
+
+}  // namespace
+
+DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
+  if (!(o.step > 0) || !std::isfinite(o.step)) throw UsageError("DEM: the step must be a positive number");
+  if (o.tileSize < 16 || o.tileSize > 65536)
+    throw UsageError("DEM: the tile size must be 16..65536 pixels, got " + std::to_string(o.tileSize));
+  if (!std::isfinite(o.originX) || !std::isfinite(o.originY))
+    throw UsageError("DEM: the grid origin must be finite");
+  DemLayout l;
+  l.step = o.step;
+  l.originX = o.originX;
+  l.originY = o.originY;
+  l.tileSize = o.tileSize;
+  l.nodata = o.nodata;
+  double minX, minY, maxX, maxY;
+  if (o.extent) {
+    minX = o.extent->minX, minY = o.extent->minY, maxX = o.extent->maxX, maxY = o.extent->maxY;
+    if (!(minX < maxX && minY < maxY) || !std::isfinite(minX + minY + maxX + maxY))
+      throw UsageError("DEM: the extent must have xmin < xmax and ymin < ymax");
+  } else {
+    if (data.empty()) return l;  // no points: an empty raster (nothing is written)
+    minX = data.minX, minY = data.minY, maxX = data.maxX, maxY = data.maxY;
+  }
+  const double span = std::max(maxX - minX, maxY - minY) / o.step;
+  if (!(span < 2147483647.0))
+    throw UsageError("DEM: the raster would be more than 2^31 pixels wide at this step (" +
+                     std::to_string(span) + "); choose a larger --step or an --extent");
+  l.colMin = pixelOf(o.originX, o.step, minX);
+  l.rowMin = pixelOf(o.originY, o.step, minY);
+  // The last pixel whose square reaches the maximum (a maximum exactly on a grid line ends there).
+  l.colMax = std::max(l.colMin, pixelOf(o.originX, o.step, maxX) -
+                                    (gridLine(o.originX, o.step, pixelOf(o.originX, o.step, maxX)) == maxX));
+  l.rowMax = std::max(l.rowMin, pixelOf(o.originY, o.step, maxY) -
+                                    (gridLine(o.originY, o.step, pixelOf(o.originY, o.step, maxY)) == maxY));
+  if (o.anchorTilesAtRaster) {
+    l.tileCol0 = l.colMin;
+    const std::int64_t tilesY = (l.height() + o.tileSize - 1) / o.tileSize;
+    l.tileRow0 = l.rowMax + 1 - tilesY * o.tileSize;  // tiles end exactly at the raster's north edge
+  }
+  return l;
+}
+
+struct DemRasterizer::Open {
+  DemTile tile;
+  std::uint64_t dataPixels = 0;  // pixels with data in any band
+};
+
+DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out) : opt_(options), out_(out) {}
+DemRasterizer::~DemRasterizer() = default;
+
+std::int64_t DemRasterizer::tileKey(std::int64_t tx, std::int64_t ty) const {
+  return (ty - firstTy_) * tilesX_ + (tx - firstTx_);
+}
+
+void DemRasterizer::begin(const MeshInfo& info) {
+  layout_ = demLayout(opt_, info.bounds);
+  stats_ = DemStats{};
+  open_.clear();
+  done_.clear();
+  emittedSinceCheck_ = 0;
+  const std::int64_t T = layout_.tileSize;
+  if (layout_.width() > 0) {
+    firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
+    firstTy_ = floorDiv(layout_.rowMin - layout_.tileRow0, T);
+    tilesX_ = floorDiv(layout_.colMax - layout_.tileCol0, T) - firstTx_ + 1;
+    tilesY_ = floorDiv(layout_.rowMax - layout_.tileRow0, T) - firstTy_ + 1;
+  } else {
+    tilesX_ = tilesY_ = 0;
+  }
+  const double az = opt_.hillshadeAzimuth / kDeg, alt = opt_.hillshadeAltitude / kDeg;
+  lightX_ = std::sin(az) * std::cos(alt);
+  lightY_ = std::cos(az) * std::cos(alt);
+  lightZ_ = std::sin(alt);
+  begun_ = true;
+  out_.begin(layout_, info);
+}
+
+DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
+  const std::int64_t key = tileKey(tx, ty);
+  auto it = open_.find(key);
+  if (it != open_.end()) return *it->second;
+  if (done_.count(key))
+    throw Error("DEM: internal error: a triangle reached tile (" + std::to_string(tx) + ", " +
+                std::to_string(ty) + ") after it was written");
+  auto o = std::make_unique<Open>();
+  DemTile& t = o->tile;
+  const std::int64_t T = layout_.tileSize;
+  t.tx = tx;
+  t.ty = ty;
+  const std::int64_t c0 = layout_.tileCol0 + tx * T, r0 = layout_.tileRow0 + ty * T;
+  t.col0 = std::max(c0, layout_.colMin);
+  t.row0 = std::max(r0, layout_.rowMin);
+  t.width = static_cast<int>(std::min(c0 + T - 1, layout_.colMax) - t.col0 + 1);
+  t.height = static_cast<int>(std::min(r0 + T - 1, layout_.rowMax) - t.row0 + 1);
+  const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
+  t.z.assign(n, opt_.nodata);
+  if (opt_.slope) t.slope.assign(n, opt_.nodata);
+  if (opt_.aspect) t.aspect.assign(n, opt_.nodata);
+  if (opt_.edgeLength) t.edgeLength.assign(n, opt_.nodata);
+  if (opt_.hillshade) t.hillshade.assign(n, 0);
+  if (opt_.count) t.count.assign(n, 0);
+  Open& ref = *o;
+  open_.emplace(key, std::move(o));
+  stats_.maxOpenTiles = std::max<std::uint64_t>(stats_.maxOpenTiles, open_.size());
+  std::uint64_t bytes = 0;
+  for (const auto& [k, p] : open_) {
+    (void)k;
+    const DemTile& d = p->tile;
+    bytes += (d.z.size() + d.slope.size() + d.aspect.size() + d.edgeLength.size()) * 4 + d.hillshade.size() +
+             d.count.size() * 2;
+  }
+  stats_.peakTileBytes = std::max(stats_.peakTileBytes, bytes);
+  return ref;
+}
+
+void DemRasterizer::vertex(const MeshVertex& v) {
+  if (!opt_.count || tilesX_ == 0) return;
+  const std::int64_t i = pixelOf(layout_.originX, layout_.step, v.x);
+  const std::int64_t j = pixelOf(layout_.originY, layout_.step, v.y);
+  if (i < layout_.colMin || i > layout_.colMax || j < layout_.rowMin || j > layout_.rowMax) return;
+  const std::int64_t T = layout_.tileSize;
+  Open& o = tileAt(floorDiv(i - layout_.tileCol0, T), floorDiv(j - layout_.tileRow0, T));
+  DemTile& t = o.tile;
+  const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
+                          static_cast<std::size_t>(i - t.col0);
+  if (t.count[idx] == 0 && t.z[idx] == opt_.nodata) ++o.dataPixels;
+  if (t.count[idx] < 65535) ++t.count[idx];
+}
+
+void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
+  ++emittedSinceCheck_;
+  if (tilesX_ == 0) return;
+  const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
+  const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
+  const DemLayout& L = layout_;
+  const std::int64_t i0 = std::max(L.colMin, firstCentreAtOrAfter(L.originX, L.step, x0));
+  const std::int64_t i1 = std::min(L.colMax, lastCentreAtOrBefore(L.originX, L.step, x1));
+  if (i0 > i1) return;
+  const std::int64_t j0 = std::max(L.rowMin, firstCentreAtOrAfter(L.originY, L.step, y0));
+  const std::int64_t j1 = std::min(L.rowMax, lastCentreAtOrBefore(L.originY, L.step, y1));
+  if (j0 > j1) return;
+
+  // Canonical rotation: the lexicographically smallest vertex first (counter-clockwise order kept).
+  const MeshVertex* v[3] = {&va, &vb, &vc};
+  int first = 0;
+  for (int k = 1; k < 3; ++k)
+    if (lexLess({v[k]->x, v[k]->y}, {v[first]->x, v[first]->y})) first = k;
+  const MeshVertex& a = *v[first];
+  const MeshVertex& b = *v[(first + 1) % 3];
+  const MeshVertex& c = *v[(first + 2) % 3];
+  const Point2 pa{a.x, a.y}, pb{b.x, b.y}, pc{c.x, c.y};
+
+  const double bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
+  const double cx = c.x - a.x, cy = c.y - a.y, cz = c.z - a.z;
+  const double det = bx * cy - by * cx;
+  const double gx = (bz * cy - cz * by) / det;
+  const double gy = (cz * bx - bz * cx) / det;
+  const double e2 = std::max(bx * bx + by * by, std::max(cx * cx + cy * cy, (c.x - b.x) * (c.x - b.x) +
+                                                                                 (c.y - b.y) * (c.y - b.y)));
+  const bool tooLong = opt_.maxEdge > 0 && e2 > opt_.maxEdge * opt_.maxEdge;
+  const float edge = static_cast<float>(std::sqrt(e2));
+  float slope = opt_.nodata, aspect = opt_.nodata;
+  std::uint8_t shade = 0;
+  if (!tooLong && (opt_.slope || opt_.aspect || opt_.hillshade)) {
+    const double sx = gx * opt_.zToXY, sy = gy * opt_.zToXY;
+    const double g = std::sqrt(sx * sx + sy * sy);
+    slope = static_cast<float>(std::atan(g) * kDeg);
+    if (g > 0) {
+      double asp = std::atan2(-sx, -sy) * kDeg;
+      if (asp < 0) asp += 360;
+      aspect = static_cast<float>(asp);
+    }
+    const double dot = (-sx * lightX_ - sy * lightY_ + lightZ_) / std::sqrt(sx * sx + sy * sy + 1);
+    shade = static_cast<std::uint8_t>(1 + std::lround(254 * std::max(0.0, dot)));
+  }
+
+  bool any = false;
+  const std::int64_t T = L.tileSize;
+  Open* cur = nullptr;
+  std::int64_t curTx = 0, curTy = 0;
+  for (std::int64_t j = j0; j <= j1; ++j) {
+    const double py = centre(L.originY, L.step, j);
+    const std::int64_t ty = floorDiv(j - L.tileRow0, T);
+    for (std::int64_t i = i0; i <= i1; ++i) {
+      const Point2 p{centre(L.originX, L.step, i), py};
+      if (!edgeIncludes(pa, pb, p) || !edgeIncludes(pb, pc, p) || !edgeIncludes(pc, pa, p)) continue;
+      const std::int64_t tx = floorDiv(i - L.tileCol0, T);
+      if (!cur || tx != curTx || ty != curTy) {
+        cur = &tileAt(tx, ty);
+        curTx = tx;
+        curTy = ty;
+      }
+      DemTile& t = cur->tile;
+      const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
+                              static_cast<std::size_t>(i - t.col0);
+      any = true;
+      const bool hadData = t.z[idx] != opt_.nodata || (!t.count.empty() && t.count[idx] > 0) ||
+                           (!t.edgeLength.empty() && t.edgeLength[idx] != opt_.nodata);
+      if (!hadData) ++cur->dataPixels;
+      if (!t.edgeLength.empty()) t.edgeLength[idx] = edge;
+      if (tooLong) {
+        ++stats_.pixelsMaxEdge;
+        continue;
+      }
+      const double z = a.z + gx * (p.x - a.x) + gy * (p.y - a.y);
+      t.z[idx] = static_cast<float>(z);
+      ++t.validPixels;
+      ++stats_.pixelsWritten;
+      if (!t.slope.empty()) t.slope[idx] = slope;
+      if (!t.aspect.empty()) t.aspect[idx] = aspect;
+      if (!t.hillshade.empty()) t.hillshade[idx] = shade;
+    }
+  }
+  if (any) ++stats_.trianglesRasterized;
+}
+
+void DemRasterizer::complete(std::int64_t key) {
+  auto it = open_.find(key);
+  if (it == open_.end()) return;
+  std::unique_ptr<Open> o = std::move(it->second);
+  open_.erase(it);
+  done_.insert(key);
+  if (o->dataPixels == 0) {
+    ++stats_.tilesEmpty;
+    return;
+  }
+  out_.tile(o->tile);
+  ++stats_.tilesWritten;
+}
+
+void DemRasterizer::checkpoint(const ActiveRegion& region) {
+  if (!opt_.streaming || open_.empty()) return;
+  if (emittedSinceCheck_ < std::max<std::uint64_t>(4096, region.activeTriangles())) return;
+  emittedSinceCheck_ = 0;
+  std::vector<Box2> boxes;
+  std::vector<std::int64_t> keys;
+  boxes.reserve(open_.size());
+  for (const auto& [key, o] : open_) {
+    const DemTile& t = o->tile;
+    boxes.push_back(Box2{gridLine(layout_.originX, layout_.step, t.col0),
+                         gridLine(layout_.originY, layout_.step, t.row0),
+                         gridLine(layout_.originX, layout_.step, t.col0 + t.width),
+                         gridLine(layout_.originY, layout_.step, t.row0 + t.height)});
+    keys.push_back(key);
+  }
+  std::unique_ptr<bool[]> isOpen(new bool[boxes.size()]());
+  region.markOpen(boxes.data(), boxes.size(), isOpen.get());
+  ++stats_.openChecks;
+  for (std::size_t i = 0; i < keys.size(); ++i)
+    if (!isOpen[i]) {
+      complete(keys[i]);
+      ++stats_.tilesCompletedEarly;
+    }
+}
+
+void DemRasterizer::end() {
+  if (!begun_) throw Error("DEM: end() without begin()");
+  while (!open_.empty()) complete(open_.begin()->first);
+  begun_ = false;
+  out_.end();
+}
+
+}  // namespace tinbuild
