@@ -25,6 +25,7 @@ struct OptionSpec {
 class ParsedArgs {
  public:
   std::vector<std::string> positional;
+  std::string commandLine;  // the whole command as typed (for the outputs' metadata)
   bool has(const std::string& name) const { return values_.count(name) > 0; }
   std::string get(const std::string& name, const std::string& fallback = "") const;
   const std::vector<std::string>& all(const std::string& name) const;

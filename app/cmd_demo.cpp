@@ -5,6 +5,7 @@
 #include "app/commands.h"
 #include "formats/las_writer.h"
 #include "formats/pipeline.h"
+#include "formats/quicklook.h"
 #include "formats/survey_info.h"
 #include "libterrain/error.h"
 #include "libterrain/synthetic_survey.h"
@@ -42,25 +43,42 @@ int runDemo(const cli::ParsedArgs& args) {
   std::ofstream((dir / "survey-info.json").string()) << formatInfoJson(report);
   std::cout << formatInfoText(report) << "\n";
 
-  // The main job: LIDAR to TIN in one streaming pass, then an independent check of the result.
+  // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
   PipelineOptions build;
   build.inputs = {las};
   build.meshOutput = (dir / "tin.smb").string();
-  std::cout << "tinbuild demo: building the TIN (tinbuild build " << las << " --mesh " << build.meshOutput
-            << ")\n";
+  build.gpkgOutput = (dir / "tin.gpkg").string();
+  build.dem.path = (dir / "dem").string();
+  build.dem.step = "1";
+  build.dem.tileSize = 512;
+  build.dem.bands.hillshade = true;
+  // A bare-earth model: ground and water returns only (what floodplain mapping wants).
+  build.finalizer.filter.dropClasses.set();
+  build.finalizer.filter.dropClasses.reset(2);
+  build.finalizer.filter.dropClasses.reset(9);
+  build.commandLine = "tinbuild build " + las + " --keep-class 2,9 --mesh " + build.meshOutput + " --gpkg " +
+                      build.gpkgOutput + " --dem " + build.dem.path + " --step 1 --tile-size 512 --hillshade";
+  std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")\n";
   const RunReport run = runBuild(build, diag);
   std::cout << formatRunSummary(run);
   std::ofstream((dir / "build-report.json").string()) << formatRunJson(run);
-  std::cout << "\ntinbuild demo: verifying it (tinbuild verify " << build.meshOutput << " --points " << las
-            << ")\n";
+  const std::string png = (dir / "dem.png").string();
+  writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png);
+  std::cout << "\ntinbuild demo: verifying the TIN (tinbuild verify " << build.meshOutput << " --points "
+            << las << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
   std::cout << formatVerifyText(check);
 
-  std::cout << "\nwritten in " << dir.string() << ":\n"
-            << "  survey.las          the survey (LAS 1.4, point format 1)\n"
-            << "  survey-info.json    `tinbuild info --json` of it\n"
-            << "  tin.smb             the TIN as a binary streaming mesh (exact coordinates, CRS)\n"
-            << "  build-report.json   the run report (counts, width, memory, timings)\n";
+  std::cout
+      << "\nwritten in " << dir.string() << ":\n"
+      << "  survey.las          the survey (LAS 1.4, point format 1)\n"
+      << "  survey-info.json    `tinbuild info --json` of it\n"
+      << "  tin.smb             the bare-earth TIN (ground and water points) as a binary streaming mesh\n"
+      << "  tin.gpkg            the TIN as a GeoPackage layer of triangles (open it in QGIS)\n"
+      << "  dem/mosaic.vrt      the 1 m DEM: GeoTIFF tiles dem/dem_*.tif under one mosaic\n"
+      << "  dem/hillshade.vrt   its hillshade (tiles dem/hillshade_*.tif)\n"
+      << "  dem.png             a quick-look of the DEM: colours by height, shaded\n"
+      << "  build-report.json   the run report (counts, width, memory, timings)\n";
   if (!check.ok()) throw Error("demo: the TIN did not verify");
   return 0;
 }
@@ -74,7 +92,8 @@ Command demoCommand() {
       "synthesize a realistic survey and process it",
       "Synthesizes a realistic airborne survey (flight strips with overlap over a river valley, ground,\n"
       "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAS in\n"
-      "DIR (default ./tinbuild-demo) and reports on it with `info`.",
+      "DIR (default ./tinbuild-demo), reports on it with `info`, runs `build` to a TIN (streaming mesh\n"
+      "and GeoPackage) and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
       {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
        {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"}},

@@ -8,9 +8,12 @@
 #include <cstdio>
 #include <iostream>
 #include <string>
+#include <tuple>
+#include <utility>
 #include <vector>
 
 #include "app/commands.h"
+#include "formats/conventional_mesh.h"
 #include "formats/output_file.h"
 #include "formats/pipeline.h"
 #include "libterrain/error.h"
@@ -58,7 +61,7 @@ std::vector<int> parseClassList(const std::string& option, const std::string& li
   return codes;
 }
 
-ClipRect parseClip(const std::string& text) {
+ClipRect parseClip(const std::string& text, const std::string& option = "--clip") {
   const auto parts = splitList(text);
   double v[4] = {};
   bool ok = parts.size() == 4;
@@ -67,7 +70,7 @@ ClipRect parseClip(const std::string& text) {
     ok = ec == std::errc() && p == parts[i].data() + parts[i].size() && std::isfinite(v[i]);
   }
   if (!ok || !(v[0] < v[2]) || !(v[1] < v[3]))
-    throw UsageError("--clip expects xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got '" + text +
+    throw UsageError(option + " expects xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got '" + text +
                      "'");
   return ClipRect{v[0], v[1], v[2], v[3]};
 }
@@ -102,7 +105,9 @@ std::vector<cli::OptionSpec> inputOptions() {
           {"--clip", "XMIN,YMIN,XMAX,YMAX", "keep points inside this rectangle"},
           {"--columns", "SPEC", "XYZ input: columns by position, e.g. x,y,z,class,intensity,skip"},
           {"--skip-bad-lines", "", "XYZ input: skip and count malformed lines instead of failing"},
-          {"--a_srs", "CRS", "assign a CRS (EPSG:n, WKT, PROJ string), overriding the files'"},
+          {"--a_srs", "CRS", "assign a CRS (EPSG:n, EPSG:h+v, WKT, PROJ string), overriding the files'"},
+          {"--t_srs", "CRS", "work in this projected CRS: points are transformed with PROJ as they are read"},
+          {"--strict-crs", "", "treat CRS contradictions and doubts as errors instead of warnings"},
           {"--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)"},
           {"--compute-bounds", "", "compute the bounds in a first pass instead of using the LAS headers'"}};
 }
@@ -144,6 +149,8 @@ void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
   o.reader.columns = args.get("--columns");
   o.reader.skipBadLines = args.has("--skip-bad-lines");
   o.reader.assignSrs = args.get("--a_srs");
+  o.tSrs = args.get("--t_srs");
+  o.strictCrs = args.has("--strict-crs");
   o.computeBounds = args.has("--compute-bounds");
 }
 
@@ -211,14 +218,72 @@ int runTriangulateCommand(const cli::ParsedArgs& args) {
   });
 }
 
+// "a,b" -> two finite numbers.
+std::pair<double, double> parsePair(const std::string& option, const std::string& text) {
+  const auto parts = splitList(text);
+  double v[2] = {};
+  bool ok = parts.size() == 2;
+  for (std::size_t i = 0; ok && i < 2; ++i) {
+    auto [p, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
+    ok = ec == std::errc() && p == parts[i].data() + parts[i].size() && std::isfinite(v[i]);
+  }
+  if (!ok) throw UsageError(option + " expects two numbers X,Y, got '" + text + "'");
+  return {v[0], v[1]};
+}
+
 int runBuildCommand(const cli::ParsedArgs& args) {
   PipelineOptions o;
   parseInputOptions(args, o);
   parseTriangulatorOptions(args, o);
+  o.commandLine = args.commandLine;
   if (o.inputs.empty()) throw UsageError("build: give at least one input file (or - for stdin)");
-  if (!args.has("--mesh")) throw UsageError("build: name an output: --mesh FILE.smb|FILE.sma");
   o.meshOutput = args.get("--mesh");
-  refuseBinaryToTerminal(o.meshOutput, "build");
+  o.meshLocal = args.has("--local");
+  o.gpkgOutput = args.get("--gpkg");
+  o.gpkgPoints = args.has("--gpkg-points");
+  if (o.meshOutput.empty() && o.gpkgOutput.empty() && !args.has("--dem"))
+    throw UsageError(
+        "build: name an output: --mesh FILE.smb|.sma|.ply|.obj, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
+        "FILE.gpkg");
+  if (!o.meshOutput.empty()) refuseBinaryToTerminal(o.meshOutput, "build");
+  if (o.meshLocal && !(isConventionalMeshPath(o.meshOutput)))
+    throw UsageError("--local applies to --mesh FILE.ply or FILE.obj");
+  if (o.gpkgPoints && o.gpkgOutput.empty()) throw UsageError("--gpkg-points needs --gpkg FILE.gpkg");
+  const char* demOnly[] = {"--step",        "--max-edge",    "--tile-size", "--tile-size-m", "--cog",
+                           "--grid-origin", "--extent",      "--slope",     "--aspect",      "--hillshade",
+                           "--count",       "--edge-length", "--nodata"};
+  if (!args.has("--dem"))
+    for (const char* opt : demOnly)
+      if (args.has(opt))
+        throw UsageError(std::string(opt) + " applies to a DEM: add --dem DIR|FILE.tif|FILE.gpkg");
+  if (args.has("--dem")) {
+    DemRequest& d = o.dem;
+    d.path = args.get("--dem");
+    if (d.path.empty() || d.path == "-") throw UsageError("--dem expects a directory, FILE.tif or FILE.gpkg");
+    d.step = args.get("--step", "1");
+    d.maxEdge = args.get("--max-edge", "100");
+    d.tileSize = args.getInt("--tile-size", 2048, 16, 65536);
+    d.tileSizeLength = args.get("--tile-size-m");
+    d.cog = args.has("--cog");
+    DemOptions& b = d.bands;
+    b.slope = args.has("--slope");
+    b.aspect = args.has("--aspect");
+    b.hillshade = args.has("--hillshade");
+    b.count = args.has("--count");
+    b.edgeLength = args.has("--edge-length");
+    if (args.has("--nodata")) {
+      const double nd = args.getDouble("--nodata", -9999);
+      if (!std::isfinite(nd) || static_cast<double>(static_cast<float>(nd)) != nd)
+        throw UsageError("--nodata must be a finite value exactly representable as float32, e.g. -9999");
+      b.nodata = static_cast<float>(nd);
+    }
+    if (args.has("--grid-origin"))
+      std::tie(b.originX, b.originY) = parsePair("--grid-origin", args.get("--grid-origin"));
+    if (args.has("--extent")) {
+      const ClipRect c = parseClip(args.get("--extent"), "--extent");
+      b.extent = Box2{c.minX, c.minY, c.maxX, c.maxY};
+    }
+  }
   return runWithReport(args, o, runBuild);
 }
 
@@ -299,13 +364,43 @@ Command triangulateCommand() {
 Command buildCommand() {
   return Command{
       "build",
-      "tinbuild build INPUT... --mesh FILE.smb|.sma [OPTIONS]",
-      "the main job: LIDAR to TIN in one streaming pass",
+      "tinbuild build INPUT... [--mesh FILE.smb|.sma|.ply|.obj] [--dem DIR|FILE.tif|FILE.gpkg --step R] "
+      "[--gpkg FILE.gpkg] [OPTIONS]",
+      "the main job: LIDAR to TIN and DEM in one streaming pass",
       "Finalizes the inputs and triangulates them in one process (finalizer and triangulator on two\n"
-      "threads with a bounded queue between them), writing the TIN as a streaming mesh while the\n"
-      "triangulation runs.  Memory follows the stream's width, not the survey's size.",
-      join({{"--mesh", "FILE", "TIN as a streaming mesh (.smb binary, .sma ASCII)"}}, inputOptions(),
-           triangulatorOptions(), reportOptions()),
+      "threads with a bounded queue between them), writing every output while the triangulation runs:\n"
+      "the TIN as a streaming mesh, PLY or OBJ, as a GeoPackage layer, and DEM rasters interpolated\n"
+      "linearly on the TIN at pixel centres (tiles are written as soon as no later triangle can reach\n"
+      "them).  Memory follows the stream's width plus the open DEM tiles, not the survey's size.\n"
+      "Example: tinbuild build tiles/*.las --dem dem/ --step 1 --hillshade --gpkg tin.gpkg --mesh tin.ply",
+      join(
+          {{"--mesh", "FILE",
+            "TIN as a streaming mesh (.smb binary, .sma ASCII) or a mesh (.ply binary, .obj)"},
+           {"--local", "",
+            "PLY/OBJ: subtract a round origin and write float32 (for viewers); origin in the header"},
+           {"--gpkg", "FILE.gpkg", "TIN as a GeoPackage layer `tin` of triangles (POLYGON Z)"},
+           {"--gpkg-points", "", "also a layer `points` of the TIN's vertices"},
+           {"--dem", "DIR|FILE.tif|FILE.gpkg",
+            "DEM: GeoTIFF tiles + mosaic.vrt in DIR, one GeoTIFF, or a GeoPackage raster"},
+           {"--step", "R", "DEM pixel size (metres; or with a unit: 3ft, 1ftUS, 2u = CRS units) (default 1)"},
+           {"--max-edge", "L",
+            "DEM: no value under triangles with an edge longer than L (metres or unit; default 100; 0 = no "
+            "limit)"},
+           {"--tile-size", "PIXELS", "DEM tile size in pixels (default 2048)"},
+           {"--tile-size-m", "L", "DEM tile size as a length (metres or unit), e.g. 1000 for 1 km tiles"},
+           {"--grid-origin", "X,Y",
+            "DEM: a grid line crossing, in CRS units (default 0,0: pixel edges on multiples of the step)"},
+           {"--extent", "XMIN,YMIN,XMAX,YMAX",
+            "DEM extent in CRS units, snapped outward to the grid (default: the data)"},
+           {"--cog", "", "DEM: write Cloud Optimized GeoTIFFs"},
+           {"--nodata", "V", "DEM nodata value (default -9999)"},
+           {"--slope", "", "DEM: also a slope raster (degrees)"},
+           {"--aspect", "", "DEM: also an aspect raster (degrees clockwise from north, downslope)"},
+           {"--hillshade", "",
+            "DEM: also a hillshade raster (Byte, light from the north-west at 45 degrees)"},
+           {"--count", "", "DEM: also a raster of TIN vertices per pixel (UInt16)"},
+           {"--edge-length", "", "DEM: also a QA raster of the longest edge of the covering triangle"}},
+          inputOptions(), triangulatorOptions(), reportOptions()),
       runBuildCommand};
 }
 

@@ -64,6 +64,8 @@ int main(int argc, char** argv) {
       }
     }
     auto parsed = tinbuild::cli::parseArgs(rest, c->options, c->name);
+    parsed.commandLine = "tinbuild";
+    for (const auto& a : args) parsed.commandLine += " " + a;
     return c->run(parsed);
   } catch (const tinbuild::UsageError& e) {
     std::cerr << "tinbuild: error: " << e.what() << "\n";

@@ -7,10 +7,15 @@
 #include <fstream>
 #include <memory>
 
+#include "formats/conventional_mesh.h"
+#include "formats/dem_writer.h"
 #include "formats/finalized_stream.h"
+#include "formats/gpkg_tin_writer.h"
+#include "formats/reprojection.h"
 #include "formats/streaming_mesh.h"
 #include "libterrain/error.h"
 #include "libterrain/json_writer.h"
+#include "libterrain/mesh_tee.h"
 #include "libterrain/report_text.h"
 #include "libterrain/survey_stats.h"
 
@@ -43,12 +48,50 @@ bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Boun
   return true;
 }
 
-// Opened inputs with the finalizer options completed from them (CRS, trusted bounds, common scale).
+// Opened inputs with the finalizer options completed from them (CRS, trusted bounds, common scale), and,
+// when the run works in another CRS than the inputs', one PointTransform per input wrapping its reader.
 struct OpenedInputs {
   std::vector<std::unique_ptr<PointReader>> readers;
+  std::vector<std::unique_ptr<PointTransform>> transforms;
+  std::vector<std::unique_ptr<TransformingPointStream>> transformed;
   std::vector<PointStream*> streams;
-  CrsInfo crs;
+  CrsInfo crs;  // the working CRS (what every output is labelled with)
+  std::string crsReason;
+  std::vector<std::string> crsNotes;
+  // The unit z is in, in metres: the vertical CRS's unit when there is one (after a vertical
+  // transformation, the target's), else the input's horizontal unit (LAS convention for a 2D CRS);
+  // 1 when unknown.
+  double zUnitToMetre = 1;
+  std::uint64_t transformFailed() const {
+    std::uint64_t n = 0;
+    for (const auto& t : transformed) n += t->failedPoints();
+    return n;
+  }
 };
+
+// The centre of the data in the inputs' CRS: from the LAS headers when they are sane, else from a pass
+// over the points (only needed to pick a UTM zone for geographic input).
+void dataCentre(OpenedInputs& in, double& cx, double& cy) {
+  Bounds3 b;
+  std::uint64_t n = 0;
+  if (!headerBounds(in.readers, b, n)) {
+    std::vector<PointRecord> buf(65536);
+    for (auto& r : in.readers) {
+      if (!r->rewindable())
+        throw UsageError(
+            r->info().path +
+            ": geographic input read from stdin: name the projected CRS to work in with --t_srs");
+      for (;;) {
+        const std::size_t k = r->read(buf.data(), buf.size());
+        if (k == 0) break;
+        for (std::size_t i = 0; i < k; ++i) b.add(buf[i].x, buf[i].y, buf[i].z);
+      }
+      r->rewind();
+    }
+  }
+  cx = b.empty() ? 0 : 0.5 * (b.minX + b.maxX);
+  cy = b.empty() ? 0 : 0.5 * (b.minY + b.maxY);
+}
 
 OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnostics& diag) {
   if (o.inputs.empty()) throw UsageError("give at least one input file (or - for stdin)");
@@ -60,15 +103,58 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
     in.readers.push_back(openPointReader(path, o.reader, diag));
     in.streams.push_back(in.readers.back().get());
   }
-  in.crs = in.readers.front()->info().crs;
+  const CrsInfo inputCrs = in.readers.front()->info().crs;
   for (std::size_t i = 1; i < in.readers.size(); ++i) {
     const CrsInfo& c = in.readers[i]->info().crs;
-    if (!sameCrs(in.crs, c))
-      diag.warn("crs.inputs_differ", o.inputs[i],
-                "its CRS (" + (c.empty() ? std::string("none") : c.name) + ") differs from " + o.inputs[0] +
-                    " (" + (in.crs.empty() ? std::string("none") : in.crs.name) +
-                    "); the output carries the first file's CRS");
+    if (sameCrs(inputCrs, c)) continue;
+    const std::string what = "its CRS (" + (c.empty() ? std::string("none") : c.name) + ") differs from " +
+                             o.inputs[0] + "'s (" + (inputCrs.empty() ? std::string("none") : inputCrs.name) +
+                             ")";
+    if (o.tSrs.empty() || c.empty() || inputCrs.empty())
+      throw DataError(o.inputs[i],
+                      what +
+                          "; all inputs of a run must share a CRS: reproject them with --t_srs, or "
+                          "assign one with --a_srs if the metadata is wrong");
+    diag.warn("crs.inputs_differ", o.inputs[i], what + "; each input is transformed to --t_srs");
   }
+  if (o.strictCrs)
+    for (const auto& e : diag.entries())
+      if (e.kind.rfind("crs.", 0) == 0 || e.kind.rfind("las.crs", 0) == 0)
+        throw DataError(e.file.empty() ? o.inputs[0] : e.file, e.firstMessage + " (--strict-crs)");
+
+  // The working CRS: the inputs', --t_srs, or the UTM zone of geographic input.
+  double cx = 0, cy = 0;
+  if (inputCrs.geographic || !o.tSrs.empty()) dataCentre(in, cx, cy);
+  const WorkingCrs work = chooseWorkingCrs(inputCrs, o.tSrs, cx, cy);
+  in.crs = work.transformed ? work.crs : inputCrs;
+  in.crsReason = work.reason;
+  if (work.transformed) {
+    in.streams.clear();
+    for (std::size_t i = 0; i < in.readers.size(); ++i) {
+      const CrsInfo& source = in.readers[i]->info().crs;
+      in.transforms.push_back(std::make_unique<PointTransform>(source, work.crs));
+      PointTransform& t = *in.transforms.back();
+      if (i == 0) {
+        in.crs = t.resultCrs();
+        if (!t.description().empty()) in.crsNotes.push_back("operation: " + t.description());
+      }
+      for (const std::string& note : {t.verticalNote(), t.horizontalNote()})
+        if (!note.empty()) {
+          diag.warn(note == t.verticalNote() ? "crs.vertical_kept" : "crs.transform_accuracy", o.inputs[i],
+                    note);
+          in.crsNotes.push_back(note);
+        }
+      in.transformed.push_back(std::make_unique<TransformingPointStream>(*in.readers[i], t));
+      in.streams.push_back(in.transformed.back().get());
+    }
+  }
+  auto zUnit = [](const CrsInfo& c) {
+    if (c.empty()) return 1.0;
+    if (!c.verticalUnit.empty() && c.verticalUnitToMetre > 0) return c.verticalUnitToMetre;
+    return c.geographic ? 1.0 : c.linearUnitToMetre;
+  };
+  in.zUnitToMetre = zUnit(inputCrs);
+  if (!in.transforms.empty() && in.transforms.front()->verticalTransformed()) in.zUnitToMetre = zUnit(in.crs);
   if (in.crs.empty())
     diag.warn("crs.none", "",
               "the survey has no CRS: outputs are written without one (use --a_srs to assign it)");
@@ -76,11 +162,12 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   fo.inputNames = o.inputs;
   Bounds3 hb;
   std::uint64_t headerPoints = 0;
-  if (!o.computeBounds && headerBounds(in.readers, hb, headerPoints)) {
+  // Header bounds are in the inputs' CRS: of no use once the points are transformed.
+  if (!o.computeBounds && !work.transformed && headerBounds(in.readers, hb, headerPoints)) {
     fo.knownBounds = hb;
     fo.expectedPoints = headerPoints;
   }
-  bool sameScale = true;
+  bool sameScale = !work.transformed;  // transformed coordinates are no longer on the files' lattice
   const SourceInfo& first = in.readers.front()->info();
   for (const auto& r : in.readers) {
     const SourceInfo& s = r->info();
@@ -92,6 +179,24 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   // The run carries the CRS as WKT from here on: give PROJ's caches back before the buffers grow.
   releaseCrsCaches();
   return in;
+}
+
+// After the run: what the transformation dropped, as a counted warning.
+void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
+  r.crsReason = in.crsReason;
+  r.crsNotes = in.crsNotes;
+  r.transformFailed = in.transformFailed();
+  if (r.transformFailed) {
+    std::string first;
+    for (const auto& t : in.transforms)
+      if (!t->firstFailure().empty()) {
+        first = t->firstFailure();
+        break;
+      }
+    diag.warn("crs.transform_failed", "",
+              "points PROJ could not transform to the working CRS were dropped (first: " + first + ")",
+              r.transformFailed);
+  }
 }
 
 std::uint64_t fileSize(const std::string& path) {
@@ -142,6 +247,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.haveFinalizer = true;
   r.outputs = {o.finalizedOutput};
   r.outputBytes = writer.bytesWritten();
+  reportTransform(in, r, diag);
   finish(r, diag, t0);
   return r;
 }
@@ -178,20 +284,90 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   RunReport r;
   r.command = "build";
   r.inputs = o.inputs;
-  if (o.meshOutput.empty()) throw UsageError("build: name at least one output (--mesh FILE)");
+  if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty())
+    throw UsageError(
+        "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE");
   FinalizerOptions fo = o.finalizer;
-  // Open the output before any work, so an unwritable target fails at once.
-  auto mesh = openMeshWriter(o.meshOutput);
   OpenedInputs in = openInputs(o, fo, diag);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.memoryBudget = fo.memoryBudget;
+
+  // Open every output before any work, so an unwritable target or a bad length fails at once.
+  MeshTee tee;
+  std::unique_ptr<MeshSink> mesh;
+  if (!o.meshOutput.empty()) {
+    if (isConventionalMeshPath(o.meshOutput)) {
+      ConventionalMeshOptions mo;
+      mo.local = o.meshLocal;
+      mo.commandLine = o.commandLine;
+      mesh = openConventionalMeshWriter(o.meshOutput, mo);
+    } else {
+      mesh = openMeshWriter(o.meshOutput);
+    }
+    tee.add(*mesh);
+  }
+  std::unique_ptr<TriangleSink> gpkg;
+  if (!o.gpkgOutput.empty()) {
+    GpkgTinOptions go;
+    go.path = o.gpkgOutput;
+    go.points = o.gpkgPoints;
+    go.commandLine = o.commandLine;
+    gpkg = openGpkgTinWriter(go);
+    tee.add(*gpkg);
+  }
+  std::unique_ptr<DemWriter> demWriter;
+  std::unique_ptr<DemRasterizer> dem;
+  if (!o.dem.path.empty()) {
+    DemOptions d = o.dem.bands;
+    DemReport& dr = r.dem;
+    dr.present = true;
+    dr.path = o.dem.path;
+    d.step = parseLength(o.dem.step, in.crs, "--step");
+    if (!(d.step > 0)) throw UsageError("--step must be positive, got '" + o.dem.step + "'");
+    d.maxEdge = parseLength(o.dem.maxEdge, in.crs, "--max-edge");
+    d.tileSize = o.dem.tileSize;
+    if (!o.dem.tileSizeLength.empty()) {
+      const double len = parseLength(o.dem.tileSizeLength, in.crs, "--tile-size-m");
+      d.tileSize = static_cast<int>(std::llround(len / d.step));
+      if (std::fabs(d.tileSize * d.step - len) > 1e-9 * len)
+        diag.warn("dem.tile_size_rounded", "",
+                  "--tile-size-m " + o.dem.tileSizeLength +
+                      " is not a whole number of --step pixels; tiles are " + std::to_string(d.tileSize) +
+                      " pixels");
+    }
+    const DemTarget target = demTargetForPath(o.dem.path);
+    if (target != DemTarget::TileDirectory) {
+      // One raster: tiles are whole 256-pixel blocks of the file, anchored at its corner.
+      d.anchorTilesAtRaster = true;
+      d.tileSize = std::max(256, (d.tileSize + 255) / 256 * 256);
+    }
+    // Slope and shading need z in the horizontal unit (feet of z over metres of x would tilt everything).
+    if (!in.crs.empty() && in.crs.linearUnitToMetre > 0) d.zToXY = in.zUnitToMetre / in.crs.linearUnitToMetre;
+    dr.step = d.step;
+    dr.maxEdge = d.maxEdge;
+    dr.unit = in.crs.empty() ? "" : in.crs.linearUnit;
+    DemWriterOptions wo;
+    wo.path = o.dem.path;
+    wo.cog = o.dem.cog;
+    wo.crs = in.crs;
+    wo.commandLine = o.commandLine;
+    wo.slope = d.slope;
+    wo.aspect = d.aspect;
+    wo.hillshade = d.hillshade;
+    wo.count = d.count;
+    wo.edgeLength = d.edgeLength;
+    demWriter = std::make_unique<DemWriter>(wo);
+    dem = std::make_unique<DemRasterizer>(d, *demWriter);
+    tee.add(*dem);
+  }
+
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
-  StreamingDelaunay delaunay(*mesh, dopt);
+  StreamingDelaunay delaunay(tee, dopt);
   {
-    // The triangulator runs on its own thread behind a bounded queue; the event order is unchanged,
-    // so the output does not depend on thread timing.
+    // The triangulator (and the outputs it feeds) runs on its own thread behind a bounded queue; the
+    // event order is unchanged, so the output does not depend on thread timing.
     ConcurrentPointSink queue(delaunay);
     r.finalizer = finalizePoints(in.streams, fo, queue, diag);
   }
@@ -199,8 +375,26 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   r.delaunay = delaunay.stats();
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
-  r.outputs = {o.meshOutput};
-  r.outputBytes = fileSize(o.meshOutput);
+  if (mesh) {
+    r.outputs.push_back(o.meshOutput);
+    r.outputBytes += fileSize(o.meshOutput);
+  }
+  if (gpkg) {
+    r.outputs.push_back(o.gpkgOutput);
+    r.gpkgOutput = o.gpkgOutput;
+    r.outputBytes += fileSize(o.gpkgOutput);
+    r.gpkgTriangles = r.delaunay.trianglesEmitted;
+  }
+  if (dem) {
+    r.dem.layout = dem->layout();
+    r.dem.stats = dem->stats();
+    r.dem.files = demWriter->outputs();
+    r.outputs.insert(r.outputs.end(), r.dem.files.begin(), r.dem.files.end());
+    r.outputBytes += demWriter->bytesWritten();
+    if (r.dem.stats.tilesWritten == 0)
+      diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
+  }
+  reportTransform(in, r, diag);
   finish(r, diag, t0);
   return r;
 }
@@ -213,13 +407,10 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
   readStreamingMesh(mesh, verifier);
   r.check = verifier.report();
   if (!o.inputs.empty()) {
-    std::vector<std::unique_ptr<PointReader>> readers;
-    std::vector<PointStream*> parts;
-    for (const auto& path : o.inputs) {
-      readers.push_back(openPointReader(path, o.reader, diag));
-      parts.push_back(readers.back().get());
-    }
-    ConcatPointStream stream(parts);
+    // The same inputs, CRS handling (--t_srs, UTM for geographic input) and filters as `build`.
+    FinalizerOptions fo = o.finalizer;
+    OpenedInputs in = openInputs(o, fo, diag);
+    ConcatPointStream stream(in.streams);
     if (!stream.rewindable())
       throw UsageError("verify --points: the inputs must be files (they are read several times)");
     SurveyStatsOptions so;
@@ -333,6 +524,15 @@ std::string formatRunSummary(const RunReport& r) {
   if (r.haveFinalizer) {
     const FinalizerStats& s = r.finalizer;
     const FilterCounts& f = s.filter;
+    line("CRS",
+         r.crs.empty()
+             ? std::string("none (outputs carry no CRS)")
+             : r.crs.name + (r.crs.epsg ? " (EPSG:" + std::to_string(r.crs.epsg) + ")" : "") + ", " +
+                   r.crs.linearUnit + (r.crs.verticalName.empty() ? "" : "; heights " + r.crs.verticalName) +
+                   (r.crsReason.empty() ? "" : "; " + r.crsReason) +
+                   (r.transformFailed
+                        ? "; " + withCommas(r.transformFailed) + " points could not be transformed (dropped)"
+                        : ""));
     if (f.dropped()) {
       std::string d = withCommas(f.dropped()) + " dropped:";
       if (f.withheld) d += " " + withCommas(f.withheld) + " withheld;";
@@ -382,6 +582,20 @@ std::string formatRunSummary(const RunReport& r) {
                        withCommas(d.maxActiveVertices) + " active vertices (" + bytesText(d.peakBytes) +
                        " triangulator arrays)");
   }
+  if (r.dem.present) {
+    const DemReport& d = r.dem;
+    const std::string unit = d.unit.empty() ? std::string("units") : d.unit;
+    line("DEM", withCommas(static_cast<std::uint64_t>(std::max<std::int64_t>(0, d.layout.width()))) + " x " +
+                    withCommas(static_cast<std::uint64_t>(std::max<std::int64_t>(0, d.layout.height()))) +
+                    " pixels of " + formatDouble("%.6g", d.step) + " " + unit + ", " +
+                    withCommas(d.stats.pixelsWritten) + " with a value; " + withCommas(d.stats.tilesWritten) +
+                    " tiles written (" + withCommas(d.stats.tilesCompletedEarly) +
+                    " during the run), at most " + withCommas(d.stats.maxOpenTiles) + " open (" +
+                    bytesText(d.stats.peakTileBytes) + ")" +
+                    (d.maxEdge > 0 ? "; --max-edge " + formatDouble("%.6g", d.maxEdge) + " " + unit +
+                                         " blanked " + withCommas(d.stats.pixelsMaxEdge) + " pixels"
+                                   : std::string()));
+  }
   return o;
 }
 
@@ -408,8 +622,20 @@ std::string formatRunJson(const RunReport& r) {
     else
       j.key("epsg").null();
     j.key("units").value(r.crs.linearUnit);
+    j.key("vertical").value(r.crs.verticalName);
+    if (r.crs.verticalEpsg)
+      j.key("vertical_epsg").value(r.crs.verticalEpsg);
+    else
+      j.key("vertical_epsg").null();
+    j.key("vertical_units").value(r.crs.verticalUnit);
     j.key("wkt").value(r.crs.wkt);
   }
+  j.key("transformed").value(!r.crsReason.empty());
+  j.key("reason").value(r.crsReason);
+  j.key("notes").beginArray();
+  for (const auto& n : r.crsNotes) j.value(n);
+  j.endArray();
+  j.key("transform_failed_points").value(r.transformFailed);
   j.endObject();
   if (r.haveFinalizer) {
     const FinalizerStats& s = r.finalizer;
@@ -482,6 +708,37 @@ std::string formatRunJson(const RunReport& r) {
     j.key("restarts_neighbour").value(d.restartsNeighbour);
     j.key("restarts_exhaustive").value(d.restartsExhaustive);
     j.key("certification_checks").value(d.certificationChecks);
+    j.endObject();
+  }
+  if (r.dem.present) {
+    const DemReport& d = r.dem;
+    const DemLayout& l = d.layout;
+    j.key("dem").beginObject();
+    j.key("path").value(d.path);
+    j.key("step").value(d.step);
+    j.key("unit").value(d.unit);
+    j.key("max_edge").value(d.maxEdge);
+    j.key("width").value(static_cast<std::int64_t>(std::max<std::int64_t>(0, l.width())));
+    j.key("height").value(static_cast<std::int64_t>(std::max<std::int64_t>(0, l.height())));
+    j.key("extent").beginArray().value(l.west()).value(l.south()).value(l.east()).value(l.north()).endArray();
+    j.key("tile_size").value(l.tileSize);
+    j.key("nodata").value(static_cast<double>(l.nodata));
+    j.key("pixels_written").value(d.stats.pixelsWritten);
+    j.key("pixels_max_edge").value(d.stats.pixelsMaxEdge);
+    j.key("tiles_written").value(d.stats.tilesWritten);
+    j.key("tiles_empty").value(d.stats.tilesEmpty);
+    j.key("tiles_completed_during_run").value(d.stats.tilesCompletedEarly);
+    j.key("max_open_tiles").value(d.stats.maxOpenTiles);
+    j.key("peak_tile_bytes").value(d.stats.peakTileBytes);
+    j.key("files").beginArray();
+    for (const auto& f : d.files) j.value(f);
+    j.endArray();
+    j.endObject();
+  }
+  if (!r.gpkgOutput.empty()) {
+    j.key("gpkg").beginObject();
+    j.key("path").value(r.gpkgOutput);
+    j.key("triangles").value(r.gpkgTriangles);
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -17,12 +17,25 @@
 
 #include "formats/crs.h"
 #include "formats/point_reader.h"
+#include "libterrain/dem_rasterizer.h"
 #include "libterrain/diagnostics.h"
 #include "libterrain/finalizer.h"
 #include "libterrain/mesh_verifier.h"
 #include "libterrain/streaming_delaunay.h"
 
 namespace tinbuild {
+
+// What `build --dem` asks for.  Lengths are kept as typed (metres unless they carry a unit, see
+// formats/reprojection.h) and converted once the run's CRS is known; extent and origin are in CRS units.
+struct DemRequest {
+  std::string path;             // --dem DIR | FILE.tif | FILE.gpkg ("" = no DEM)
+  std::string step = "1";       // --step
+  std::string maxEdge = "100";  // --max-edge (0 = no limit)
+  int tileSize = 2048;          // --tile-size (pixels)
+  std::string tileSizeLength;   // --tile-size-m (a length; overrides tileSize)
+  bool cog = false;             // --cog
+  DemOptions bands;             // slope/aspect/hillshade/count/edgeLength, nodata, extent, origin
+};
 
 struct PipelineOptions {
   std::vector<std::string> inputs;
@@ -31,7 +44,25 @@ struct PipelineOptions {
   bool computeBounds = false;  // do not trust the LAS headers' bounds
   DelaunayOptions delaunay;
   std::string finalizedOutput;  // runFinalize: the finalized stream ("-" = stdout)
-  std::string meshOutput;       // runBuild / runTriangulate: .sma or .smb ("-" = SMB on stdout)
+  std::string meshOutput;       // runBuild / runTriangulate: .sma, .smb ("-" = SMB on stdout), .ply, .obj
+  bool meshLocal = false;       // PLY/OBJ: local coordinates (float32 after subtracting an origin)
+  std::string gpkgOutput;       // runBuild: GeoPackage TIN
+  bool gpkgPoints = false;      // ... with a layer of the vertices
+  DemRequest dem;               // runBuild: DEM rasters
+  std::string commandLine;      // recorded in the outputs' metadata
+  std::string tSrs;             // --t_srs: the working CRS (points are transformed in the reader stage)
+  bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings
+};
+
+// What the DEM part of a run did (RunReport::dem).
+struct DemReport {
+  bool present = false;
+  std::string path;
+  DemLayout layout;
+  DemStats stats;
+  double step = 0, maxEdge = 0;  // in CRS units, as used
+  std::string unit;              // the CRS's horizontal unit ("metre", "US survey foot", "" = no CRS)
+  std::vector<std::string> files;
 };
 
 struct RunReport {
@@ -39,14 +70,20 @@ struct RunReport {
   std::vector<std::string> inputs;
   std::vector<std::string> outputs;
   std::uint64_t outputBytes = 0;
-  CrsInfo crs;
-  std::string filter;  // what the filter drops, in words
+  CrsInfo crs;                        // the working CRS (outputs carry it)
+  std::string crsReason;              // why the points were transformed ("" = they were not)
+  std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
+  std::uint64_t transformFailed = 0;  // points PROJ could not transform (dropped, counted)
+  std::string filter;                 // what the filter drops, in words
   bool haveFinalizer = false;
   FinalizerStats finalizer;
   std::size_t memoryBudget = 0;
   bool haveDelaunay = false;
   DelaunayStats delaunay;
   std::string duplicateRule;
+  DemReport dem;
+  std::string gpkgOutput;
+  std::uint64_t gpkgTriangles = 0;
   std::vector<Diagnostics::Entry> warnings;
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;

@@ -188,8 +188,8 @@ void DemRasterizer::vertex(const MeshVertex& v) {
   const std::int64_t T = layout_.tileSize;
   Open& o = tileAt(floorDiv(i - layout_.tileCol0, T), floorDiv(j - layout_.tileRow0, T));
   DemTile& t = o.tile;
-  const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
-                          static_cast<std::size_t>(i - t.col0);
+  const std::size_t idx =
+      static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width + static_cast<std::size_t>(i - t.col0);
   if (t.count[idx] == 0 && t.z[idx] == opt_.nodata) ++o.dataPixels;
   if (t.count[idx] < 65535) ++t.count[idx];
 }
@@ -222,8 +222,8 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
   const double det = bx * cy - by * cx;
   const double gx = (bz * cy - cz * by) / det;
   const double gy = (cz * bx - bz * cx) / det;
-  const double e2 = std::max(bx * bx + by * by, std::max(cx * cx + cy * cy, (c.x - b.x) * (c.x - b.x) +
-                                                                                 (c.y - b.y) * (c.y - b.y)));
+  const double e2 = std::max(
+      bx * bx + by * by, std::max(cx * cx + cy * cy, (c.x - b.x) * (c.x - b.x) + (c.y - b.y) * (c.y - b.y)));
   const bool tooLong = opt_.maxEdge > 0 && e2 > opt_.maxEdge * opt_.maxEdge;
   const float edge = static_cast<float>(std::sqrt(e2));
   float slope = opt_.nodata, aspect = opt_.nodata;

@@ -50,17 +50,17 @@
 namespace tinbuild {
 
 struct DemOptions {
-  double step = 1;                     // pixel size, in CRS units
-  double originX = 0, originY = 0;     // a grid line crossing (any multiple of step away gives the same grid)
-  std::optional<Box2> extent;          // raster extent (snapped outward to the grid); default: data bounds
-  int tileSize = 2048;                 // pixels
-  bool anchorTilesAtRaster = false;    // tiles start at the raster's top-left corner (single-file output)
-  double maxEdge = 0;                  // CRS units; 0 = no limit
+  double step = 1;                   // pixel size, in CRS units
+  double originX = 0, originY = 0;   // a grid line crossing (any multiple of step away gives the same grid)
+  std::optional<Box2> extent;        // raster extent (snapped outward to the grid); default: data bounds
+  int tileSize = 2048;               // pixels
+  bool anchorTilesAtRaster = false;  // tiles start at the raster's top-left corner (single-file output)
+  double maxEdge = 0;                // CRS units; 0 = no limit
   bool slope = false, aspect = false, hillshade = false, count = false, edgeLength = false;
-  double zToXY = 1;                    // z units -> horizontal units (for slope, aspect, hillshade)
+  double zToXY = 1;  // z units -> horizontal units (for slope, aspect, hillshade)
   double hillshadeAzimuth = 315, hillshadeAltitude = 45;  // degrees
   float nodata = -9999.0f;
-  bool streaming = true;               // false: keep every tile until end() (the reference for tests)
+  bool streaming = true;  // false: keep every tile until end() (the reference for tests)
 };
 
 // The raster's geometry, fixed at begin().
@@ -108,7 +108,7 @@ struct DemStats {
   std::uint64_t tilesWritten = 0, tilesEmpty = 0;
   std::uint64_t tilesCompletedEarly = 0;  // tiles handed over before end(): the streaming at work
   std::uint64_t maxOpenTiles = 0;
-  std::uint64_t openChecks = 0;           // markOpen scans
+  std::uint64_t openChecks = 0;  // markOpen scans
   std::uint64_t peakTileBytes = 0;
 };
 

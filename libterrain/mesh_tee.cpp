@@ -30,7 +30,8 @@ void VertexTable::insert(const MeshVertex& v) {
   if ((size_ + 1) * 4 > slots_.size() * 3) grow();
   std::size_t i = slotOf(v.id, mask_);
   while (slots_[i].used) {
-    if (slots_[i].v.id == v.id) throw Error("streaming mesh: vertex " + std::to_string(v.id) + " announced twice");
+    if (slots_[i].v.id == v.id)
+      throw Error("streaming mesh: vertex " + std::to_string(v.id) + " announced twice");
     i = (i + 1) & mask_;
   }
   slots_[i].v = v;

@@ -28,8 +28,8 @@ class VectorStream : public PointStream {
   explicit VectorStream(std::vector<PointRecord> pts) : pts_(std::move(pts)) {}
   std::size_t read(PointRecord* out, std::size_t max) override {
     const std::size_t n = std::min(max, pts_.size() - pos_);
-    std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_), pts_.begin() + static_cast<std::ptrdiff_t>(pos_ + n),
-              out);
+    std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_),
+              pts_.begin() + static_cast<std::ptrdiff_t>(pos_ + n), out);
     pos_ += n;
     return n;
   }
@@ -77,7 +77,8 @@ struct Assembler : DemTileSink {
   void end() override { ended = true; }
   // Value at global pixel (i, j).
   float at(std::int64_t i, std::int64_t j) const {
-    return z[static_cast<std::size_t>(layout.rowMax - j) * layout.width() + static_cast<std::size_t>(i - layout.colMin)];
+    return z[static_cast<std::size_t>(layout.rowMax - j) * layout.width() +
+             static_cast<std::size_t>(i - layout.colMin)];
   }
 };
 
@@ -105,7 +106,9 @@ struct MeshRecorder : TriangleSink {
   std::vector<MeshVertex> verts;
   void begin(const MeshInfo& i) override { info = i; }
   void vertex(const MeshVertex& v) override { verts.push_back(v); }
-  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override { tris.push_back({a, b, c}); }
+  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override {
+    tris.push_back({a, b, c});
+  }
   void end() override {}
 };
 
@@ -290,9 +293,11 @@ TEST(DemRasterizer, MaxEdgeLeavesLongTrianglesEmpty) {
   EXPECT_GT(run.stats.pixelsMaxEdge, 1000u);
   // The gap (x = 30..80) is nodata in the DEM but has edge lengths > 5.
   const DemLayout& L = run.raster.layout;
-  const std::int64_t i = static_cast<std::int64_t>(std::floor(50 / o.step)), j = static_cast<std::int64_t>(std::floor(5 / o.step));
+  const std::int64_t i = static_cast<std::int64_t>(std::floor(50 / o.step)),
+                     j = static_cast<std::int64_t>(std::floor(5 / o.step));
   EXPECT_EQ(run.raster.at(i, j), o.nodata);
-  const std::size_t idx = static_cast<std::size_t>(L.rowMax - j) * L.width() + static_cast<std::size_t>(i - L.colMin);
+  const std::size_t idx =
+      static_cast<std::size_t>(L.rowMax - j) * L.width() + static_cast<std::size_t>(i - L.colMin);
   EXPECT_GT(run.raster.edge[idx], 5.0f);
 }
 

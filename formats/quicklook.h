@@ -1,0 +1,16 @@
+// A PNG quick-look of a DEM: hypsometric colours (low green through tan to white) shaded by the
+// hillshade, so a person sees the terrain at a glance.  Reads the rasters through GDAL at a reduced
+// resolution (at most maxSize pixels a side, nearest neighbour), so it works on any mosaic size; nodata
+// pixels are transparent.
+#pragma once
+
+#include <string>
+
+namespace tinbuild {
+
+// `dem` and `hillshade` are rasters GDAL can open with the same extent and grid (e.g. the two mosaics of
+// a DEM directory).  Writes `png` (via a temporary name).  Throws DataError naming the file on failure.
+void writeQuicklookPng(const std::string& dem, const std::string& hillshade, const std::string& png,
+                       int maxSize = 1024);
+
+}  // namespace tinbuild
