@@ -7,6 +7,7 @@
 #include <cmath>
 #include <cstdio>
 #include <iostream>
+#include <memory>
 #include <string>
 #include <tuple>
 #include <utility>
@@ -175,12 +176,15 @@ int runWithReport(const cli::ParsedArgs& args, PipelineOptions& o, Run run) {
     o.finalizer.progress = drawProgress;
     o.finalizer.progressData = &progress;
   }
+  // The report's temporary file is created before the run, so an unwritable --report fails before any
+  // output is written (and a failed run removes it).
+  std::unique_ptr<OutputFile> reportFile;
+  if (args.has("--report")) reportFile = std::make_unique<OutputFile>(args.get("--report"));
   const RunReport report = run(o, diag);
   if (!quiet) std::cerr << formatRunSummary(report);
-  if (args.has("--report")) {
-    OutputFile f(args.get("--report"));
-    f.write(formatRunJson(report));
-    f.commit();
+  if (reportFile) {
+    reportFile->write(formatRunJson(report));
+    reportFile->commit();
   }
   return 0;
 }

@@ -128,14 +128,24 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   const WorkingCrs work = chooseWorkingCrs(inputCrs, o.tSrs, cx, cy);
   in.crs = work.transformed ? work.crs : inputCrs;
   in.crsReason = work.reason;
-  if (work.transformed) {
+  // With --t_srs every input whose own CRS differs is transformed, even when the first one needs nothing.
+  bool anyTransform = work.transformed;
+  if (!o.tSrs.empty())
+    for (const auto& r : in.readers) anyTransform = anyTransform || !sameCrs(r->info().crs, work.crs);
+  if (anyTransform) {
     in.streams.clear();
+    bool labelled = false;
     for (std::size_t i = 0; i < in.readers.size(); ++i) {
       const CrsInfo& source = in.readers[i]->info().crs;
+      if (sameCrs(source, work.crs)) {
+        in.streams.push_back(in.readers[i].get());
+        continue;
+      }
       in.transforms.push_back(std::make_unique<PointTransform>(source, work.crs));
       PointTransform& t = *in.transforms.back();
-      if (i == 0) {
-        in.crs = t.resultCrs();
+      if (!labelled) {
+        labelled = true;
+        if (work.transformed) in.crs = t.resultCrs();
         if (!t.description().empty()) in.crsNotes.push_back("operation: " + t.description());
       }
       for (const std::string& note : {t.verticalNote(), t.horizontalNote()})
@@ -154,7 +164,7 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
     return c.geographic ? 1.0 : c.linearUnitToMetre;
   };
   in.zUnitToMetre = zUnit(inputCrs);
-  if (!in.transforms.empty() && in.transforms.front()->verticalTransformed()) in.zUnitToMetre = zUnit(in.crs);
+  if (work.transformed && in.transforms.front()->verticalTransformed()) in.zUnitToMetre = zUnit(in.crs);
   if (in.crs.empty())
     diag.warn("crs.none", "",
               "the survey has no CRS: outputs are written without one (use --a_srs to assign it)");
@@ -163,11 +173,11 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   Bounds3 hb;
   std::uint64_t headerPoints = 0;
   // Header bounds are in the inputs' CRS: of no use once the points are transformed.
-  if (!o.computeBounds && !work.transformed && headerBounds(in.readers, hb, headerPoints)) {
+  if (!o.computeBounds && in.transforms.empty() && headerBounds(in.readers, hb, headerPoints)) {
     fo.knownBounds = hb;
     fo.expectedPoints = headerPoints;
   }
-  bool sameScale = !work.transformed;  // transformed coordinates are no longer on the files' lattice
+  bool sameScale = in.transforms.empty();  // transformed coordinates are no longer on the files' lattice
   const SourceInfo& first = in.readers.front()->info();
   for (const auto& r : in.readers) {
     const SourceInfo& s = r->info();

@@ -2,11 +2,15 @@
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <string>
+#include <vector>
 
 #include "test_support.h"
 
@@ -202,6 +206,322 @@ TEST(CliPipeline, VerifyRejectsATamperedMesh) {
   auto w = tinbuild("verify " + other + " --points " + test::dataPath("las/simple.las"));
   EXPECT_EQ(w.code, 1);
   EXPECT_NE(w.out.find("MISMATCH"), std::string::npos) << w.out;
+}
+
+}  // namespace
+}  // namespace tinbuild
+
+// Outputs and CRS handling of `build`, checked end to end with independent readers: GDAL's command-line
+// tools (gdalinfo, gdalsrsinfo, ogrinfo) read the rasters and the GeoPackage, PROJ's cs2cs is the oracle
+// for reprojected coordinates. The tools are run through popen, so this suite links no GDAL.
+namespace tinbuild {
+namespace {
+
+// Runs a shell command and returns its standard output (standard error merged when `merge` is set).
+std::string shell(const std::string& cmd, bool merge = false) {
+  std::string out;
+  FILE* p = popen((cmd + (merge ? " 2>&1" : " 2>/dev/null")).c_str(), "r");
+  if (!p) return out;
+  char buf[4096];
+  size_t n;
+  while ((n = fread(buf, 1, sizeof buf, p)) > 0) out.append(buf, n);
+  pclose(p);
+  return out;
+}
+
+bool haveTool(const std::string& name) {
+  return std::system(("command -v " + name + " >/dev/null 2>&1").c_str()) == 0;
+}
+
+#define TINBUILD_REQUIRE_TOOLS(...)                                                       \
+  do {                                                                                    \
+    for (const char* tool : {__VA_ARGS__})                                                \
+      if (!haveTool(tool)) GTEST_SKIP() << tool << " is not installed (GDAL/PROJ tools)"; \
+  } while (0)
+
+// The number after `"key": ` in JSON text, searching from the first occurrence of `"after"` (a minimal
+// reader: the report's keys are stable, see the report writer). NaN when absent.
+double jsonNumber(const std::string& json, const std::string& key, const std::string& after = "") {
+  size_t from = 0;
+  if (!after.empty()) {
+    from = json.find("\"" + after + "\"");
+    if (from == std::string::npos) return std::nan("");
+  }
+  const std::string k = "\"" + key + "\": ";
+  const auto at = json.find(k, from);
+  if (at == std::string::npos) return std::nan("");
+  return std::strtod(json.c_str() + at + k.size(), nullptr);
+}
+
+// The first number of `"bounds": {"min": [x, ...` in a run report.
+double reportMinX(const std::string& json) {
+  const auto b = json.find("\"bounds\"");
+  if (b == std::string::npos) return std::nan("");
+  const auto m = json.find('[', json.find("\"min\"", b));
+  return m == std::string::npos ? std::nan("") : std::strtod(json.c_str() + m + 1, nullptr);
+}
+
+// The count of `element NAME N` in a PLY header; -1 when absent.
+long long plyElement(const std::string& ply, const std::string& name) {
+  const auto end = ply.find("end_header");
+  const std::string k = "element " + name + " ";
+  const auto at = ply.find(k);
+  if (at == std::string::npos || at > end) return -1;
+  return std::strtoll(ply.c_str() + at + k.size(), nullptr, 10);
+}
+
+struct Xyz {
+  double x, y, z;
+};
+
+// The `v x y z` lines of an SMA streaming mesh.
+std::vector<Xyz> smaVertices(const std::string& path) {
+  std::vector<Xyz> v;
+  std::istringstream in(slurp(path));
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("v ", 0) != 0) continue;
+    Xyz p{};
+    std::istringstream(line.substr(2)) >> p.x >> p.y >> p.z;
+    v.push_back(p);
+  }
+  return v;
+}
+
+std::vector<std::string> listDir(const std::filesystem::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : std::filesystem::recursive_directory_iterator(dir))
+    names.push_back(std::filesystem::relative(e.path(), dir).string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+// One pass writes a tiled DEM, a GeoPackage TIN and a PLY mesh; GDAL reads them back with the input's CRS,
+// and the GeoPackage, the PLY and the report agree on the triangulation's size.
+TEST(CliBuild, DemGpkgAndPlyInOnePass) {
+  TINBUILD_REQUIRE_DATA();
+  TINBUILD_REQUIRE_TOOLS("gdalinfo", "gdalsrsinfo", "ogrinfo");
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/Megaplot.las");
+  const std::string dem = (out / "dem").string(), gpkg = (out / "tin.gpkg").string(),
+                    ply = (out / "tin.ply").string(), report = (out / "r.json").string();
+  auto r = tinbuild("build " + las + " --dem " + dem + " --step 1 --gpkg " + gpkg + " --mesh " + ply +
+                    " --report " + report);
+  ASSERT_EQ(r.code, 0) << r.err;
+
+  const std::string json = slurp(report);
+  const double triangles = jsonNumber(json, "triangles", "triangulation");
+  const double vertices = jsonNumber(json, "vertices", "triangulation");
+  ASSERT_GT(triangles, 0) << json;
+  ASSERT_GT(vertices, 0) << json;
+  EXPECT_EQ(jsonNumber(json, "points_read"), 81590);
+
+  const std::string vrt = dem + "/mosaic.vrt";
+  ASSERT_TRUE(std::filesystem::exists(vrt));
+  EXPECT_NE(shell("gdalsrsinfo -o epsg " + vrt).find("EPSG:26917"), std::string::npos);
+  const std::string info = shell("gdalinfo " + vrt, true);
+  EXPECT_NE(info.find("Driver: VRT/Virtual Raster"), std::string::npos) << info;
+  EXPECT_NE(info.find("Pixel Size = (1.000000000000000,-1.000000000000000)"), std::string::npos) << info;
+
+  const std::string ogr = shell("ogrinfo -so " + gpkg + " tin", true);
+  const std::string fc = "Feature Count: " + std::to_string(static_cast<long long>(triangles)) + "\n";
+  EXPECT_NE(ogr.find(fc), std::string::npos) << fc << ogr;
+  EXPECT_NE(ogr.find("ID[\"EPSG\",26917]]"), std::string::npos) << ogr;
+
+  const std::string header = slurp(ply).substr(0, 64 * 1024);
+  EXPECT_EQ(header.rfind("ply\n", 0), 0u);
+  EXPECT_EQ(plyElement(header, "face"), static_cast<long long>(triangles));
+  EXPECT_EQ(plyElement(header, "vertex"), static_cast<long long>(vertices));
+  EXPECT_TRUE(std::filesystem::exists(out / "tin.prj"));
+
+  // One Cloud Optimized GeoTIFF instead of tiles.
+  const std::string tif = (out / "one.tif").string();
+  auto c = tinbuild("build " + las + " --dem " + tif + " --step 1 --cog -q");
+  ASSERT_EQ(c.code, 0) << c.err;
+  const std::string cog = shell("gdalinfo " + tif, true);
+  EXPECT_NE(cog.find("LAYOUT=COG"), std::string::npos) << cog;
+  EXPECT_NE(cog.find("Pixel Size = (1.000000000000000,-1.000000000000000)"), std::string::npos) << cog;
+  EXPECT_NE(shell("gdalsrsinfo -o epsg " + tif).find("EPSG:26917"), std::string::npos);
+}
+
+// An output that cannot be written is a runtime error (1) naming the path, and no output of the run
+// remains; bad option values and missing outputs are usage errors (2).
+TEST(CliBuild, BadOutputsFailCleanly) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/Megaplot.las");
+  std::ofstream(out / "file.txt") << "not a directory\n";
+  const std::vector<std::string> before = listDir(out);
+
+  const std::string demDir = (out / "file.txt" / "dem").string();
+  auto d = tinbuild("build " + las + " --dem " + demDir + " --step 1");
+  EXPECT_EQ(d.code, 1) << d.err;
+  EXPECT_NE(d.err.find("tinbuild: error: " + demDir), std::string::npos) << d.err;
+  EXPECT_EQ(listDir(out), before);
+
+  // With other outputs beside it, none of them is left behind either.
+  auto m = tinbuild("build " + las + " --mesh " + (out / "tin.ply").string() + " --gpkg " +
+                    (out / "tin.gpkg").string() + " --report " + (out / "r.json").string() + " --dem " +
+                    demDir + " --step 1");
+  EXPECT_EQ(m.code, 1) << m.err;
+  EXPECT_NE(m.err.find("tinbuild: error: " + demDir), std::string::npos) << m.err;
+  EXPECT_EQ(listDir(out), before);
+
+  const std::string demTif = (out / "file.txt" / "dem.tif").string();
+  auto t = tinbuild("build " + las + " --dem " + demTif + " --step 1");
+  EXPECT_EQ(t.code, 1) << t.err;
+  EXPECT_NE(t.err.find("tinbuild: error: " + demTif), std::string::npos) << t.err;
+  EXPECT_EQ(listDir(out), before);
+  EXPECT_EQ(slurp((out / "file.txt").string()), "not a directory\n");
+
+  const std::string dem = (out / "dem").string();
+  auto neg = tinbuild("build " + las + " --dem " + dem + " --step -1");
+  EXPECT_EQ(neg.code, 2) << neg.err;
+  EXPECT_NE(neg.err.find("tinbuild: error: --step -1"), std::string::npos) << neg.err;
+  auto abc = tinbuild("build " + las + " --dem " + dem + " --step abc");
+  EXPECT_EQ(abc.code, 2) << abc.err;
+  EXPECT_NE(abc.err.find("tinbuild: error: --step abc"), std::string::npos) << abc.err;
+  auto slope = tinbuild("build " + las + " --mesh " + (out / "tin.ply").string() + " --slope");
+  EXPECT_EQ(slope.code, 2) << slope.err;
+  EXPECT_NE(slope.err.find("--slope"), std::string::npos) << slope.err;
+  auto none = tinbuild("build " + las);
+  EXPECT_EQ(none.code, 2) << none.err;
+  EXPECT_NE(none.err.find("tinbuild: error: "), std::string::npos) << none.err;
+  EXPECT_EQ(listDir(out), before) << "usage errors write nothing";
+}
+
+// Geographic input (degrees) is triangulated in its UTM zone: East Texas, lon -94.68, is zone 15N.
+TEST(CliCrs, GeographicInputGoesToUtm) {
+  TINBUILD_REQUIRE_DATA();
+  TINBUILD_REQUIRE_TOOLS("gdalinfo", "gdalsrsinfo");
+  const auto out = test::scratchDir();
+  const std::string tif = (out / "d.tif").string();
+  auto r = tinbuild("build " + test::dataPath("las/epsg_4326.las") + " --dem " + tif + " --step 1");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("UTM zone 15N"), std::string::npos) << r.err;
+  EXPECT_NE(shell("gdalsrsinfo -o epsg " + tif).find("EPSG:32615"), std::string::npos);
+  const std::string info = shell("gdalinfo " + tif, true);
+  EXPECT_NE(info.find("Pixel Size = (1.000000000000000,-1.000000000000000)"), std::string::npos) << info;
+}
+
+// --t_srs moves every point as PROJ's cs2cs would (to 1 mm), and refuses a geographic target CRS.
+TEST(CliCrs, TsrsRoundTrip) {
+  TINBUILD_REQUIRE_DATA();
+  TINBUILD_REQUIRE_TOOLS("cs2cs");
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/autzen.las");  // EPSG:2994, Oregon Lambert (ft)
+  const std::string t = (out / "t.sma").string(), o = (out / "o.sma").string();
+  auto r = tinbuild("build " + las + " --t_srs EPSG:26910 --mesh " + t + " -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  auto r0 = tinbuild("build " + las + " --mesh " + o + " -q");
+  ASSERT_EQ(r0.code, 0) << r0.err;
+
+  const auto input = smaVertices(o), moved = smaVertices(t);
+  ASSERT_EQ(input.size(), 106u);
+  ASSERT_EQ(moved.size(), input.size());
+  {
+    std::ofstream pts(out / "in.txt");
+    pts.precision(17);
+    for (const auto& p : input) pts << p.x << ' ' << p.y << ' ' << p.z << '\n';
+  }
+  std::istringstream cs(shell("cs2cs -f %.6f EPSG:2994 EPSG:26910 < " + (out / "in.txt").string()));
+  std::vector<Xyz> expected;
+  for (Xyz p{}; cs >> p.x >> p.y >> p.z;) expected.push_back(p);
+  ASSERT_EQ(expected.size(), input.size());
+
+  // Compare as sets in x,y: each expected point has its own vertex within 1 mm.
+  std::vector<bool> used(moved.size(), false);
+  double worst = 0;
+  for (const auto& e : expected) {
+    size_t best = moved.size();
+    double bestD = INFINITY;
+    for (size_t i = 0; i < moved.size(); ++i) {
+      const double d = std::hypot(moved[i].x - e.x, moved[i].y - e.y);
+      if (!used[i] && d < bestD) bestD = d, best = i;
+    }
+    ASSERT_LT(best, moved.size());
+    used[best] = true;
+    worst = std::max(worst, bestD);
+    EXPECT_LT(bestD, 1e-3) << "expected " << e.x << " " << e.y;
+  }
+  EXPECT_LT(worst, 1e-3);
+
+  auto g = tinbuild("build " + las + " --t_srs EPSG:4326 --mesh " + (out / "g.sma").string());
+  EXPECT_EQ(g.code, 2) << g.err;
+  EXPECT_NE(g.err.find("geographic"), std::string::npos) << g.err;
+  EXPECT_FALSE(std::filesystem::exists(out / "g.sma"));
+}
+
+// Inputs in different CRSs are not mixed silently; with --t_srs each is transformed and the run goes on
+// (the two surveys are 2,900 km apart: it still runs).
+TEST(CliCrs, MixedCrsInputsAreRefused) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string a = test::dataPath("las/Megaplot.las");      // EPSG:26917
+  const std::string b = test::dataPath("las/MixedConifer.las");  // EPSG:26912
+  const std::string mesh = (out / "m.smb").string();
+  auto r = tinbuild("build " + a + " " + b + " --mesh " + mesh);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("tinbuild: error: " + b), std::string::npos) << r.err;
+  EXPECT_TRUE(std::filesystem::is_empty(out));
+
+  auto t = tinbuild("build " + a + " " + b + " --t_srs EPSG:26917 --mesh " + mesh + " -q");
+  EXPECT_EQ(t.code, 0) << t.err;
+  EXPECT_TRUE(std::filesystem::exists(mesh));
+}
+
+// A file whose GeoTIFF keys and WKT disagree: a warning normally, an error naming it with --strict-crs.
+TEST(CliCrs, StrictCrs) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/file_with_both_wkt_and_geotiff_vlrs.las");
+  const std::string mesh = (out / "s.smb").string();
+  auto r = tinbuild("build " + las + " --mesh " + mesh);
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("tinbuild: warning: " + las + ": "), std::string::npos) << r.err;
+  EXPECT_TRUE(std::filesystem::exists(mesh));
+  std::filesystem::remove(mesh);
+
+  auto s = tinbuild("build " + las + " --mesh " + mesh + " --strict-crs");
+  EXPECT_EQ(s.code, 1) << s.err;
+  EXPECT_NE(s.err.find("tinbuild: error: " + las + ": "), std::string::npos) << s.err;
+  EXPECT_TRUE(std::filesystem::is_empty(out));
+}
+
+// DISABLED: product bug. With --t_srs equal to the FIRST input's CRS, a later input in another CRS is
+// not transformed at all (its raw UTM 12N coordinates land in the UTM 17N TIN; the report says "no
+// transformation"). The order MixedConifer, Megaplot is handled right and is the oracle here.
+TEST(CliCrs, TsrsEqualToTheFirstInputsCrsStillTransformsTheOthers) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string a = test::dataPath("las/Megaplot.las");      // EPSG:26917
+  const std::string b = test::dataPath("las/MixedConifer.las");  // EPSG:26912
+  const std::string ab = (out / "ab.json").string(), ba = (out / "ba.json").string();
+  ASSERT_EQ(tinbuild("build " + a + " " + b + " --t_srs EPSG:26917 --mesh " + (out / "ab.smb").string() +
+                     " -q --report " + ab)
+                .code,
+            0);
+  ASSERT_EQ(tinbuild("build " + b + " " + a + " --t_srs EPSG:26917 --mesh " + (out / "ba.smb").string() +
+                     " -q --report " + ba)
+                .code,
+            0);
+  const double xba = reportMinX(slurp(ba)), xab = reportMinX(slurp(ab));
+  EXPECT_LT(xba, -2.0e6) << "MixedConifer in UTM 17N lies near x = -2,317,600";
+  EXPECT_NEAR(xab, xba, 1e-3) << "the order of the inputs must not matter";
+}
+
+// DISABLED: product bug. A --report path that cannot be written is only found after the other outputs
+// were committed: exit 1, but the DEM stays (and the summary says it was written).
+TEST(CliBuild, UnwritableReportLeavesNoOutput) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  std::ofstream(out / "file.txt") << "not a directory\n";
+  const std::string report = (out / "file.txt" / "r.json").string();
+  auto r = tinbuild("build " + test::dataPath("las/Megaplot.las") + " --dem " + (out / "dem").string() +
+                    " --step 1 -q --report " + report);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("tinbuild: error: " + report), std::string::npos) << r.err;
+  EXPECT_EQ(listDir(out), std::vector<std::string>{"file.txt"});
 }
 
 }  // namespace
