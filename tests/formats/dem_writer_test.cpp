@@ -354,3 +354,28 @@ TEST(DemWriter, AbandonedWriterLeavesNothing) {
 
 }  // namespace
 }  // namespace tinbuild
+
+namespace tinbuild {
+namespace {
+
+// Every kind of CRS the real files carry comes back out of the GeoTIFF and the GeoPackage raster as an
+// equivalent CRS (OGRSpatialReference::IsSame), vertical part included where the file has one.
+TEST(DemWriter, OutputCrsEqualsTheInputs) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path dir = test::scratchDir();
+  for (const char* f : {"4_6_crop.las", "test1_4.las", "point-version-1-point-wise.las", "autzen_trim.las",
+                        "certainty3d-color-utm-feet-navd88.las", "sample_lareunion_epsg2975.las", "Topography.las"}) {
+    const std::string las = test::dataPath(std::string("las/") + f);
+    const CrsInfo crs = inputCrs(las);
+    ASSERT_FALSE(crs.empty()) << f;
+    const fs::path tif = dir / (std::string(f) + ".tif");
+    const fs::path gpkg = dir / (std::string(f) + ".gpkg");
+    build(las, tif.string(), "2u");
+    build(las, gpkg.string(), "2u");
+    EXPECT_TRUE(sameSrs(readRaster(tif.string()).wkt, crs.wkt)) << f << "\n" << readRaster(tif.string()).wkt;
+    EXPECT_TRUE(sameSrs(readRaster(gpkg.string()).wkt, crs.wkt)) << f;
+  }
+}
+
+}  // namespace
+}  // namespace tinbuild
