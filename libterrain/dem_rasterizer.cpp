@@ -5,6 +5,7 @@
 #include <limits>
 #include <string>
 
+#include "libterrain/delaunay_predicates.h"
 #include "libterrain/error.h"
 #include "libterrain/predicates.h"
 
@@ -52,14 +53,9 @@ std::int64_t lastCentreAtOrBefore(double origin, double step, double v) {
 }
 
 // Does the counter-clockwise edge u -> v include p?  Strictly left: yes; exactly on the line: by the
-// (eps, eps^2) rule of the header.  A double filter first, the exact predicate when it cannot decide.
+// (eps, eps^2) rule of the header.  The triangulator's inline orient front end: orient2d's exact sign.
 inline bool edgeIncludes(const Point2& u, const Point2& v, const Point2& p) {
-  const double l = (u.x - p.x) * (v.y - p.y);
-  const double r = (u.y - p.y) * (v.x - p.x);
-  const double det = l - r;
-  const double bound = kOrientErrorBound * (std::fabs(l) + std::fabs(r));
-  double sign = det;
-  if (!(det > bound || -det > bound)) sign = orient2d(u, v, p);
+  const double sign = delaunay::orient(u, v, p);
   if (sign > 0) return true;
   if (sign < 0) return false;
   return v.y < u.y || (v.y == u.y && v.x > u.x);
