@@ -62,15 +62,21 @@ std::vector<int> parseClassList(const std::string& option, const std::string& li
   return codes;
 }
 
-ClipRect parseClip(const std::string& text, const std::string& option = "--clip") {
+// "a,b,..." -> exactly N finite numbers into v; false when the text is anything else.
+template <std::size_t N>
+bool parseNumbers(const std::string& text, double (&v)[N]) {
   const auto parts = splitList(text);
-  double v[4] = {};
-  bool ok = parts.size() == 4;
-  for (std::size_t i = 0; ok && i < 4; ++i) {
+  if (parts.size() != N) return false;
+  for (std::size_t i = 0; i < N; ++i) {
     auto [p, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
-    ok = ec == std::errc() && p == parts[i].data() + parts[i].size() && std::isfinite(v[i]);
+    if (ec != std::errc() || p != parts[i].data() + parts[i].size() || !std::isfinite(v[i])) return false;
   }
-  if (!ok || !(v[0] < v[2]) || !(v[1] < v[3]))
+  return true;
+}
+
+ClipRect parseClip(const std::string& text, const std::string& option = "--clip") {
+  double v[4] = {};
+  if (!parseNumbers(text, v) || !(v[0] < v[2]) || !(v[1] < v[3]))
     throw UsageError(option + " expects xmin,ymin,xmax,ymax with xmin < xmax and ymin < ymax, got '" + text +
                      "'");
   return ClipRect{v[0], v[1], v[2], v[3]};
@@ -224,14 +230,8 @@ int runTriangulateCommand(const cli::ParsedArgs& args) {
 
 // "a,b" -> two finite numbers.
 std::pair<double, double> parsePair(const std::string& option, const std::string& text) {
-  const auto parts = splitList(text);
   double v[2] = {};
-  bool ok = parts.size() == 2;
-  for (std::size_t i = 0; ok && i < 2; ++i) {
-    auto [p, ec] = std::from_chars(parts[i].data(), parts[i].data() + parts[i].size(), v[i]);
-    ok = ec == std::errc() && p == parts[i].data() + parts[i].size() && std::isfinite(v[i]);
-  }
-  if (!ok) throw UsageError(option + " expects two numbers X,Y, got '" + text + "'");
+  if (!parseNumbers(text, v)) throw UsageError(option + " expects two numbers X,Y, got '" + text + "'");
   return {v[0], v[1]};
 }
 
