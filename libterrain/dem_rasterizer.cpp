@@ -108,7 +108,8 @@ struct DemRasterizer::Open {
   std::uint64_t dataPixels = 0;  // pixels with data in any band
 };
 
-DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out) : opt_(options), out_(out) {}
+DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out)
+    : opt_(options), out_(out), tracker_(options) {}
 DemRasterizer::~DemRasterizer() = default;
 
 std::int64_t DemRasterizer::tileKey(std::int64_t tx, std::int64_t ty) const {
@@ -120,7 +121,6 @@ void DemRasterizer::begin(const MeshInfo& info) {
   stats_ = DemStats{};
   open_.clear();
   done_.clear();
-  emittedSinceCheck_ = 0;
   const std::int64_t T = layout_.tileSize;
   if (layout_.width() > 0) {
     firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
@@ -191,7 +191,6 @@ void DemRasterizer::vertex(const MeshVertex& v) {
 }
 
 void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
-  ++emittedSinceCheck_;
   if (tilesX_ == 0) return;
   const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
   const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
@@ -278,11 +277,11 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
 }
 
 void DemRasterizer::complete(std::int64_t key) {
+  done_.insert(key);
   auto it = open_.find(key);
   if (it == open_.end()) return;
   std::unique_ptr<Open> o = std::move(it->second);
   open_.erase(it);
-  done_.insert(key);
   if (o->dataPixels == 0) {
     ++stats_.tilesEmpty;
     return;
@@ -291,29 +290,97 @@ void DemRasterizer::complete(std::int64_t key) {
   ++stats_.tilesWritten;
 }
 
-void DemRasterizer::checkpoint(const ActiveRegion& region) {
-  if (!opt_.streaming || open_.empty()) return;
+void DemRasterizer::areasComplete(const std::int64_t* keys, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) {
+    if (open_.count(keys[i])) ++stats_.tilesCompletedEarly;
+    complete(keys[i]);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// DemTileTracker
+
+void DemTileTracker::begin(const MeshInfo& info) {
+  layout_ = demLayout(opt_, info.bounds);
+  touched_.clear();
+  lastKey_ = -1;
+  emittedSinceCheck_ = scans_ = 0;
+  const std::int64_t T = layout_.tileSize;
+  if (layout_.width() > 0) {
+    firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
+    firstTy_ = floorDiv(layout_.rowMin - layout_.tileRow0, T);
+    tilesX_ = floorDiv(layout_.colMax - layout_.tileCol0, T) - firstTx_ + 1;
+    tilesY_ = floorDiv(layout_.rowMax - layout_.tileRow0, T) - firstTy_ + 1;
+  } else {
+    tilesX_ = tilesY_ = 0;
+  }
+}
+
+void DemTileTracker::touch(std::int64_t txMin, std::int64_t txMax, std::int64_t tyMin, std::int64_t tyMax) {
+  for (std::int64_t ty = tyMin; ty <= tyMax; ++ty)
+    for (std::int64_t tx = txMin; tx <= txMax; ++tx) {
+      const std::int64_t key = (ty - firstTy_) * tilesX_ + (tx - firstTx_);
+      if (key == lastKey_) continue;  // the common case: the same tile as the previous triangle
+      touched_.insert(key);
+      lastKey_ = key;
+    }
+}
+
+void DemTileTracker::vertex(const MeshVertex& v) {
+  if (!opt_.count || tilesX_ == 0) return;
+  const std::int64_t i = pixelOf(layout_.originX, layout_.step, v.x);
+  const std::int64_t j = pixelOf(layout_.originY, layout_.step, v.y);
+  if (i < layout_.colMin || i > layout_.colMax || j < layout_.rowMin || j > layout_.rowMax) return;
+  const std::int64_t T = layout_.tileSize;
+  const std::int64_t tx = floorDiv(i - layout_.tileCol0, T), ty = floorDiv(j - layout_.tileRow0, T);
+  touch(tx, tx, ty, ty);
+}
+
+void DemTileTracker::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
+  ++emittedSinceCheck_;
+  if (tilesX_ == 0) return;
+  // The pixel centres inside the triangle's bounding box, as the rasterizer computes them.
+  const DemLayout& L = layout_;
+  const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
+  const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
+  const std::int64_t i0 = std::max(L.colMin, firstCentreAtOrAfter(L.originX, L.step, x0));
+  const std::int64_t i1 = std::min(L.colMax, lastCentreAtOrBefore(L.originX, L.step, x1));
+  if (i0 > i1) return;
+  const std::int64_t j0 = std::max(L.rowMin, firstCentreAtOrAfter(L.originY, L.step, y0));
+  const std::int64_t j1 = std::min(L.rowMax, lastCentreAtOrBefore(L.originY, L.step, y1));
+  if (j0 > j1) return;
+  const std::int64_t T = L.tileSize;
+  touch(floorDiv(i0 - L.tileCol0, T), floorDiv(i1 - L.tileCol0, T), floorDiv(j0 - L.tileRow0, T),
+        floorDiv(j1 - L.tileRow0, T));
+}
+
+void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int64_t>& complete) {
+  if (!opt_.streaming || touched_.empty()) return;
   if (emittedSinceCheck_ < std::max<std::uint64_t>(4096, region.activeTriangles())) return;
   emittedSinceCheck_ = 0;
-  std::vector<Box2> boxes;
-  std::vector<std::int64_t> keys;
-  boxes.reserve(open_.size());
-  for (const auto& [key, o] : open_) {
-    const DemTile& t = o->tile;
-    boxes.push_back(Box2{gridLine(layout_.originX, layout_.step, t.col0),
-                         gridLine(layout_.originY, layout_.step, t.row0),
-                         gridLine(layout_.originX, layout_.step, t.col0 + t.width),
-                         gridLine(layout_.originY, layout_.step, t.row0 + t.height)});
-    keys.push_back(key);
+  boxes_.clear();
+  keys_.clear();
+  const std::int64_t T = layout_.tileSize;
+  for (const std::int64_t key : touched_) {
+    const std::int64_t tx = firstTx_ + key % tilesX_, ty = firstTy_ + key / tilesX_;
+    const std::int64_t c0 = layout_.tileCol0 + tx * T, r0 = layout_.tileRow0 + ty * T;
+    const std::int64_t col0 = std::max(c0, layout_.colMin), row0 = std::max(r0, layout_.rowMin);
+    const std::int64_t col1 = std::min(c0 + T - 1, layout_.colMax), row1 = std::min(r0 + T - 1, layout_.rowMax);
+    boxes_.push_back(Box2{gridLine(layout_.originX, layout_.step, col0),
+                          gridLine(layout_.originY, layout_.step, row0),
+                          gridLine(layout_.originX, layout_.step, col1 + 1),
+                          gridLine(layout_.originY, layout_.step, row1 + 1)});
+    keys_.push_back(key);
   }
-  std::unique_ptr<bool[]> isOpen(new bool[boxes.size()]());
-  region.markOpen(boxes.data(), boxes.size(), isOpen.get());
-  ++stats_.openChecks;
-  for (std::size_t i = 0; i < keys.size(); ++i)
+  std::unique_ptr<bool[]> isOpen(new bool[boxes_.size()]());
+  region.markOpen(boxes_.data(), boxes_.size(), isOpen.get());
+  ++scans_;
+  for (std::size_t i = 0; i < keys_.size(); ++i)
     if (!isOpen[i]) {
-      complete(keys[i]);
-      ++stats_.tilesCompletedEarly;
+      complete.push_back(keys_[i]);
+      touched_.erase(keys_[i]);
     }
+  lastKey_ = -1;
 }
 
 void DemRasterizer::end() {

@@ -29,10 +29,13 @@
 // count.
 //
 // Tile lifecycle: open -> complete -> handed to the DemTileSink -> freed.  A tile opens when the first
-// triangle or vertex touches it.  At each MeshSink checkpoint (mesh_tee.h) the open tiles' full pixel
-// areas are tested against the active triangles (amortized: only after as many triangles have been
-// written as are active, so the cost is O(1) per triangle); a tile no active triangle or ghost can meet is
-// complete: every triangle that will ever cover it has been written.  A write into a completed tile would
+// triangle or vertex touches it.  At each MeshSink checkpoint (mesh_tee.h) the DemTileTracker tests the
+// full pixel areas of the tiles touched so far against the active triangles (amortized: only after as
+// many triangles have been written as are active, so the cost is O(1) per triangle); a tile no active
+// triangle or ghost can meet is complete: every triangle that will ever cover it has been written.  The
+// tracker runs on the triangulator's thread and the rasterizer may run on a writer thread; the decisions
+// reach the rasterizer in stream order, so the tiles (and a single file's block order) are the same with
+// any number of threads.  A write into a completed tile would
 // prove that rule wrong; it throws Error instead of producing a torn raster.  Tiles with no valid pixel
 // are dropped (not written).  end() completes the rest in row-major order.
 #pragma once
@@ -41,6 +44,7 @@
 #include <map>
 #include <memory>
 #include <optional>
+#include <set>
 #include <string>
 #include <unordered_set>
 #include <vector>
@@ -116,6 +120,33 @@ struct DemStats {
 // tile size or extent, or a raster beyond 2^31 pixels a side.
 DemLayout demLayout(const DemOptions& options, const Bounds3& dataBounds);
 
+// The rasterizer's checkpoint agent (mesh_tee.h): decides, beside the triangulator, which tiles are
+// complete.  It keeps the set of tiles that the bounding box of a triangle (or, with the count band, a
+// vertex) has touched -- a superset of the tiles the rasterizer has open -- and at a checkpoint, after
+// max(4096, active triangles) triangles since the last scan, asks the active region which of them may
+// still be reached.  The others are complete; their keys (ascending) go to DemRasterizer::areasComplete.
+class DemTileTracker : public CheckpointAgent {
+ public:
+  explicit DemTileTracker(const DemOptions& options) : opt_(options) {}
+  void begin(const MeshInfo& info) override;
+  void vertex(const MeshVertex& v) override;
+  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override;
+  void checkpoint(const ActiveRegion& region, std::vector<std::int64_t>& complete) override;
+  std::uint64_t scans() const { return scans_; }
+  std::size_t candidates() const { return touched_.size(); }
+
+ private:
+  void touch(std::int64_t txMin, std::int64_t txMax, std::int64_t tyMin, std::int64_t tyMax);
+  DemOptions opt_;
+  DemLayout layout_;
+  std::int64_t tilesX_ = 0, tilesY_ = 0, firstTx_ = 0, firstTy_ = 0;
+  std::set<std::int64_t> touched_;
+  std::int64_t lastKey_ = -1;
+  std::uint64_t emittedSinceCheck_ = 0, scans_ = 0;
+  std::vector<Box2> boxes_;
+  std::vector<std::int64_t> keys_;
+};
+
 class DemRasterizer : public TriangleSink {
  public:
   DemRasterizer(const DemOptions& options, DemTileSink& out);
@@ -123,9 +154,15 @@ class DemRasterizer : public TriangleSink {
   void begin(const MeshInfo& info) override;
   void vertex(const MeshVertex& v) override;
   void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override;
-  void checkpoint(const ActiveRegion& region) override;
+  CheckpointAgent* agent() override { return &tracker_; }
+  void areasComplete(const std::int64_t* keys, std::size_t n) override;
   void end() override;
-  const DemStats& stats() const { return stats_; }
+  // Valid after end() (or between calls on the rasterizer's thread).
+  DemStats stats() const {
+    DemStats s = stats_;
+    s.openChecks = tracker_.scans();
+    return s;
+  }
   const DemLayout& layout() const { return layout_; }
 
  private:
@@ -141,7 +178,7 @@ class DemRasterizer : public TriangleSink {
   std::int64_t tilesX_ = 0, tilesY_ = 0, firstTx_ = 0, firstTy_ = 0;
   std::map<std::int64_t, std::unique_ptr<Open>> open_;
   std::unordered_set<std::int64_t> done_;
-  std::uint64_t emittedSinceCheck_ = 0;
+  DemTileTracker tracker_;
   double lightX_ = 0, lightY_ = 0, lightZ_ = 0;
   bool begun_ = false;
 };

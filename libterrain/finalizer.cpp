@@ -231,7 +231,7 @@ class TempFile {
 
 class Progress {
  public:
-  Progress(ProgressFunc f, void* data) : f_(f), data_(data) {}
+  Progress(ProgressFunc f, void* data, ProgressCounts* counts) : f_(f), data_(data), counts_(counts) {}
   void stage(double from, double to, std::uint64_t expected, const char* message) {
     from_ = from;
     to_ = to;
@@ -243,15 +243,18 @@ class Progress {
     if (!f_) return;
     const double t = std::min(1.0, static_cast<double>(done) / static_cast<double>(expected_));
     last_ = std::max(last_, from_ + (to_ - from_) * t);
+    if (counts_) *counts_ = ProgressCounts{done, expected_};
     if (!f_(last_, message_, data_)) throw CancelledError();
   }
+  // After the sink's end(): the outputs are committed, so a late cancellation no longer applies.
   void finish() {
-    if (f_ && !f_(1.0, "finalized", data_)) throw CancelledError();
+    if (f_) f_(1.0, "done", data_);
   }
 
  private:
   ProgressFunc f_;
   void* data_;
+  ProgressCounts* counts_;
   double from_ = 0, to_ = 1, last_ = 0;
   std::uint64_t expected_ = 1;
   const char* message_ = "";
@@ -373,11 +376,13 @@ class Prefetcher {
     Bounds3 bounds;          // of the batch's points (computed on the reading thread)
   };
 
-  explicit Prefetcher(Sources& sources) : sources_(sources) {
+  // background = false reads each batch on the caller's thread when it is asked for (no thread).
+  Prefetcher(Sources& sources, bool background) : sources_(sources), background_(background) {
     for (auto& slot : slots_) slot.points.resize(kBatch);
-    thread_ = std::thread([this] { run(); });
+    if (background_) thread_ = std::thread([this] { run(); });
   }
   ~Prefetcher() {
+    if (!background_) return;
     {
       std::lock_guard lock(mutex_);
       stop_ = true;
@@ -390,6 +395,13 @@ class Prefetcher {
 
   // The next batch (n == 0 at the end of the pass); the previous batch's memory is reused.
   Batch next() {
+    if (!background_) {
+      Slot& slot = slots_[0];
+      slot.n = sources_.next(slot.points.data(), counts_);
+      Bounds3 b;
+      for (std::size_t i = 0; i < slot.n; ++i) b.add(slot.points[i].x, slot.points[i].y, slot.points[i].z);
+      return {slot.points.data(), slot.n, counts_.read, sources_.current(), b};
+    }
     std::unique_lock lock(mutex_);
     if (holding_) {
       holding_ = false;
@@ -451,6 +463,7 @@ class Prefetcher {
   }
 
   Sources& sources_;
+  bool background_;
   std::array<Slot, kSlots> slots_;
   FilterCounts counts_;
   std::mutex mutex_;
@@ -606,7 +619,7 @@ class Finalizer {
         out_(out),
         diag_(diag),
         sources_(inputs, options),
-        progress_(options.progress, options.progressData) {
+        progress_(options.progress, options.progressData, options.progressCounts) {
     if (inputs.empty()) throw Error("finalizer: no inputs");
     if (options.depth > kMaxDepth) throw UsageError("--depth must be at most " + std::to_string(kMaxDepth));
     budgetBlocks_ = std::max<std::size_t>(options.memoryBudget / BlockPool::kBlockBytes, 4);
@@ -632,7 +645,7 @@ class Finalizer {
       Bounds3 b;
       std::uint64_t n = 0;
       {
-        Prefetcher reader(sources_);
+        Prefetcher reader(sources_, options_.readAhead);
         for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
           b.add(batch.bounds);
           n += batch.n;
@@ -743,7 +756,7 @@ class Finalizer {
     std::uint32_t memo = kNone;
     std::uint64_t ordinal = 0;
     Bounds3 b;
-    Prefetcher reader(sources_);
+    Prefetcher reader(sources_, options_.readAhead);
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       b.add(batch.bounds);
       for (std::size_t i = 0; i < batch.n; ++i) {
@@ -934,7 +947,7 @@ class Finalizer {
     std::uint64_t memoKey = ~std::uint64_t{0};
     std::uint32_t memo = kNone;
     std::uint64_t ordinal = 0;
-    Prefetcher reader(sources_);
+    Prefetcher reader(sources_, options_.readAhead);
     std::size_t input = 0;
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       input = batch.input;
@@ -958,6 +971,7 @@ class Finalizer {
       progress_.update(ordinal);
     }
     if (ordinal != stats_.points || released_ != leaves_.size()) throw changedInput(input);
+    progress_.update(ordinal);  // the last chance to cancel before the outputs are committed
     out_.end();
     stats_.peakPoolBytes = pool_.peak() * BlockPool::kBlockBytes;
   }

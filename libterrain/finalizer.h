@@ -96,13 +96,11 @@
 #include "libterrain/point_filter.h"
 #include "libterrain/point_sink.h"
 #include "libterrain/point_stream.h"
+#include "libterrain/progress.h"
 
 namespace tinbuild {
 
 class Diagnostics;
-
-// GDAL's progress convention: complete in [0, 1]; return 0 to cancel.
-using ProgressFunc = int (*)(double complete, const char* message, void* data);
 
 struct FinalizerOptions {
   int depth = -1;                                     // -1: chosen from the data; else 0..15
@@ -116,8 +114,12 @@ struct FinalizerOptions {
   std::string crsWkt;                // copied into StreamInfo
   double scale[3] = {0, 0, 0};       // copied into StreamInfo
   std::vector<std::string> inputNames;  // names for messages, parallel to the inputs ("" = "input N")
-  ProgressFunc progress = nullptr;
+  ProgressFunc progress = nullptr;  // GDAL's convention (progress.h); 0 = cancel
   void* progressData = nullptr;
+  ProgressCounts* progressCounts = nullptr;  // filled before each progress call (points of the pass)
+  // Read the next batches on a background thread while the current one is worked on (false: everything
+  // on the calling thread, for --threads 1).  The sequence of points is the same either way.
+  bool readAhead = true;
 };
 
 struct FinalizerStats {

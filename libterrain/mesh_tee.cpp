@@ -1,6 +1,11 @@
 #include "libterrain/mesh_tee.h"
 
+#include <condition_variable>
+#include <deque>
+#include <exception>
+#include <mutex>
 #include <string>
+#include <thread>
 
 #include "libterrain/error.h"
 
@@ -69,44 +74,214 @@ void VertexTable::erase(std::uint64_t id) {
   --size_;
 }
 
+// ---------------------------------------------------------------------------------------------------
+// MeshTee: events, the batch queue and the writer thread.
+
+struct MeshTee::Event {
+  enum Kind : std::uint8_t { kVertex, kTriangle, kFinalize, kComplete };
+  Kind kind = kVertex;
+  std::uint32_t sink = 0;  // kComplete: the triangle sink the keys are for
+  MeshVertex v[3];         // kVertex: v[0]; kTriangle: the corners (ids inside); kFinalize: v[0].id;
+                           // kComplete: keys [v[0].id, v[1].id) of the batch's key list
+};
+
+struct MeshTee::Batch {
+  std::vector<Event> events;
+  std::vector<std::int64_t> keys;
+};
+
+class MeshTee::Writer {
+ public:
+  static constexpr std::size_t kBatchEvents = 4096, kMaxQueued = 8;
+  explicit Writer(MeshTee& tee) : tee_(tee), thread_([this] { run(); }) {}
+  ~Writer() {
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  // Queues a full batch (blocks while the queue is full); rethrows an output's exception.
+  void push(std::unique_ptr<Batch> batch) {
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return queue_.size() < kMaxQueued || error_; });
+    if (error_) std::rethrow_exception(error_);
+    queue_.push_back(std::move(batch));
+    changed_.notify_all();
+  }
+  // Waits until everything queued has been applied, stops the thread, rethrows an output's exception.
+  void finish() {
+    std::unique_lock lock(mutex_);
+    changed_.wait(lock, [&] { return (queue_.empty() && !busy_) || error_; });
+    if (error_) std::rethrow_exception(error_);
+  }
+  // A used batch for the producer to fill again (saves reallocating the vectors).
+  std::unique_ptr<Batch> recycled() {
+    std::lock_guard lock(mutex_);
+    if (spare_.empty()) return std::make_unique<Batch>();
+    auto b = std::move(spare_.back());
+    spare_.pop_back();
+    return b;
+  }
+
+ private:
+  void run() {
+    for (;;) {
+      std::unique_ptr<Batch> batch;
+      {
+        std::unique_lock lock(mutex_);
+        changed_.wait(lock, [&] { return stop_ || !queue_.empty(); });
+        if (stop_ || error_) return;
+        batch = std::move(queue_.front());
+        queue_.pop_front();
+        busy_ = true;
+      }
+      changed_.notify_all();
+      std::exception_ptr error;
+      try {
+        for (const Event& e : batch->events) tee_.apply(e, batch->keys);
+      } catch (...) {
+        error = std::current_exception();
+      }
+      batch->events.clear();
+      batch->keys.clear();
+      {
+        std::lock_guard lock(mutex_);
+        busy_ = false;
+        if (error) error_ = error;
+        if (spare_.size() < 2) spare_.push_back(std::move(batch));
+      }
+      changed_.notify_all();
+      if (error) return;
+    }
+  }
+
+  MeshTee& tee_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::deque<std::unique_ptr<Batch>> queue_;
+  std::vector<std::unique_ptr<Batch>> spare_;
+  bool stop_ = false, busy_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;  // last: started once everything above exists
+};
+
+MeshTee::MeshTee() : batch_(std::make_unique<Batch>()) {}
+MeshTee::~MeshTee() = default;  // a writer still running (the run failed) is stopped, its queue dropped
+
+void MeshTee::apply(const Event& e, const std::vector<std::int64_t>& keys) {
+  switch (e.kind) {
+    case Event::kVertex:
+      for (auto* s : meshSinks_) s->vertex(e.v[0].id, e.v[0].x, e.v[0].y, e.v[0].z);
+      for (auto* s : triangleSinks_) s->vertex(e.v[0]);
+      break;
+    case Event::kTriangle:
+      for (auto* s : meshSinks_) s->triangle(e.v[0].id, e.v[1].id, e.v[2].id);
+      for (auto* s : triangleSinks_) s->triangle(e.v[0], e.v[1], e.v[2]);
+      break;
+    case Event::kFinalize:
+      for (auto* s : meshSinks_) s->finalizeVertex(e.v[0].id);
+      break;
+    case Event::kComplete:
+      triangleSinks_[e.sink]->areasComplete(keys.data() + e.v[0].id,
+                                            static_cast<std::size_t>(e.v[1].id - e.v[0].id));
+      break;
+  }
+}
+
+void MeshTee::emit(const Event& e) {
+  if (!writer_) {
+    apply(e, batch_->keys);
+    return;
+  }
+  batch_->events.push_back(e);
+  if (batch_->events.size() >= Writer::kBatchEvents) {
+    writer_->push(std::move(batch_));
+    batch_ = writer_->recycled();
+  }
+}
+
 void MeshTee::begin(const MeshInfo& info) {
+  writer_.reset();
+  batch_ = std::make_unique<Batch>();
   vertices_ = VertexTable();
   for (auto* s : meshSinks_) s->begin(info);
-  for (auto* s : triangleSinks_) s->begin(info);
+  for (auto* s : triangleSinks_) {
+    s->begin(info);
+    if (auto* a = s->agent()) a->begin(info);
+  }
+  if (threaded_ && !empty()) writer_ = std::make_unique<Writer>(*this);
 }
 
 void MeshTee::vertex(std::uint64_t id, double x, double y, double z) {
-  for (auto* s : meshSinks_) s->vertex(id, x, y, z);
+  Event e;
+  e.kind = Event::kVertex;
+  e.v[0] = MeshVertex{id, x, y, z};
   if (!triangleSinks_.empty()) {
-    const MeshVertex v{id, x, y, z};
-    vertices_.insert(v);
-    for (auto* s : triangleSinks_) s->vertex(v);
+    vertices_.insert(e.v[0]);
+    for (auto* s : triangleSinks_)
+      if (auto* a = s->agent()) a->vertex(e.v[0]);
   }
+  emit(e);
 }
 
 void MeshTee::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
-  for (auto* s : meshSinks_) s->triangle(a, b, c);
+  Event e;
+  e.kind = Event::kTriangle;
   if (!triangleSinks_.empty()) {
-    const MeshVertex& va = vertices_.at(a);
-    const MeshVertex& vb = vertices_.at(b);
-    const MeshVertex& vc = vertices_.at(c);
-    for (auto* s : triangleSinks_) s->triangle(va, vb, vc);
+    e.v[0] = vertices_.at(a);
+    e.v[1] = vertices_.at(b);
+    e.v[2] = vertices_.at(c);
+    for (auto* s : triangleSinks_)
+      if (auto* ag = s->agent()) ag->triangle(e.v[0], e.v[1], e.v[2]);
+  } else {
+    e.v[0].id = a;
+    e.v[1].id = b;
+    e.v[2].id = c;
   }
+  emit(e);
 }
 
 void MeshTee::finalizeVertex(std::uint64_t id) {
-  for (auto* s : meshSinks_) s->finalizeVertex(id);
+  Event e;
+  e.kind = Event::kFinalize;
+  e.v[0].id = id;
+  if (!meshSinks_.empty()) emit(e);
   if (!triangleSinks_.empty()) vertices_.erase(id);
 }
 
 void MeshTee::checkpoint(const ActiveRegion& region) {
-  for (auto* s : meshSinks_) s->checkpoint(region);
-  for (auto* s : triangleSinks_) s->checkpoint(region);
+  for (std::size_t i = 0; i < triangleSinks_.size(); ++i) {
+    CheckpointAgent* a = triangleSinks_[i]->agent();
+    if (!a) continue;
+    keys_.clear();
+    a->checkpoint(region, keys_);
+    if (keys_.empty()) continue;
+    Event e;
+    e.kind = Event::kComplete;
+    e.sink = static_cast<std::uint32_t>(i);
+    e.v[0].id = batch_->keys.size();
+    batch_->keys.insert(batch_->keys.end(), keys_.begin(), keys_.end());
+    e.v[1].id = batch_->keys.size();
+    emit(e);
+    if (!writer_) batch_->keys.clear();
+  }
 }
 
 void MeshTee::end() {
-  for (auto* s : meshSinks_) s->end();
+  if (writer_) {
+    if (!batch_->events.empty()) writer_->push(std::move(batch_));
+    batch_ = std::make_unique<Batch>();
+    writer_->finish();
+    writer_.reset();
+  }
+  // The outputs that take longest to finish (spatial index, last tiles, VRTs) go first; a cancellation
+  // asked for meanwhile is honoured before the mesh files are renamed.
+  if (progress_ && !progress_(1.0, "finishing outputs", progressData_)) throw CancelledError();
   for (auto* s : triangleSinks_) s->end();
+  if (progress_ && !progress_(1.0, "finishing outputs", progressData_)) throw CancelledError();
+  for (auto* s : meshSinks_) s->end();
 }
 
 }  // namespace tinbuild

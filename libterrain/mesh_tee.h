@@ -19,9 +19,11 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <vector>
 
 #include "libterrain/mesh_sink.h"
+#include "libterrain/progress.h"
 
 namespace tinbuild {
 
@@ -46,6 +48,21 @@ class ActiveRegion {
   virtual std::uint64_t activeTriangles() const = 0;
 };
 
+// The part of a TriangleSink that must run beside the triangulator: it sees the same vertices and
+// triangles (in the same order) and answers checkpoints with the keys of the areas (e.g. DEM tiles) that
+// are complete now.  The MeshTee delivers those keys to the sink's areasComplete() at that point of the
+// stream, so the sink sees the same sequence whether it runs on the triangulator's thread or on a writer
+// thread, and its output cannot depend on thread timing.
+class CheckpointAgent {
+ public:
+  virtual ~CheckpointAgent() = default;
+  virtual void begin(const MeshInfo& info) = 0;
+  virtual void vertex(const MeshVertex& v) { (void)v; }
+  virtual void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) = 0;
+  // Appends the keys of the areas no later triangle can reach (each key at most once per call).
+  virtual void checkpoint(const ActiveRegion& region, std::vector<std::int64_t>& complete) = 0;
+};
+
 class TriangleSink {
  public:
   virtual ~TriangleSink() = default;
@@ -54,7 +71,13 @@ class TriangleSink {
   virtual void vertex(const MeshVertex& v) { (void)v; }
   // Counter-clockwise in xy.
   virtual void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) = 0;
-  virtual void checkpoint(const ActiveRegion& region) { (void)region; }
+  // The sink's checkpoint agent (nullptr: it keeps no per-area state).
+  virtual CheckpointAgent* agent() { return nullptr; }
+  // The agent's decision at a checkpoint, in stream order.
+  virtual void areasComplete(const std::int64_t* keys, std::size_t n) {
+    (void)keys;
+    (void)n;
+  }
   // Called once after the last triangle; an output commits (renames its files) here.
   virtual void end() = 0;
 };
@@ -81,11 +104,30 @@ class VertexTable {
   std::size_t mask_ = 0, size_ = 0;
 };
 
+// Threads.  By default every output runs on the caller's (the triangulator's) thread.  setThreaded(true)
+// moves them to one writer thread behind a bounded queue of event batches: the triangulator's thread then
+// only resolves coordinates and runs the checkpoint agents (cheap); encoding, rasterizing and writing
+// happen beside it.  Each output sees exactly the same sequence of calls in both modes.  Outputs' begin()
+// and end() run on the caller's thread (so the files are created and committed there), the rest on the
+// writer thread.  An exception thrown by an output is rethrown to the caller at its next call.
 class MeshTee : public MeshSink {
  public:
+  MeshTee();
+  ~MeshTee() override;
+  MeshTee(const MeshTee&) = delete;
+  MeshTee& operator=(const MeshTee&) = delete;
+
   void add(MeshSink& sink) { meshSinks_.push_back(&sink); }
   void add(TriangleSink& sink) { triangleSinks_.push_back(&sink); }
   bool empty() const { return meshSinks_.empty() && triangleSinks_.empty(); }
+  // Call before begin().
+  void setThreaded(bool threaded) { threaded_ = threaded; }
+  // Asked (complete = 1) before the outputs are finished and committed at end(); returning 0 cancels
+  // (CancelledError, nothing is committed).
+  void setProgress(ProgressFunc progress, void* data) {
+    progress_ = progress;
+    progressData_ = data;
+  }
 
   void begin(const MeshInfo& info) override;
   void vertex(std::uint64_t id, double x, double y, double z) override;
@@ -95,9 +137,21 @@ class MeshTee : public MeshSink {
   void end() override;
 
  private:
+  struct Event;
+  struct Batch;
+  class Writer;
+  void emit(const Event& e);
+  void apply(const Event& e, const std::vector<std::int64_t>& keys);
+
   std::vector<MeshSink*> meshSinks_;
   std::vector<TriangleSink*> triangleSinks_;
   VertexTable vertices_;
+  bool threaded_ = false;
+  ProgressFunc progress_ = nullptr;
+  void* progressData_ = nullptr;
+  std::unique_ptr<Batch> batch_;     // being filled (threaded) or the keys of the current event
+  std::unique_ptr<Writer> writer_;   // the writer thread (threaded mode, between begin and end)
+  std::vector<std::int64_t> keys_;   // scratch for the agents' answers
 };
 
 }  // namespace tinbuild
