@@ -113,6 +113,7 @@ struct DemWriter::Impl {
   DemTarget target = DemTarget::TileDirectory;
   DemLayout layout;
   std::string stagingDir;
+  std::string createdDir;  // the DEM directory, when this writer created it
   std::vector<Band> bands;
   std::string srsWkt;  // as GDAL wants it (WKT2), empty = no CRS
   bool committed = false;
@@ -131,6 +132,10 @@ struct DemWriter::Impl {
     if (!stagingDir.empty()) {
       std::error_code ec;
       fs::remove_all(stagingDir, ec);
+    }
+    if (!createdDir.empty()) {
+      std::error_code ec;
+      fs::remove(createdDir, ec);  // only when empty: the directory this run created for the DEM
     }
   }
 
@@ -232,6 +237,7 @@ DemWriter::DemWriter(const DemWriterOptions& options) : impl_(std::make_unique<I
   Impl& m = *impl_;
   if (m.target == DemTarget::TileDirectory) {
     std::error_code ec;
+    if (!fs::exists(options.path, ec)) m.createdDir = options.path;
     fs::create_directories(options.path, ec);
     if (ec || !fs::is_directory(options.path))
       throw DataError(options.path, "cannot create the DEM directory" + (ec ? ": " + ec.message() : ""));
@@ -243,11 +249,10 @@ DemWriter::DemWriter(const DemWriterOptions& options) : impl_(std::make_unique<I
                       std::string("cannot write in the DEM directory: ") + std::strerror(errno));
     m.stagingDir = buf.data();
   } else {
-    const fs::path p(options.path);
-    const std::string stem = (p.parent_path() / p.stem()).string();
-    for (Band& b : m.bands) {
-      b.finalPath = b.kind == kZ ? options.path : stem + "_" + kBandName[b.kind] + ".tif";
-      b.tempPath = temporaryBeside(b.finalPath);
+    const std::vector<std::string> paths = demOutputPaths(options);
+    for (std::size_t i = 0; i < m.bands.size(); ++i) {
+      m.bands[i].finalPath = paths.at(i);
+      m.bands[i].tempPath = temporaryBeside(m.bands[i].finalPath);
     }
   }
 }
@@ -315,17 +320,50 @@ void DemWriter::tile(const DemTile& t) {
   }
 }
 
+// DIR after --overwrite: a tile or mosaic named like ours that this run did not write is an earlier
+// run's; it goes, so DIR holds one DEM.  Other files are left alone.
+void DemWriter::removeStaleFiles(const std::string& dir, const std::set<std::string>& ours) {
+  std::error_code ec;
+  for (const auto& entry : fs::directory_iterator(dir, ec)) {
+    if (!entry.is_regular_file(ec)) continue;
+    const std::string name = entry.path().filename().string();
+    if (ours.count(name)) continue;
+    bool looksOurs = name == "mosaic.vrt";
+    for (const char* band : kBandName) {
+      const std::string b = band;
+      if (name == b + ".vrt" ||
+          (name.size() > b.size() + 5 && name.compare(0, b.size() + 1, b + "_") == 0 &&
+           name.compare(name.size() - 4, 4, ".tif") == 0))
+        looksOurs = true;
+    }
+    if (looksOurs) fs::remove(entry.path(), ec);
+  }
+}
+
+std::vector<std::string> demOutputPaths(const DemWriterOptions& o) {
+  if (demTargetForPath(o.path) == DemTarget::TileDirectory) return {o.path};
+  const fs::path p(o.path);
+  const std::string stem = (p.parent_path() / p.stem()).string();
+  std::vector<std::string> out{o.path};
+  const bool has[] = {true, o.slope, o.aspect, o.hillshade, o.count, o.edgeLength};
+  for (int kind = 1; kind < 6; ++kind)
+    if (has[kind]) out.push_back(stem + "_" + kBandName[kind] + ".tif");
+  return out;
+}
+
 void DemWriter::end() {
   Impl& m = *impl_;
   outputs_.clear();
   QuietGdal quiet;
   if (m.target == DemTarget::TileDirectory) {
+    std::set<std::string> written;  // file names, for --overwrite's clean-up
     for (Band& b : m.bands) {
       std::vector<std::string> finals;
       for (const auto& [staged, final] : b.staged) {
         if (std::rename(staged.c_str(), final.c_str()) != 0)
           throw DataError(final, std::string("cannot move the tile into place: ") + std::strerror(errno));
         finals.push_back(final);
+        written.insert(fs::path(final).filename().string());
         bytes_ += fs::file_size(final);
       }
       b.staged.clear();
@@ -352,12 +390,14 @@ void DemWriter::end() {
         throw DataError(vrt, std::string("cannot rename the mosaic into place: ") + std::strerror(errno));
       }
       outputs_.push_back(vrt);
+      written.insert(fs::path(vrt).filename().string());
       bytes_ += fs::file_size(vrt);
     }
     std::error_code ec;
     fs::remove_all(m.stagingDir, ec);
     m.stagingDir.clear();
     m.committed = true;
+    if (m.o.replace) removeStaleFiles(m.o.path, written);
     return;
   }
   for (Band& b : m.bands) {

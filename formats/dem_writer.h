@@ -27,6 +27,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <set>
 #include <vector>
 
 #include "formats/crs.h"
@@ -41,7 +42,14 @@ struct DemWriterOptions {
   std::string commandLine;  // recorded in the metadata
   // Which bands the rasterizer produces (must match its DemOptions).
   bool slope = false, aspect = false, hillshade = false, count = false, edgeLength = false;
+  // DIR: after a successful run, remove the tiles and mosaics of an earlier run (files named like ours)
+  // that this run did not write, so DIR holds exactly this DEM (`--overwrite`).
+  bool replace = false;
 };
+
+// The files a single-file DEM (FILE.tif, FILE.gpkg) will be written to: FILE and FILE_<band>.tif.  For a
+// directory target, the directory itself.
+std::vector<std::string> demOutputPaths(const DemWriterOptions& options);
 
 enum class DemTarget { TileDirectory, SingleTiff, GeoPackage };
 DemTarget demTargetForPath(const std::string& path);
@@ -64,6 +72,7 @@ class DemWriter : public DemTileSink {
  private:
   struct Band;
   struct Impl;
+  void removeStaleFiles(const std::string& dir, const std::set<std::string>& written);
   std::unique_ptr<Impl> impl_;
   std::vector<std::string> outputs_;
   std::uint64_t bytes_ = 0;

@@ -6,6 +6,7 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <thread>
 
 #include "formats/conventional_mesh.h"
 #include "formats/dem_writer.h"
@@ -240,17 +241,104 @@ std::uint64_t peakRssBytes() {
   return 0;
 }
 
+// Forwards a point stream and reports its progress (points passed on / points announced), GDAL-style;
+// the callback returning 0 cancels (CancelledError).
+class ProgressPointSink : public PointSink {
+ public:
+  ProgressPointSink(PointSink& out, ProgressFunc f, void* data, ProgressCounts* counts)
+      : out_(out), f_(f), data_(data), counts_(counts) {}
+  void begin(const StreamInfo& info) override {
+    total_ = info.points;
+    report();
+    out_.begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    out_.points(p, n);
+    done_ += n;
+    if (done_ - reported_ >= 65536) report();
+  }
+  void finalizeCell(const CellTag& cell) override { out_.finalizeCell(cell); }
+  void end() override {
+    report();
+    out_.end();
+  }
+
+ private:
+  void report() {
+    reported_ = done_;
+    if (!f_) return;
+    if (counts_) *counts_ = ProgressCounts{done_, total_};
+    const double c = total_ ? std::min(1.0, static_cast<double>(done_) / static_cast<double>(total_)) : 0.0;
+    if (!f_(c, "triangulating", data_)) throw CancelledError();
+  }
+  PointSink& out_;
+  ProgressFunc f_;
+  void* data_;
+  ProgressCounts* counts_;
+  std::uint64_t total_ = 0, done_ = 0, reported_ = 0;
+};
+
+namespace {
+
+// Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
+// previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
+void refuseExistingOutputs(const PipelineOptions& o) {
+  if (o.overwrite) return;
+  auto check = [](const std::string& path) {
+    if (path.empty() || path == "-") return;
+    std::error_code ec;
+    const auto st = std::filesystem::status(path, ec);
+    if (ec || !std::filesystem::exists(st)) return;
+    if (std::filesystem::is_regular_file(st))
+      throw DataError(path, "exists; pass --overwrite to replace it");
+  };
+  check(o.finalizedOutput);
+  check(o.meshOutput);
+  if (!o.meshOutput.empty() && isConventionalMeshPath(o.meshOutput)) check(prjPathFor(o.meshOutput));
+  check(o.gpkgOutput);
+  if (!o.dem.path.empty()) {
+    DemWriterOptions wo;
+    wo.path = o.dem.path;
+    const DemOptions& b = o.dem.bands;
+    wo.slope = b.slope, wo.aspect = b.aspect, wo.hillshade = b.hillshade, wo.count = b.count,
+    wo.edgeLength = b.edgeLength;
+    if (demTargetForPath(o.dem.path) == DemTarget::TileDirectory) {
+      std::error_code ec;
+      if (std::filesystem::is_directory(o.dem.path, ec)) {
+        for (const auto& e : std::filesystem::directory_iterator(o.dem.path, ec))
+          if (e.path().filename().string().rfind(".tinbuild-", 0) != 0)
+            throw DataError(o.dem.path,
+                            "the DEM directory is not empty; pass --overwrite to replace the DEM in it");
+      } else {
+        check(o.dem.path);
+      }
+    } else {
+      for (const auto& p : demOutputPaths(wo)) check(p);
+    }
+  }
+}
+
+}  // namespace
+
+int effectiveThreads(int requested) {
+  if (requested > 0) return requested;
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
 RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   const auto t0 = Clock::now();
   RunReport r;
   r.command = "finalize";
   r.inputs = o.inputs;
   if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  refuseExistingOutputs(o);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.memoryBudget = fo.memoryBudget;
+  r.threads = effectiveThreads(o.threads);
+  fo.readAhead = r.threads >= 2;
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
   r.finalizer = finalizePoints(in.streams, fo, writer, diag);
@@ -268,11 +356,19 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   r.command = "triangulate";
   r.inputs = {finalizedInput};
   if (o.meshOutput.empty()) throw UsageError("triangulate: give the output mesh: -o FILE.smb|FILE.sma|-");
+  refuseExistingOutputs(o);
   auto mesh = openMeshWriter(o.meshOutput);
+  MeshTee tee;
+  tee.add(*mesh);
+  r.threads = effectiveThreads(o.threads);
+  tee.setThreaded(r.threads >= 2);  // the mesh encoder and writer beside the triangulator
+  tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
-  StreamingDelaunay delaunay(*mesh, dopt);
-  const StreamInfo info = readFinalizedStream(finalizedInput, delaunay);
+  StreamingDelaunay delaunay(tee, dopt);
+  ProgressPointSink progress(delaunay, o.finalizer.progress, o.finalizer.progressData,
+                             o.finalizer.progressCounts);
+  const StreamInfo info = readFinalizedStream(finalizedInput, progress);
   if (!info.crsWkt.empty()) {
     try {
       r.crs = crsFromUser(info.crsWkt);
@@ -297,6 +393,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty())
     throw UsageError(
         "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE");
+  refuseExistingOutputs(o);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag);
   r.crs = in.crs;
@@ -304,7 +401,6 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   r.memoryBudget = fo.memoryBudget;
 
   // Open every output before any work, so an unwritable target or a bad length fails at once.
-  MeshTee tee;
   std::unique_ptr<MeshSink> mesh;
   if (!o.meshOutput.empty()) {
     if (isConventionalMeshPath(o.meshOutput)) {
@@ -315,7 +411,6 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
     } else {
       mesh = openMeshWriter(o.meshOutput);
     }
-    tee.add(*mesh);
   }
   std::unique_ptr<TriangleSink> gpkg;
   if (!o.gpkgOutput.empty()) {
@@ -324,7 +419,6 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
     go.points = o.gpkgPoints;
     go.commandLine = o.commandLine;
     gpkg = openGpkgTinWriter(go);
-    tee.add(*gpkg);
   }
   std::unique_ptr<DemWriter> demWriter;
   std::unique_ptr<DemRasterizer> dem;
@@ -367,20 +461,34 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
     wo.hillshade = d.hillshade;
     wo.count = d.count;
     wo.edgeLength = d.edgeLength;
+    wo.replace = o.overwrite;
     demWriter = std::make_unique<DemWriter>(wo);
     dem = std::make_unique<DemRasterizer>(d, *demWriter);
-    tee.add(*dem);
   }
 
+  // Declared after the outputs, so a writer thread still running when the run fails is stopped before
+  // any output is destroyed.
+  MeshTee tee;
+  if (mesh) tee.add(*mesh);
+  if (gpkg) tee.add(*gpkg);
+  if (dem) tee.add(*dem);
+  const int threads = effectiveThreads(o.threads);
+  // With two threads or more: the reader runs ahead of the finalizer, the triangulator has a thread
+  // and the outputs (the tee's consumers) another, all behind bounded queues.  Every stage sees the
+  // same sequence of events as on one thread, so the outputs are byte-identical for any count.
+  tee.setThreaded(threads >= 2);
+  tee.setProgress(fo.progress, fo.progressData);
+  fo.readAhead = threads >= 2;
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
   StreamingDelaunay delaunay(tee, dopt);
-  {
-    // The triangulator (and the outputs it feeds) runs on its own thread behind a bounded queue; the
-    // event order is unchanged, so the output does not depend on thread timing.
+  if (threads >= 2) {
     ConcurrentPointSink queue(delaunay);
     r.finalizer = finalizePoints(in.streams, fo, queue, diag);
+  } else {
+    r.finalizer = finalizePoints(in.streams, fo, delaunay, diag);
   }
+  r.threads = threads;
   r.haveFinalizer = true;
   r.delaunay = delaunay.stats();
   r.haveDelaunay = true;
@@ -530,7 +638,8 @@ std::string formatRunSummary(const RunReport& r) {
          r.inputs.front();
   }
   o += "; wrote " + outs + (r.outputBytes ? " (" + bytesText(r.outputBytes) + ")" : "") + " in " +
-       formatDouble("%.2f", r.seconds) + " s, peak memory " + bytesText(r.peakRssBytes) + "\n";
+       formatDouble("%.2f", r.seconds) + " s on " + std::to_string(r.threads) +
+       (r.threads == 1 ? " thread" : " threads") + ", peak memory " + bytesText(r.peakRssBytes) + "\n";
   if (r.haveFinalizer) {
     const FinalizerStats& s = r.finalizer;
     const FilterCounts& f = s.filter;
@@ -753,6 +862,7 @@ std::string formatRunJson(const RunReport& r) {
   }
   j.key("seconds").value(r.seconds);
   j.key("peak_rss_bytes").value(r.peakRssBytes);
+  j.key("threads").value(static_cast<std::uint64_t>(r.threads));
   j.key("warnings");
   writeWarningsJson(j, r.warnings);
   j.endObject();

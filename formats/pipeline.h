@@ -52,7 +52,12 @@ struct PipelineOptions {
   std::string commandLine;      // recorded in the outputs' metadata
   std::string tSrs;             // --t_srs: the working CRS (points are transformed in the reader stage)
   bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings
+  bool overwrite = false;       // --overwrite: replace existing outputs (else an existing one is an error)
+  int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
 };
+
+// --threads 0 -> the number of cores (at least 1).
+int effectiveThreads(int requested);
 
 // What the DEM part of a run did (RunReport::dem).
 struct DemReport {
@@ -87,6 +92,7 @@ struct RunReport {
   std::vector<Diagnostics::Entry> warnings;
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;
+  int threads = 1;
 };
 
 RunReport runFinalize(const PipelineOptions& options, Diagnostics& diag);
