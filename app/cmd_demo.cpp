@@ -3,6 +3,7 @@
 #include <iostream>
 
 #include "app/commands.h"
+#include "app/progress.h"
 #include "formats/las_writer.h"
 #include "formats/pipeline.h"
 #include "formats/quicklook.h"
@@ -32,8 +33,16 @@ int runDemo(const cli::ParsedArgs& args) {
   spec.swath = swath;
   spec.homeStrip = args.has("--home-strip");
   const std::string las = (dir / "survey.las").string();
-  std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << "\n";
-  writeSyntheticSurveyLas(spec, las, 32610, 5703);
+  ProgressDisplay progress(parseProgressMode(args.get("--progress"), false));
+  installCancelHandlers();
+  std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << std::endl;
+  LasWriterOptions lo;
+  lo.versionMinor = 4;
+  lo.pointFormat = 1;
+  lo.horizontalEpsg = 32610;
+  lo.verticalEpsg = 5703;
+  writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
+  progress.finish();
 
   InfoOptions info;
   info.inputs = {las};
@@ -52,14 +61,19 @@ int runDemo(const cli::ParsedArgs& args) {
   build.dem.step = "1";
   build.dem.tileSize = 512;
   build.dem.bands.hillshade = true;
+  build.overwrite = true;  // the demo directory is the demo's own: a second run replaces its outputs
+  build.finalizer.progress = ProgressDisplay::callback;
+  build.finalizer.progressData = &progress;
+  build.finalizer.progressCounts = progress.counts();
   // A bare-earth model: ground and water returns only (what floodplain mapping wants).
   build.finalizer.filter.dropClasses.set();
   build.finalizer.filter.dropClasses.reset(2);
   build.finalizer.filter.dropClasses.reset(9);
   build.commandLine = "tinbuild build " + las + " --keep-class 2,9 --mesh " + build.meshOutput + " --gpkg " +
                       build.gpkgOutput + " --dem " + build.dem.path + " --step 1 --tile-size 512 --hillshade";
-  std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")\n";
+  std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")" << std::endl;
   const RunReport run = runBuild(build, diag);
+  progress.finish();
   std::cout << formatRunSummary(run);
   std::ofstream((dir / "build-report.json").string()) << formatRunJson(run);
   const std::string png = (dir / "dem.png").string();
@@ -96,7 +110,8 @@ Command demoCommand() {
       "and GeoPackage) and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
       {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
-       {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"}},
+       {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},
+       {"--progress", "MODE", "auto (default), lines, json or none"}},
       runDemo};
 }
 

@@ -3,6 +3,7 @@
 #include <thread>
 
 #include "app/commands.h"
+#include "formats/input_list.h"
 #include "formats/survey_info.h"
 #include "libterrain/error.h"
 
@@ -12,7 +13,7 @@ namespace {
 
 int runInfo(const cli::ParsedArgs& args) {
   InfoOptions o;
-  o.inputs = args.positional;
+  o.inputs = expandInputs(args.positional);
   if (o.inputs.empty()) throw UsageError("info: give at least one input file (or - for stdin)");
   o.json = args.has("--json");
   o.depth = args.getInt("--depth", -1, 0, 15);

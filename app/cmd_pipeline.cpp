@@ -3,9 +3,11 @@
 // prints the summary and writes the `--report` JSON.
 #include <unistd.h>
 
+#include <algorithm>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -14,7 +16,9 @@
 #include <vector>
 
 #include "app/commands.h"
+#include "app/progress.h"
 #include "formats/conventional_mesh.h"
+#include "formats/input_list.h"
 #include "formats/output_file.h"
 #include "formats/pipeline.h"
 #include "libterrain/error.h"
@@ -82,24 +86,6 @@ ClipRect parseClip(const std::string& text, const std::string& option = "--clip"
   return ClipRect{v[0], v[1], v[2], v[3]};
 }
 
-struct ProgressState {
-  std::string message;
-  int percent = -1;
-};
-
-int drawProgress(double complete, const char* message, void* data) {
-  auto* s = static_cast<ProgressState*>(data);
-  const int pct = static_cast<int>(complete * 100);
-  if (pct != s->percent || s->message != message) {
-    s->percent = pct;
-    s->message = message;
-    std::fprintf(stderr, "\r%-40s %3d%%", message, pct);
-    if (complete >= 1.0) std::fprintf(stderr, "\n");
-    std::fflush(stderr);
-  }
-  return 1;
-}
-
 // Options every command that reads survey files understands.
 std::vector<cli::OptionSpec> inputOptions() {
   return {{"--depth", "K", "finalizer grid depth 0..15 (default: cells of a few thousand points)"},
@@ -126,6 +112,10 @@ std::vector<cli::OptionSpec> triangulatorOptions() {
 
 std::vector<cli::OptionSpec> reportOptions() {
   return {{"--report", "FILE.json", "machine-readable run report (counts, grid, width, memory, timings)"},
+          {"--progress", "MODE",
+           "auto (a live line on a terminal, plain lines otherwise), lines, json (JSON lines), none"},
+          {"--threads", "N", "threads for the stages (default: the machine's cores; output is the same for any N)"},
+          {"--overwrite", "", "replace existing outputs (default: refuse to overwrite anything)"},
           {"-q", "", "no summary, progress or warnings on stderr (warnings stay in the report)", "--quiet"}};
 }
 
@@ -136,7 +126,7 @@ std::vector<cli::OptionSpec> join(std::vector<cli::OptionSpec> first, const List
 }
 
 void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
-  o.inputs = args.positional;
+  o.inputs = expandInputs(args.positional);
   FinalizerOptions& fo = o.finalizer;
   fo.depth = args.getInt("--depth", -1, 0, 15);
   fo.memoryBudget = static_cast<std::size_t>(args.getInt("--memory", 512, 1, 1 << 22)) << 20;
@@ -175,18 +165,34 @@ void parseTriangulatorOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
 template <class Run>
 int runWithReport(const cli::ParsedArgs& args, PipelineOptions& o, Run run) {
   const bool quiet = args.has("-q");
+  ProgressDisplay progress(parseProgressMode(args.get("--progress"), quiet));
+  o.threads = args.getInt("--threads", 0, 1, 256);
+  // Decoding LAS on extra threads pays only beyond the stage threads (reader, triangulator, writers).
+  o.reader.decodeThreads = std::max(1, effectiveThreads(o.threads) - 2);
   Diagnostics diag;
-  if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
-  ProgressState progress;
-  if (!quiet && ::isatty(STDERR_FILENO)) {
-    o.finalizer.progress = drawProgress;
-    o.finalizer.progressData = &progress;
-  }
+  if (!quiet)
+    diag.setSink([&progress](const std::string& m) {
+      progress.finish();
+      std::cerr << "tinbuild: warning: " << m << "\n";
+    });
+  // Always installed: with -q nothing is drawn, but Ctrl-C still stops the run cleanly.
+  o.finalizer.progress = ProgressDisplay::callback;
+  o.finalizer.progressData = &progress;
+  o.finalizer.progressCounts = progress.counts();
+  installCancelHandlers();
   // The report's temporary file is created before the run, so an unwritable --report fails before any
   // output is written (and a failed run removes it).
+  o.overwrite = args.has("--overwrite");
   std::unique_ptr<OutputFile> reportFile;
-  if (args.has("--report")) reportFile = std::make_unique<OutputFile>(args.get("--report"));
+  if (args.has("--report")) {
+    const std::string path = args.get("--report");
+    std::error_code ec;
+    if (!o.overwrite && std::filesystem::is_regular_file(path, ec))
+      throw DataError(path, "exists; pass --overwrite to replace it");
+    reportFile = std::make_unique<OutputFile>(path);
+  }
   const RunReport report = run(o, diag);
+  progress.finish();
   if (!quiet) std::cerr << formatRunSummary(report);
   if (reportFile) {
     reportFile->write(formatRunJson(report));
@@ -298,10 +304,11 @@ int runVerifyCommand(const cli::ParsedArgs& args) {
   parseInputOptions(args, o);
   // `--points a.las b.las ...`: the option takes the first file, the shell's other words follow as
   // positionals after the mesh.
-  o.inputs = args.all("--points");
-  if (o.inputs.empty() && args.positional.size() > 1)
+  std::vector<std::string> words = args.all("--points");
+  if (words.empty() && args.positional.size() > 1)
     throw UsageError("verify: give one mesh; name the inputs with --points INPUT...");
-  o.inputs.insert(o.inputs.end(), args.positional.begin() + 1, args.positional.end());
+  words.insert(words.end(), args.positional.begin() + 1, args.positional.end());
+  o.inputs = expandInputs(words);
   const bool quiet = args.has("-q") || args.has("--json");
   Diagnostics diag;
   if (!quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
@@ -327,8 +334,9 @@ Command verifyCommand() {
       "those inputs after the same filters `build` applies.  Memory follows the mesh's width.  Exit code 0\n"
       "when everything holds, 1 otherwise.",
       join({{"--points", "INPUT...", "the inputs the mesh was built from (with the same filter options)"},
-            {"--json", "", "machine-readable result"}},
-           inputOptions(), reportOptions()),
+            {"--json", "", "machine-readable result"},
+            {"-q", "", "no warnings on stderr", "--quiet"}},
+           inputOptions()),
       runVerifyCommand};
 }
 
@@ -371,12 +379,15 @@ Command buildCommand() {
       "tinbuild build INPUT... [--mesh FILE.smb|.sma|.ply|.obj] [--dem DIR|FILE.tif|FILE.gpkg --step R] "
       "[--gpkg FILE.gpkg] [OPTIONS]",
       "the main job: LIDAR to TIN and DEM in one streaming pass",
-      "Finalizes the inputs and triangulates them in one process (finalizer and triangulator on two\n"
-      "threads with a bounded queue between them), writing every output while the triangulation runs:\n"
+      "Finalizes the inputs and triangulates them in one process (reader, finalizer, triangulator and\n"
+      "outputs on threads of their own, joined by bounded queues), writing every output while the\n"
+      "triangulation runs:\n"
       "the TIN as a streaming mesh, PLY or OBJ, as a GeoPackage layer, and DEM rasters interpolated\n"
       "linearly on the TIN at pixel centres (tiles are written as soon as no later triangle can reach\n"
       "them).  Memory follows the stream's width plus the open DEM tiles, not the survey's size.\n"
-      "Example: tinbuild build tiles/*.las --dem dem/ --step 1 --hillshade --gpkg tin.gpkg --mesh tin.ply",
+      "Inputs may be files, directories (their *.las, *.laz, *.xyz) and quoted patterns ('tiles/*.las').\n"
+      "Existing outputs are refused unless --overwrite; Ctrl-C removes the temporary outputs (exit 3).\n"
+      "Example: tinbuild build tiles/ --dem dem/ --step 1 --hillshade --gpkg tin.gpkg --mesh tin.ply",
       join(
           {{"--mesh", "FILE",
             "TIN as a streaming mesh (.smb binary, .sma ASCII) or a mesh (.ply binary, .obj)"},

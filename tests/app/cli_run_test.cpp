@@ -1,0 +1,359 @@
+// The run around the pipeline, as a batch engineer meets it: threads, progress, Ctrl-C/SIGTERM, a full
+// disk, directories and patterns as inputs, refusal to clobber, and help that matches docs/usage.md.
+#include <fcntl.h>
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cstdio>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <regex>
+#include <set>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include "test_support.h"
+
+extern char** environ;
+
+namespace tinbuild {
+namespace {
+
+namespace fs = std::filesystem;
+
+struct Run {
+  int code;
+  std::string out, err;
+};
+
+std::string slurp(const fs::path& path) {
+  std::ifstream f(path, std::ios::binary);
+  std::stringstream s;
+  s << f.rdbuf();
+  return s.str();
+}
+
+// Runs `tinbuild ARGS` through the shell; stdout and stderr go to files beside the test's scratch dir.
+Run tinbuild(const std::string& args, const std::string& prefix = "") {
+  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+  const fs::path dir =
+      fs::path(TINBUILD_TEST_TMP) / (std::string(info->test_suite_name()) + "." + info->name() + ".io");
+  fs::create_directories(dir);
+  const std::string out = (dir / "stdout").string(), err = (dir / "stderr").string();
+  const std::string cmd = prefix + std::string(TINBUILD_EXE) + " " + args + " >" + out + " 2>" + err;
+  const int status = std::system(cmd.c_str());
+  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out), slurp(err)};
+}
+
+// Every file below dir (relative names, sorted), hidden ones included.
+std::vector<std::string> listDir(const fs::path& dir) {
+  std::vector<std::string> names;
+  for (const auto& e : fs::recursive_directory_iterator(dir)) names.push_back(fs::relative(e.path(), dir).string());
+  std::sort(names.begin(), names.end());
+  return names;
+}
+
+// Replaces every occurrence of `from` by `to` (same length: byte offsets stay).
+std::string replaceAll(std::string s, const std::string& from, const std::string& to) {
+  for (std::size_t at = s.find(from); at != std::string::npos; at = s.find(from, at + to.size()))
+    s.replace(at, from.size(), to);
+  return s;
+}
+
+// --threads changes nothing but speed: the mesh files, the single-file DEM and the tiles are the same
+// bytes for 1, 2 and 3 threads.  The only difference allowed is the command line the outputs record
+// (it says --threads N), so that is normalized before comparing.
+TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/autzen_trim.las");
+  for (int n : {1, 2, 3}) {
+    const fs::path d = out / ("t" + std::to_string(n));
+    fs::create_directories(d);
+    auto r = tinbuild("build " + las + " --mesh m.smb --dem dem.tif --step 3ft --hillshade --slope -q --threads " +
+                          std::to_string(n),
+                      "cd " + d.string() + " && ");
+    ASSERT_EQ(r.code, 0) << r.err;
+    auto p = tinbuild("build " + las + " --mesh m.ply --dem tiles --step 3ft --tile-size 64 -q --threads " +
+                          std::to_string(n) + " --report r.json",
+                      "cd " + d.string() + " && ");
+    ASSERT_EQ(p.code, 0) << p.err;
+    EXPECT_NE(slurp(d / "r.json").find("\"threads\": " + std::to_string(n)), std::string::npos);
+  }
+  const std::vector<std::string> files = listDir(out / "t1");
+  EXPECT_GT(std::count_if(files.begin(), files.end(), [](const std::string& f) { return f.rfind("tiles/dem_", 0) == 0; }),
+            4);
+  for (int n : {2, 3}) {
+    const fs::path d = out / ("t" + std::to_string(n));
+    EXPECT_EQ(listDir(d), files);
+    for (const auto& f : files) {
+      if (f == "r.json" || fs::is_directory(out / "t1" / f)) continue;
+      const std::string a = slurp(out / "t1" / f);
+      const std::string b = replaceAll(slurp(d / f), "--threads " + std::to_string(n), "--threads 1");
+      EXPECT_TRUE(a == b) << f << " differs between --threads 1 and --threads " << n;
+    }
+  }
+}
+
+// A child tinbuild whose stderr we read line by line, so a signal can be sent mid-run.
+struct Child {
+  pid_t pid = -1;
+  FILE* err = nullptr;
+};
+
+Child spawnTinbuild(const std::vector<std::string>& args) {
+  int fds[2];
+  EXPECT_EQ(::pipe(fds), 0);
+  posix_spawn_file_actions_t fa;
+  posix_spawn_file_actions_init(&fa);
+  posix_spawn_file_actions_adddup2(&fa, fds[1], STDERR_FILENO);
+  posix_spawn_file_actions_addclose(&fa, fds[0]);
+  posix_spawn_file_actions_addopen(&fa, STDOUT_FILENO, "/dev/null", O_WRONLY, 0);
+  std::vector<std::string> argv{TINBUILD_EXE};
+  argv.insert(argv.end(), args.begin(), args.end());
+  std::vector<char*> cargv;
+  for (auto& a : argv) cargv.push_back(a.data());
+  cargv.push_back(nullptr);
+  Child c;
+  EXPECT_EQ(posix_spawn(&c.pid, TINBUILD_EXE, &fa, nullptr, cargv.data(), environ), 0);
+  posix_spawn_file_actions_destroy(&fa);
+  ::close(fds[1]);
+  c.err = ::fdopen(fds[0], "r");
+  return c;
+}
+
+// Starts a long build (a GeoPackage TIN with its spatial index, a DEM and a mesh), waits for the first
+// progress line, sends `sig`, and checks: exit code 3, "cancelled" on stderr, and not one file left in
+// the output directory (every output was still under a temporary name, and the DEM directory this run
+// created is gone too).
+void expectCleanCancel(int sig) {
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/zurich.las");
+  Child c = spawnTinbuild({"build", las, "--gpkg", (out / "tin.gpkg").string(), "--mesh",
+                           (out / "tin.smb").string(), "--dem", (out / "dem").string(), "--report",
+                           (out / "r.json").string(), "--progress=json"});
+  ASSERT_NE(c.err, nullptr);
+  std::string err;
+  char line[4096];
+  bool signalled = false;
+  while (std::fgets(line, sizeof line, c.err)) {
+    err += line;
+    if (!signalled && std::string(line).rfind("{\"stage\":", 0) == 0) {
+      ::kill(c.pid, sig);
+      signalled = true;
+    }
+  }
+  std::fclose(c.err);
+  int status = 0;
+  ASSERT_EQ(::waitpid(c.pid, &status, 0), c.pid);
+  ASSERT_TRUE(signalled) << err;
+  ASSERT_TRUE(WIFEXITED(status)) << "killed by a signal instead of stopping cleanly\n" << err;
+  EXPECT_EQ(WEXITSTATUS(status), 3) << err;
+  EXPECT_NE(err.find("tinbuild: cancelled"), std::string::npos) << err;
+  EXPECT_EQ(listDir(out), std::vector<std::string>{}) << err;
+}
+
+TEST(CliRun, CtrlCStopsCleanlyWithExitThree) {
+  TINBUILD_REQUIRE_DATA();
+  expectCleanCancel(SIGINT);
+}
+
+TEST(CliRun, SigtermStopsCleanlyWithExitThree) {
+  TINBUILD_REQUIRE_DATA();
+  expectCleanCancel(SIGTERM);
+}
+
+// A full disk, simulated with a file-size limit (RLIMIT_FSIZE; SIGXFSZ ignored, so writes beyond the
+// limit fail with EFBIG the way they fail with ENOSPC on a full disk).  Every kind of output must fail
+// with exit code 1, an error naming the file, and nothing left behind.
+TEST(CliRun, FullDiskFailsCleanlyForEveryOutput) {
+  TINBUILD_REQUIRE_DATA();
+  if (std::system("command -v prlimit >/dev/null 2>&1") != 0) GTEST_SKIP() << "prlimit (util-linux) missing";
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/zurich.las");
+  const std::string limit = "trap '' XFSZ; exec prlimit --fsize=1000000 ";
+  struct Case {
+    std::string args, path;
+  };
+  const std::vector<Case> cases = {
+      {"build " + las + " --mesh " + (out / "tin.smb").string(), (out / "tin.smb").string()},
+      {"build " + las + " --mesh " + (out / "tin.ply").string(), (out / "tin.ply").string()},
+      {"build " + las + " --gpkg " + (out / "tin.gpkg").string(), (out / "tin.gpkg").string()},
+      {"build " + las + " --dem " + (out / "dem.tif").string() + " --step 0.05", (out / "dem.tif").string()},
+      {"build " + las + " --dem " + (out / "dem").string() + " --step 0.05 --tile-size 2048",
+       (out / "dem").string()},
+      {"finalize " + las + " -o " + (out / "s.tfs").string(), (out / "s.tfs").string()},
+  };
+  for (const auto& c : cases) {
+    auto r = tinbuild(c.args + " -q", limit);
+    EXPECT_EQ(r.code, 1) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find("tinbuild: error: " + c.path), std::string::npos) << c.args << "\n" << r.err;
+    EXPECT_EQ(listDir(out), std::vector<std::string>{}) << c.args << "\n" << r.err;
+  }
+  // Standard output on a full device (ENOSPC on every write).
+  const std::string cmd = std::string("sh -c '") + TINBUILD_EXE + " finalize " + las + " -q -o - >/dev/full' 2>" +
+                          (out.parent_path() / "full.err").string();
+  const int status = std::system(cmd.c_str());
+  ASSERT_TRUE(WIFEXITED(status));
+  EXPECT_EQ(WEXITSTATUS(status), 1);
+  const std::string err = slurp(out.parent_path() / "full.err");
+  EXPECT_NE(err.find("tinbuild: error: -"), std::string::npos) << err;
+}
+
+// Surveys come as directories of tiles and as patterns batch systems pass quoted.
+TEST(CliRun, DirectoriesAndPatternsAsInputs) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const fs::path tiles = out / "tiles";
+  fs::create_directories(tiles);
+  fs::create_symlink(test::dataPath("las/Megaplot.las"), tiles / "b.las");
+  std::ofstream(tiles / "readme.txt") << "not a survey\n";
+  const std::string las = test::dataPath("las/Megaplot.las");
+
+  auto one = tinbuild("build " + las + " --mesh " + (out / "one.smb").string() + " -q");
+  ASSERT_EQ(one.code, 0) << one.err;
+  auto dir = tinbuild("build " + tiles.string() + " --mesh " + (out / "dir.smb").string() + " -q");
+  ASSERT_EQ(dir.code, 0) << dir.err;
+  auto pat = tinbuild("build '" + (tiles / "*.las").string() + "' --mesh " + (out / "pat.smb").string() + " -q");
+  ASSERT_EQ(pat.code, 0) << pat.err;
+  EXPECT_EQ(slurp(out / "one.smb"), slurp(out / "dir.smb"));
+  EXPECT_EQ(slurp(out / "one.smb"), slurp(out / "pat.smb"));
+  auto info = tinbuild("info " + tiles.string());
+  EXPECT_EQ(info.code, 0) << info.err;
+
+  const fs::path empty = out / "empty";
+  fs::create_directories(empty);
+  auto e = tinbuild("build " + empty.string() + " --mesh " + (out / "e.smb").string());
+  EXPECT_EQ(e.code, 1);
+  EXPECT_NE(e.err.find("tinbuild: error: " + empty.string() + ": no .las"), std::string::npos) << e.err;
+  const std::string nomatch = (tiles / "*.xyz").string();
+  auto n = tinbuild("build '" + nomatch + "' --mesh " + (out / "n.smb").string());
+  EXPECT_EQ(n.code, 1);
+  EXPECT_NE(n.err.find("tinbuild: error: " + nomatch + ": the pattern matches no file"), std::string::npos)
+      << n.err;
+  auto twice = tinbuild("build " + tiles.string() + " " + las + " --mesh " + (out / "t.smb").string());
+  EXPECT_EQ(twice.code, 1);
+  EXPECT_NE(twice.err.find("named twice"), std::string::npos) << twice.err;
+  EXPECT_FALSE(fs::exists(out / "e.smb") || fs::exists(out / "n.smb") || fs::exists(out / "t.smb"));
+}
+
+// A batch job must not clobber an earlier result by accident: existing outputs are refused (exit 1,
+// naming the file, before any work) unless --overwrite; with it, a DEM directory ends up holding exactly
+// the new DEM (an earlier run's tiles go, unrelated files stay).
+TEST(CliRun, RefusesToClobberUnlessOverwrite) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/Megaplot.las");
+  const std::string mesh = (out / "tin.smb").string(), report = (out / "r.json").string();
+  const std::string dem = (out / "dem").string();
+  auto first = tinbuild("build " + las + " --mesh " + mesh + " --dem " + dem + " --report " + report + " -q");
+  ASSERT_EQ(first.code, 0) << first.err;
+  const std::string before = slurp(mesh);
+  std::ofstream(mesh, std::ios::app) << "marker";  // so a rewrite would show
+
+  auto again = tinbuild("build " + las + " --mesh " + mesh + " -q");
+  EXPECT_EQ(again.code, 1);
+  EXPECT_NE(again.err.find("tinbuild: error: " + mesh + ": exists; pass --overwrite"), std::string::npos)
+      << again.err;
+  EXPECT_EQ(slurp(mesh), before + "marker");
+  auto rep = tinbuild("build " + las + " --mesh " + (out / "other.smb").string() + " --report " + report + " -q");
+  EXPECT_EQ(rep.code, 1);
+  EXPECT_NE(rep.err.find(report + ": exists"), std::string::npos) << rep.err;
+  EXPECT_FALSE(fs::exists(out / "other.smb"));
+  auto d = tinbuild("build " + las + " --dem " + dem + " -q");
+  EXPECT_EQ(d.code, 1);
+  EXPECT_NE(d.err.find(dem + ": the DEM directory is not empty"), std::string::npos) << d.err;
+  auto fin = tinbuild("finalize " + las + " -o " + mesh + " -q");
+  EXPECT_EQ(fin.code, 1);
+
+  std::ofstream(fs::path(dem) / "dem_1_2.tif") << "an earlier run's tile";
+  std::ofstream(fs::path(dem) / "notes.txt") << "mine";
+  auto o = tinbuild("build " + las + " --mesh " + mesh + " --dem " + dem + " --step 2 --report " + report +
+                    " -q --overwrite");
+  ASSERT_EQ(o.code, 0) << o.err;
+  EXPECT_EQ(slurp(mesh), before);
+  EXPECT_FALSE(fs::exists(fs::path(dem) / "dem_1_2.tif"));
+  EXPECT_TRUE(fs::exists(fs::path(dem) / "notes.txt"));
+  EXPECT_TRUE(fs::exists(fs::path(dem) / "mosaic.vrt"));
+  // /dev/null is always writable (benchmarks and dry runs use it).
+  auto null = tinbuild("build " + las + " --mesh /dev/null -q");
+  EXPECT_EQ(null.code, 0) << null.err;
+}
+
+// Progress: JSON lines with stable keys, plain lines in logs, nothing with -q; a bad mode is a usage error.
+TEST(CliRun, ProgressModes) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/Megaplot.las");
+  auto j = tinbuild("build " + las + " --mesh " + (out / "a.smb").string() + " --progress=json");
+  ASSERT_EQ(j.code, 0) << j.err;
+  std::istringstream lines(j.err);
+  int json = 0;
+  std::set<std::string> stages;
+  const std::regex shape(
+      R"re(^\{"stage":"([^"]*)","complete":[0-9.]+,"points_done":[0-9]+,"points_total":[0-9]+,"points_per_second":[0-9]+,"elapsed_seconds":[0-9.]+,"eta_seconds":-?[0-9.]+,"rss_bytes":[0-9]+\}$)re");
+  for (std::string l; std::getline(lines, l);) {
+    std::smatch m;
+    if (std::regex_match(l, m, shape)) {
+      ++json;
+      stages.insert(m[1]);
+    }
+  }
+  EXPECT_GE(json, 2) << j.err;
+  EXPECT_TRUE(stages.count("pass 3: streaming chunks")) << j.err;
+  EXPECT_NE(j.err.find("tinbuild build: "), std::string::npos) << "the summary still follows";
+
+  auto l = tinbuild("build " + las + " --mesh " + (out / "b.smb").string() + " --progress=lines");
+  ASSERT_EQ(l.code, 0) << l.err;
+  EXPECT_NE(l.err.find("tinbuild: [0:0"), std::string::npos) << l.err;
+  EXPECT_EQ(l.err.find('\r'), std::string::npos) << "no carriage returns in a log";
+
+  auto q = tinbuild("build " + las + " --mesh " + (out / "c.smb").string() + " -q");
+  ASSERT_EQ(q.code, 0) << q.err;
+  EXPECT_EQ(q.err, "");
+  auto bad = tinbuild("build " + las + " --mesh " + (out / "d.smb").string() + " --progress=fancy");
+  EXPECT_EQ(bad.code, 2);
+  EXPECT_NE(bad.err.find("--progress expects"), std::string::npos) << bad.err;
+  auto t = tinbuild("triangulate - -o " + (out / "e.smb").string() + " --progress=json < /dev/null");
+  EXPECT_EQ(t.code, 1);
+}
+
+// `tinbuild help COMMAND` and docs/usage.md describe the same options: every option a command accepts
+// is documented, and every option the usage page lists for a command exists.
+TEST(CliRun, HelpMatchesTheDocs) {
+  const std::string usage = slurp(fs::path(TINBUILD_SOURCE_DIR) / "docs" / "usage.md");
+  ASSERT_FALSE(usage.empty());
+  for (const std::string cmd : {"info", "build", "finalize", "triangulate", "verify", "demo", "bench"}) {
+    auto h = tinbuild("help " + cmd);
+    ASSERT_EQ(h.code, 0) << cmd;
+    std::set<std::string> helpOptions;
+    // An option row starts with two spaces and a dash; its names (an alias may follow the name, e.g.
+    // "-o, --output") come before the first double space.  One of them must be documented.
+    const std::regex opt(R"((^|[\s,])(--?[a-zA-Z][a-z0-9_-]*))");
+    std::istringstream lines(h.out);
+    int rows = 0;
+    for (std::string l; std::getline(lines, l);) {
+      if (l.rfind("  -", 0) != 0) continue;
+      const std::string names = l.substr(0, l.find("  ", 2));
+      std::vector<std::string> found;
+      for (std::sregex_iterator it(names.begin(), names.end(), opt), end; it != end; ++it)
+        found.push_back((*it)[2]);
+      ASSERT_FALSE(found.empty()) << l;
+      ++rows;
+      const bool documented = std::any_of(found.begin(), found.end(), [&](const std::string& o) {
+        return usage.find("`" + o + "`") != std::string::npos || usage.find("`" + o + " ") != std::string::npos;
+      });
+      EXPECT_TRUE(documented) << "`tinbuild help " << cmd << "` lists " << names << ", docs/usage.md does not";
+    }
+    EXPECT_GT(rows, 0) << cmd;
+  }
+}
+
+}  // namespace
+}  // namespace tinbuild
