@@ -79,10 +79,17 @@ const void* bandData(const DemTile& t, int kind) {
 }
 
 // Shortest text that round-trips, for tile names ("637000", "637000.5", "-12.25").
+// A tile corner for a file name: to the micrometre, trailing zeros dropped.  A corner is a multiple of
+// the tile's size, computed in floating point (0.05 m x 2048 x k gives 676761.6000000001); the name is
+// the corner as a person writes it, and names stay unique because tiles are far more than 1 um apart.
 std::string coordText(double v) {
   char buf[64];
-  auto r = std::to_chars(buf, buf + sizeof buf, v, std::chars_format::fixed);
-  return std::string(buf, r.ptr);
+  auto r = std::to_chars(buf, buf + sizeof buf, v, std::chars_format::fixed, 6);
+  std::string s(buf, r.ptr);
+  while (!s.empty() && s.back() == '0') s.pop_back();
+  if (!s.empty() && s.back() == '.') s.pop_back();
+  if (s == "-0") s = "0";
+  return s;
 }
 
 // A unique temporary path beside `path` (created empty with the usual permissions, then GDAL overwrites

@@ -325,6 +325,29 @@ TEST(DemWriter, AgreesWithGdalGridLinear) {
   compareWithGdalGrid(base, test::dataPath("las/vegetation_1_3.las"), "0.05", 5000);
 }
 
+// Regression: at --step 0.05 a tile corner computes as 676761.6000000001 and the tile was named
+// dem_676761.6000000001_0.tif.  Names are the corner to the micrometre, as a person writes it.
+TEST(DemWriter, TileNamesAreTheCornersAsWritten) {
+  const fs::path dir = test::scratchDir();
+  DemWriterOptions wo;
+  wo.path = (dir / "tiles").string();
+  DemWriter w(wo);
+  DemLayout l;
+  l.step = 0.05;
+  l.tileSize = 2048;
+  l.colMin = std::int64_t{6609} * 2048, l.colMax = l.colMin + 9, l.rowMin = 0, l.rowMax = 9;
+  ASSERT_NE(static_cast<double>(l.colMin) * l.step, 676761.6) << "the case needs the rounding";
+  w.begin(l, MeshInfo{});
+  DemTile t;
+  t.tx = 6609;
+  t.col0 = l.colMin;
+  t.width = t.height = 10;
+  t.z.assign(100, 1.0f);
+  w.tile(t);
+  w.end();
+  EXPECT_TRUE(fs::exists(dir / "tiles" / "dem_676761.6_0.tif"));
+}
+
 TEST(DemWriter, AbandonedWriterLeavesNothing) {
   const fs::path dir = test::scratchDir();
   {
