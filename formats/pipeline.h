@@ -3,8 +3,13 @@
 //   inputs (LAS/XYZ) -> readers -> filter -> finalizer -> [queue] -> streaming Delaunay -> mesh writer
 //
 // runFinalize writes the finalized point stream; runTriangulate turns one into a streaming mesh;
-// runBuild does both in one process, the finalizer and the triangulator on two threads with a bounded
-// queue between them (the finalized stream never touches the disk).  All three open the inputs the same
+// runBuild does both in one process (the finalized stream never touches the disk).  With
+// options.threads >= 2 the reader, the finalizer, the triangulator and the outputs each run on a thread
+// of their own behind bounded queues; every stage sees the sequence it would see on one thread, so the
+// outputs are byte-identical for any thread count (docs/design.md, "Threads").  An existing output is an
+// error before any work unless options.overwrite.  options.finalizer.progress is called GDAL-style
+// during the passes and before the outputs are committed; returning 0 cancels (CancelledError, no
+// output left behind).  All three open the inputs the same
 // way: every file is checked, the CRSs must agree (a mismatch is a warning naming both), LAS header
 // bounds are used when every header looks sane (the finalizer verifies them and falls back to computed
 // bounds), and a common scale is passed on.  Each returns a RunReport for the summary on stderr and the
