@@ -1,6 +1,15 @@
-#include <cstdio>
+// `tinbuild bench`: `read` runs here; every other benchmark (suite, delaunay, lattice-vs-random,
+// stream) lives in the tinbuild-bench executable beside this one, which links CGAL for its peer runs.
+// CGAL must never be linked into tinbuild, so those subcommands are handed over by execv instead.
+#include <unistd.h>
+
 #include <algorithm>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
 #include <iostream>
+#include <set>
 #include <thread>
 #include <vector>
 
@@ -12,35 +21,104 @@ namespace tinbuild::app {
 
 namespace {
 
-int runBench(const cli::ParsedArgs& args) {
-  if (args.positional.empty()) throw UsageError("bench: name a benchmark (read)");
-  const std::string what = args.positional[0];
-  if (what == "read") {
-    if (args.positional.size() < 2) throw UsageError("bench read: give one or more input files");
-    ReaderOptions ro;
-    ro.columns = args.get("--columns");
-    const int repeats = args.getInt("--repeat", 5, 1, 1000);
-    const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
-    const int threads = args.getInt("--threads", cores, 1, 16);
-    std::printf("%-40s %8s %10s %8s %9s %9s %10s %7s\n", "file", "MB", "points", "threads", "cat s", "read s",
-                "Mpoints/s", "ratio");
-    for (std::size_t i = 1; i < args.positional.size(); ++i) {
-      std::vector<int> runs{1};
-      if (threads > 1) runs.push_back(threads);
-      for (int t : runs) {
-        ro.decodeThreads = t;
-        auto r = benchmarkRead(args.positional[i], ro, repeats);
-        std::printf("%-40s %8.1f %10llu %8d %9.4f %9.4f %10.1f %7.2f\n", r.path.c_str(),
-                    static_cast<double>(r.bytes) / 1e6, static_cast<unsigned long long>(r.points), t, r.rawSeconds,
-                    r.decodeSeconds, static_cast<double>(r.points) / r.decodeSeconds / 1e6, r.ratio());
-      }
+// One table for all benchmarks: main() parses every `tinbuild bench` command line against it before
+// runBench sees it, so the options of the forwarded benchmarks must be declared here too.
+std::vector<cli::OptionSpec> benchOptions() {
+  return {{"--points", "N", "suite, delaunay, stream: points per survey (suite default 1M)"},
+          {"--repeat", "R", "runs of each program, the best is kept (read: default 5; others: 1)"},
+          {"--kind", "KIND", "delaunay: strips (default), uniform or lattice"},
+          {"--swath", "M", "delaunay --kind strips: swath width in metres (default 500)"},
+          {"--home-strip", "", "delaunay --kind strips: add a strip crossing the area diagonally"},
+          {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
+          {"--seed", "S", "generator seed (default 1)"},
+          {"--no-cgal", "", "skip the CGAL runs"},
+          {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
+          {"--keep", "", "keep the generated files"},
+          {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
+          {"--threads", "N", "read: decode threads (default: all cores); others: tinbuild build's threads"},
+          {"--columns", "SPEC", "read: XYZ input column mapping"},
+          {"--cell-points", "M", "stream: points per cell (default 4000)"},
+          {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
+          {"--within", "ORDER", "stream: point order within a cell, brio (default) or random"},
+          {"-o", "FILE", "stream: output (default stdout)", "--output"},
+          {"-q", "", "stream: no progress on stderr", "--quiet"}};
+}
+
+// tinbuild-bench in the directory of the running executable (not $PATH: a build tree's tinbuild must
+// pair with that tree's benchmark, which in turn runs the tinbuild it finds beside itself).
+std::filesystem::path benchExecutable() {
+  std::vector<char> buf(4096);
+  const ssize_t n = readlink("/proc/self/exe", buf.data(), buf.size() - 1);
+  if (n <= 0) throw Error(std::string("bench: readlink /proc/self/exe: ") + std::strerror(errno));
+  return std::filesystem::path(std::string(buf.data(), static_cast<std::size_t>(n))).parent_path() /
+         "tinbuild-bench";
+}
+
+// Replaces this process with `tinbuild-bench WHAT ARGS...`; returns only by throwing.  The arguments
+// are rebuilt from the parsed options rather than copied from argv, so aliases and --name=value come
+// out in the plain `--name value` form tinbuild-bench reads; its options do not depend on their order.
+[[noreturn]] void forwardToBench(const std::string& what, const cli::ParsedArgs& args) {
+  const std::filesystem::path exe = benchExecutable();
+  if (access(exe.c_str(), X_OK) != 0)
+    throw Error("bench " + what + ": the CGAL peer benchmark needs tinbuild-bench beside this executable (" +
+                exe.string() + " is missing); it is built only when CGAL is installed: apt-get install " +
+                "libcgal-dev, then rebuild (cmake --build BUILD_DIR)");
+  std::vector<std::string> words{exe.string(), what};
+  words.insert(words.end(), args.positional.begin() + (args.positional.empty() ? 0 : 1),
+               args.positional.end());
+  const auto specs = benchOptions();
+  for (const auto& [name, values] : args.values_) {
+    const bool flag = std::any_of(specs.begin(), specs.end(), [&](const cli::OptionSpec& s) {
+      return s.name == name && s.metavar.empty();
+    });
+    for (const auto& v : values) {
+      words.push_back(name);
+      if (!flag) words.push_back(v);
     }
-    std::printf(
-        "ratio = raw read time (cat FILE > /dev/null, warm cache) / tinbuild decode time; 1.0 = as fast as "
-        "cat\n");
-    return 0;
   }
-  throw UsageError("bench: unknown benchmark '" + what + "' (available: read)");
+  std::vector<char*> argv;
+  for (auto& w : words) argv.push_back(w.data());
+  argv.push_back(nullptr);
+  std::cout.flush();  // nothing buffered here may be lost by the exec
+  std::fflush(nullptr);
+  execv(exe.c_str(), argv.data());
+  throw Error("bench " + what + ": cannot run " + exe.string() + ": " + std::strerror(errno));
+}
+
+int runBench(const cli::ParsedArgs& args) {
+  // No benchmark named (`tinbuild bench`, `tinbuild bench --points 1M`) means the suite.
+  const std::string what = args.positional.empty() ? "suite" : args.positional[0];
+  if (what != "read") forwardToBench(what, args);
+  // The option table is shared by all benchmarks; say so when read is given one of the others'.
+  static const std::set<std::string> readOptions{"--repeat", "--threads", "--columns"};
+  for (const auto& [name, values] : args.values_)
+    if (!readOptions.count(name))
+      throw UsageError("bench read: " + name +
+                       " applies to the other benchmarks, not read (see tinbuild bench --help)");
+  if (args.positional.size() < 2) throw UsageError("bench read: give one or more input files");
+  ReaderOptions ro;
+  ro.columns = args.get("--columns");
+  const int repeats = args.getInt("--repeat", 5, 1, 1000);
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  const int threads = args.getInt("--threads", cores, 1, 16);
+  std::printf("%-40s %8s %10s %8s %9s %9s %10s %7s\n", "file", "MB", "points", "threads", "cat s", "read s",
+              "Mpoints/s", "ratio");
+  for (std::size_t i = 1; i < args.positional.size(); ++i) {
+    std::vector<int> runs{1};
+    if (threads > 1) runs.push_back(threads);
+    for (int t : runs) {
+      ro.decodeThreads = t;
+      auto r = benchmarkRead(args.positional[i], ro, repeats);
+      std::printf("%-40s %8.1f %10llu %8d %9.4f %9.4f %10.1f %7.2f\n", r.path.c_str(),
+                  static_cast<double>(r.bytes) / 1e6, static_cast<unsigned long long>(r.points), t,
+                  r.rawSeconds, r.decodeSeconds, static_cast<double>(r.points) / r.decodeSeconds / 1e6,
+                  r.ratio());
+    }
+  }
+  std::printf(
+      "ratio = raw read time (cat FILE > /dev/null, warm cache) / tinbuild decode time; 1.0 = as fast as "
+      "cat\n");
+  return 0;
 }
 
 }  // namespace
@@ -48,14 +126,30 @@ int runBench(const cli::ParsedArgs& args) {
 Command benchCommand() {
   return Command{
       "bench",
-      "tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
-      "benchmarks (reader throughput against cat; CGAL peers come with the triangulator)",
+      "tinbuild bench [suite] [--points N] [--repeat R] [--threads N] [--seed S] [--no-cgal] [--dir DIR]\n"
+      "                      [--keep] [--tinbuild EXE]\n"
+      "       tinbuild bench delaunay --kind strips|uniform|lattice --points N [--swath M] [--home-strip]\n"
+      "                      [--seed S] [--repeat R] [--threads N] [--no-cgal] [--dir DIR] [--keep]\n"
+      "       tinbuild bench lattice-vs-random [--side S] [--seed S] [--repeat R] [--no-cgal] [--dir DIR]\n"
+      "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
+      "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
+      "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
+      "bench [suite]: generates a uniform random survey, a flight-strip survey and a lattice of N points\n"
+      "(default 1M; LAS, untimed) and times, each in a child process: `tinbuild build` (default threads\n"
+      "and --threads 1), `tinbuild triangulate` on a stream finalized beforehand, and CGAL's\n"
+      "Delaunay_triangulation_2 range insertion.  One table: seconds, the 1-thread speedup, build/CGAL and\n"
+      "CGAL/triangulate time ratios, build points/s, peak RSS of build and CGAL (wait4) and their ratio,\n"
+      "and the stream width.\n"
+      "bench delaunay: the same runs on one survey, in detail, with the ratios' targets.\n"
+      "bench lattice-vs-random: an S x S lattice (cocircular worst case) against as many random points.\n"
+      "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
+      "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
+      "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"
       "bench read: decodes each file completely with the tinbuild reader and compares with the raw read\n"
       "speed of the same file from the page cache (what `cat FILE > /dev/null` does), best of N runs,\n"
-      "once on one thread and once with N decode threads (LAS files).",
-      {{"--repeat", "N", "runs per side (best is kept; default 5)"},
-       {"--threads", "N", "decode threads for the second row (default: all cores)"},
-       {"--columns", "SPEC", "XYZ input column mapping"}},
+      "once on one thread and once with N decode threads (LAS files).\n"
+      "Counts accept 1000000, 1e6, 10M.  Tables go to stdout, progress to stderr.",
+      benchOptions(),
       runBench};
 }
 

@@ -18,7 +18,10 @@
 //       everyone: the benchmark measures computation, not the disk.
 //     - "ours: build" is the whole job, `tinbuild build survey.las --mesh out.smb -q --report build.json`:
 //       reading the LAS, all finalizer passes, triangulation, and writing the binary streaming mesh to
-//       disk.  Its triangle count, stream width and grid come from build.json.
+//       disk.  Its triangle count, stream width and grid come from build.json.  It runs on tinbuild's
+//       default threads (all cores) unless --threads N is given.
+//     - "ours: build --threads 1" is the same job on one thread; default time / this time is the speedup
+//       the stage threads buy.  Its triangle count must equal the other's (output is thread-independent).
 //     - "ours: triangulate" is the triangulator alone on a pre-finalized stream: `tinbuild finalize` writes
 //       survey.tfs first (untimed), then `tinbuild triangulate survey.tfs -o /dev/null -q` is timed.  It
 //       includes reading and decoding the stream file (cheap), and no mesh is written.
@@ -30,12 +33,18 @@
 //       time comes back through a pipe; the RSS from wait4 includes the point vector, which an in-core
 //       triangulator has to hold anyway.
 //   Points per second are always the survey's point count divided by the time; bytes per point are peak
-//   RSS divided by the same count.  The triangle counts of all three runs are compared: our output is
+//   RSS divided by the same count.  The triangle counts of all the runs are compared: our output is
 //   meant to be exactly CGAL's triangulation of the distinct xy points.
 //
-// Subcommands: delaunay (one survey, three runs), lattice-vs-random (cocircular worst case against
-// uniform points of the same count), stream (a synthetic finalized stream on stdout for the billion-point
-// pipe run; stream_generator.cpp), cgal-child (internal).  See usage() below.
+//   tinbuild refuses to replace an existing output, so every run's outputs are removed before it starts
+//   (each repeat writes fresh files; the two build configurations use names of their own) and
+//   --overwrite is passed all the same.  Meshes, streams and surveys are deleted as soon as they have
+//   been measured unless --keep, so a suite holds one survey on disk at a time.
+//
+// Subcommands: suite (uniform, strips and lattice of one size, every run, one table; what `tinbuild
+// bench` runs), delaunay (one survey, the same runs in detail), lattice-vs-random (cocircular worst case
+// against uniform points of the same count), stream (a synthetic finalized stream on stdout for the
+// billion-point pipe run; stream_generator.cpp), cgal-child (internal).  See usage() below.
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -45,6 +54,7 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <initializer_list>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -66,13 +76,22 @@ const char* kUsage =
     "tinbuild-bench: our streaming Delaunay pipeline against CGAL's in-core Delaunay_triangulation_2\n"
     "\n"
     "usage:\n"
+    "  tinbuild-bench suite [--points N] [--seed S] [--repeat R] [--threads T] [--no-cgal] [--dir DIR]\n"
+    "                       [--keep] [--tinbuild EXE]\n"
+    "      The runs of `delaunay` on a uniform random survey, a flight-strip survey (default swath) and\n"
+    "      a lattice of round(sqrt(N))^2 points (N default 1M), in one table: build and build --threads 1\n"
+    "      seconds and the speedup, triangulate and CGAL seconds, build/CGAL and CGAL/triangulate, build\n"
+    "      Mpoints/s, build and CGAL peak RSS and their ratio, stream width.\n"
     "  tinbuild-bench delaunay --kind strips|uniform|lattice --points N [--swath M] [--home-strip]\n"
-    "                          [--seed S] [--repeat R] [--no-cgal] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "                          [--seed S] [--repeat R] [--threads T] [--no-cgal] [--dir DIR] [--keep]\n"
+    "                          [--tinbuild EXE]\n"
     "      Writes a synthetic survey of N points as LAS (untimed), then times, each in a child process:\n"
-    "      `tinbuild build` (the whole job, mesh written to disk), `tinbuild triangulate` on a stream\n"
-    "      finalized beforehand (the triangulator alone), and CGAL's range insertion.  Prints seconds,\n"
-    "      Mpoints/s, peak RSS (wait4), bytes/point, triangle counts, and the ratios with their targets.\n"
-    "  tinbuild-bench lattice-vs-random --side S [--seed S] [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
+    "      `tinbuild build` (the whole job, mesh written to disk) on default threads (or T) and on one\n"
+    "      thread, `tinbuild triangulate` on a stream finalized beforehand (the triangulator alone), and\n"
+    "      CGAL's range insertion.  Prints seconds, Mpoints/s, peak RSS (wait4), bytes/point, triangle\n"
+    "      counts, and the ratios with their targets.\n"
+    "  tinbuild-bench lattice-vs-random --side S [--seed S] [--repeat R] [--threads T] [--no-cgal]\n"
+    "                                   [--dir DIR] [--keep] [--tinbuild EXE]\n"
     "      Builds an S x S lattice in row order (massively cocircular) and a uniform random survey of the\n"
     "      same count; prints both build times and their ratio, with CGAL on both for reference.\n"
     "  tinbuild-bench stream --points N [--cell-points M] [--seed S] [--order hilbert|serpentine]\n"
@@ -85,7 +104,8 @@ const char* kUsage =
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
-    "Counts accept 1000000, 1e6, 10M, 1G.  --repeat R keeps the best of R runs (default 1).  Temporary\n"
+    "Counts accept 1000000, 1e6, 10M, 1G.  --repeat R keeps the best of R runs (default 1).  --threads T\n"
+    "is passed to tinbuild build and triangulate (default: tinbuild's, all cores).  Temporary\n"
     "files go to a fresh directory under --dir (default $TMPDIR or /tmp), removed at the end unless\n"
     "--keep.  tinbuild is looked for next to this executable unless --tinbuild is given.  Tables go to\n"
     "stdout, progress to stderr; errors exit 1.\n";
@@ -159,6 +179,7 @@ struct Config {
   std::string tinbuild;  // the tinbuild executable
   std::string self;      // this executable (for cgal-child)
   int repeat = 1;
+  int threads = 0;  // --threads of the build and triangulate runs; 0 = tinbuild's default (all cores)
   bool keep = false;
   bool noCgal = false;
 };
@@ -174,6 +195,9 @@ struct Timing {
       rssKb = r.maxRssKb;
     }
   }
+  // For ratios: NaN (printed "n/a") when the program was not run, rather than infinity.
+  double time() const { return run ? seconds : std::numeric_limits<double>::quiet_NaN(); }
+  double rss() const { return run ? static_cast<double>(rssKb) : std::numeric_limits<double>::quiet_NaN(); }
 };
 
 struct CaseResult {
@@ -184,12 +208,14 @@ struct CaseResult {
   std::string las;
   std::uint64_t lasBytes = 0;
   double generateSeconds = 0;
-  Timing build, triangulate, cgal;
-  // build.json
+  Timing build, build1, triangulate, cgal;  // build1: `tinbuild build --threads 1`
+  // build.json (of the default-threads build)
   std::uint64_t streamed = 0, vertices = 0, triangles = 0, width = 0;
   int depth = 0;
   double cellSize = 0;
   std::uint64_t reportRssBytes = 0;
+  // build1.json: the output must not depend on the thread count
+  std::uint64_t build1Triangles = 0;
   // tri.json
   std::uint64_t triTriangles = 0;
   std::uint64_t triRssBytes = 0;
@@ -204,18 +230,48 @@ void progress(const std::string& what) {
   std::fflush(stderr);
 }
 
-void runBuild(const Config& cfg, const std::string& dir, CaseResult& r) {
-  const std::string mesh = dir + "/" + r.name + ".smb";
-  const std::string report = dir + "/" + r.name + "-build.json";
+// Removes files a run is about to write, ignoring those that do not exist.  Every repeat then writes
+// fresh outputs instead of replacing the last one's (--overwrite is passed as well, so a file that
+// could not be removed is replaced rather than refused).
+void removeFiles(std::initializer_list<std::string> paths) {
+  std::error_code ec;
+  for (const auto& p : paths) fs::remove(p, ec);
+}
+
+// `--threads N` for a tinbuild run, nothing for tinbuild's default.
+void addThreads(std::vector<std::string>& cmd, int threads) {
+  if (threads <= 0) return;
+  cmd.push_back("--threads");
+  cmd.push_back(std::to_string(threads));
+}
+
+// `tinbuild build` with `threads` (0 = default) cfg.repeat times into `t`; returns the last build.json.
+// Each configuration writes to names of its own (`tag`), so none can pick up another's report.
+std::string timeBuild(const Config& cfg, const std::string& dir, const CaseResult& r, int threads,
+                      const std::string& tag, Timing& t) {
+  const std::string stem = dir + "/" + r.name + tag;
+  const std::string mesh = stem + ".smb";
+  const std::string report = stem + "-build.json";
+  std::vector<std::string> cmd{"build", r.las, "--mesh", mesh, "-q", "--report", report, "--overwrite"};
+  addThreads(cmd, threads);
+  const std::string label = "tinbuild build" +
+                            (threads > 0 ? " --threads " + std::to_string(threads) : std::string()) + " " +
+                            r.name;
   for (int i = 0; i < cfg.repeat; ++i) {
-    const ChildRun run =
-        runChild(cfg.tinbuild, {"build", r.las, "--mesh", mesh, "-q", "--report", report}, false);
-    r.build.add(run);
-    progress("  tinbuild build " + r.name + " run " + std::to_string(i + 1) + "/" +
-             std::to_string(cfg.repeat) + ": " + fmt("%.3f s", run.seconds) + ", " +
-             fmt("%.1f MiB", mib(run.maxRssKb)));
+    removeFiles({mesh, report});
+    const ChildRun run = runChild(cfg.tinbuild, cmd, false);
+    t.add(run);
+    progress("  " + label + " run " + std::to_string(i + 1) + "/" + std::to_string(cfg.repeat) + ": " +
+             fmt("%.3f s", run.seconds) + ", " + fmt("%.1f MiB", mib(run.maxRssKb)));
   }
-  const std::string json = readFile(report);
+  std::string json = readFile(report);
+  if (!cfg.keep) removeFiles({mesh});  // free the disk early
+  return json;
+}
+
+// The whole job with cfg.threads, and with `singleThread` once more on one thread (the speedup).
+void runBuild(const Config& cfg, const std::string& dir, CaseResult& r, bool singleThread) {
+  const std::string json = timeBuild(cfg, dir, r, cfg.threads, "", r.build);
   r.streamed = jsonCount(json, "points_streamed");
   r.vertices = jsonCount(json, "vertices", "triangulation");
   r.triangles = jsonCount(json, "triangles", "triangulation");
@@ -223,16 +279,24 @@ void runBuild(const Config& cfg, const std::string& dir, CaseResult& r) {
   r.depth = static_cast<int>(jsonCount(json, "depth", "grid"));
   r.cellSize = jsonNumber(json, "cell_size", "grid").value_or(0);
   r.reportRssBytes = jsonCount(json, "peak_rss_bytes");
+  if (singleThread)
+    r.build1Triangles =
+        jsonCount(timeBuild(cfg, dir, r, 1, "-1thread", r.build1), "triangles", "triangulation");
 }
 
 void runTriangulate(const Config& cfg, const std::string& dir, CaseResult& r) {
   const std::string tfs = dir + "/" + r.name + ".tfs";
   const std::string report = dir + "/" + r.name + "-tri.json";
   progress("  tinbuild finalize " + r.name + " (untimed)");
-  runChild(cfg.tinbuild, {"finalize", r.las, "-o", tfs, "-q"}, false);
+  removeFiles({tfs});
+  runChild(cfg.tinbuild, {"finalize", r.las, "-o", tfs, "-q", "--overwrite"}, false);
+  // To /dev/null: the triangulator alone, no mesh writer (a device, so --overwrite has nothing to do).
+  std::vector<std::string> cmd{"triangulate", tfs, "-o", "/dev/null", "-q"};
+  cmd.insert(cmd.end(), {"--report", report, "--overwrite"});
+  addThreads(cmd, cfg.threads);
   for (int i = 0; i < cfg.repeat; ++i) {
-    const ChildRun run =
-        runChild(cfg.tinbuild, {"triangulate", tfs, "-o", "/dev/null", "-q", "--report", report}, false);
+    removeFiles({report});
+    const ChildRun run = runChild(cfg.tinbuild, cmd, false);
     r.triangulate.add(run);
     progress("  tinbuild triangulate " + r.name + " run " + std::to_string(i + 1) + "/" +
              std::to_string(cfg.repeat) + ": " + fmt("%.3f s", run.seconds) + ", " +
@@ -268,8 +332,11 @@ void runCgal(const Config& cfg, CaseResult& r) {
   }
 }
 
+// Generates one survey and measures it: the runs of `delaunay` and of one row of `suite`.  `full` adds
+// the single-thread build and the triangulator alone to the default build and CGAL (lattice-vs-random
+// compares build times only).
 CaseResult runCase(const Config& cfg, const std::string& dir, const std::string& name, const SurveySpec& spec,
-                   bool withTriangulate) {
+                   bool full) {
   CaseResult r;
   r.name = name;
   r.spec = spec;
@@ -285,9 +352,10 @@ CaseResult runCase(const Config& cfg, const std::string& dir, const std::string&
   writeSyntheticSurveyLas(spec, r.las, 32610, 0);
   r.generateSeconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   r.lasBytes = fs::file_size(r.las);
-  runBuild(cfg, dir, r);
-  if (withTriangulate) runTriangulate(cfg, dir, r);
+  runBuild(cfg, dir, r, full);
+  if (full) runTriangulate(cfg, dir, r);
   if (!cfg.noCgal) runCgal(cfg, r);
+  if (!cfg.keep) removeFiles({r.las});  // a suite writes several surveys: keep one on disk at a time
   return r;
 }
 
@@ -332,6 +400,7 @@ Config makeConfig(Args& args) {
     throw BenchError("no tinbuild executable at " + cfg.tinbuild +
                      " (build it: cmake --build build --target tinbuild, or give --tinbuild EXE)");
   cfg.repeat = static_cast<int>(args.count("--repeat", 1, 1, 100));
+  cfg.threads = static_cast<int>(args.count("--threads", 0, 1, 256));
   cfg.keep = args.flag("--keep");
   cfg.noCgal = args.flag("--no-cgal");
   return cfg;
@@ -381,7 +450,12 @@ void printRatio(const char* label, const std::string& value, const std::string& 
   std::printf("  %-46s %9s   %-8s %s\n", label, value.c_str(), target.c_str(), v.c_str());
 }
 
-void printCase(const Config& cfg, const CaseResult& r, bool withTriangulate) {
+// How the default-threads build and triangulate runs were started.
+std::string threadsLabel(const Config& cfg) {
+  return cfg.threads > 0 ? "--threads " + std::to_string(cfg.threads) : "default threads";
+}
+
+void printCase(const Config& cfg, const CaseResult& r, bool full) {
   const double n = static_cast<double>(r.spec.points);
   std::printf("  survey      %s\n", describeSurvey(r).c_str());
   std::printf("  input       %s: %.1f MB (LAS 1.4 format 1), written in %.1f s (untimed)\n", r.las.c_str(),
@@ -392,20 +466,23 @@ void printCase(const Config& cfg, const CaseResult& r, bool withTriangulate) {
               r.depth, r.cellSize, group(r.width).c_str(), 100.0 * static_cast<double>(r.width) / n);
   std::printf("\n  %-40s %9s %10s %13s %12s %14s\n", "run", "seconds", "Mpoints/s", "peak RSS MiB",
               "bytes/point", "triangles");
-  printRunRow("ours: tinbuild build (whole job)", r.build, r.spec.points, r.triangles);
-  if (withTriangulate)
+  const std::string build =
+      cfg.threads > 0 ? "ours: tinbuild build " + threadsLabel(cfg) : "ours: tinbuild build (whole job)";
+  printRunRow(build.c_str(), r.build, r.spec.points, r.triangles);
+  if (full) {
+    printRunRow("ours: tinbuild build --threads 1", r.build1, r.spec.points, r.build1Triangles);
     printRunRow("ours: tinbuild triangulate (.tfs stream)", r.triangulate, r.spec.points, r.triTriangles);
+  }
   printRunRow("CGAL: Delaunay_triangulation_2 insert", r.cgal, r.spec.points, r.cgalFaces);
-  (void)cfg;
 }
 
-// Triangle agreement line.
-void printTriangleCheck(const CaseResult& r, bool withTriangulate) {
+// Triangle agreement line: every run of ours must produce the same mesh, and it must be CGAL's.
+void printTriangleCheck(const CaseResult& r, bool full, const std::string& label = "triangles") {
   std::string line = "build " + group(r.triangles);
   bool same = true;
-  if (withTriangulate) {
-    line += ", triangulate " + group(r.triTriangles);
-    same = same && r.triTriangles == r.triangles;
+  if (full) {
+    line += ", 1 thread " + group(r.build1Triangles) + ", triangulate " + group(r.triTriangles);
+    same = same && r.build1Triangles == r.triangles && r.triTriangles == r.triangles;
   }
   if (r.cgal.run) {
     line += ", CGAL " + group(r.cgalFaces);
@@ -413,7 +490,32 @@ void printTriangleCheck(const CaseResult& r, bool withTriangulate) {
     line += " (vertices: ours " + group(r.vertices) + ", CGAL " + group(r.cgalVertices) + ")";
     same = same && r.cgalVertices == r.vertices;
   }
-  std::printf("  %-46s %s: %s\n", "triangles", same ? "identical" : "DIFFERENT", line.c_str());
+  std::printf("  %-46s %s: %s\n", label.c_str(), same ? "identical" : "DIFFERENT", line.c_str());
+}
+
+// The derived figures of one survey: `delaunay` prints them against their targets, `suite` as columns
+// of its table.  NaN ("n/a") where a run was skipped.
+struct Ratios {
+  double speedup;        // build --threads 1 time / build time (default threads)
+  double buildOverCgal;  // target <= 1
+  double cgalOverTri;    // target >= 2: the triangulator's throughput against CGAL's
+  double rss;            // build peak RSS / CGAL peak RSS, target <= 5%
+};
+
+Ratios ratiosOf(const CaseResult& r) {
+  return {r.build1.time() / r.build.time(), r.build.time() / r.cgal.time(),
+          r.cgal.time() / r.triangulate.time(), r.build.rss() / r.cgal.rss()};
+}
+
+// The lines above every report: the command, the machine and its load, the tinbuild measured.
+void printHeader(const Config& cfg, const std::string& command, const std::vector<std::string>& argv,
+                 const std::string& loadBefore, const std::string& loadAfter) {
+  std::printf("%s\n", joinCommand("tinbuild-bench " + command, argv).c_str());
+  std::printf("  machine     %u cores, load average %s before, %s after; best of %d run%s each\n",
+              std::thread::hardware_concurrency(), loadBefore.c_str(), loadAfter.c_str(), cfg.repeat,
+              cfg.repeat == 1 ? "" : "s");
+  std::printf("  tinbuild    %s, %s (an idle process, `tinbuild --version`, peaks at %.1f MiB)\n",
+              cfg.tinbuild.c_str(), threadsLabel(cfg).c_str(), baselineMiB(cfg));
 }
 
 // ---- subcommands -------------------------------------------------------------------------------------
@@ -446,26 +548,19 @@ int delaunayMain(const std::vector<std::string>& argv) {
   }
   const std::string loadAfter = loadAverage();
 
-  std::printf("%s\n", joinCommand("tinbuild-bench delaunay", argv).c_str());
-  std::printf("  machine     %u cores, load average %s before, %s after; best of %d run%s each\n",
-              std::thread::hardware_concurrency(), loadBefore.c_str(), loadAfter.c_str(), cfg.repeat,
-              cfg.repeat == 1 ? "" : "s");
-  std::printf("  tinbuild    %s (an idle process, `tinbuild --version`, peaks at %.1f MiB)\n",
-              cfg.tinbuild.c_str(), baselineMiB(cfg));
+  printHeader(cfg, "delaunay", argv, loadBefore, loadAfter);
   printCase(cfg, r, true);
 
-  const double cgalS = r.cgal.run ? r.cgal.seconds : std::numeric_limits<double>::quiet_NaN();
-  const double buildOverCgal = r.build.seconds / cgalS;
-  const double cgalOverTri = cgalS / r.triangulate.seconds;
-  const double rssRatio = r.cgal.run ? static_cast<double>(r.build.rssKb) / static_cast<double>(r.cgal.rssKb)
-                                     : std::numeric_limits<double>::quiet_NaN();
+  const Ratios q = ratiosOf(r);
   std::printf("\n  %-46s %9s   %-8s %s\n", "ratio", "value", "target", "");
-  printRatio("build time / CGAL time", fmt("%.2f", buildOverCgal), "<= 1.0",
-             verdict(buildOverCgal, 1.0, true));
-  printRatio("CGAL time / triangulate time (throughput)", fmt("%.2f", cgalOverTri), ">= 2.0",
-             verdict(cgalOverTri, 2.0, false));
-  printRatio("build peak RSS / CGAL peak RSS", fmt("%.1f%%", 100.0 * rssRatio), "<= 5%",
-             verdict(rssRatio, 0.05, true));
+  printRatio("build time / CGAL time", fmt("%.2f", q.buildOverCgal), "<= 1.0",
+             verdict(q.buildOverCgal, 1.0, true));
+  printRatio("CGAL time / triangulate time (throughput)", fmt("%.2f", q.cgalOverTri), ">= 2.0",
+             verdict(q.cgalOverTri, 2.0, false));
+  printRatio("build peak RSS / CGAL peak RSS", fmt("%.1f%%", 100.0 * q.rss), "<= 5%",
+             verdict(q.rss, 0.05, true));
+  printRatio(("build speedup (1 thread / " + threadsLabel(cfg) + ")").c_str(), fmt("%.2f", q.speedup), "",
+             "reference");
   printTriangleCheck(r, true);
   if (r.cgal.run)
     std::printf("  %-46s %.2f s, peak RSS %.1f MiB before insertion (untimed)\n", "CGAL load (LAS -> vector)",
@@ -503,12 +598,7 @@ int latticeVsRandomMain(const std::vector<std::string>& argv) {
   }
   const std::string loadAfter = loadAverage();
 
-  std::printf("%s\n", joinCommand("tinbuild-bench lattice-vs-random", argv).c_str());
-  std::printf("  machine     %u cores, load average %s before, %s after; best of %d run%s each\n",
-              std::thread::hardware_concurrency(), loadBefore.c_str(), loadAfter.c_str(), cfg.repeat,
-              cfg.repeat == 1 ? "" : "s");
-  std::printf("  tinbuild    %s (an idle process, `tinbuild --version`, peaks at %.1f MiB)\n",
-              cfg.tinbuild.c_str(), baselineMiB(cfg));
+  printHeader(cfg, "lattice-vs-random", argv, loadBefore, loadAfter);
   std::printf("\n[lattice]\n");
   printCase(cfg, l, false);
   printTriangleCheck(l, false);
@@ -528,6 +618,69 @@ int latticeVsRandomMain(const std::vector<std::string>& argv) {
     printRatio("random build time / random CGAL time", fmt("%.2f", u.build.seconds / u.cgal.seconds), "",
                "reference");
   }
+  return 0;
+}
+
+// `suite`: the three kinds of survey at the same size, every run of `delaunay` on each, one table.
+int suiteMain(const std::vector<std::string>& argv) {
+  Args args("suite", argv);
+  Config cfg = makeConfig(args);
+  const std::uint64_t n = args.count("--points", 1000000, 4, std::uint64_t{1} << 36);
+  const std::uint64_t seed = args.count("--seed", 1, 0, std::uint64_t{1} << 52);
+  const std::string base = args.value("--dir", defaultTempBase());
+  args.finish();
+
+  std::vector<SurveySpec> specs;
+  for (const auto kind :
+       {SurveySpec::Kind::UniformRandom, SurveySpec::Kind::FlightStrips, SurveySpec::Kind::Lattice}) {
+    SurveySpec s;  // default spacing, and for strips the default swath
+    s.kind = kind;
+    s.points = n;
+    s.seed = seed;
+    if (kind == SurveySpec::Kind::Lattice) {
+      // A square lattice, side round(sqrt(N)): a ragged last row would not be the cocircular worst case.
+      const auto side = static_cast<std::uint64_t>(std::llround(std::sqrt(static_cast<double>(n))));
+      s.points = side * side;
+    }
+    specs.push_back(s);
+  }
+
+  const std::string loadBefore = loadAverage();
+  std::vector<CaseResult> rows;
+  {
+    TempDir dir(base, cfg.keep);
+    for (const auto& s : specs) rows.push_back(runCase(cfg, dir.path(), surveyKindName(s.kind), s, true));
+  }
+  const std::string loadAfter = loadAverage();
+
+  printHeader(cfg, "suite", argv, loadBefore, loadAfter);
+  for (const auto& r : rows) std::printf("  survey      %s\n", describeSurvey(r).c_str());
+  std::printf("\n  %-8s %11s %8s %8s %7s %8s %8s %10s %8s %7s %9s %8s %6s %9s\n", "survey", "points",
+              "build s", "1-thr s", "speedup", "tri s", "CGAL s", "build/CGAL", "CGAL/tri", "Mpt/s",
+              "build MiB", "CGAL MiB", "RSS %", "width");
+  for (const auto& r : rows) {
+    const Ratios q = ratiosOf(r);
+    std::printf("  %-8s %11s %8s %8s %7s %8s %8s %10s %8s %7s %9s %8s %6s %9s\n", surveyKindName(r.spec.kind),
+                group(r.spec.points).c_str(), fmt("%.3f", r.build.time()).c_str(),
+                fmt("%.3f", r.build1.time()).c_str(), fmt("%.2f", q.speedup).c_str(),
+                fmt("%.3f", r.triangulate.time()).c_str(), fmt("%.3f", r.cgal.time()).c_str(),
+                fmt("%.2f", q.buildOverCgal).c_str(), fmt("%.2f", q.cgalOverTri).c_str(),
+                fmt("%.2f", static_cast<double>(r.spec.points) / r.build.time() / 1e6).c_str(),
+                fmt("%.1f", mib(r.build.rssKb)).c_str(), fmt("%.1f", r.cgal.rss() / 1024.0).c_str(),
+                fmt("%.1f", 100.0 * q.rss).c_str(), group(r.width).c_str());
+  }
+  std::printf("\n");
+  for (const auto& r : rows)
+    printTriangleCheck(r, true, std::string("triangles, ") + surveyKindName(r.spec.kind));
+  std::printf(
+      "\n  build s: `tinbuild build` with %s, the whole job, mesh written to disk.  1-thr s: the same\n"
+      "  with --threads 1; speedup = 1-thr s / build s.  tri s: `tinbuild triangulate` of a stream "
+      "finalized\n"
+      "  beforehand, to /dev/null.  CGAL s: Delaunay_triangulation_2 range insertion, points already in\n"
+      "  memory.  Targets: build/CGAL <= 1.0, CGAL/tri >= 2.0, RSS %% (build peak RSS / CGAL peak RSS)\n"
+      "  <= 5%%.  Mpt/s: survey points per second of build, millions.  MiB: peak RSS (wait4).  width: the\n"
+      "  stream width of build, points held in memory at once (build report).\n",
+      threadsLabel(cfg).c_str());
   return 0;
 }
 
@@ -554,6 +707,7 @@ int main(int argc, char** argv) {
       std::fputs(kUsage, stdout);
       return 0;
     }
+    if (command == "suite") return suiteMain(rest);
     if (command == "delaunay") return delaunayMain(rest);
     if (command == "lattice-vs-random") return latticeVsRandomMain(rest);
     if (command == "stream") return streamMain(rest);
