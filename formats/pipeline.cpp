@@ -280,6 +280,14 @@ class ProgressPointSink : public PointSink {
 
 namespace {
 
+// The mesh output is SMB (the binary streaming mesh: ".smb", stdout, a device or a pipe): encoding it
+// costs less than queueing its events for a writer thread, so it stays on the triangulator's thread.
+bool writesBinaryStreamingMesh(const std::string& path) {
+  if (path.empty() || isConventionalMeshPath(path)) return false;
+  const auto dot = path.rfind('.');
+  return dot == std::string::npos || path.substr(dot) != ".sma";
+}
+
 // Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
 // previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
 void refuseExistingOutputs(const PipelineOptions& o) {
@@ -361,11 +369,14 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   MeshTee tee;
   tee.add(*mesh);
   r.threads = effectiveThreads(o.threads);
-  tee.setThreaded(r.threads >= 2);  // the mesh encoder and writer beside the triangulator
+  // SMB encoding is a copy, cheaper than handing the events to another thread; ASCII is not.
+  const bool threaded = r.threads >= 2 && !writesBinaryStreamingMesh(o.meshOutput);
+  tee.setThreaded(threaded);
   tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
-  StreamingDelaunay delaunay(tee, dopt);
+  // Without a writer thread the one mesh writer is fed directly (the tee would only add a call).
+  StreamingDelaunay delaunay(threaded ? static_cast<MeshSink&>(tee) : *mesh, dopt);
   ProgressPointSink progress(delaunay, o.finalizer.progress, o.finalizer.progressData,
                              o.finalizer.progressCounts);
   const StreamInfo info = readFinalizedStream(finalizedInput, progress);
@@ -474,14 +485,20 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   if (dem) tee.add(*dem);
   const int threads = effectiveThreads(o.threads);
   // With two threads or more: the reader runs ahead of the finalizer, the triangulator has a thread
-  // and the outputs (the tee's consumers) another, all behind bounded queues.  Every stage sees the
-  // same sequence of events as on one thread, so the outputs are byte-identical for any count.
-  tee.setThreaded(threads >= 2);
+  // and the outputs (the tee's consumers) another, all behind bounded queues -- except an SMB mesh
+  // alone, which is cheaper to encode than to queue.  Every stage sees the same sequence of events as
+  // on one thread, so the outputs are byte-identical for any count.
+  const bool threadedOutputs =
+      threads >= 2 && (gpkg || dem || (mesh && !writesBinaryStreamingMesh(o.meshOutput)));
+  tee.setThreaded(threadedOutputs);
   tee.setProgress(fo.progress, fo.progressData);
   fo.readAhead = threads >= 2;
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
-  StreamingDelaunay delaunay(tee, dopt);
+  // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just
+  // before it ends the stream).
+  const bool direct = mesh && !gpkg && !dem && !threadedOutputs;
+  StreamingDelaunay delaunay(direct ? *mesh : static_cast<MeshSink&>(tee), dopt);
   if (threads >= 2) {
     ConcurrentPointSink queue(delaunay);
     r.finalizer = finalizePoints(in.streams, fo, queue, diag);

@@ -305,6 +305,7 @@ void DemTileTracker::begin(const MeshInfo& info) {
   touched_.clear();
   lastKey_ = -1;
   emittedSinceCheck_ = scans_ = 0;
+  invStep_ = 1.0 / layout_.step;
   const std::int64_t T = layout_.tileSize;
   if (layout_.width() > 0) {
     firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
@@ -339,19 +340,25 @@ void DemTileTracker::vertex(const MeshVertex& v) {
 void DemTileTracker::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
   ++emittedSinceCheck_;
   if (tilesX_ == 0) return;
-  // The pixel centres inside the triangle's bounding box, as the rasterizer computes them.
+  // The tiles under the bounding box, from pixel indices estimated with one multiplication and widened
+  // by a pixel each way: a superset of the tiles the rasterizer can open for this triangle (it writes
+  // only pixel centres inside the box), found without the exact rounding the rasterizer needs.  This
+  // runs on the triangulator's thread for every triangle, so it must stay cheap.
   const DemLayout& L = layout_;
   const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
   const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
-  const std::int64_t i0 = std::max(L.colMin, firstCentreAtOrAfter(L.originX, L.step, x0));
-  const std::int64_t i1 = std::min(L.colMax, lastCentreAtOrBefore(L.originX, L.step, x1));
-  if (i0 > i1) return;
-  const std::int64_t j0 = std::max(L.rowMin, firstCentreAtOrAfter(L.originY, L.step, y0));
-  const std::int64_t j1 = std::min(L.rowMax, lastCentreAtOrBefore(L.originY, L.step, y1));
-  if (j0 > j1) return;
-  const std::int64_t T = L.tileSize;
-  touch(floorDiv(i0 - L.tileCol0, T), floorDiv(i1 - L.tileCol0, T), floorDiv(j0 - L.tileRow0, T),
-        floorDiv(j1 - L.tileRow0, T));
+  const double fx0 = std::floor((x0 - L.originX) * invStep_) - 1, fx1 = std::floor((x1 - L.originX) * invStep_) + 1;
+  const double fy0 = std::floor((y0 - L.originY) * invStep_) - 1, fy1 = std::floor((y1 - L.originY) * invStep_) + 1;
+  const double T = L.tileSize;
+  auto tileOf = [&](double pixel, std::int64_t anchor) {
+    return static_cast<std::int64_t>(std::floor((pixel - static_cast<double>(anchor)) / T));
+  };
+  const std::int64_t tx0 = std::max(firstTx_, tileOf(fx0, L.tileCol0));
+  const std::int64_t tx1 = std::min(firstTx_ + tilesX_ - 1, tileOf(fx1, L.tileCol0));
+  const std::int64_t ty0 = std::max(firstTy_, tileOf(fy0, L.tileRow0));
+  const std::int64_t ty1 = std::min(firstTy_ + tilesY_ - 1, tileOf(fy1, L.tileRow0));
+  if (tx0 > tx1 || ty0 > ty1) return;
+  touch(tx0, tx1, ty0, ty1);
 }
 
 void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int64_t>& complete) {

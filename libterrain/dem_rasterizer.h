@@ -142,6 +142,7 @@ class DemTileTracker : public CheckpointAgent {
   std::int64_t tilesX_ = 0, tilesY_ = 0, firstTx_ = 0, firstTy_ = 0;
   std::set<std::int64_t> touched_;
   std::int64_t lastKey_ = -1;
+  double invStep_ = 1;
   std::uint64_t emittedSinceCheck_ = 0, scans_ = 0;
   std::vector<Box2> boxes_;
   std::vector<std::int64_t> keys_;

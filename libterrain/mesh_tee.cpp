@@ -1,6 +1,7 @@
 #include "libterrain/mesh_tee.h"
 
 #include <condition_variable>
+#include <cstring>
 #include <deque>
 #include <exception>
 #include <mutex>
@@ -77,13 +78,28 @@ void VertexTable::erase(std::uint64_t id) {
 // ---------------------------------------------------------------------------------------------------
 // MeshTee: events, the batch queue and the writer thread.
 
+// 40 bytes: the ids, or a vertex's id and coordinates bit for bit.  Triangles travel as ids; the writer
+// side resolves them in its own VertexTable, so the triangulator's thread copies as little as possible.
 struct MeshTee::Event {
-  enum Kind : std::uint8_t { kVertex, kTriangle, kFinalize, kComplete };
+  enum Kind : std::uint32_t { kVertex, kTriangle, kFinalize, kComplete };
   Kind kind = kVertex;
   std::uint32_t sink = 0;  // kComplete: the triangle sink the keys are for
-  MeshVertex v[3];         // kVertex: v[0]; kTriangle: the corners (ids inside); kFinalize: v[0].id;
-                           // kComplete: keys [v[0].id, v[1].id) of the batch's key list
+  std::uint64_t w[4] = {};  // kVertex: id, x, y, z (bits); kTriangle: a, b, c; kFinalize: id;
+                            // kComplete: keys [w[0], w[1]) of the batch's key list
 };
+
+namespace {
+inline std::uint64_t bitsOf(double v) {
+  std::uint64_t b;
+  std::memcpy(&b, &v, sizeof b);
+  return b;
+}
+inline double doubleOf(std::uint64_t b) {
+  double v;
+  std::memcpy(&v, &b, sizeof v);
+  return v;
+}
+}  // namespace
 
 struct MeshTee::Batch {
   std::vector<Event> events;
@@ -170,22 +186,46 @@ class MeshTee::Writer {
 MeshTee::MeshTee() : batch_(std::make_unique<Batch>()) {}
 MeshTee::~MeshTee() = default;  // a writer still running (the run failed) is stopped, its queue dropped
 
+// The consumer side: runs on the writer thread (threaded) or right away (not threaded).  It keeps its
+// own table of live vertices for the TriangleSinks; without a writer thread it also runs the agents.
+void MeshTee::applyVertex(const MeshVertex& v) {
+  for (auto* s : meshSinks_) s->vertex(v.id, v.x, v.y, v.z);
+  if (triangleSinks_.empty()) return;
+  vertices_.insert(v);
+  for (auto* s : triangleSinks_) s->vertex(v);
+  if (agentsInApply_)
+    for (auto* a : agents_) a->vertex(v);
+}
+
+void MeshTee::applyTriangle(std::uint64_t ia, std::uint64_t ib, std::uint64_t ic) {
+  for (auto* s : meshSinks_) s->triangle(ia, ib, ic);
+  if (triangleSinks_.empty()) return;
+  const MeshVertex& a = vertices_.at(ia);
+  const MeshVertex& b = vertices_.at(ib);
+  const MeshVertex& c = vertices_.at(ic);
+  for (auto* s : triangleSinks_) s->triangle(a, b, c);
+  if (agentsInApply_)
+    for (auto* ag : agents_) ag->triangle(a, b, c);
+}
+
+void MeshTee::applyFinalize(std::uint64_t id) {
+  for (auto* s : meshSinks_) s->finalizeVertex(id);
+  if (!triangleSinks_.empty()) vertices_.erase(id);
+}
+
 void MeshTee::apply(const Event& e, const std::vector<std::int64_t>& keys) {
   switch (e.kind) {
     case Event::kVertex:
-      for (auto* s : meshSinks_) s->vertex(e.v[0].id, e.v[0].x, e.v[0].y, e.v[0].z);
-      for (auto* s : triangleSinks_) s->vertex(e.v[0]);
+      applyVertex(MeshVertex{e.w[0], doubleOf(e.w[1]), doubleOf(e.w[2]), doubleOf(e.w[3])});
       break;
     case Event::kTriangle:
-      for (auto* s : meshSinks_) s->triangle(e.v[0].id, e.v[1].id, e.v[2].id);
-      for (auto* s : triangleSinks_) s->triangle(e.v[0], e.v[1], e.v[2]);
+      applyTriangle(e.w[0], e.w[1], e.w[2]);
       break;
     case Event::kFinalize:
-      for (auto* s : meshSinks_) s->finalizeVertex(e.v[0].id);
+      applyFinalize(e.w[0]);
       break;
     case Event::kComplete:
-      triangleSinks_[e.sink]->areasComplete(keys.data() + e.v[0].id,
-                                            static_cast<std::size_t>(e.v[1].id - e.v[0].id));
+      triangleSinks_[e.sink]->areasComplete(keys.data() + e.w[0], static_cast<std::size_t>(e.w[1] - e.w[0]));
       break;
   }
 }
@@ -206,64 +246,75 @@ void MeshTee::begin(const MeshInfo& info) {
   writer_.reset();
   batch_ = std::make_unique<Batch>();
   vertices_ = VertexTable();
+  agentVertices_ = VertexTable();
+  agents_.clear();
+  agentSink_.clear();
   for (auto* s : meshSinks_) s->begin(info);
-  for (auto* s : triangleSinks_) {
-    s->begin(info);
-    if (auto* a = s->agent()) a->begin(info);
+  for (std::size_t i = 0; i < triangleSinks_.size(); ++i) {
+    triangleSinks_[i]->begin(info);
+    if (auto* a = triangleSinks_[i]->agent()) {
+      a->begin(info);
+      agents_.push_back(a);
+      agentSink_.push_back(static_cast<std::uint32_t>(i));
+    }
   }
-  if (threaded_ && !empty()) writer_ = std::make_unique<Writer>(*this);
+  const bool threaded = threaded_ && !empty();
+  agentsInApply_ = !threaded;
+  if (threaded) writer_ = std::make_unique<Writer>(*this);
 }
 
 void MeshTee::vertex(std::uint64_t id, double x, double y, double z) {
+  if (!writer_) return applyVertex(MeshVertex{id, x, y, z});  // no copy, no queue
+  if (!agents_.empty()) {
+    const MeshVertex v{id, x, y, z};
+    agentVertices_.insert(v);
+    for (auto* a : agents_) a->vertex(v);
+  }
   Event e;
   e.kind = Event::kVertex;
-  e.v[0] = MeshVertex{id, x, y, z};
-  if (!triangleSinks_.empty()) {
-    vertices_.insert(e.v[0]);
-    for (auto* s : triangleSinks_)
-      if (auto* a = s->agent()) a->vertex(e.v[0]);
-  }
+  e.w[0] = id;
+  e.w[1] = bitsOf(x);
+  e.w[2] = bitsOf(y);
+  e.w[3] = bitsOf(z);
   emit(e);
 }
 
 void MeshTee::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
+  if (!writer_) return applyTriangle(a, b, c);
+  if (!agents_.empty()) {
+    const MeshVertex& va = agentVertices_.at(a);
+    const MeshVertex& vb = agentVertices_.at(b);
+    const MeshVertex& vc = agentVertices_.at(c);
+    for (auto* ag : agents_) ag->triangle(va, vb, vc);
+  }
   Event e;
   e.kind = Event::kTriangle;
-  if (!triangleSinks_.empty()) {
-    e.v[0] = vertices_.at(a);
-    e.v[1] = vertices_.at(b);
-    e.v[2] = vertices_.at(c);
-    for (auto* s : triangleSinks_)
-      if (auto* ag = s->agent()) ag->triangle(e.v[0], e.v[1], e.v[2]);
-  } else {
-    e.v[0].id = a;
-    e.v[1].id = b;
-    e.v[2].id = c;
-  }
+  e.w[0] = a;
+  e.w[1] = b;
+  e.w[2] = c;
   emit(e);
 }
 
 void MeshTee::finalizeVertex(std::uint64_t id) {
+  if (!writer_) return applyFinalize(id);
+  if (!agents_.empty()) agentVertices_.erase(id);
   Event e;
   e.kind = Event::kFinalize;
-  e.v[0].id = id;
-  if (!meshSinks_.empty()) emit(e);
-  if (!triangleSinks_.empty()) vertices_.erase(id);
+  e.w[0] = id;
+  emit(e);
 }
 
 void MeshTee::checkpoint(const ActiveRegion& region) {
-  for (std::size_t i = 0; i < triangleSinks_.size(); ++i) {
-    CheckpointAgent* a = triangleSinks_[i]->agent();
-    if (!a) continue;
+  for (std::size_t k = 0; k < agents_.size(); ++k) {
     keys_.clear();
-    a->checkpoint(region, keys_);
+    agents_[k]->checkpoint(region, keys_);
     if (keys_.empty()) continue;
     Event e;
     e.kind = Event::kComplete;
-    e.sink = static_cast<std::uint32_t>(i);
-    e.v[0].id = batch_->keys.size();
+    e.sink = agentSink_[k];
+    e.w[0] = batch_->keys.size();
     batch_->keys.insert(batch_->keys.end(), keys_.begin(), keys_.end());
-    e.v[1].id = batch_->keys.size();
+    e.w[1] = batch_->keys.size();
     emit(e);
     if (!writer_) batch_->keys.clear();
   }

@@ -142,10 +142,17 @@ class MeshTee : public MeshSink {
   class Writer;
   void emit(const Event& e);
   void apply(const Event& e, const std::vector<std::int64_t>& keys);
+  void applyVertex(const MeshVertex& v);
+  void applyTriangle(std::uint64_t a, std::uint64_t b, std::uint64_t c);
+  void applyFinalize(std::uint64_t id);
 
   std::vector<MeshSink*> meshSinks_;
   std::vector<TriangleSink*> triangleSinks_;
-  VertexTable vertices_;
+  std::vector<CheckpointAgent*> agents_;   // of the triangle sinks that have one
+  std::vector<std::uint32_t> agentSink_;   // ... and which sink each belongs to
+  VertexTable vertices_;       // live vertices, for the TriangleSinks (writer side)
+  VertexTable agentVertices_;  // live vertices, for the agents on the triangulator's side (threaded)
+  bool agentsInApply_ = true;  // not threaded: the agents run with the sinks
   bool threaded_ = false;
   ProgressFunc progress_ = nullptr;
   void* progressData_ = nullptr;
