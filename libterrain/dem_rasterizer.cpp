@@ -61,6 +61,21 @@ inline bool edgeIncludes(const Point2& u, const Point2& v, const Point2& p) {
   return v.y < u.y || (v.y == u.y && v.x > u.x);
 }
 
+// The tiles the raster covers: the first tile's lattice indices and how many there are each way (the
+// rasterizer and its tracker must agree on the keys: (ty - firstTy) * tilesX + (tx - firstTx)).
+void tileSpan(const DemLayout& l, std::int64_t& firstTx, std::int64_t& firstTy, std::int64_t& tilesX,
+              std::int64_t& tilesY) {
+  const std::int64_t T = l.tileSize;
+  if (l.width() <= 0) {
+    firstTx = firstTy = tilesX = tilesY = 0;
+    return;
+  }
+  firstTx = floorDiv(l.colMin - l.tileCol0, T);
+  firstTy = floorDiv(l.rowMin - l.tileRow0, T);
+  tilesX = floorDiv(l.colMax - l.tileCol0, T) - firstTx + 1;
+  tilesY = floorDiv(l.rowMax - l.tileRow0, T) - firstTy + 1;
+}
+
 }  // namespace
 
 DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
@@ -121,15 +136,7 @@ void DemRasterizer::begin(const MeshInfo& info) {
   stats_ = DemStats{};
   open_.clear();
   done_.clear();
-  const std::int64_t T = layout_.tileSize;
-  if (layout_.width() > 0) {
-    firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
-    firstTy_ = floorDiv(layout_.rowMin - layout_.tileRow0, T);
-    tilesX_ = floorDiv(layout_.colMax - layout_.tileCol0, T) - firstTx_ + 1;
-    tilesY_ = floorDiv(layout_.rowMax - layout_.tileRow0, T) - firstTy_ + 1;
-  } else {
-    tilesX_ = tilesY_ = 0;
-  }
+  tileSpan(layout_, firstTx_, firstTy_, tilesX_, tilesY_);
   const double az = opt_.hillshadeAzimuth / kDeg, alt = opt_.hillshadeAltitude / kDeg;
   lightX_ = std::sin(az) * std::cos(alt);
   lightY_ = std::cos(az) * std::cos(alt);
@@ -306,15 +313,7 @@ void DemTileTracker::begin(const MeshInfo& info) {
   lastKey_ = -1;
   emittedSinceCheck_ = scans_ = 0;
   invStep_ = 1.0 / layout_.step;
-  const std::int64_t T = layout_.tileSize;
-  if (layout_.width() > 0) {
-    firstTx_ = floorDiv(layout_.colMin - layout_.tileCol0, T);
-    firstTy_ = floorDiv(layout_.rowMin - layout_.tileRow0, T);
-    tilesX_ = floorDiv(layout_.colMax - layout_.tileCol0, T) - firstTx_ + 1;
-    tilesY_ = floorDiv(layout_.rowMax - layout_.tileRow0, T) - firstTy_ + 1;
-  } else {
-    tilesX_ = tilesY_ = 0;
-  }
+  tileSpan(layout_, firstTx_, firstTy_, tilesX_, tilesY_);
 }
 
 void DemTileTracker::touch(std::int64_t txMin, std::int64_t txMax, std::int64_t tyMin, std::int64_t tyMax) {
