@@ -324,6 +324,20 @@ TEST(CliRun, ProgressModes) {
   EXPECT_EQ(t.code, 1);
 }
 
+// The README's first command: the demo synthesizes a survey and writes every product a user looks at,
+// verifies the TIN, and says where everything is.
+TEST(CliRun, DemoWritesEveryProductAndVerifies) {
+  const auto out = test::scratchDir();
+  auto r = tinbuild("demo " + (out / "demo").string() + " --points 1 --progress=none");
+  ASSERT_EQ(r.code, 0) << r.out << r.err;
+  EXPECT_NE(r.out.find("verify: OK"), std::string::npos) << r.out;
+  for (const char* f : {"survey.las", "survey-info.json", "tin.smb", "tin.gpkg", "dem/mosaic.vrt",
+                        "dem/hillshade.vrt", "dem.png", "build-report.json"})
+    EXPECT_TRUE(fs::exists(out / "demo" / f)) << f;
+  EXPECT_EQ(slurp(out / "demo" / "dem.png").substr(1, 3), "PNG");
+  EXPECT_NE(slurp(out / "demo" / "build-report.json").find("\"tiles_written\""), std::string::npos);
+}
+
 // `tinbuild help COMMAND` and docs/usage.md describe the same options: every option a command accepts
 // is documented, and every option the usage page lists for a command exists.
 TEST(CliRun, HelpMatchesTheDocs) {
