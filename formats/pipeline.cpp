@@ -710,7 +710,8 @@ std::string formatRunSummary(const RunReport& r) {
   }
   if (r.haveDelaunay) {
     const DelaunayStats& d = r.delaunay;
-    line("TIN", withCommas(d.verticesOut) + " vertices, " + withCommas(d.trianglesEmitted) + " triangles" +
+    line("TIN", withCommas(d.verticesOut) + " vertices, " + withCommas(d.trianglesEmitted) + " triangles (" +
+                    withCommas(d.trianglesKilled) + " killed by later points)" +
                     (d.duplicatesDropped ? ", " + withCommas(d.duplicatesDropped) +
                                                " xy duplicates dropped (kept the " + r.duplicateRule + ")"
                                          : std::string()));
@@ -839,6 +840,7 @@ std::string formatRunJson(const RunReport& r) {
     j.key("max_active_triangles").value(d.maxActiveTriangles);
     j.key("max_active_vertices").value(d.maxActiveVertices);
     j.key("peak_bytes").value(d.peakBytes);
+    j.key("killed_triangles").value(d.trianglesKilled);
     j.key("walk_steps").value(d.walkSteps);
     j.key("restarts_leaf").value(d.restartsLeaf);
     j.key("restarts_neighbour").value(d.restartsNeighbour);

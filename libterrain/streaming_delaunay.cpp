@@ -1164,6 +1164,7 @@ struct StreamingDelaunay::Impl {
     const BoundaryEdge* bd = boundary.data();
     const std::uint32_t* cv = cavity.data();
     const std::size_t nb = nBoundary, nc = nCavity;
+    stats.trianglesKilled += nc;
 
     const std::uint32_t vp = newVertex(p, z);
     const std::uint32_t s = currentSentinel();  // before taking slots: may allocate one

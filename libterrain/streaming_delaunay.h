@@ -114,6 +114,7 @@ struct DelaunayStats {
   std::uint64_t duplicatesAfterWrite = 0;  // of those, met a survivor already written (kept as is; never
                                            // happens for a valid stream, see the essay)
   std::uint64_t trianglesEmitted = 0;
+  std::uint64_t trianglesKilled = 0;      // triangles destroyed by later insertions (Bowyer-Watson cavities)
   std::uint64_t maxActiveTriangles = 0;   // live triangles at once, ghosts included
   std::uint64_t maxActiveVertices = 0;    // live vertices at once (including points held in the 1-D phase)
   std::uint64_t walkSteps = 0;            // triangles visited by point location

@@ -73,6 +73,7 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   TINBUILD_REQUIRE_DATA();
   const auto out = test::scratchDir();
   const std::string las = test::dataPath("las/autzen_trim.las");
+  std::vector<std::string> killed;
   for (int n : {1, 2, 3}) {
     const fs::path d = out / ("t" + std::to_string(n));
     fs::create_directories(d);
@@ -84,8 +85,17 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
                           std::to_string(n) + " --report r.json",
                       "cd " + d.string() + " && ");
     ASSERT_EQ(p.code, 0) << p.err;
-    EXPECT_NE(slurp(d / "r.json").find("\"threads\": " + std::to_string(n)), std::string::npos);
+    const std::string report = slurp(d / "r.json");
+    EXPECT_NE(report.find("\"threads\": " + std::to_string(n)), std::string::npos);
+    // The run report's counts do not depend on the threads either (killed_triangles: the triangles
+    // later points destroyed, as the paper reports them).
+    const auto at = report.find("\"killed_triangles\": ");
+    ASSERT_NE(at, std::string::npos) << report;
+    killed.push_back(report.substr(at, report.find(',', at) - at));
   }
+  EXPECT_EQ(killed[0], killed[1]);
+  EXPECT_EQ(killed[0], killed[2]);
+  EXPECT_NE(killed[0], "\"killed_triangles\": 0");
   const std::vector<std::string> files = listDir(out / "t1");
   EXPECT_GT(std::count_if(files.begin(), files.end(), [](const std::string& f) { return f.rfind("tiles/dem_", 0) == 0; }),
             4);
