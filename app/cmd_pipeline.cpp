@@ -7,7 +7,6 @@
 #include <charconv>
 #include <cmath>
 #include <cstdio>
-#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -186,9 +185,7 @@ int runWithReport(const cli::ParsedArgs& args, PipelineOptions& o, Run run) {
   std::unique_ptr<OutputFile> reportFile;
   if (args.has("--report")) {
     const std::string path = args.get("--report");
-    std::error_code ec;
-    if (!o.overwrite && std::filesystem::is_regular_file(path, ec))
-      throw DataError(path, "exists; pass --overwrite to replace it");
+    if (!o.overwrite) refuseExistingFile(path);
     reportFile = std::make_unique<OutputFile>(path);
   }
   const RunReport report = run(o, diag);

@@ -78,7 +78,6 @@ const void* bandData(const DemTile& t, int kind) {
   }
 }
 
-// Shortest text that round-trips, for tile names ("637000", "637000.5", "-12.25").
 // A tile corner for a file name: to the micrometre, trailing zeros dropped.  A corner is a multiple of
 // the tile's size, computed in floating point (0.05 m x 2048 x k gives 676761.6000000001); the name is
 // the corner as a person writes it, and names stay unique because tiles are far more than 1 um apart.
@@ -345,6 +344,14 @@ void DemWriter::removeStaleFiles(const std::string& dir, const std::set<std::str
     }
     if (looksOurs) fs::remove(entry.path(), ec);
   }
+}
+
+void setBands(DemWriterOptions& w, const DemOptions& d) {
+  w.slope = d.slope;
+  w.aspect = d.aspect;
+  w.hillshade = d.hillshade;
+  w.count = d.count;
+  w.edgeLength = d.edgeLength;
 }
 
 std::vector<std::string> demOutputPaths(const DemWriterOptions& o) {

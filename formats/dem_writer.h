@@ -47,6 +47,9 @@ struct DemWriterOptions {
   bool replace = false;
 };
 
+// Sets the writer's band flags to the rasterizer's (they must match).
+void setBands(DemWriterOptions& writer, const DemOptions& rasterizer);
+
 // The files a single-file DEM (FILE.tif, FILE.gpkg) will be written to: FILE and FILE_<band>.tif.  For a
 // directory target, the directory itself.
 std::vector<std::string> demOutputPaths(const DemWriterOptions& options);

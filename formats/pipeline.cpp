@@ -241,6 +241,8 @@ std::uint64_t peakRssBytes() {
   return 0;
 }
 
+namespace {
+
 // Forwards a point stream and reports its progress (points passed on / points announced), GDAL-style;
 // the callback returning 0 cancels (CancelledError).
 class ProgressPointSink : public PointSink {
@@ -278,28 +280,17 @@ class ProgressPointSink : public PointSink {
   std::uint64_t total_ = 0, done_ = 0, reported_ = 0;
 };
 
-namespace {
-
-// The mesh output is SMB (the binary streaming mesh: ".smb", stdout, a device or a pipe): encoding it
-// costs less than queueing its events for a writer thread, so it stays on the triangulator's thread.
+// The mesh output is SMB (the binary streaming mesh, as openMeshWriter chooses it): encoding it costs
+// less than queueing its events for a writer thread, so it stays on the triangulator's thread.
 bool writesBinaryStreamingMesh(const std::string& path) {
-  if (path.empty() || isConventionalMeshPath(path)) return false;
-  const auto dot = path.rfind('.');
-  return dot == std::string::npos || path.substr(dot) != ".sma";
+  return !path.empty() && !isConventionalMeshPath(path) && meshWriterFormat(path) == MeshFileFormat::Smb;
 }
 
 // Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
 // previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
 void refuseExistingOutputs(const PipelineOptions& o) {
   if (o.overwrite) return;
-  auto check = [](const std::string& path) {
-    if (path.empty() || path == "-") return;
-    std::error_code ec;
-    const auto st = std::filesystem::status(path, ec);
-    if (ec || !std::filesystem::exists(st)) return;
-    if (std::filesystem::is_regular_file(st))
-      throw DataError(path, "exists; pass --overwrite to replace it");
-  };
+  const auto check = refuseExistingFile;
   check(o.finalizedOutput);
   check(o.meshOutput);
   if (!o.meshOutput.empty() && isConventionalMeshPath(o.meshOutput)) check(prjPathFor(o.meshOutput));
@@ -307,9 +298,7 @@ void refuseExistingOutputs(const PipelineOptions& o) {
   if (!o.dem.path.empty()) {
     DemWriterOptions wo;
     wo.path = o.dem.path;
-    const DemOptions& b = o.dem.bands;
-    wo.slope = b.slope, wo.aspect = b.aspect, wo.hillshade = b.hillshade, wo.count = b.count,
-    wo.edgeLength = b.edgeLength;
+    setBands(wo, o.dem.bands);
     if (demTargetForPath(o.dem.path) == DemTarget::TileDirectory) {
       std::error_code ec;
       if (std::filesystem::is_directory(o.dem.path, ec)) {
@@ -327,6 +316,12 @@ void refuseExistingOutputs(const PipelineOptions& o) {
 }
 
 }  // namespace
+
+void refuseExistingFile(const std::string& path) {
+  if (path.empty() || path == "-") return;
+  std::error_code ec;
+  if (std::filesystem::is_regular_file(path, ec)) throw DataError(path, "exists; pass --overwrite to replace it");
+}
 
 int effectiveThreads(int requested) {
   if (requested > 0) return requested;
@@ -467,11 +462,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
     wo.cog = o.dem.cog;
     wo.crs = in.crs;
     wo.commandLine = o.commandLine;
-    wo.slope = d.slope;
-    wo.aspect = d.aspect;
-    wo.hillshade = d.hillshade;
-    wo.count = d.count;
-    wo.edgeLength = d.edgeLength;
+    setBands(wo, d);
     wo.replace = o.overwrite;
     demWriter = std::make_unique<DemWriter>(wo);
     dem = std::make_unique<DemRasterizer>(d, *demWriter);

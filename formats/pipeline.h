@@ -61,6 +61,10 @@ struct PipelineOptions {
   int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
 };
 
+// Throws DataError("PATH: exists; pass --overwrite ...") when PATH is an existing regular file (devices,
+// pipes and "-" are always writable).  The pipeline calls it for every output unless options.overwrite.
+void refuseExistingFile(const std::string& path);
+
 // --threads 0 -> the number of cores (at least 1).
 int effectiveThreads(int requested);
 

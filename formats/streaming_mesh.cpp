@@ -528,14 +528,18 @@ std::unique_ptr<MeshSink> openMeshWriter(const std::string& path, MeshFileFormat
   return std::make_unique<SmbWriter>(path);
 }
 
-std::unique_ptr<MeshSink> openMeshWriter(const std::string& path) {
+MeshFileFormat meshWriterFormat(const std::string& path) {
   // Stdout, /dev/null and named pipes carry SMB unless their name says otherwise.
   struct stat st {};
   const bool special =
       path == "-" || (::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
   const std::string e = lowerExtension(path);
-  if (special && e != "sma" && e != "smb") return openMeshWriter(path, MeshFileFormat::Smb);
-  return openMeshWriter(path, meshFormatForPath(path));
+  if (special && e != "sma" && e != "smb") return MeshFileFormat::Smb;
+  return meshFormatForPath(path);
+}
+
+std::unique_ptr<MeshSink> openMeshWriter(const std::string& path) {
+  return openMeshWriter(path, meshWriterFormat(path));
 }
 
 MeshFileSummary readStreamingMesh(const std::string& path, MeshSink& sink) {

@@ -37,6 +37,10 @@ enum class MeshFileFormat { Sma, Smb };
 // By extension (.sma/.smb, case-insensitive); throws UsageError otherwise.
 MeshFileFormat meshFormatForPath(const std::string& path);
 
+// The format openMeshWriter(PATH) writes: by extension, except that stdout ("-"), devices and pipes
+// without a .sma/.smb name carry SMB.  Throws UsageError for another extension.
+MeshFileFormat meshWriterFormat(const std::string& path);
+
 // Opens a streaming mesh writer for PATH (format by extension; "-" = SMB on stdout unless `format` says).
 std::unique_ptr<MeshSink> openMeshWriter(const std::string& path, MeshFileFormat format);
 std::unique_ptr<MeshSink> openMeshWriter(const std::string& path);
