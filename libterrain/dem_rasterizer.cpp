@@ -76,6 +76,24 @@ void tileSpan(const DemLayout& l, std::int64_t& firstTx, std::int64_t& firstTy, 
   tilesY = floorDiv(l.rowMax - l.tileRow0, T) - firstTy + 1;
 }
 
+// The pixels of tile (tx, ty): its lattice cell clipped to the raster (inclusive ranges).
+struct TilePixels {
+  std::int64_t col0, row0, col1, row1;
+};
+TilePixels tilePixels(const DemLayout& l, std::int64_t tx, std::int64_t ty) {
+  const std::int64_t T = l.tileSize;
+  const std::int64_t c0 = l.tileCol0 + tx * T, r0 = l.tileRow0 + ty * T;
+  return {std::max(c0, l.colMin), std::max(r0, l.rowMin), std::min(c0 + T - 1, l.colMax),
+          std::min(r0 + T - 1, l.rowMax)};
+}
+
+// The pixel (i, j) a point falls in, when it is inside the raster (closed on the west and south side).
+bool pixelAt(const DemLayout& l, double x, double y, std::int64_t& i, std::int64_t& j) {
+  i = pixelOf(l.originX, l.step, x);
+  j = pixelOf(l.originY, l.step, y);
+  return i >= l.colMin && i <= l.colMax && j >= l.rowMin && j <= l.rowMax;
+}
+
 }  // namespace
 
 DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
@@ -154,14 +172,13 @@ DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
                 std::to_string(ty) + ") after it was written");
   auto o = std::make_unique<Open>();
   DemTile& t = o->tile;
-  const std::int64_t T = layout_.tileSize;
   t.tx = tx;
   t.ty = ty;
-  const std::int64_t c0 = layout_.tileCol0 + tx * T, r0 = layout_.tileRow0 + ty * T;
-  t.col0 = std::max(c0, layout_.colMin);
-  t.row0 = std::max(r0, layout_.rowMin);
-  t.width = static_cast<int>(std::min(c0 + T - 1, layout_.colMax) - t.col0 + 1);
-  t.height = static_cast<int>(std::min(r0 + T - 1, layout_.rowMax) - t.row0 + 1);
+  const TilePixels px = tilePixels(layout_, tx, ty);
+  t.col0 = px.col0;
+  t.row0 = px.row0;
+  t.width = static_cast<int>(px.col1 - px.col0 + 1);
+  t.height = static_cast<int>(px.row1 - px.row0 + 1);
   const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
   t.z.assign(n, opt_.nodata);
   if (opt_.slope) t.slope.assign(n, opt_.nodata);
@@ -184,10 +201,8 @@ DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
 }
 
 void DemRasterizer::vertex(const MeshVertex& v) {
-  if (!opt_.count || tilesX_ == 0) return;
-  const std::int64_t i = pixelOf(layout_.originX, layout_.step, v.x);
-  const std::int64_t j = pixelOf(layout_.originY, layout_.step, v.y);
-  if (i < layout_.colMin || i > layout_.colMax || j < layout_.rowMin || j > layout_.rowMax) return;
+  std::int64_t i, j;
+  if (!opt_.count || tilesX_ == 0 || !pixelAt(layout_, v.x, v.y, i, j)) return;
   const std::int64_t T = layout_.tileSize;
   Open& o = tileAt(floorDiv(i - layout_.tileCol0, T), floorDiv(j - layout_.tileRow0, T));
   DemTile& t = o.tile;
@@ -327,10 +342,8 @@ void DemTileTracker::touch(std::int64_t txMin, std::int64_t txMax, std::int64_t 
 }
 
 void DemTileTracker::vertex(const MeshVertex& v) {
-  if (!opt_.count || tilesX_ == 0) return;
-  const std::int64_t i = pixelOf(layout_.originX, layout_.step, v.x);
-  const std::int64_t j = pixelOf(layout_.originY, layout_.step, v.y);
-  if (i < layout_.colMin || i > layout_.colMax || j < layout_.rowMin || j > layout_.rowMax) return;
+  std::int64_t i, j;
+  if (!opt_.count || tilesX_ == 0 || !pixelAt(layout_, v.x, v.y, i, j)) return;
   const std::int64_t T = layout_.tileSize;
   const std::int64_t tx = floorDiv(i - layout_.tileCol0, T), ty = floorDiv(j - layout_.tileRow0, T);
   touch(tx, tx, ty, ty);
@@ -366,16 +379,12 @@ void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int
   emittedSinceCheck_ = 0;
   boxes_.clear();
   keys_.clear();
-  const std::int64_t T = layout_.tileSize;
   for (const std::int64_t key : touched_) {
-    const std::int64_t tx = firstTx_ + key % tilesX_, ty = firstTy_ + key / tilesX_;
-    const std::int64_t c0 = layout_.tileCol0 + tx * T, r0 = layout_.tileRow0 + ty * T;
-    const std::int64_t col0 = std::max(c0, layout_.colMin), row0 = std::max(r0, layout_.rowMin);
-    const std::int64_t col1 = std::min(c0 + T - 1, layout_.colMax), row1 = std::min(r0 + T - 1, layout_.rowMax);
-    boxes_.push_back(Box2{gridLine(layout_.originX, layout_.step, col0),
-                          gridLine(layout_.originY, layout_.step, row0),
-                          gridLine(layout_.originX, layout_.step, col1 + 1),
-                          gridLine(layout_.originY, layout_.step, row1 + 1)});
+    const TilePixels px = tilePixels(layout_, firstTx_ + key % tilesX_, firstTy_ + key / tilesX_);
+    boxes_.push_back(Box2{gridLine(layout_.originX, layout_.step, px.col0),
+                          gridLine(layout_.originY, layout_.step, px.row0),
+                          gridLine(layout_.originX, layout_.step, px.col1 + 1),
+                          gridLine(layout_.originY, layout_.step, px.row1 + 1)});
     keys_.push_back(key);
   }
   std::unique_ptr<bool[]> isOpen(new bool[boxes_.size()]());

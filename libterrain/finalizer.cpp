@@ -397,10 +397,8 @@ class Prefetcher {
   Batch next() {
     if (!background_) {
       Slot& slot = slots_[0];
-      slot.n = sources_.next(slot.points.data(), counts_);
-      Bounds3 b;
-      for (std::size_t i = 0; i < slot.n; ++i) b.add(slot.points[i].x, slot.points[i].y, slot.points[i].z);
-      return {slot.points.data(), slot.n, counts_.read, sources_.current(), b};
+      fill(slot);
+      return {slot.points.data(), slot.n, slot.read, slot.input, slot.bounds};
     }
     std::unique_lock lock(mutex_);
     if (holding_) {
@@ -430,6 +428,16 @@ class Prefetcher {
     Bounds3 bounds;
   };
 
+  // Reads the next batch into `slot`, with its bounds and where the pass stands.
+  void fill(Slot& slot) {
+    slot.n = sources_.next(slot.points.data(), counts_);
+    Bounds3 b;
+    for (std::size_t i = 0; i < slot.n; ++i) b.add(slot.points[i].x, slot.points[i].y, slot.points[i].z);
+    slot.bounds = b;
+    slot.read = counts_.read;
+    slot.input = sources_.current();
+  }
+
   void run() {
     for (;;) {
       Slot* slot;
@@ -441,17 +449,13 @@ class Prefetcher {
       }
       std::exception_ptr error;
       try {
-        slot->n = sources_.next(slot->points.data(), counts_);
-        Bounds3 b;
-        for (std::size_t i = 0; i < slot->n; ++i)
-          b.add(slot->points[i].x, slot->points[i].y, slot->points[i].z);
-        slot->bounds = b;
+        fill(*slot);
       } catch (...) {
         error = std::current_exception();
         slot->n = 0;
+        slot->read = counts_.read;
+        slot->input = sources_.current();
       }
-      slot->read = counts_.read;
-      slot->input = sources_.current();
       {
         std::lock_guard lock(mutex_);
         error_ = error;
