@@ -113,7 +113,8 @@ std::vector<cli::OptionSpec> reportOptions() {
   return {{"--report", "FILE.json", "machine-readable run report (counts, grid, width, memory, timings)"},
           {"--progress", "MODE",
            "auto (a live line on a terminal, plain lines otherwise), lines, json (JSON lines), none"},
-          {"--threads", "N", "threads for the stages (default: the machine's cores; output is the same for any N)"},
+          {"--threads", "N",
+           "threads for the stages (default: the machine's cores; output is the same for any N)"},
           {"--overwrite", "", "replace existing outputs (default: refuse to overwrite anything)"},
           {"-q", "", "no summary, progress or warnings on stderr (warnings stay in the report)", "--quiet"}};
 }

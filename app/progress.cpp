@@ -18,7 +18,8 @@ volatile sig_atomic_t gCancel = 0;
 
 void onSignal(int) {
   gCancel = 1;
-  static const char msg[] = "\ntinbuild: interrupted: stopping and removing temporary outputs (again to quit at once)\n";
+  static const char msg[] =
+      "\ntinbuild: interrupted: stopping and removing temporary outputs (again to quit at once)\n";
   const ssize_t ignored = ::write(STDERR_FILENO, msg, sizeof msg - 1);
   (void)ignored;
 }
@@ -65,7 +66,8 @@ std::string jsonString(const std::string& s) {
 
 ProgressMode parseProgressMode(const std::string& text, bool quiet) {
   if (quiet) return ProgressMode::None;
-  if (text.empty() || text == "auto") return ::isatty(STDERR_FILENO) ? ProgressMode::Live : ProgressMode::Lines;
+  if (text.empty() || text == "auto")
+    return ::isatty(STDERR_FILENO) ? ProgressMode::Live : ProgressMode::Lines;
   if (text == "json") return ProgressMode::Json;
   if (text == "lines" || text == "plain") return ProgressMode::Lines;
   if (text == "none") return ProgressMode::None;
@@ -81,13 +83,17 @@ void installCancelHandlers() {
   ::sigaction(SIGTERM, &sa, nullptr);
 }
 
-bool cancelRequested() { return gCancel != 0; }
+bool cancelRequested() {
+  return gCancel != 0;
+}
 
 ProgressDisplay::ProgressDisplay(ProgressMode mode) : mode_(mode) {
   start_ = stageStart_ = lastDraw_ = Clock::now();
 }
 
-ProgressDisplay::~ProgressDisplay() { finish(); }
+ProgressDisplay::~ProgressDisplay() {
+  finish();
+}
 
 int ProgressDisplay::callback(double complete, const char* message, void* data) {
   return static_cast<ProgressDisplay*>(data)->update(complete, message);
@@ -134,7 +140,8 @@ void ProgressDisplay::draw(double complete, bool final) {
                   complete, static_cast<unsigned long long>(counts_.done),
                   static_cast<unsigned long long>(counts_.total), pps, elapsed, eta,
                   static_cast<unsigned long long>(rss));
-    std::fprintf(stderr, "{\"stage\":%s,%s%s}\n", jsonString(stage_).c_str(), nums, final ? ",\"done\":true" : "");
+    std::fprintf(stderr, "{\"stage\":%s,%s%s}\n", jsonString(stage_).c_str(), nums,
+                 final ? ",\"done\":true" : "");
     std::fflush(stderr);
     return;
   }

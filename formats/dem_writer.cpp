@@ -337,9 +337,8 @@ void DemWriter::removeStaleFiles(const std::string& dir, const std::set<std::str
     bool looksOurs = name == "mosaic.vrt";
     for (const char* band : kBandName) {
       const std::string b = band;
-      if (name == b + ".vrt" ||
-          (name.size() > b.size() + 5 && name.compare(0, b.size() + 1, b + "_") == 0 &&
-           name.compare(name.size() - 4, 4, ".tif") == 0))
+      if (name == b + ".vrt" || (name.size() > b.size() + 5 && name.compare(0, b.size() + 1, b + "_") == 0 &&
+                                 name.compare(name.size() - 4, 4, ".tif") == 0))
         looksOurs = true;
     }
     if (looksOurs) fs::remove(entry.path(), ec);

@@ -26,8 +26,8 @@
 
 #include <cstdint>
 #include <memory>
-#include <string>
 #include <set>
+#include <string>
 #include <vector>
 
 #include "formats/crs.h"

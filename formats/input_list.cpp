@@ -37,7 +37,9 @@ void addDirectory(const std::string& dir, std::vector<std::string>& out) {
   out.insert(out.end(), files.begin(), files.end());
 }
 
-bool hasGlobCharacters(const std::string& s) { return s.find_first_of("*?[") != std::string::npos; }
+bool hasGlobCharacters(const std::string& s) {
+  return s.find_first_of("*?[") != std::string::npos;
+}
 
 }  // namespace
 
@@ -76,7 +78,8 @@ std::vector<std::string> expandInputs(const std::vector<std::string>& words) {
     const std::string key = ec ? f : canon.string();
     auto [it, fresh] = seen.emplace(key, f);
     if (!fresh)
-      throw DataError(f, "named twice among the inputs (as '" + it->second + "'); its points would count twice");
+      throw DataError(f,
+                      "named twice among the inputs (as '" + it->second + "'); its points would count twice");
   }
   return out;
 }

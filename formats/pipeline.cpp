@@ -320,7 +320,8 @@ void refuseExistingOutputs(const PipelineOptions& o) {
 void refuseExistingFile(const std::string& path) {
   if (path.empty() || path == "-") return;
   std::error_code ec;
-  if (std::filesystem::is_regular_file(path, ec)) throw DataError(path, "exists; pass --overwrite to replace it");
+  if (std::filesystem::is_regular_file(path, ec))
+    throw DataError(path, "exists; pass --overwrite to replace it");
 }
 
 int effectiveThreads(int requested) {

@@ -359,8 +359,10 @@ void DemTileTracker::triangle(const MeshVertex& va, const MeshVertex& vb, const 
   const DemLayout& L = layout_;
   const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
   const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
-  const double fx0 = std::floor((x0 - L.originX) * invStep_) - 1, fx1 = std::floor((x1 - L.originX) * invStep_) + 1;
-  const double fy0 = std::floor((y0 - L.originY) * invStep_) - 1, fy1 = std::floor((y1 - L.originY) * invStep_) + 1;
+  const double fx0 = std::floor((x0 - L.originX) * invStep_) - 1,
+               fx1 = std::floor((x1 - L.originX) * invStep_) + 1;
+  const double fy0 = std::floor((y0 - L.originY) * invStep_) - 1,
+               fy1 = std::floor((y1 - L.originY) * invStep_) + 1;
   const double T = L.tileSize;
   auto tileOf = [&](double pixel, std::int64_t anchor) {
     return static_cast<std::int64_t>(std::floor((pixel - static_cast<double>(anchor)) / T));

@@ -114,7 +114,7 @@ struct FinalizerOptions {
   std::string crsWkt;                // copied into StreamInfo
   double scale[3] = {0, 0, 0};       // copied into StreamInfo
   std::vector<std::string> inputNames;  // names for messages, parallel to the inputs ("" = "input N")
-  ProgressFunc progress = nullptr;  // GDAL's convention (progress.h); 0 = cancel
+  ProgressFunc progress = nullptr;      // GDAL's convention (progress.h); 0 = cancel
   void* progressData = nullptr;
   ProgressCounts* progressCounts = nullptr;  // filled before each progress call (points of the pass)
   // Read the next batches on a background thread while the current one is worked on (false: everything

@@ -83,7 +83,7 @@ void VertexTable::erase(std::uint64_t id) {
 struct MeshTee::Event {
   enum Kind : std::uint32_t { kVertex, kTriangle, kFinalize, kComplete };
   Kind kind = kVertex;
-  std::uint32_t sink = 0;  // kComplete: the triangle sink the keys are for
+  std::uint32_t sink = 0;   // kComplete: the triangle sink the keys are for
   std::uint64_t w[4] = {};  // kVertex: id, x, y, z (bits); kTriangle: a, b, c; kFinalize: id;
                             // kComplete: keys [w[0], w[1]) of the batch's key list
 };

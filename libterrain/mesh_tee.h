@@ -148,17 +148,17 @@ class MeshTee : public MeshSink {
 
   std::vector<MeshSink*> meshSinks_;
   std::vector<TriangleSink*> triangleSinks_;
-  std::vector<CheckpointAgent*> agents_;   // of the triangle sinks that have one
-  std::vector<std::uint32_t> agentSink_;   // ... and which sink each belongs to
-  VertexTable vertices_;       // live vertices, for the TriangleSinks (writer side)
+  std::vector<CheckpointAgent*> agents_;  // of the triangle sinks that have one
+  std::vector<std::uint32_t> agentSink_;  // ... and which sink each belongs to
+  VertexTable vertices_;                  // live vertices, for the TriangleSinks (writer side)
   VertexTable agentVertices_;  // live vertices, for the agents on the triangulator's side (threaded)
   bool agentsInApply_ = true;  // not threaded: the agents run with the sinks
   bool threaded_ = false;
   ProgressFunc progress_ = nullptr;
   void* progressData_ = nullptr;
-  std::unique_ptr<Batch> batch_;     // being filled (threaded) or the keys of the current event
-  std::unique_ptr<Writer> writer_;   // the writer thread (threaded mode, between begin and end)
-  std::vector<std::int64_t> keys_;   // scratch for the agents' answers
+  std::unique_ptr<Batch> batch_;    // being filled (threaded) or the keys of the current event
+  std::unique_ptr<Writer> writer_;  // the writer thread (threaded mode, between begin and end)
+  std::vector<std::int64_t> keys_;  // scratch for the agents' answers
 };
 
 }  // namespace tinbuild

@@ -54,7 +54,8 @@ Run tinbuild(const std::string& args, const std::string& prefix = "") {
 // Every file below dir (relative names, sorted), hidden ones included.
 std::vector<std::string> listDir(const fs::path& dir) {
   std::vector<std::string> names;
-  for (const auto& e : fs::recursive_directory_iterator(dir)) names.push_back(fs::relative(e.path(), dir).string());
+  for (const auto& e : fs::recursive_directory_iterator(dir))
+    names.push_back(fs::relative(e.path(), dir).string());
   std::sort(names.begin(), names.end());
   return names;
 }
@@ -77,9 +78,10 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   for (int n : {1, 2, 3}) {
     const fs::path d = out / ("t" + std::to_string(n));
     fs::create_directories(d);
-    auto r = tinbuild("build " + las + " --mesh m.smb --dem dem.tif --step 3ft --hillshade --slope -q --threads " +
-                          std::to_string(n),
-                      "cd " + d.string() + " && ");
+    auto r =
+        tinbuild("build " + las + " --mesh m.smb --dem dem.tif --step 3ft --hillshade --slope -q --threads " +
+                     std::to_string(n),
+                 "cd " + d.string() + " && ");
     ASSERT_EQ(r.code, 0) << r.err;
     auto p = tinbuild("build " + las + " --mesh m.ply --dem tiles --step 3ft --tile-size 64 -q --threads " +
                           std::to_string(n) + " --report r.json",
@@ -97,7 +99,8 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   EXPECT_EQ(killed[0], killed[2]);
   EXPECT_NE(killed[0], "\"killed_triangles\": 0");
   const std::vector<std::string> files = listDir(out / "t1");
-  EXPECT_GT(std::count_if(files.begin(), files.end(), [](const std::string& f) { return f.rfind("tiles/dem_", 0) == 0; }),
+  EXPECT_GT(std::count_if(files.begin(), files.end(),
+                          [](const std::string& f) { return f.rfind("tiles/dem_", 0) == 0; }),
             4);
   for (int n : {2, 3}) {
     const fs::path d = out / ("t" + std::to_string(n));
@@ -207,8 +210,8 @@ TEST(CliRun, FullDiskFailsCleanlyForEveryOutput) {
     EXPECT_EQ(listDir(out), std::vector<std::string>{}) << c.args << "\n" << r.err;
   }
   // Standard output on a full device (ENOSPC on every write).
-  const std::string cmd = std::string("sh -c '") + TINBUILD_EXE + " finalize " + las + " -q -o - >/dev/full' 2>" +
-                          (out.parent_path() / "full.err").string();
+  const std::string cmd = std::string("sh -c '") + TINBUILD_EXE + " finalize " + las +
+                          " -q -o - >/dev/full' 2>" + (out.parent_path() / "full.err").string();
   const int status = std::system(cmd.c_str());
   ASSERT_TRUE(WIFEXITED(status));
   EXPECT_EQ(WEXITSTATUS(status), 1);
@@ -230,7 +233,8 @@ TEST(CliRun, DirectoriesAndPatternsAsInputs) {
   ASSERT_EQ(one.code, 0) << one.err;
   auto dir = tinbuild("build " + tiles.string() + " --mesh " + (out / "dir.smb").string() + " -q");
   ASSERT_EQ(dir.code, 0) << dir.err;
-  auto pat = tinbuild("build '" + (tiles / "*.las").string() + "' --mesh " + (out / "pat.smb").string() + " -q");
+  auto pat =
+      tinbuild("build '" + (tiles / "*.las").string() + "' --mesh " + (out / "pat.smb").string() + " -q");
   ASSERT_EQ(pat.code, 0) << pat.err;
   EXPECT_EQ(slurp(out / "one.smb"), slurp(out / "dir.smb"));
   EXPECT_EQ(slurp(out / "one.smb"), slurp(out / "pat.smb"));
@@ -272,7 +276,8 @@ TEST(CliRun, RefusesToClobberUnlessOverwrite) {
   EXPECT_NE(again.err.find("tinbuild: error: " + mesh + ": exists; pass --overwrite"), std::string::npos)
       << again.err;
   EXPECT_EQ(slurp(mesh), before + "marker");
-  auto rep = tinbuild("build " + las + " --mesh " + (out / "other.smb").string() + " --report " + report + " -q");
+  auto rep =
+      tinbuild("build " + las + " --mesh " + (out / "other.smb").string() + " --report " + report + " -q");
   EXPECT_EQ(rep.code, 1);
   EXPECT_NE(rep.err.find(report + ": exists"), std::string::npos) << rep.err;
   EXPECT_FALSE(fs::exists(out / "other.smb"));
@@ -371,9 +376,11 @@ TEST(CliRun, HelpMatchesTheDocs) {
       ASSERT_FALSE(found.empty()) << l;
       ++rows;
       const bool documented = std::any_of(found.begin(), found.end(), [&](const std::string& o) {
-        return usage.find("`" + o + "`") != std::string::npos || usage.find("`" + o + " ") != std::string::npos;
+        return usage.find("`" + o + "`") != std::string::npos ||
+               usage.find("`" + o + " ") != std::string::npos;
       });
-      EXPECT_TRUE(documented) << "`tinbuild help " << cmd << "` lists " << names << ", docs/usage.md does not";
+      EXPECT_TRUE(documented) << "`tinbuild help " << cmd << "` lists " << names
+                              << ", docs/usage.md does not";
     }
     EXPECT_GT(rows, 0) << cmd;
   }

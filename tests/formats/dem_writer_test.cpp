@@ -391,8 +391,9 @@ namespace {
 TEST(DemWriter, OutputCrsEqualsTheInputs) {
   TINBUILD_REQUIRE_DATA();
   const fs::path dir = test::scratchDir();
-  for (const char* f : {"4_6_crop.las", "test1_4.las", "point-version-1-point-wise.las", "autzen_trim.las",
-                        "certainty3d-color-utm-feet-navd88.las", "sample_lareunion_epsg2975.las", "Topography.las"}) {
+  for (const char* f :
+       {"4_6_crop.las", "test1_4.las", "point-version-1-point-wise.las", "autzen_trim.las",
+        "certainty3d-color-utm-feet-navd88.las", "sample_lareunion_epsg2975.las", "Topography.las"}) {
     const std::string las = test::dataPath(std::string("las/") + f);
     const CrsInfo crs = inputCrs(las);
     ASSERT_FALSE(crs.empty()) << f;
