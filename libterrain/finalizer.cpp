@@ -362,123 +362,6 @@ class Sources {
 };
 
 // ---------------------------------------------------------------------------------------------------
-// Reads one pass of the Sources on a background thread, a few batches ahead, so decoding and filtering
-// overlap the finalizer's work.  Batches come out in order; the consumer sees exactly the sequence a
-// direct loop would.  Exceptions of the reading side are rethrown by next().
-
-class Prefetcher {
- public:
-  struct Batch {
-    const PointRecord* points = nullptr;
-    std::size_t n = 0;
-    std::uint64_t read = 0;  // points offered to the filter so far in this pass
-    std::size_t input = 0;   // the input the batch came from
-    Bounds3 bounds;          // of the batch's points (computed on the reading thread)
-  };
-
-  // background = false reads each batch on the caller's thread when it is asked for (no thread).
-  Prefetcher(Sources& sources, bool background) : sources_(sources), background_(background) {
-    for (auto& slot : slots_) slot.points.resize(kBatch);
-    if (background_) thread_ = std::thread([this] { run(); });
-  }
-  ~Prefetcher() {
-    if (!background_) return;
-    {
-      std::lock_guard lock(mutex_);
-      stop_ = true;
-    }
-    changed_.notify_all();
-    thread_.join();
-  }
-  Prefetcher(const Prefetcher&) = delete;
-  Prefetcher& operator=(const Prefetcher&) = delete;
-
-  // The next batch (n == 0 at the end of the pass); the previous batch's memory is reused.
-  Batch next() {
-    if (!background_) {
-      Slot& slot = slots_[0];
-      fill(slot);
-      return {slot.points.data(), slot.n, slot.read, slot.input, slot.bounds};
-    }
-    std::unique_lock lock(mutex_);
-    if (holding_) {
-      holding_ = false;
-      ++tail_;
-      changed_.notify_all();
-    }
-    changed_.wait(lock, [&] { return head_ > tail_; });
-    Slot& slot = slots_[tail_ % kSlots];
-    if (slot.n == 0) {
-      if (error_) std::rethrow_exception(error_);
-      return {nullptr, 0, slot.read, slot.input, {}};
-    }
-    holding_ = true;
-    return {slot.points.data(), slot.n, slot.read, slot.input, slot.bounds};
-  }
-  // The filter counts of the pass; valid once next() has returned n == 0.
-  const FilterCounts& counts() const { return counts_; }
-
- private:
-  static constexpr std::size_t kSlots = 4;
-  struct Slot {
-    std::vector<PointRecord> points;
-    std::size_t n = 0;
-    std::uint64_t read = 0;
-    std::size_t input = 0;
-    Bounds3 bounds;
-  };
-
-  // Reads the next batch into `slot`, with its bounds and where the pass stands.
-  void fill(Slot& slot) {
-    slot.n = sources_.next(slot.points.data(), counts_);
-    Bounds3 b;
-    for (std::size_t i = 0; i < slot.n; ++i) b.add(slot.points[i].x, slot.points[i].y, slot.points[i].z);
-    slot.bounds = b;
-    slot.read = counts_.read;
-    slot.input = sources_.current();
-  }
-
-  void run() {
-    for (;;) {
-      Slot* slot;
-      {
-        std::unique_lock lock(mutex_);
-        changed_.wait(lock, [&] { return stop_ || head_ - tail_ < kSlots; });
-        if (stop_) return;
-        slot = &slots_[head_ % kSlots];
-      }
-      std::exception_ptr error;
-      try {
-        fill(*slot);
-      } catch (...) {
-        error = std::current_exception();
-        slot->n = 0;
-        slot->read = counts_.read;
-        slot->input = sources_.current();
-      }
-      {
-        std::lock_guard lock(mutex_);
-        error_ = error;
-        ++head_;
-      }
-      changed_.notify_all();
-      if (slot->n == 0) return;
-    }
-  }
-
-  Sources& sources_;
-  bool background_;
-  std::array<Slot, kSlots> slots_;
-  FilterCounts counts_;
-  std::mutex mutex_;
-  std::condition_variable changed_;
-  std::uint64_t head_ = 0, tail_ = 0;  // batches published / consumed
-  bool holding_ = false, stop_ = false;
-  std::exception_ptr error_;
-  std::thread thread_;
-};
-
-// ---------------------------------------------------------------------------------------------------
 // Open-addressing hash from a cell key (row << depth | col) to a dense index.
 
 class CellIndex {
@@ -533,6 +416,166 @@ class CellIndex {
   }
   std::vector<Slot> slots_;
   std::size_t mask_ = 0, size_ = 0;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Pass 3's per-point work that needs no finalizer state, done on the reading thread: the point's leaf
+// (index into the leaves, kNone when no leaf was counted there) and, in PointRecord::scratch, the
+// Hilbert index of its cell in a 16 x 16 sub-grid of the leaf (the order within a BRIO round).
+
+class CellMap {
+ public:
+  CellMap(const GridSpec& grid, const std::vector<std::uint32_t>* dense, const CellIndex* index)
+      : fg_(grid), dense_(dense), index_(index) {}
+
+  void map(PointRecord* p, std::size_t n, std::uint32_t* leaf) const {
+    std::uint64_t memoKey = ~std::uint64_t{0};
+    std::uint32_t memo = kNone;
+    for (std::size_t i = 0; i < n; ++i) {
+      const double fx = (p[i].x - fg_.originX) * fg_.scale, fy = (p[i].y - fg_.originY) * fg_.scale;
+      const std::uint32_t col = FastGrid::index(fx, fg_.last), row = FastGrid::index(fy, fg_.last);
+      const std::uint64_t key = (std::uint64_t{row} << fg_.depth) | col;
+      if (dense_) {
+        memo = (*dense_)[key];
+      } else if (key != memoKey) {
+        memo = index_->find(key);
+        memoKey = key;
+      }
+      leaf[i] = memo;
+      const std::uint32_t sx = FastGrid::index((fx - col) * 16, 15),
+                          sy = FastGrid::index((fy - row) * 16, 15);
+      p[i].scratch = kHilbert.d[sy * 16 + sx];
+    }
+  }
+
+ private:
+  FastGrid fg_;
+  const std::vector<std::uint32_t>* dense_;
+  const CellIndex* index_;
+};
+
+// ---------------------------------------------------------------------------------------------------
+// Reads one pass of the Sources on a background thread, a few batches ahead, so decoding and filtering
+// overlap the finalizer's work.  Batches come out in order; the consumer sees exactly the sequence a
+// direct loop would.  Exceptions of the reading side are rethrown by next().
+
+class Prefetcher {
+ public:
+  struct Batch {
+    const PointRecord* points = nullptr;
+    const std::uint32_t* cells = nullptr;  // with a CellMap: the cell of each point
+    std::size_t n = 0;
+    std::uint64_t read = 0;  // points offered to the filter so far in this pass
+    std::size_t input = 0;   // the input the batch came from
+  };
+
+  // background = false reads each batch on the caller's thread when it is asked for (no thread).
+  // `cells`, when given, maps every batch on the reading thread (it must be safe to call from there).
+  Prefetcher(Sources& sources, bool background, const CellMap* cells = nullptr)
+      : sources_(sources), background_(background), cellMap_(cells) {
+    for (auto& slot : slots_) {
+      slot.points.resize(kBatch);
+      if (cellMap_) slot.cells.resize(kBatch);
+    }
+    if (background_) thread_ = std::thread([this] { run(); });
+  }
+  ~Prefetcher() {
+    if (!background_) return;
+    {
+      std::lock_guard lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    thread_.join();
+  }
+  Prefetcher(const Prefetcher&) = delete;
+  Prefetcher& operator=(const Prefetcher&) = delete;
+
+  // The next batch (n == 0 at the end of the pass); the previous batch's memory is reused.
+  Batch next() {
+    if (!background_) {
+      Slot& slot = slots_[0];
+      fill(slot);
+      return batchOf(slot);
+    }
+    std::unique_lock lock(mutex_);
+    if (holding_) {
+      holding_ = false;
+      ++tail_;
+      changed_.notify_all();
+    }
+    changed_.wait(lock, [&] { return head_ > tail_; });
+    Slot& slot = slots_[tail_ % kSlots];
+    if (slot.n == 0) {
+      if (error_) std::rethrow_exception(error_);
+      return {nullptr, nullptr, 0, slot.read, slot.input};
+    }
+    holding_ = true;
+    return batchOf(slot);
+  }
+  // The filter counts of the pass; valid once next() has returned n == 0.
+  const FilterCounts& counts() const { return counts_; }
+
+ private:
+  static constexpr std::size_t kSlots = 4;
+  struct Slot {
+    std::vector<PointRecord> points;
+    std::vector<std::uint32_t> cells;
+    std::size_t n = 0;
+    std::uint64_t read = 0;
+    std::size_t input = 0;
+  };
+  static Batch batchOf(const Slot& s) {
+    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input};
+  }
+
+  // Reads the next batch into `slot` (and maps it), with where the pass stands.
+  void fill(Slot& slot) {
+    slot.n = sources_.next(slot.points.data(), counts_);
+    if (cellMap_) cellMap_->map(slot.points.data(), slot.n, slot.cells.data());
+    slot.read = counts_.read;
+    slot.input = sources_.current();
+  }
+
+  void run() {
+    for (;;) {
+      Slot* slot;
+      {
+        std::unique_lock lock(mutex_);
+        changed_.wait(lock, [&] { return stop_ || head_ - tail_ < kSlots; });
+        if (stop_) return;
+        slot = &slots_[head_ % kSlots];
+      }
+      std::exception_ptr error;
+      try {
+        fill(*slot);
+      } catch (...) {
+        error = std::current_exception();
+        slot->n = 0;
+        slot->read = counts_.read;
+        slot->input = sources_.current();
+      }
+      {
+        std::lock_guard lock(mutex_);
+        error_ = error;
+        ++head_;
+      }
+      changed_.notify_all();
+      if (slot->n == 0) return;
+    }
+  }
+
+  Sources& sources_;
+  bool background_;
+  const CellMap* cellMap_;
+  std::array<Slot, kSlots> slots_;
+  FilterCounts counts_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::uint64_t head_ = 0, tail_ = 0;  // batches published / consumed
+  bool holding_ = false, stop_ = false;
+  std::exception_ptr error_;
+  std::thread thread_;
 };
 
 // ---------------------------------------------------------------------------------------------------
@@ -651,7 +694,8 @@ class Finalizer {
       {
         Prefetcher reader(sources_, options_.readAhead);
         for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-          b.add(batch.bounds);
+          for (std::size_t i = 0; i < batch.n; ++i)
+            b.add(batch.points[i].x, batch.points[i].y, batch.points[i].z);
           n += batch.n;
           progress_.update(batch.read);
         }
@@ -762,9 +806,9 @@ class Finalizer {
     Bounds3 b;
     Prefetcher reader(sources_, options_.readAhead);
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-      b.add(batch.bounds);
       for (std::size_t i = 0; i < batch.n; ++i) {
         const PointRecord& p = batch.points[i];
+        b.add(p.x, p.y, p.z);
         const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
         const std::uint64_t key = (std::uint64_t{row} << fg.depth) | col;
         FineCell* c;
@@ -947,25 +991,16 @@ class Finalizer {
     emitEmptyTags();
 
     sources_.startPass(false);
-    const FastGrid fg(grid_);
-    std::uint64_t memoKey = ~std::uint64_t{0};
-    std::uint32_t memo = kNone;
     std::uint64_t ordinal = 0;
-    Prefetcher reader(sources_, options_.readAhead);
+    const CellMap cellMap(grid_, denseLeaves_ ? &leafDense_ : nullptr, &leafIndex_);
+    Prefetcher reader(sources_, options_.readAhead, &cellMap);
     std::size_t input = 0;
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       input = batch.input;
       for (std::size_t i = 0; i < batch.n; ++i) {
         const PointRecord& p = batch.points[i];
-        const std::uint64_t key = fg.key(p.x, p.y);
-        if (denseLeaves_) {
-          memo = leafDense_[key];
-          if (memo == kNone) throw changedInput(input);
-        } else if (key != memoKey) {
-          memo = leafIndex_.find(key);
-          if (memo == kNone) throw changedInput(input);
-          memoKey = key;
-        }
+        const std::uint32_t memo = batch.cells[i];
+        if (memo == kNone) throw changedInput(input);
         Leaf& leaf = leaves_[memo];
         if (leaf.remaining == 0) throw changedInput(input);
         if (ordinal != leaf.sprinkleOrdinal) append(memo, p);
@@ -1189,7 +1224,8 @@ class Finalizer {
   }
 
   // segments_ (n points in arrival order) -> ordered_ in BRIO order: rounds rarest first, each round
-  // along a Hilbert curve over a 16 x 16 sub-grid of the leaf, arrival order within a sub-cell.
+  // along a Hilbert curve over a 16 x 16 sub-grid of the leaf (the CellMap left each point's sub-cell in
+  // its scratch field), arrival order within a sub-cell.
   void brio(std::uint64_t leafMorton, std::size_t n) {
     ordered_.resize(n);
     if (n <= 2) {
@@ -1202,10 +1238,6 @@ class Finalizer {
     const std::size_t buckets = static_cast<std::size_t>(rounds) * 256;
     bucketCount_.assign(buckets + 1, 0);
     keys_.resize(n);
-    const double cs = grid_.cellSize();
-    const double x0 = grid_.originX + mortonCol(leafMorton) * cs;
-    const double y0 = grid_.originY + mortonRow(leafMorton) * cs;
-    const double scale = 16.0 / cs;
     const std::uint64_t leafSeed =
         mix64(options_.seed ^ mix64(leafMorton * 4 + static_cast<std::uint64_t>(depth_)));
     std::size_t i = 0;
@@ -1213,11 +1245,7 @@ class Finalizer {
       for (std::size_t j = 0; j < seg.n; ++j, ++i) {
         const std::uint64_t h = mix64(leafSeed + i * 0x9e3779b97f4a7c15ULL);
         const int level = std::min(std::countr_zero(h | (std::uint64_t{1} << 63)), rounds - 1);
-        const double fx = (seg.p[j].x - x0) * scale, fy = (seg.p[j].y - y0) * scale;
-        const int qx = !(fx > 0) ? 0 : fx >= 15 ? 15 : static_cast<int>(fx);
-        const int qy = !(fy > 0) ? 0 : fy >= 15 ? 15 : static_cast<int>(fy);
-        const auto key = static_cast<std::uint32_t>((rounds - 1 - level) * 256 +
-                                                    kHilbert.d[static_cast<std::size_t>(qy * 16 + qx)]);
+        const auto key = static_cast<std::uint32_t>((rounds - 1 - level) * 256 + seg.p[j].scratch);
         keys_[i] = key;
         ++bucketCount_[key + 1];
       }

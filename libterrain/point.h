@@ -26,6 +26,9 @@ struct PointRecord {
   std::uint8_t returnNumber = 0;     // 1-based; 0 when the input does not say
   std::uint8_t numberOfReturns = 0;  // 0 when the input does not say
   std::uint8_t flags = 0;            // PointFlag bits
+  // Not part of the point: free for the stage holding the record (the finalizer keeps a point's BRIO
+  // sub-cell here between reading and releasing it).  Meaningless elsewhere; never written to a file.
+  std::uint16_t scratch = 0;
 };
 static_assert(sizeof(PointRecord) == 32, "PointRecord is meant to stay 32 bytes");
 

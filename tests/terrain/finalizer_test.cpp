@@ -12,6 +12,7 @@
 #include <memory>
 #include <numeric>
 #include <random>
+#include <set>
 #include <stdexcept>
 #include <string>
 #include <thread>
@@ -378,6 +379,42 @@ TEST(Finalizer, AllPointsInOneCellAndDuplicates) {
   std::vector<PointRecord> same(1000, base[0]);
   expectValid(same, noFilter(), "all identical");
   expectValid(same, noFilter(4), "all identical depth 4");
+}
+
+// BRIO within a chunk: the first points released are a random sample spread over the whole cell, and
+// the last round (about half the chunk) walks the cell along a space-filling curve, whatever the arrival
+// order.  One leaf (depth 0) holding a 64 x 64 lattice that arrives in random order.
+TEST(Finalizer, ChunksComeOutInBiasedRandomizedInsertionOrder) {
+  std::vector<PointRecord> pts;
+  for (int r = 0; r < 64; ++r)
+    for (int c = 0; c < 64; ++c) {
+      PointRecord p;
+      p.x = 500000.0 + c;
+      p.y = 4100000.0 + r;
+      pts.push_back(p);
+    }
+  std::shuffle(pts.begin(), pts.end(), std::mt19937_64(7));
+  Result res = finalize(pts, noFilter(0));
+  ASSERT_EQ(checkStream(pts, res.sink), "");
+  std::vector<PointRecord> out;
+  for (const auto& e : res.sink.events)
+    if (e.kind == Event::kPoints) out.insert(out.end(), e.points.begin(), e.points.end());
+  ASSERT_EQ(out.size(), pts.size());
+  // The first 1/16 of the chunk (the rarer rounds) reaches all 16 quadrants of a 4 x 4 split.
+  std::set<int> quadrants;
+  for (std::size_t i = 0; i < out.size() / 16; ++i)
+    quadrants.insert(static_cast<int>((out[i].x - 500000.0) / 16) +
+                     4 * static_cast<int>((out[i].y - 4100000.0) / 16));
+  EXPECT_EQ(quadrants.size(), 16u);
+  // The second half: consecutive points are near each other (random order would average ~26 units).
+  double sum = 0;
+  for (std::size_t i = out.size() / 2 + 1; i < out.size(); ++i)
+    sum += std::hypot(out[i].x - out[i - 1].x, out[i].y - out[i - 1].y);
+  const double mean = sum / static_cast<double>(out.size() / 2 - 1);
+  EXPECT_LT(mean, 4.0);
+  // And the same for a chunk that is one leaf of a deeper grid.
+  Result deep = finalize(pts, noFilter(2));
+  ASSERT_EQ(checkStream(pts, deep.sink), "");
 }
 
 TEST(Finalizer, SingleAndTwoPoints) {
