@@ -1,6 +1,6 @@
 // `tinbuild bench`: `read` runs here; every other benchmark (suite, delaunay, lattice-vs-random,
-// stream) lives in the tinbuild-bench executable beside this one, which links CGAL for its peer runs.
-// CGAL must never be linked into tinbuild, so those subcommands are handed over by execv instead.
+// finalize, stream) lives in the tinbuild-bench executable beside this one, which links CGAL for its peer
+// runs. CGAL must never be linked into tinbuild, so those subcommands are handed over by execv instead.
 #include <unistd.h>
 
 #include <algorithm>
@@ -24,18 +24,20 @@ namespace {
 // One table for all benchmarks: main() parses every `tinbuild bench` command line against it before
 // runBench sees it, so the options of the forwarded benchmarks must be declared here too.
 std::vector<cli::OptionSpec> benchOptions() {
-  return {{"--points", "N", "suite, delaunay, stream: points per survey (suite default 1M)"},
+  return {{"--points", "N", "suite, delaunay, finalize, stream: points per survey (suite 1M, finalize 10M)"},
           {"--repeat", "R", "runs of each program, the best is kept (read: default 5; others: 1)"},
-          {"--kind", "KIND", "delaunay: strips (default), uniform or lattice"},
-          {"--swath", "M", "delaunay --kind strips: swath width in metres (default 500)"},
-          {"--home-strip", "", "delaunay --kind strips: add a strip crossing the area diagonally"},
+          {"--kind", "KIND", "delaunay, finalize: strips (default), uniform or lattice"},
+          {"--swath", "M", "--kind strips: swath width in metres (default 500)"},
+          {"--home-strip", "", "--kind strips: add a strip crossing the area diagonally"},
           {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
           {"--seed", "S", "generator seed (default 1)"},
           {"--no-cgal", "", "skip the CGAL runs"},
           {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
           {"--keep", "", "keep the generated files"},
           {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
-          {"--threads", "N", "read: decode threads (default: all cores); others: tinbuild build's threads"},
+          {"--threads", "N",
+           "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
+          {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
           {"--columns", "SPEC", "read: XYZ input column mapping"},
           {"--cell-points", "M", "stream: points per cell (default 4000)"},
           {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
@@ -131,6 +133,8 @@ Command benchCommand() {
       "       tinbuild bench delaunay --kind strips|uniform|lattice --points N [--swath M] [--home-strip]\n"
       "                      [--seed S] [--repeat R] [--threads N] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench lattice-vs-random [--side S] [--seed S] [--repeat R] [--no-cgal] [--dir DIR]\n"
+      "       tinbuild bench finalize [--points N] [--kind KIND] [--swath M] [--home-strip] [--memory MB]\n"
+      "                      [--seed S] [--repeat R] [--threads N] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -142,6 +146,9 @@ Command benchCommand() {
       "and the stream width.\n"
       "bench delaunay: the same runs on one survey, in detail, with the ratios' targets.\n"
       "bench lattice-vs-random: an S x S lattice (cocircular worst case) against as many random points.\n"
+      "bench finalize: the finalizer's three passes (tinbuild finalize -o /dev/null --compute-bounds) on a\n"
+      "generated survey (default 10M points, flight strips), each pass's speed against the raw read of the\n"
+      "same file (like cat, page cache), with the stream width and peak RSS.\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

@@ -21,6 +21,10 @@ struct ReadBenchResult {
   double ratio() const { return decodeSeconds > 0 ? rawSeconds / decodeSeconds : 0; }
 };
 
+// One raw read of the file as `cat FILE > /dev/null` does it (read(2) in 128 KiB blocks): seconds, and the
+// bytes read in `bytes`.
+double rawReadSeconds(const std::string& path, std::uint64_t& bytes);
+
 ReadBenchResult benchmarkRead(const std::string& path, const ReaderOptions& options, int repeats);
 
 }  // namespace tinbuild

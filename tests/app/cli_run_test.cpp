@@ -353,6 +353,24 @@ TEST(CliRun, DemoWritesEveryProductAndVerifies) {
   EXPECT_NE(slurp(out / "demo" / "build-report.json").find("\"tiles_written\""), std::string::npos);
 }
 
+// `tinbuild bench finalize` (forwarded to tinbuild-bench, built when CGAL is installed): a small survey,
+// one run; the table names the three passes with their fraction of the raw read, the width and the RSS.
+TEST(CliRun, BenchFinalizeReportsEveryPassAgainstTheRawRead) {
+  if (!fs::exists(fs::path(TINBUILD_EXE).parent_path() / "tinbuild-bench"))
+    GTEST_SKIP() << "tinbuild-bench is not built (CGAL missing)";
+  const fs::path dir = fs::path(TINBUILD_TEST_TMP) / "bench-finalize";
+  fs::remove_all(dir);
+  fs::create_directories(dir);
+  auto r = tinbuild("bench finalize --points 50k --repeat 2 --dir " + dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* row : {"raw read (", "pass 1: bounds", "pass 2: counts per cell", "pass 3: chunks, BRIO",
+                          "/ raw read", "width ", "peak RSS"})
+    EXPECT_NE(r.out.find(row), std::string::npos) << row << " missing from\n" << r.out;
+  EXPECT_NE(r.out.find(" streamed), depth "), std::string::npos) << r.out;
+  EXPECT_TRUE(listDir(dir).empty()) << "the survey was not removed";
+  EXPECT_NE(tinbuild("bench finalize --kind uniform --swath 100").code, 0);
+}
+
 // `tinbuild help COMMAND` and docs/usage.md describe the same options: every option a command accepts
 // is documented, and every option the usage page lists for a command exists.
 TEST(CliRun, HelpMatchesTheDocs) {
