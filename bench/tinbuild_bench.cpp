@@ -528,23 +528,31 @@ void printHeader(const Config& cfg, const std::string& command, const std::vecto
 
 // ---- subcommands -------------------------------------------------------------------------------------
 
-int delaunayMain(const std::vector<std::string>& argv) {
-  Args args("delaunay", argv);
-  Config cfg = makeConfig(args);
+// The survey options of delaunay and finalize: --kind, --points (0 = required), --seed, --swath,
+// --home-strip.
+SurveySpec surveyFromArgs(Args& args, const std::string& command, std::uint64_t defaultPoints) {
   const std::string kindName = args.value("--kind", "strips");
   const auto kind = parseSurveyKind(kindName);
-  if (!kind) throw BenchError("delaunay: --kind expects strips, uniform or lattice, got '" + kindName + "'");
+  if (!kind)
+    throw BenchError(command + ": --kind expects strips, uniform or lattice, got '" + kindName + "'");
   SurveySpec spec;
   spec.kind = *kind;
-  spec.points = args.count("--points", 0, 1, std::uint64_t{1} << 36);
-  if (spec.points == 0) throw BenchError("delaunay: give --points N");
+  spec.points = args.count("--points", defaultPoints, 1, std::uint64_t{1} << 36);
+  if (spec.points == 0) throw BenchError(command + ": give --points N");
   spec.seed = args.count("--seed", 1, 0, std::uint64_t{1} << 52);
   if (args.has("--swath")) {
     if (spec.kind != SurveySpec::Kind::FlightStrips)
-      throw BenchError("delaunay: --swath applies to --kind strips");
+      throw BenchError(command + ": --swath applies to --kind strips");
     spec.swath = args.number("--swath", spec.swath, 1.0, 1e6);
   }
   spec.homeStrip = args.flag("--home-strip");
+  return spec;
+}
+
+int delaunayMain(const std::vector<std::string>& argv) {
+  Args args("delaunay", argv);
+  Config cfg = makeConfig(args);
+  const SurveySpec spec = surveyFromArgs(args, "delaunay", 0);
   const std::string base = args.value("--dir", defaultTempBase());
   args.finish();
 
@@ -699,19 +707,7 @@ int suiteMain(const std::vector<std::string>& argv) {
 int finalizeMain(const std::vector<std::string>& argv) {
   Args args("finalize", argv);
   Config cfg = makeConfig(args);
-  const std::string kindName = args.value("--kind", "strips");
-  const auto kind = parseSurveyKind(kindName);
-  if (!kind) throw BenchError("finalize: --kind expects strips, uniform or lattice, got '" + kindName + "'");
-  SurveySpec spec;
-  spec.kind = *kind;
-  spec.points = args.count("--points", 10000000, 1, std::uint64_t{1} << 36);
-  spec.seed = args.count("--seed", 1, 0, std::uint64_t{1} << 52);
-  if (args.has("--swath")) {
-    if (spec.kind != SurveySpec::Kind::FlightStrips)
-      throw BenchError("finalize: --swath applies to --kind strips");
-    spec.swath = args.number("--swath", spec.swath, 1.0, 1e6);
-  }
-  spec.homeStrip = args.flag("--home-strip");
+  const SurveySpec spec = surveyFromArgs(args, "finalize", 10000000);
   const std::string memory = args.value("--memory", "");
   const std::string base = args.value("--dir", defaultTempBase());
   args.finish();
