@@ -58,7 +58,12 @@
 //   ...).  Rounds are released rarest first; within a round points are ordered along a Hilbert curve over
 //   a 16 x 16 sub-grid of the leaf (a counting sort, O(n)), arrival order within a sub-cell.  The order is
 //   a pure function of the input, the options and the seed: output is identical run to run, with or
-//   without spilling.
+//   without spilling, on any number of threads.
+//
+// Threads (options.readAhead)
+//   A reading thread decodes and filters a few batches ahead, and in pass 3 also maps each point to its
+//   leaf and its BRIO sub-cell (kept in PointRecord::scratch until the chunk is ordered): pure functions
+//   of the point and the grid.  The calling thread does the counting, chunking, ordering and tagging.
 //
 // Memory
 //   Chunk points live in 4 KiB blocks (128 records) from a pool.  The pool's budget is
