@@ -106,9 +106,14 @@ struct FastGrid {
   static std::uint32_t index(double f, double last) {
     return !(f > 0) ? 0u : f >= last ? static_cast<std::uint32_t>(last) : static_cast<std::uint32_t>(f);
   }
-  std::uint32_t column(double x) const { return index((x - originX) * scale, last); }
-  std::uint32_t row(double y) const { return index((y - originY) * scale, last); }
-  std::uint64_t key(double x, double y) const { return (std::uint64_t{row(y)} << depth) | column(x); }
+  // Grid coordinates in cell units (column = index(u(x), last)).
+  double u(double x) const { return (x - originX) * scale; }
+  double v(double y) const { return (y - originY) * scale; }
+  std::uint32_t column(double x) const { return index(u(x), last); }
+  std::uint32_t row(double y) const { return index(v(y), last); }
+  std::uint64_t key(std::uint32_t col, std::uint32_t row) const {
+    return (std::uint64_t{row} << depth) | col;
+  }
 
   double originX, originY, scale, last;
   int depth;
@@ -432,9 +437,9 @@ class CellMap {
     std::uint64_t memoKey = ~std::uint64_t{0};
     std::uint32_t memo = kNone;
     for (std::size_t i = 0; i < n; ++i) {
-      const double fx = (p[i].x - fg_.originX) * fg_.scale, fy = (p[i].y - fg_.originY) * fg_.scale;
+      const double fx = fg_.u(p[i].x), fy = fg_.v(p[i].y);
       const std::uint32_t col = FastGrid::index(fx, fg_.last), row = FastGrid::index(fy, fg_.last);
-      const std::uint64_t key = (std::uint64_t{row} << fg_.depth) | col;
+      const std::uint64_t key = fg_.key(col, row);
       if (dense_) {
         memo = (*dense_)[key];
       } else if (key != memoKey) {
@@ -809,8 +814,7 @@ class Finalizer {
       for (std::size_t i = 0; i < batch.n; ++i) {
         const PointRecord& p = batch.points[i];
         b.add(p.x, p.y, p.z);
-        const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
-        const std::uint64_t key = (std::uint64_t{row} << fg.depth) | col;
+        const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
         FineCell* c;
         if (dense) {
           c = &cells[key];
