@@ -296,6 +296,21 @@ void expectValid(const std::vector<PointRecord>& pts, const FinalizerOptions& o,
   EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events)) << "not deterministic";
 }
 
+// Splits pts (in order) into the first point of each cell of the grid of `depth` over their bounds and
+// all the others.
+void splitFirstPerCell(const std::vector<PointRecord>& pts, int depth, std::vector<PointRecord>& firsts,
+                       std::vector<PointRecord>& rest) {
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  const GridSpec g = makeGrid(b, depth);
+  std::vector<bool> seen(g.cellCount(), false);
+  for (const auto& p : pts) {
+    const auto c = g.cellOf(p.x, p.y);
+    (seen[c] ? rest : firsts).push_back(p);
+    seen[c] = true;
+  }
+}
+
 // ---- orders ---------------------------------------------------------------------------------------------
 
 TEST(Finalizer, SortedReversedAndShuffledOrders) {
@@ -336,16 +351,8 @@ TEST(Finalizer, FlightStripsAndStripeAtTheEnd) {
 TEST(Finalizer, OnePointPerCellThenTheRest) {
   auto pts = randomPoints(30000, 3, 500);
   const int depth = 4;
-  Bounds3 b;
-  for (const auto& p : pts) b.add(p.x, p.y, p.z);
-  const GridSpec g = makeGrid(b, depth);
   std::vector<PointRecord> firsts, rest;
-  std::vector<bool> seen(g.cellCount(), false);
-  for (const auto& p : pts) {
-    const auto c = g.cellOf(p.x, p.y);
-    (seen[c] ? rest : firsts).push_back(p);
-    seen[c] = true;
-  }
+  splitFirstPerCell(pts, depth, firsts, rest);
   std::vector<PointRecord> order = firsts;
   order.insert(order.end(), rest.begin(), rest.end());
   expectValid(order, noFilter(depth), "one per cell first");
@@ -576,16 +583,8 @@ TEST(Finalizer, EveryCellGetsOneLatePointWithinTheBudget) {
   spec.points = 300000;
   const auto pts = generate(spec);
   const int depth = 6;
-  Bounds3 b;
-  for (const auto& p : pts) b.add(p.x, p.y, p.z);
-  const GridSpec g = makeGrid(b, depth);
   std::vector<PointRecord> order, late;
-  std::vector<bool> seen(g.cellCount(), false);
-  for (const auto& p : pts) {
-    const auto c = g.cellOf(p.x, p.y);
-    (seen[c] ? order : late).push_back(p);
-    seen[c] = true;
-  }
+  splitFirstPerCell(pts, depth, late, order);
   order.insert(order.end(), late.begin(), late.end());
   FinalizerOptions o = noFilter(depth);
   o.memoryBudget = 1 << 20;  // 1 MiB for a 9.6 MB survey
