@@ -436,7 +436,8 @@ TEST(Finalizer, SingleAndTwoPoints) {
 }
 
 TEST(Finalizer, DeepGrids) {
-  // Depths beyond the dense tables (hashed fine cells and leaves), up to the maximum.
+  // Depths at and beyond the dense tables (fine cells are hashed from depth 10, leaves from 12), up to
+  // the maximum.
   auto pts = randomPoints(3000, 12);
   for (int depth : {9, 10, 11, 12, 13, 15}) {
     SCOPED_TRACE(depth);
@@ -751,6 +752,68 @@ TEST(Finalizer, DefaultFilterDropsWithheldAndNoiseAndCounts) {
   EXPECT_EQ(r.stats.filter.byClass, noise);
   EXPECT_EQ(r.stats.filter.droppedByClass[7] + r.stats.filter.droppedByClass[18], noise);
   EXPECT_EQ(r.stats.points, kept.size());
+}
+
+TEST(PointFilter, ApplyAgreesWithReasonForEveryRecord) {
+  // apply() has a fast path for class and withheld filters; it must give reason()'s verdicts and counts.
+  std::mt19937_64 rng(7);
+  std::vector<PointRecord> pts(20000);
+  for (auto& p : pts) {
+    p.x = static_cast<double>(rng() % 1000);
+    p.y = static_cast<double>(rng() % 1000);
+    p.classification = static_cast<std::uint8_t>(rng() % 4 == 0 ? 7 + rng() % 12 : rng() % 256);
+    p.flags = static_cast<std::uint8_t>(rng() % 16);
+    p.numberOfReturns = static_cast<std::uint8_t>(rng() % 4);
+    p.returnNumber = static_cast<std::uint8_t>(p.numberOfReturns ? 1 + rng() % p.numberOfReturns : 0);
+  }
+  std::vector<PointFilter> filters(6);
+  filters[1].keepOnly({2, 8});
+  filters[2].dropWithheld = false;
+  filters[3] = PointFilter::none();
+  filters[3].dropClasses.set(18);
+  filters[4].firstOnly = true;
+  filters[5].clip = ClipRect{100, 100, 600, 900};
+  for (std::size_t f = 0; f < filters.size(); ++f) {
+    SCOPED_TRACE(f);
+    const PointFilter& filter = filters[f];
+    std::vector<PointRecord> expected;
+    FilterCounts want;
+    want.read = pts.size();
+    for (const auto& p : pts) {
+      switch (filter.reason(p)) {
+        case FilterReason::kKept:
+          expected.push_back(p);
+          break;
+        case FilterReason::kWithheld:
+          ++want.withheld;
+          break;
+        case FilterReason::kClass:
+          ++want.byClass;
+          ++want.droppedByClass[p.classification];
+          break;
+        case FilterReason::kReturn:
+          ++want.byReturn;
+          break;
+        case FilterReason::kClip:
+          ++want.clipped;
+          break;
+      }
+    }
+    want.kept = expected.size();
+    std::vector<PointRecord> batch = pts;
+    FilterCounts got;
+    const std::size_t n = filter.apply(batch.data(), batch.size(), got);
+    ASSERT_EQ(n, expected.size());
+    for (std::size_t i = 0; i < n; ++i)
+      ASSERT_EQ(std::memcmp(&batch[i], &expected[i], sizeof(PointRecord)), 0);
+    EXPECT_EQ(got.read, want.read);
+    EXPECT_EQ(got.kept, want.kept);
+    EXPECT_EQ(got.withheld, want.withheld);
+    EXPECT_EQ(got.byClass, want.byClass);
+    EXPECT_EQ(got.byReturn, want.byReturn);
+    EXPECT_EQ(got.clipped, want.clipped);
+    for (int c = 0; c < 256; ++c) EXPECT_EQ(got.droppedByClass[c], want.droppedByClass[c]) << c;
+  }
 }
 
 TEST(Finalizer, KeepClassReturnsAndClip) {
