@@ -154,7 +154,8 @@ LasReader::LasReader(const std::string& path, Diagnostics& diag) : diag_(diag) {
           ::close(fd_);
           throw DataError(path, std::string("cannot map the file: ") + std::strerror(e));
         }
-        ::madvise(mapping_, size_, MADV_SEQUENTIAL | MADV_WILLNEED);
+        // No advice for the whole file: WILLNEED over a survey larger than RAM would read it all into
+        // a page cache that evicts it again before it is decoded.  read() asks for a window ahead.
         base_ = static_cast<const std::uint8_t*>(mapping_);
       } else {
         static const std::uint8_t kEmpty = 0;
@@ -547,9 +548,11 @@ std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecor
     const std::size_t hi = n * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
     Part& part = partial[k];
     if (info_.pointFormat >= 6)
-      decodeRecords<true>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo, part.bounds);
+      decodeRecords<true>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo,
+                          part.bounds);
     else
-      decodeRecords<false>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo, part.bounds);
+      decodeRecords<false>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo,
+                           part.bounds);
     if (!info_.hasHeaderBounds || hi == lo) return;
     const Bounds3& hb = info_.headerBounds;
     const Bounds3& b = part.bounds;
@@ -635,11 +638,22 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
 }
 
 void LasReader::releaseConsumed(std::uint64_t upTo) {
+  if (!mapping_) return;
+  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+  // Read ahead: keep the next kAhead bytes requested from storage (a cold survey is then read with
+  // deep, asynchronous I/O rather than a fault at a time), topped up every kAhead / 4.  A survey smaller
+  // than kAhead is asked for whole at its first batch.
+  constexpr std::uint64_t kAhead = std::uint64_t{1} << 30;
+  if (upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
+    const std::uint64_t from = std::max(requested_, upTo) / page * page;
+    const std::uint64_t to = std::min<std::uint64_t>(size_, upTo + kAhead);
+    if (to > from) ::madvise(static_cast<std::uint8_t*>(mapping_) + from, to - from, MADV_WILLNEED);
+    requested_ = to;
+  }
   // The mapping's pages stay in the page cache, but counted in this process's RSS they would make a
   // streaming run look as large as its input: drop the pages already decoded, 1 MiB at a time.
   constexpr std::uint64_t kChunk = std::uint64_t{1} << 20;
-  if (!mapping_ || upTo < released_ + kChunk) return;
-  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+  if (upTo < released_ + kChunk) return;
   const std::uint64_t end = upTo / page * page;
   if (end <= released_) return;
   ::madvise(static_cast<std::uint8_t*>(mapping_) + released_, end - released_, MADV_DONTNEED);
@@ -650,6 +664,7 @@ void LasReader::rewind() {
   if (stream_) throw Error(info_.path + ": standard input can be read only once");
   nextPoint_ = 0;
   released_ = 0;
+  requested_ = 0;
   decoded_ = Bounds3{};
   outside_ = 0;
 }

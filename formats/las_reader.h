@@ -102,6 +102,7 @@ class LasReader : public PointReader {
   std::uint64_t pointOffset_ = 0;
   std::uint64_t nextPoint_ = 0;  // index of the next point to decode in this pass
   std::uint64_t released_ = 0;   // mapping bytes [0, released_) dropped from the RSS in this pass
+  std::uint64_t requested_ = 0;  // mapping bytes [0, requested_) asked for with MADV_WILLNEED this pass
   Bounds3 decoded_;
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};
