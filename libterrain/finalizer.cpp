@@ -26,7 +26,8 @@ namespace tinbuild {
 
 namespace {
 
-constexpr std::size_t kBatch = std::size_t{1} << 13;  // 256 KiB: decoded batches stay in L2
+constexpr std::size_t kBatch = std::size_t{1}
+                               << 15;  // 1 MiB: few hand-overs, and the batches in flight fit in L3
 constexpr std::uint32_t kNone = 0xffffffffu;
 constexpr int kMaxDepth = 15;
 constexpr int kMaxAutoDepth = 12;
@@ -119,9 +120,22 @@ struct FastGrid {
   int depth;
 };
 
+// Adds the bounds of p[0..n) to b.  Two independent sets of running extremes (even and odd points), so
+// the loop is bound by throughput rather than by the latency of a single chain of min/max.
+void addBounds(Bounds3& b, const PointRecord* p, std::size_t n) {
+  Bounds3 odd;
+  std::size_t i = 0;
+  for (; i + 1 < n; i += 2) {
+    b.add(p[i].x, p[i].y, p[i].z);
+    odd.add(p[i + 1].x, p[i + 1].y, p[i + 1].z);
+  }
+  if (i < n) b.add(p[i].x, p[i].y, p[i].z);
+  b.add(odd);
+}
+
 // Fine (pass 2) and leaf (pass 3) tables are plain arrays indexed by cell key up to these depths, hashed
 // beyond (memory then follows the occupied cells only).
-constexpr int kDenseFineDepth = 9;   // 262,144 cells x 64 bytes
+constexpr int kDenseFineDepth = 11;  // 4,194,304 cells x 4 bytes
 constexpr int kDenseLeafDepth = 11;  // 4,194,304 cells x 4 bytes
 
 // Shortest text that reads back as the same double.
@@ -699,8 +713,7 @@ class Finalizer {
       {
         Prefetcher reader(sources_, options_.readAhead);
         for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-          for (std::size_t i = 0; i < batch.n; ++i)
-            b.add(batch.points[i].x, batch.points[i].y, batch.points[i].z);
+          addBounds(b, batch.points, batch.n);
           n += batch.n;
           progress_.update(batch.read);
         }
@@ -801,7 +814,12 @@ class Finalizer {
 
   std::vector<FineCell> countCells(const GridSpec& g, Bounds3& real, std::uint64_t& n) {
     const bool dense = g.depth <= kDenseFineDepth;
-    std::vector<FineCell> cells(dense ? g.cellCount() : 0);
+    std::vector<FineCell> cells;
+    // Dense: a 4-byte count per fine cell, the only memory the hot loop touches; a cell's first point
+    // goes to `cells` when its count leaves 0.  A count passing 2^32 - 1 carries into `carries` (a
+    // survey with billions of points in one fine cell still counts exactly).
+    std::vector<std::uint32_t> fineCounts(dense ? g.cellCount() : 0);
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> carries;  // (key, multiples of 2^32)
     CellIndex index(dense ? 16 : 1024);
     sources_.startPass(false);  // pass 1 ran (and spooled) whenever an input cannot be rewound
     const FastGrid fg(g);
@@ -811,14 +829,30 @@ class Finalizer {
     Bounds3 b;
     Prefetcher reader(sources_, options_.readAhead);
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-      for (std::size_t i = 0; i < batch.n; ++i) {
-        const PointRecord& p = batch.points[i];
-        b.add(p.x, p.y, p.z);
-        const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
-        FineCell* c;
-        if (dense) {
-          c = &cells[key];
-        } else {
+      addBounds(b, batch.points, batch.n);
+      if (dense) {
+        for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
+          const PointRecord& p = batch.points[i];
+          const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
+          const std::uint32_t before = fineCounts[key]++;
+          if (before == 0 || before == UINT32_MAX) [[unlikely]] {
+            auto carry =
+                std::find_if(carries.begin(), carries.end(), [&](const auto& c) { return c.first == key; });
+            if (before == UINT32_MAX) {
+              if (carry == carries.end()) carry = carries.insert(carries.end(), {key, 0});
+              ++carry->second;
+            } else if (carry == carries.end()) {  // the first point of a fine cell: its sprinkle candidate
+              FineCell& c = cells.emplace_back();
+              c.key = key;
+              c.cand = p;
+              c.candOrdinal = ordinal;
+            }
+          }
+        }
+      } else {
+        for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
+          const PointRecord& p = batch.points[i];
+          const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
           if (key != memoKey) {
             bool inserted = false;
             memo = index.findOrInsert(key, static_cast<std::uint32_t>(cells.size()), inserted);
@@ -828,29 +862,24 @@ class Finalizer {
             }
             memoKey = key;
           }
-          c = &cells[memo];
+          FineCell& c = cells[memo];
+          if (c.count++ == 0) {  // the first point of a fine cell is its sprinkle candidate
+            c.cand = p;
+            c.candOrdinal = ordinal;
+          }
         }
-        if (c->count++ == 0) {  // the first point of a fine cell is its sprinkle candidate
-          c->cand = p;
-          c->candOrdinal = ordinal;
-        }
-        ++ordinal;
       }
       progress_.update(batch.read);
     }
     const FilterCounts& counts = reader.counts();
-    stats_.fineTableBytes =
-        std::max<std::uint64_t>(stats_.fineTableBytes, cells.capacity() * sizeof(FineCell) + index.bytes());
-    if (dense) {  // keep the occupied cells only
-      std::size_t used = 0;
-      for (std::size_t key = 0; key < cells.size(); ++key) {
-        if (cells[key].count == 0) continue;
-        cells[used] = cells[key];
-        cells[used].key = key;
-        ++used;
-      }
-      cells.resize(used);
-      cells.shrink_to_fit();
+    stats_.fineTableBytes = std::max<std::uint64_t>(
+        stats_.fineTableBytes,
+        fineCounts.size() * sizeof(std::uint32_t) + cells.capacity() * sizeof(FineCell) + index.bytes());
+    if (dense) {  // the counts of the occupied cells (buildTree orders the cells itself)
+      for (FineCell& c : cells) c.count = fineCounts[c.key];
+      for (const auto& [key, carry] : carries)
+        for (FineCell& c : cells)
+          if (c.key == key) c.count += carry << 32;
     }
     if (!firstCountsTaken_) {
       firstCounts_ = counts;

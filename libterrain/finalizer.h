@@ -12,8 +12,9 @@
 //           force pass 1 and are spooled there (filtered, 32 bytes a point) to an unlinked temporary file
 //           that passes 2 and 3 read instead.
 //   pass 2  points per cell.  Counts are taken at a "fine" depth F two levels below the leaf depth (at
-//           most 12 unless --depth asks for more) in an array (F <= 9) or a hash of the occupied cells
-//           only, together with one sprinkle candidate per fine cell: its first point.  The pass also
+//           most 12 unless --depth asks for more) in an array of 4-byte counts (F <= 11) or a hash of
+//           the occupied cells only, together with one sprinkle candidate per occupied fine cell: its
+//           first point (the array's hot loop touches only the counts).  The pass also
 //           yields the exact bounds and count of the filtered points.  If a point falls outside
 //           knownBounds by more than kCellTolerance (or the data fill less than half the header's
 //           extent), a warning goes to Diagnostics and pass 2 is run again over the real bounds; nothing
@@ -25,8 +26,9 @@
 //           aggregated without re-reading.
 //   pass 3  streaming out.  Each point is appended to its leaf cell's chunk; when a leaf's count reaches
 //           zero the chunk is released: (a) sprinkle points, (b) the chunk in BRIO order, (c) one tag.
-//   In every pass a background thread reads, filters and bounds the next few batches (of 8192 points, so
-//   they stay in L2) while the calling thread works on the current one; the sequence is unchanged.
+//   In every pass a background thread reads and filters the next few batches (of 32768 points: few
+//   hand-overs, and the batches in flight stay in L3) while the calling thread works on the current one;
+//   the sequence is unchanged.
 //
 // Grid and tags
 //   The grid is GridSpec (grid.h) over the bounds at depth k; leaf membership is exactly
@@ -72,8 +74,9 @@
 //   completes (spilled bytes are counted).  A chunk being released is ordered straight out of its blocks
 //   (spilled runs are first read back into a reusable buffer) into a release buffer the size of the
 //   largest cell, outside the budget.  Bookkeeping is about 100 bytes per occupied leaf
-//   (plus a 4-byte index per grid cell up to depth 11); pass 2's fine-cell table 56 bytes per fine cell
-//   (array) or about 90 per occupied fine cell (hash), freed before pass 3.  The stream "width" reported
+//   (plus a 4-byte index per grid cell up to depth 11); pass 2's fine-cell table 4 bytes per fine cell
+//   plus 64 per occupied one (array) or about 90 per occupied fine cell (hash), freed before pass 3.
+//   The stream "width" reported
 //   is the most chunk points waiting at once (in memory or spilled).  It cannot be smaller than the
 //   points flown before a later pass over the same cells (for flight strips: one strip's side-overlap
 //   band), whatever the depth.
