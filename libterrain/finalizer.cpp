@@ -450,10 +450,13 @@ class CellMap {
   void map(PointRecord* p, std::size_t n, std::uint32_t* leaf) const {
     std::uint64_t memoKey = ~std::uint64_t{0};
     std::uint32_t memo = kNone;
+    // One conversion per axis, in sub-cell units: scaling by 16 is exact, so floor(16 u) >> 4 is the
+    // column floor(u) and its low 4 bits the sub-cell floor(16 (u - column)), clamps included.
+    const double last16 = (fg_.last + 1) * 16 - 1;
     for (std::size_t i = 0; i < n; ++i) {
-      const double fx = fg_.u(p[i].x), fy = fg_.v(p[i].y);
-      const std::uint32_t col = FastGrid::index(fx, fg_.last), row = FastGrid::index(fy, fg_.last);
-      const std::uint64_t key = fg_.key(col, row);
+      const std::uint32_t ix = FastGrid::index(fg_.u(p[i].x) * 16, last16);
+      const std::uint32_t iy = FastGrid::index(fg_.v(p[i].y) * 16, last16);
+      const std::uint64_t key = fg_.key(ix >> 4, iy >> 4);
       if (dense_) {
         memo = (*dense_)[key];
       } else if (key != memoKey) {
@@ -461,9 +464,7 @@ class CellMap {
         memoKey = key;
       }
       leaf[i] = memo;
-      const std::uint32_t sx = FastGrid::index((fx - col) * 16, 15),
-                          sy = FastGrid::index((fy - row) * 16, 15);
-      p[i].scratch = kHilbert.d[sy * 16 + sx];
+      p[i].scratch = kHilbert.d[(iy & 15) * 16 + (ix & 15)];
     }
   }
 
