@@ -749,9 +749,11 @@ class Finalizer {
     for (;;) {
       progress_.stage(unit / units, (unit + 1) / units, expected, "pass 2: counting points per cell");
       const GridSpec g = makeGrid(gridBounds, fine);
-      Bounds3 real;
+      // After pass 1 the bounds are known exactly (the same filtered points come again); without it,
+      // pass 2 measures them, to check the header's.
+      Bounds3 real = gridBounds;
       std::uint64_t n = 0;
-      cells = countCells(g, real, n);
+      cells = countCells(g, real, n, !stats_.pass1Run);
       ++stats_.pass2Runs;
       if (n == 0) throw Error(noPointsMessage());
       if (known != 0 && n != known)
@@ -813,7 +815,8 @@ class Finalizer {
     return std::min(kMaxAutoDepth, chooseDepth(expected) + 2);
   }
 
-  std::vector<FineCell> countCells(const GridSpec& g, Bounds3& real, std::uint64_t& n) {
+  // Counts points per fine cell of g; measures `real` (the bounds) when measureBounds.
+  std::vector<FineCell> countCells(const GridSpec& g, Bounds3& real, std::uint64_t& n, bool measureBounds) {
     const bool dense = g.depth <= kDenseFineDepth;
     std::vector<FineCell> cells;
     // Dense: a 4-byte count per fine cell, the only memory the hot loop touches; a cell's first point
@@ -830,7 +833,7 @@ class Finalizer {
     Bounds3 b;
     Prefetcher reader(sources_, options_.readAhead);
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-      addBounds(b, batch.points, batch.n);
+      if (measureBounds) addBounds(b, batch.points, batch.n);
       if (dense) {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
@@ -886,7 +889,7 @@ class Finalizer {
       firstCounts_ = counts;
       firstCountsTaken_ = true;
     }
-    real = b;
+    if (measureBounds) real = b;
     n = ordinal;
     return cells;
   }
