@@ -47,6 +47,26 @@ struct FilterCounts {
   std::uint64_t droppedByClass[256] = {};  // the byClass drops per class code
 
   std::uint64_t dropped() const { return withheld + byClass + byReturn + clipped; }
+  // Counts one point of class `cls` dropped for `reason` (not kKept).
+  void drop(FilterReason reason, std::uint8_t cls) {
+    switch (reason) {
+      case FilterReason::kKept:
+        break;
+      case FilterReason::kWithheld:
+        ++withheld;
+        break;
+      case FilterReason::kClass:
+        ++byClass;
+        ++droppedByClass[cls];
+        break;
+      case FilterReason::kReturn:
+        ++byReturn;
+        break;
+      case FilterReason::kClip:
+        ++clipped;
+        break;
+    }
+  }
 };
 
 struct PointFilter {
@@ -104,24 +124,12 @@ struct PointFilter {
     if (!firstOnly && !lastOnly && !clip) return applyClassAndWithheld(p, n, counts);
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
-      switch (reason(p[i])) {
-        case FilterReason::kKept:
-          if (kept != i) p[kept] = p[i];
-          ++kept;
-          break;
-        case FilterReason::kWithheld:
-          ++counts.withheld;
-          break;
-        case FilterReason::kClass:
-          ++counts.byClass;
-          ++counts.droppedByClass[p[i].classification];
-          break;
-        case FilterReason::kReturn:
-          ++counts.byReturn;
-          break;
-        case FilterReason::kClip:
-          ++counts.clipped;
-          break;
+      const FilterReason r = reason(p[i]);
+      if (r == FilterReason::kKept) {
+        if (kept != i) p[kept] = p[i];
+        ++kept;
+      } else {
+        counts.drop(r, p[i].classification);
       }
     }
     counts.kept += kept;
@@ -140,11 +148,8 @@ struct PointFilter {
       if ((withheld | drop[p[i].classification]) == 0) {
         if (kept != i) p[kept] = p[i];
         ++kept;
-      } else if (withheld) {
-        ++counts.withheld;
       } else {
-        ++counts.byClass;
-        ++counts.droppedByClass[p[i].classification];
+        counts.drop(withheld ? FilterReason::kWithheld : FilterReason::kClass, p[i].classification);
       }
     }
     counts.kept += kept;

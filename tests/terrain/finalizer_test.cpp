@@ -780,24 +780,11 @@ TEST(PointFilter, ApplyAgreesWithReasonForEveryRecord) {
     FilterCounts want;
     want.read = pts.size();
     for (const auto& p : pts) {
-      switch (filter.reason(p)) {
-        case FilterReason::kKept:
-          expected.push_back(p);
-          break;
-        case FilterReason::kWithheld:
-          ++want.withheld;
-          break;
-        case FilterReason::kClass:
-          ++want.byClass;
-          ++want.droppedByClass[p.classification];
-          break;
-        case FilterReason::kReturn:
-          ++want.byReturn;
-          break;
-        case FilterReason::kClip:
-          ++want.clipped;
-          break;
-      }
+      const FilterReason r = filter.reason(p);
+      if (r == FilterReason::kKept)
+        expected.push_back(p);
+      else
+        want.drop(r, p.classification);
     }
     want.kept = expected.size();
     std::vector<PointRecord> batch = pts;
