@@ -118,23 +118,10 @@ inline int perturbedTie(const Point2& a, const Point2& b, const Point2& c, const
 // Same result as incirclePerturbed(a, b, c, d): +1 inside, -1 outside, never 0.
 [[gnu::always_inline]] inline int inCircle(const Point2& a, const Point2& b, const Point2& c,
                                            const Point2& d) {
-  const double adx = a.x - d.x, ady = a.y - d.y;
-  const double bdx = b.x - d.x, bdy = b.y - d.y;
-  const double cdx = c.x - d.x, cdy = c.y - d.y;
-  const double bdxcdy = bdx * cdy, cdxbdy = cdx * bdy;
-  const double cdxady = cdx * ady, adxcdy = adx * cdy;
-  const double adxbdy = adx * bdy, bdxady = bdx * ady;
-  const double alift = adx * adx + ady * ady;
-  const double blift = bdx * bdx + bdy * bdy;
-  const double clift = cdx * cdx + cdy * cdy;
-  const double det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady);
-  const double perm = (std::fabs(bdxcdy) + std::fabs(cdxbdy)) * alift +
-                      (std::fabs(cdxady) + std::fabs(adxcdy)) * blift +
-                      (std::fabs(adxbdy) + std::fabs(bdxady)) * clift;
-  const double bound = kIncircleBound * perm;
-  if (det > bound) return 1;
-  if (det < -bound) return -1;
-  return inCircleSlow(det, a, b, c, d);
+  const FilteredIncircle f = incircleFilter(a, b, c, d);
+  if (f.det > f.bound) return 1;
+  if (f.det < -f.bound) return -1;
+  return inCircleSlow(f.det, a, b, c, d);
 }
 
 // inCircle for two triangles against the same point: bit 0 of the result is inCircle(a1, b1, c1, d) > 0,

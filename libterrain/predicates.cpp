@@ -72,10 +72,10 @@ thread_local PredicateStats tStats;
 // final sum).  As for orient2d, |det| > fl(C * perm) certifies the sign when
 // C >= (1 + u) eta_10 / (1 - u)^12 = 10u + 175u^2 + O(u^3).  We take C = (10 + 256u) u (exact; Shewchuk's
 // iccerrboundA is 10u + 96u^2 for his slightly different accounting).
-// (The constants are kOrientErrorBound and kIncircleErrorBound in predicates.h.)
+// (The constants are kOrientErrorBound and kIncircleErrorBound in predicates.h; incircleFilter there
+// evaluates det and the bound in exactly this order.)
 constexpr double kU = kPredicateUnit;
 constexpr double kOrientBound = kOrientErrorBound;
-constexpr double kIncircleBound = kIncircleErrorBound;
 
 // ---------------------------------------------------------------------------------------------------------
 // Error-free transformations (round to nearest even, no overflow).
@@ -325,23 +325,9 @@ double orient2d(const Point2& a, const Point2& b, const Point2& c) {
 
 double incircle(const Point2& a, const Point2& b, const Point2& c, const Point2& d) {
   ++tStats.incircleCalls;
-  const double adx = a.x - d.x, ady = a.y - d.y;
-  const double bdx = b.x - d.x, bdy = b.y - d.y;
-  const double cdx = c.x - d.x, cdy = c.y - d.y;
-
-  const double bdxcdy = bdx * cdy, cdxbdy = cdx * bdy;
-  const double cdxady = cdx * ady, adxcdy = adx * cdy;
-  const double adxbdy = adx * bdy, bdxady = bdx * ady;
-  const double alift = adx * adx + ady * ady;
-  const double blift = bdx * bdx + bdy * bdy;
-  const double clift = cdx * cdx + cdy * cdy;
-
-  const double det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady);
-  const double perm = (std::fabs(bdxcdy) + std::fabs(cdxbdy)) * alift +
-                      (std::fabs(cdxady) + std::fabs(adxcdy)) * blift +
-                      (std::fabs(adxbdy) + std::fabs(bdxady)) * clift;
-  if (std::fabs(det) > kIncircleBound * perm) [[likely]]
-    return det;
+  const FilteredIncircle f = incircleFilter(a, b, c, d);
+  if (std::fabs(f.det) > f.bound) [[likely]]
+    return f.det;
   return incircleExact(a, b, c, d);
 }
 

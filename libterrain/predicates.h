@@ -22,6 +22,7 @@
 //   Delaunay_triangulation_2 applies, so both produce the same triangulation.
 #pragma once
 
+#include <cmath>
 #include <cstdint>
 
 namespace tinbuild {
@@ -48,6 +49,30 @@ inline bool lexLess(const Point2& p, const Point2& q) {
 inline constexpr double kPredicateUnit = 0x1p-53;
 inline constexpr double kOrientErrorBound = (3.0 + 32.0 * kPredicateUnit) * kPredicateUnit;
 inline constexpr double kIncircleErrorBound = (10.0 + 256.0 * kPredicateUnit) * kPredicateUnit;
+
+// The incircle filter's floating-point evaluation, in the order of operations its error bound was
+// derived for (predicates.cpp): the determinant of (a, b, c, d) with d as origin, and the bound beyond
+// which its sign is certain.  incircle() and the triangulator's inCircle both start here.
+struct FilteredIncircle {
+  double det, bound;
+};
+[[gnu::always_inline]] inline FilteredIncircle incircleFilter(const Point2& a, const Point2& b,
+                                                              const Point2& c, const Point2& d) {
+  const double adx = a.x - d.x, ady = a.y - d.y;
+  const double bdx = b.x - d.x, bdy = b.y - d.y;
+  const double cdx = c.x - d.x, cdy = c.y - d.y;
+  const double bdxcdy = bdx * cdy, cdxbdy = cdx * bdy;
+  const double cdxady = cdx * ady, adxcdy = adx * cdy;
+  const double adxbdy = adx * bdy, bdxady = bdx * ady;
+  const double alift = adx * adx + ady * ady;
+  const double blift = bdx * bdx + bdy * bdy;
+  const double clift = cdx * cdx + cdy * cdy;
+  const double det = alift * (bdxcdy - cdxbdy) + blift * (cdxady - adxcdy) + clift * (adxbdy - bdxady);
+  const double perm = (std::fabs(bdxcdy) + std::fabs(cdxbdy)) * alift +
+                      (std::fabs(cdxady) + std::fabs(adxcdy)) * blift +
+                      (std::fabs(adxbdy) + std::fabs(bdxady)) * clift;
+  return {det, kIncircleErrorBound * perm};
+}
 
 // The symbolic perturbation's decision for an exact incircle tie (a, b, c counter-clockwise, d distinct
 // from them), given an exact orientation predicate: the first nonzero coefficient in decreasing
