@@ -31,6 +31,7 @@ class CrsOverride : public PointReader {
   }
   std::size_t read(PointRecord* out, std::size_t max) override { return inner_->read(out, max); }
   bool rewindable() const override { return inner_->rewindable(); }
+  bool cheapToReread() const override { return inner_->cheapToReread(); }
   void rewind() override { inner_->rewind(); }
 
  private:

@@ -157,6 +157,7 @@ class TransformingPointStream : public PointStream {
   std::size_t read(PointRecord* out, std::size_t max) override;
   bool rewindable() const override { return inner_.rewindable(); }
   void rewind() override;
+  bool cheapToReread() const override { return false; }  // every pass would transform again
   std::uint64_t failedPoints() const { return failed_; }
 
  private:

@@ -100,6 +100,7 @@ class XyzReader final : public PointReader {
   const SourceInfo& info() const override { return info_; }
   std::size_t read(PointRecord* out, std::size_t max) override;
   bool rewindable() const override { return !stream_; }
+  bool cheapToReread() const override { return false; }  // every pass would parse the text again
   void rewind() override;
 
   // The layout decided at open.

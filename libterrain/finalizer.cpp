@@ -280,8 +280,10 @@ class Progress {
 };
 
 // ---------------------------------------------------------------------------------------------------
-// The inputs as one filtered sequence, pass after pass.  Non-rewindable inputs are spooled (filtered) in
-// the first pass and read back from the spool afterwards.
+// The inputs as one filtered sequence, pass after pass.  In the first pass, inputs that cannot be
+// rewound are spooled (filtered, 32 bytes a point) to an unlinked temporary file and read back from it
+// afterwards; so are inputs that are costly to read again (options.spoolCostlyInputs), unless the spool
+// cannot be written (a full disk): such an input is then read again, and spoolFailures() says why.
 
 class Sources {
  public:
@@ -302,6 +304,7 @@ class Sources {
   }
   std::size_t current() const { return std::min(current_, inputs_.size() - 1); }
   std::uint64_t spooledBytes() const { return spooledBytes_; }
+  const std::vector<std::string>& spoolFailures() const { return spoolFailures_; }
 
   // Starts a pass.  The first pass must be allowed to spool when an input cannot be rewound.
   void startPass(bool spool) {
@@ -309,16 +312,29 @@ class Sources {
     current_ = 0;
     spooling_ = spool && pass_ == 1;
     for (std::size_t i = 0; i < inputs_.size(); ++i) {
-      if (inputs_[i]->rewindable()) {
-        inputs_[i]->rewind();
-      } else if (pass_ == 1) {
-        if (!spooling_)
-          throw Error("finalizer: " + name(i) + " cannot be rewound and was not spooled (internal error)");
-        spools_[i].file = std::make_unique<TempFile>(options_.tempDir, "spool");
-        spools_[i].buffer.reserve(kBatch / 2);
-      } else {
-        spools_[i].readPos = 0;
+      Spool& s = spools_[i];
+      const bool rewindable = inputs_[i]->rewindable();
+      if (pass_ > 1 && s.file) {
+        s.readPos = 0;  // the input itself is not read (nor rewound) again
+        continue;
       }
+      if (rewindable) inputs_[i]->rewind();
+      if (pass_ > 1) {
+        if (!rewindable) throw Error("finalizer: " + name(i) + " cannot be rewound (internal error)");
+        continue;
+      }
+      const bool costly = options_.spoolCostlyInputs && !inputs_[i]->cheapToReread();
+      if (!rewindable && !spooling_)
+        throw Error("finalizer: " + name(i) + " cannot be rewound and was not spooled (internal error)");
+      if (!spooling_ || (rewindable && !costly)) continue;
+      try {
+        s.file = std::make_unique<TempFile>(options_.tempDir, "spool");
+      } catch (const Error& e) {
+        if (!rewindable) throw;
+        spoolFailures_.push_back(name(i) + ": " + e.what());
+        continue;
+      }
+      s.buffer.reserve(kBatch / 2);
     }
   }
 
@@ -341,7 +357,7 @@ class Sources {
       }
       const std::size_t raw = inputs_[current_]->read(out, kBatch);
       if (raw == 0) {
-        if (spool.file && spooling_) flushSpool(spool);
+        if (spool.file && spooling_) flushSpool(current_);
         ++current_;
         continue;
       }
@@ -349,7 +365,7 @@ class Sources {
       if (n == 0) continue;
       if (spool.file && spooling_) {
         spool.buffer.insert(spool.buffer.end(), out, out + n);
-        if (spool.buffer.size() >= kBatch / 2) flushSpool(spool);
+        if (spool.buffer.size() >= kBatch / 2) flushSpool(current_);
       }
       return n;
     }
@@ -362,10 +378,20 @@ class Sources {
     std::vector<PointRecord> buffer;
     std::uint64_t bytes = 0, readPos = 0;
   };
-  void flushSpool(Spool& s) {
+  void flushSpool(std::size_t i) {
+    Spool& s = spools_[i];
     if (s.buffer.empty()) return;
     const std::size_t size = s.buffer.size() * sizeof(PointRecord);
-    s.file->writeAt(s.bytes, s.buffer.data(), size);
+    try {
+      s.file->writeAt(s.bytes, s.buffer.data(), size);
+    } catch (const Error& e) {
+      if (!inputs_[i]->rewindable()) throw;
+      // A copy is only a shortcut for an input that can be read again: drop it and read the input.
+      spoolFailures_.push_back(name(i) + ": " + e.what());
+      spooledBytes_ -= s.bytes;
+      s = Spool{};
+      return;
+    }
     s.bytes += size;
     spooledBytes_ += size;
     s.buffer.clear();
@@ -378,6 +404,7 @@ class Sources {
   int pass_ = 0;
   bool spooling_ = false;
   std::uint64_t spooledBytes_ = 0;
+  std::vector<std::string> spoolFailures_;
 };
 
 // ---------------------------------------------------------------------------------------------------
@@ -721,6 +748,9 @@ class Finalizer {
         stats_.filter = reader.counts();
       }
       stats_.spooledBytes = sources_.spooledBytes();
+      for (const std::string& why : sources_.spoolFailures())
+        diag_.warn("finalize.spool_failed", "",
+                   "cannot keep a copy of " + why + "; it is read again in each pass");
       stats_.pass1Seconds = std::chrono::duration<double>(Clock::now() - t0).count();
       firstCounts_ = stats_.filter;
       firstCountsTaken_ = true;

@@ -10,7 +10,10 @@
 //   pass 1  bounds and count of the filtered points.  Skipped when the caller passes trusted header
 //           bounds (options.knownBounds) and every input can be rewound.  Non-rewindable inputs (stdin)
 //           force pass 1 and are spooled there (filtered, 32 bytes a point) to an unlinked temporary file
-//           that passes 2 and 3 read instead.
+//           that passes 2 and 3 read instead.  So are inputs that are costly to read again (XYZ text,
+//           reprojected points: PointStream::cheapToReread) when pass 1 runs, unless
+//           options.spoolCostlyInputs is off; if their spool cannot be written (a full disk), a warning
+//           says so and they are read again in each pass.
 //   pass 2  points per cell.  Counts are taken at a "fine" depth F two levels below the leaf depth (at
 //           most 12 unless --depth asks for more) in an array of 4-byte counts (F <= 11) or a hash of
 //           the occupied cells only, together with one sprinkle candidate per occupied fine cell: its
@@ -128,6 +131,10 @@ struct FinalizerOptions {
   // Read the next batches on a background thread while the current one is worked on (false: everything
   // on the calling thread, for --threads 1).  The sequence of points is the same either way.
   bool readAhead = true;
+  // In pass 1, also spool the inputs that are costly to read again (PointStream::cheapToReread: XYZ text,
+  // reprojected points), so that passes 2 and 3 read 32-byte records back instead.  Costs 32 bytes a
+  // point in tempDir.
+  bool spoolCostlyInputs = true;
 };
 
 struct FinalizerStats {

@@ -20,6 +20,9 @@ class PointStream {
   virtual bool rewindable() const = 0;
   // Starts the next pass at the first point.  Throws Error when not rewindable.
   virtual void rewind() = 0;
+  // False when reading the stream again costs much more than reading back a copy of its points (text
+  // to parse, coordinates to transform): a multi-pass reader may then keep a copy after its first pass.
+  virtual bool cheapToReread() const { return true; }
 };
 
 // Several streams read as one, in order (a survey of many tiles).  current() tells which stream the
@@ -43,6 +46,11 @@ class ConcatPointStream : public PointStream {
   void rewind() override {
     for (auto* p : parts_) p->rewind();
     current_ = 0;
+  }
+  bool cheapToReread() const override {
+    for (const auto* p : parts_)
+      if (!p->cheapToReread()) return false;
+    return true;
   }
   std::size_t current() const { return current_; }
 

@@ -3,10 +3,12 @@
 // precede their cells, empty regions are tagged before the first point, and the output is a pure
 // function of input and options (also when spilling, spooling, or splitting the input into files).
 #include <gtest/gtest.h>
+#include <sys/resource.h>
 
 #include <algorithm>
 #include <atomic>
 #include <cmath>
+#include <csignal>
 #include <cstring>
 #include <filesystem>
 #include <memory>
@@ -33,8 +35,9 @@ namespace {
 
 class VectorStream : public PointStream {
  public:
-  explicit VectorStream(std::vector<PointRecord> pts, bool rewindable = true, std::size_t maxRead = 1000)
-      : pts_(std::move(pts)), rewindable_(rewindable), maxRead_(maxRead) {}
+  explicit VectorStream(std::vector<PointRecord> pts, bool rewindable = true, std::size_t maxRead = 1000,
+                        bool cheapToReread = true)
+      : pts_(std::move(pts)), rewindable_(rewindable), maxRead_(maxRead), cheap_(cheapToReread) {}
   std::size_t read(PointRecord* out, std::size_t max) override {
     const std::size_t n = std::min({max, maxRead_, pts_.size() - pos_});
     std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_),
@@ -48,12 +51,14 @@ class VectorStream : public PointStream {
     pos_ = 0;
     ++rewinds;
   }
+  bool cheapToReread() const override { return cheap_; }
   int rewinds = 0;
 
  private:
   std::vector<PointRecord> pts_;
   bool rewindable_;
   std::size_t maxRead_;
+  bool cheap_;
   std::size_t pos_ = 0;
 };
 
@@ -636,6 +641,75 @@ TEST(Finalizer, NonRewindableInputIsSpooledWithIdenticalOutput) {
   EXPECT_TRUE(b.stats.pass1Run);
   EXPECT_EQ(b.stats.spooledBytes, pts.size() * sizeof(PointRecord));
   EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events));
+  EXPECT_TRUE(std::filesystem::is_empty(o.tempDir));
+}
+
+TEST(Finalizer, CostlyInputsAreReadOnceAndSpooled) {
+  // An input that is costly to read again (XYZ text, reprojection) is read in pass 1 only; passes 2
+  // and 3 read its spool.  Without a usable spool it is read in every pass, with a warning.
+  SurveySpec spec;
+  spec.points = 50000;
+  const auto pts = generate(spec);
+  FinalizerOptions o = noFilter(4);
+  o.tempDir = test::scratchDir().string();
+  const Result cheap = finalize(pts, o);
+  EXPECT_EQ(cheap.stats.spooledBytes, 0u);
+  struct Run {
+    RecordingSink sink;
+    FinalizerStats stats;
+    Diagnostics diag;
+    int rewinds = 0;
+  };
+  auto run = [&](const FinalizerOptions& opt, Run& r) {
+    VectorStream costly(pts, true, 1000, false);
+    r.stats = finalizePoints({&costly}, opt, r.sink, r.diag);
+    r.rewinds = costly.rewinds;
+  };
+  Run spooled;
+  run(o, spooled);
+  EXPECT_EQ(spooled.stats.spooledBytes, pts.size() * sizeof(PointRecord));
+  EXPECT_EQ(spooled.rewinds, 1);  // pass 1 only
+  EXPECT_TRUE(sameEvents(cheap.sink.events, spooled.sink.events));
+  EXPECT_TRUE(spooled.diag.entries().empty());
+  EXPECT_TRUE(std::filesystem::is_empty(o.tempDir));
+
+  FinalizerOptions off = o;
+  off.spoolCostlyInputs = false;
+  Run reread;
+  run(off, reread);
+  EXPECT_EQ(reread.stats.spooledBytes, 0u);
+  EXPECT_EQ(reread.rewinds, 3);
+  EXPECT_TRUE(sameEvents(cheap.sink.events, reread.sink.events));
+
+  auto warnedSpool = [](const Diagnostics& d) {
+    for (const auto& e : d.entries())
+      if (e.kind == "finalize.spool_failed") return true;
+    return false;
+  };
+  FinalizerOptions nowhere = o;  // the spool cannot even be created
+  nowhere.tempDir = (test::scratchDir() / "missing" / "dir").string();
+  Run uncreated;
+  run(nowhere, uncreated);
+  EXPECT_EQ(uncreated.stats.spooledBytes, 0u);
+  EXPECT_EQ(uncreated.rewinds, 3);
+  EXPECT_TRUE(warnedSpool(uncreated.diag));
+  EXPECT_TRUE(sameEvents(cheap.sink.events, uncreated.sink.events));
+
+  // The spool fills the disk part-way (here: a file size limit, EFBIG instead of ENOSPC).
+  struct rlimit old {};
+  ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old), 0);
+  struct rlimit small = old;
+  small.rlim_cur = 64 * 1024;
+  auto previous = std::signal(SIGXFSZ, SIG_IGN);
+  ASSERT_EQ(::setrlimit(RLIMIT_FSIZE, &small), 0);
+  Run full;
+  run(o, full);
+  ::setrlimit(RLIMIT_FSIZE, &old);
+  std::signal(SIGXFSZ, previous);
+  EXPECT_EQ(full.stats.spooledBytes, 0u);
+  EXPECT_EQ(full.rewinds, 3);
+  EXPECT_TRUE(warnedSpool(full.diag));
+  EXPECT_TRUE(sameEvents(cheap.sink.events, full.sink.events));
   EXPECT_TRUE(std::filesystem::is_empty(o.tempDir));
 }
 
