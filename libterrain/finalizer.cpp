@@ -2,6 +2,7 @@
 
 #include <fcntl.h>
 #include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <sys/uio.h>
 #include <unistd.h>
 
@@ -26,6 +27,8 @@ namespace tinbuild {
 
 namespace {
 
+constexpr std::uint64_t kSpoolCheck = std::uint64_t{64} << 20;  // how often an optional spool looks at
+                                                                // the free space it must leave
 constexpr std::size_t kBatch = std::size_t{1}
                                << 15;  // 1 MiB: few hand-overs, and the batches in flight fit in L3
 constexpr std::uint32_t kNone = 0xffffffffu;
@@ -212,6 +215,12 @@ class TempFile {
       }
     }
   }
+  // Bytes still free for an unprivileged writer on the file's file system (max when it cannot tell).
+  std::uint64_t freeBytes() const {
+    struct statvfs v {};
+    if (::fstatvfs(fd_, &v) != 0) return UINT64_MAX;
+    return static_cast<std::uint64_t>(v.f_bavail) * static_cast<std::uint64_t>(v.f_frsize);
+  }
   void readAt(std::uint64_t offset, void* data, std::size_t size) {
     char* p = static_cast<char*>(data);
     while (size > 0) {
@@ -331,7 +340,7 @@ class Sources {
         s.file = std::make_unique<TempFile>(options_.tempDir, "spool");
       } catch (const Error& e) {
         if (!rewindable) throw;
-        spoolFailures_.push_back(name(i) + ": " + e.what());
+        spoolFailures_.push_back(name(i) + ": its copy failed: " + e.what());
         continue;
       }
       s.buffer.reserve(kBatch / 2);
@@ -382,12 +391,28 @@ class Sources {
     Spool& s = spools_[i];
     if (s.buffer.empty()) return;
     const std::size_t size = s.buffer.size() * sizeof(PointRecord);
-    try {
-      s.file->writeAt(s.bytes, s.buffer.data(), size);
-    } catch (const Error& e) {
-      if (!inputs_[i]->rewindable()) throw;
-      // A copy is only a shortcut for an input that can be read again: drop it and read the input.
-      spoolFailures_.push_back(name(i) + ": " + e.what());
+    // A copy is only a shortcut for an input that can be read again: it must not fill the temporary
+    // disk (other jobs share it, and a tmpfs is memory), so it stops with options.spoolReserve left, and
+    // a failed write drops it.  The input is then read again in each pass.
+    const bool optional = inputs_[i]->rewindable();
+    std::string failure;
+    if (optional && (s.bytes == 0 || s.bytes / kSpoolCheck != (s.bytes + size) / kSpoolCheck)) {
+      const std::uint64_t free = s.file->freeBytes();
+      if (free < options_.spoolReserve + size)
+        failure = "a copy of it would leave less than " + withCommas(options_.spoolReserve >> 20) +
+                  " MiB free on the temporary disk (" + withCommas(free >> 20) + " MiB free at " +
+                  s.file->path() + ")";
+    }
+    if (failure.empty()) {
+      try {
+        s.file->writeAt(s.bytes, s.buffer.data(), size);
+      } catch (const Error& e) {
+        if (!optional) throw;
+        failure = std::string("its copy failed: ") + e.what();
+      }
+    }
+    if (!failure.empty()) {
+      spoolFailures_.push_back(name(i) + ": " + failure);
       spooledBytes_ -= s.bytes;
       s = Spool{};
       return;
@@ -749,8 +774,7 @@ class Finalizer {
       }
       stats_.spooledBytes = sources_.spooledBytes();
       for (const std::string& why : sources_.spoolFailures())
-        diag_.warn("finalize.spool_failed", "",
-                   "cannot keep a copy of " + why + "; it is read again in each pass");
+        diag_.warn("finalize.spool_failed", "", why + "; it is read again in each pass instead");
       stats_.pass1Seconds = std::chrono::duration<double>(Clock::now() - t0).count();
       firstCounts_ = stats_.filter;
       firstCountsTaken_ = true;

@@ -12,8 +12,9 @@
 //           force pass 1 and are spooled there (filtered, 32 bytes a point) to an unlinked temporary file
 //           that passes 2 and 3 read instead.  So are inputs that are costly to read again (XYZ text,
 //           reprojected points: PointStream::cheapToReread) when pass 1 runs, unless
-//           options.spoolCostlyInputs is off; if their spool cannot be written (a full disk), a warning
-//           says so and they are read again in each pass.
+//           options.spoolCostlyInputs is off; if their spool cannot be written, or would leave less than
+//           options.spoolReserve free on its disk, a warning says so and they are read again in each
+//           pass.
 //   pass 2  points per cell.  Counts are taken at a "fine" depth F two levels below the leaf depth (at
 //           most 12 unless --depth asks for more) in an array of 4-byte counts (F <= 11) or a hash of
 //           the occupied cells only, together with one sprinkle candidate per occupied fine cell: its
@@ -135,6 +136,8 @@ struct FinalizerOptions {
   // reprojected points), so that passes 2 and 3 read 32-byte records back instead.  Costs 32 bytes a
   // point in tempDir.
   bool spoolCostlyInputs = true;
+  // Such a spool stops (and the input is read again) rather than leave less than this free in tempDir.
+  std::uint64_t spoolReserve = std::uint64_t{1} << 30;
 };
 
 struct FinalizerStats {

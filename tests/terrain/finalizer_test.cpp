@@ -695,6 +695,15 @@ TEST(Finalizer, CostlyInputsAreReadOnceAndSpooled) {
   EXPECT_TRUE(warnedSpool(uncreated.diag));
   EXPECT_TRUE(sameEvents(cheap.sink.events, uncreated.sink.events));
 
+  FinalizerOptions cramped = o;  // the spool would leave less than the reserve free
+  cramped.spoolReserve = UINT64_MAX / 4;
+  Run reserved;
+  run(cramped, reserved);
+  EXPECT_EQ(reserved.stats.spooledBytes, 0u);
+  EXPECT_EQ(reserved.rewinds, 3);
+  EXPECT_TRUE(warnedSpool(reserved.diag));
+  EXPECT_TRUE(sameEvents(cheap.sink.events, reserved.sink.events));
+
   // The spool fills the disk part-way (here: a file size limit, EFBIG instead of ENOSPC).
   struct rlimit old {};
   ASSERT_EQ(::getrlimit(RLIMIT_FSIZE, &old), 0);
