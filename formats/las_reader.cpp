@@ -147,6 +147,9 @@ LasReader::LasReader(const std::string& path, Diagnostics& diag) : diag_(diag) {
       stream_ = true;
     } else {
       size_ = static_cast<std::size_t>(st.st_size);
+      fileIno_ = static_cast<std::uint64_t>(st.st_ino);
+      fileDev_ = static_cast<std::uint64_t>(st.st_dev);
+      fileMtimeNs_ = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
       if (size_ > 0) {
         mapping_ = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd_, 0);
         if (mapping_ == MAP_FAILED) {
@@ -170,6 +173,50 @@ LasReader::LasReader(const std::string& path, Diagnostics& diag) : diag_(diag) {
     if (fd_ >= 0) ::close(fd_);
     throw;
   }
+  if (mapping_) {  // the header is read: map the file again when its points are
+    lazyFile_ = true;
+    closeFile();
+  }
+}
+
+void LasReader::openFile() {
+  if (!lazyFile_ || mapping_) return;
+  const std::string& path = info_.path;
+  fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd_ < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd_, &st) != 0) {
+    const int e = errno;
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(path, std::string("cannot stat: ") + std::strerror(e));
+  }
+  const std::int64_t mtime = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  if (static_cast<std::size_t>(st.st_size) != size_ || static_cast<std::uint64_t>(st.st_ino) != fileIno_ ||
+      static_cast<std::uint64_t>(st.st_dev) != fileDev_ || mtime != fileMtimeNs_) {
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(
+        path, "the file changed since its header was read (was it modified or replaced during the run?)");
+  }
+  mapping_ = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd_, 0);
+  if (mapping_ == MAP_FAILED) {
+    const int e = errno;
+    mapping_ = nullptr;
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(path, std::string("cannot map the file: ") + std::strerror(e));
+  }
+  base_ = static_cast<const std::uint8_t*>(mapping_);
+  released_ = requested_ = 0;
+}
+
+void LasReader::closeFile() {
+  if (mapping_) ::munmap(mapping_, size_);
+  mapping_ = nullptr;
+  base_ = nullptr;
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
 }
 
 LasReader::LasReader(const std::string& name, const std::uint8_t* data, std::size_t size, Diagnostics& diag)
@@ -612,10 +659,14 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
     return 0;
   }
   if (!stream_) {
+    openFile();
     decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
     nextPoint_ += n;
     releaseConsumed(pointOffset_ + nextPoint_ * stride);
-    if (nextPoint_ == info_.pointCount) finishPass();
+    if (nextPoint_ == info_.pointCount) {
+      finishPass();
+      if (lazyFile_) closeFile();
+    }
     return n;
   }
   // Stream: decode what is buffered, a block at a time.

@@ -81,8 +81,10 @@ class LasReader : public PointReader {
   void checkExtraBytes();
   void finishPass();
   std::size_t decode(const std::uint8_t* src, std::size_t n, PointRecord* out);
-  std::size_t fillStream(std::size_t want);
-  void releaseConsumed(std::uint64_t upTo);  // stdin: ensure `want` bytes buffered, returns available
+  std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
+  void releaseConsumed(std::uint64_t upTo);
+  void openFile();   // maps the file for a pass (checks that it is the file parse() read)
+  void closeFile();  // unmaps it and closes the descriptor
 
   Diagnostics& diag_;
   std::unique_ptr<WorkCrew> crew_;
@@ -93,6 +95,11 @@ class LasReader : public PointReader {
   std::size_t size_ = 0;
   void* mapping_ = nullptr;
   int fd_ = -1;
+  // A file is open and mapped only while a pass reads it, so a survey of any number of tiles holds a
+  // few descriptors and mappings, not one per tile.  Its identity is checked when it is mapped again.
+  bool lazyFile_ = false;
+  std::uint64_t fileIno_ = 0, fileDev_ = 0;
+  std::int64_t fileMtimeNs_ = 0;
   bool stream_ = false;
   std::vector<std::uint8_t> streamBuf_;
   std::size_t streamBegin_ = 0, streamEnd_ = 0;

@@ -319,6 +319,12 @@ XyzReader::XyzReader(const std::string& path, const ReaderOptions& options, Diag
 #ifdef POSIX_FADV_SEQUENTIAL
     if (!stream_) (void)::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);
 #endif
+    if (!stream_) {
+      fileIno_ = static_cast<std::uint64_t>(st.st_ino);
+      fileDev_ = static_cast<std::uint64_t>(st.st_dev);
+      fileSize_ = static_cast<std::uint64_t>(st.st_size);
+      fileMtimeNs_ = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+    }
   }
   try {
     detectLayout(options);
@@ -327,6 +333,33 @@ XyzReader::XyzReader(const std::string& path, const ReaderOptions& options, Diag
     fd_ = -1;
     throw;
   }
+  if (fd_ >= 0 && !stream_) {  // the layout is known: open the file again when a pass reads it
+    ::close(fd_);
+    fd_ = -1;
+    lazyFile_ = true;
+    startPass();
+    std::vector<char>().swap(buf_);
+  }
+}
+
+void XyzReader::openFile() {
+  fd_ = ::open(name_.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd_ < 0) throw DataError(name_, std::string("cannot open: ") + std::strerror(errno));
+  struct stat st {};
+  const bool same =
+      ::fstat(fd_, &st) == 0 && static_cast<std::uint64_t>(st.st_ino) == fileIno_ &&
+      static_cast<std::uint64_t>(st.st_dev) == fileDev_ &&
+      static_cast<std::uint64_t>(st.st_size) == fileSize_ &&
+      static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec == fileMtimeNs_;
+  if (!same) {
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(name_,
+                    "the file changed since it was first read (was it modified or replaced during the run?)");
+  }
+#ifdef POSIX_FADV_SEQUENTIAL
+  (void)::posix_fadvise(fd_, 0, 0, POSIX_FADV_SEQUENTIAL);
+#endif
 }
 
 XyzReader::XyzReader(MemoryTag, const std::string& name, std::string data, const ReaderOptions& options,
@@ -482,6 +515,7 @@ void XyzReader::startPass() {
     if (::lseek(fd_, 0, SEEK_SET) < 0)
       throw DataError(name_, std::string("cannot seek: ") + std::strerror(errno));
   }
+  fileDone_ = false;
   memoryPos_ = 0;
   pos_ = end_ = searched_ = 0;
   eof_ = false;
@@ -498,6 +532,10 @@ void XyzReader::rewind() {
 }
 
 std::size_t XyzReader::readBytes(char* dst, std::size_t n) {
+  if (lazyFile_ && fd_ < 0) {
+    if (fileDone_) return 0;
+    openFile();
+  }
   if (fd_ < 0 && !stdin_) {
     const std::size_t k = std::min(n, memory_.size() - memoryPos_);
     if (k) std::memcpy(dst, memory_.data() + memoryPos_, k);
@@ -515,7 +553,14 @@ std::size_t XyzReader::readBytes(char* dst, std::size_t n) {
   }
   while (got < n) {
     const ssize_t r = ::read(fd_, dst + got, n - got);
-    if (r == 0) break;
+    if (r == 0) {
+      if (lazyFile_) {  // the end of this pass's reading: give the descriptor back
+        ::close(fd_);
+        fd_ = -1;
+        fileDone_ = true;
+      }
+      break;
+    }
     if (r < 0) {
       if (errno == EINTR) continue;
       throw DataError(name_, std::string("read error: ") + std::strerror(errno));
@@ -705,6 +750,7 @@ std::size_t XyzReader::read(PointRecord* out, std::size_t max) {
   while (n < max) {
     if (!nextLine(line)) {
       passDone_ = true;
+      if (lazyFile_) std::vector<char>().swap(buf_);  // a survey of many files holds one buffer at a time
       if (!info_.pointCountKnown) {
         info_.pointCount = passPoints_ + n;
         info_.pointCountKnown = true;

@@ -134,10 +134,17 @@ class XyzReader final : public PointReader {
   std::string name_;  // file name for messages ("-" for stdin)
   bool skipBadLines_ = false;
 
-  // Input: stdin (through stdin_source), a file descriptor we own, or memory (fd_ < 0, !stdin_).
+  // Input: stdin (through stdin_source), a file (lazyFile_), or memory (fd_ < 0, !stdin_, !lazyFile_).
+  // A file is open only while a pass reads it (a survey of any number of files holds one descriptor);
+  // its identity is checked each time it is opened again.
   int fd_ = -1;
   bool stdin_ = false;
   bool stream_ = false;  // stdin, a pipe or a device: single pass
+  bool lazyFile_ = false;
+  bool fileDone_ = false;  // this pass read the file to its end (and closed it)
+  std::uint64_t fileIno_ = 0, fileDev_ = 0, fileSize_ = 0;
+  std::int64_t fileMtimeNs_ = 0;
+  void openFile();
   std::string memory_;
   std::size_t memoryPos_ = 0;
   std::size_t blockSize_ = kBlockSize;

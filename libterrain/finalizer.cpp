@@ -323,7 +323,7 @@ class Sources {
     for (std::size_t i = 0; i < inputs_.size(); ++i) {
       Spool& s = spools_[i];
       const bool rewindable = inputs_[i]->rewindable();
-      if (pass_ > 1 && s.file) {
+      if (pass_ > 1 && s.active) {
         s.readPos = 0;  // the input itself is not read (nor rewound) again
         continue;
       }
@@ -332,18 +332,9 @@ class Sources {
         if (!rewindable) throw Error("finalizer: " + name(i) + " cannot be rewound (internal error)");
         continue;
       }
-      const bool costly = options_.spoolCostlyInputs && !inputs_[i]->cheapToReread();
       if (!rewindable && !spooling_)
         throw Error("finalizer: " + name(i) + " cannot be rewound and was not spooled (internal error)");
-      if (!spooling_ || (rewindable && !costly)) continue;
-      try {
-        s.file = std::make_unique<TempFile>(options_.tempDir, "spool");
-      } catch (const Error& e) {
-        if (!rewindable) throw;
-        spoolFailures_.push_back(name(i) + ": its copy failed: " + e.what());
-        continue;
-      }
-      s.buffer.reserve(kBatch / 2);
+      s.active = spooling_ && (!rewindable || (options_.spoolCostlyInputs && !inputs_[i]->cheapToReread()));
     }
   }
 
@@ -351,14 +342,14 @@ class Sources {
   std::size_t next(PointRecord* out, FilterCounts& counts) {
     while (current_ < inputs_.size()) {
       Spool& spool = spools_[current_];
-      if (spool.file && pass_ > 1) {
+      if (spool.active && pass_ > 1) {
         const std::uint64_t left = (spool.bytes - spool.readPos) / sizeof(PointRecord);
         const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, kBatch));
         if (n == 0) {
           ++current_;
           continue;
         }
-        spool.file->readAt(spool.readPos, out, n * sizeof(PointRecord));
+        spoolFile_->readAt(spool.start + spool.readPos, out, n * sizeof(PointRecord));
         spool.readPos += n * sizeof(PointRecord);
         counts.read += n;
         counts.kept += n;
@@ -366,15 +357,15 @@ class Sources {
       }
       const std::size_t raw = inputs_[current_]->read(out, kBatch);
       if (raw == 0) {
-        if (spool.file && spooling_) flushSpool(current_);
+        if (spool.active && spooling_) flushSpool(current_);
         ++current_;
         continue;
       }
       const std::size_t n = options_.filter.apply(out, raw, counts);
       if (n == 0) continue;
-      if (spool.file && spooling_) {
-        spool.buffer.insert(spool.buffer.end(), out, out + n);
-        if (spool.buffer.size() >= kBatch / 2) flushSpool(current_);
+      if (spool.active && spooling_) {
+        buffer_.insert(buffer_.end(), out, out + n);
+        if (buffer_.size() >= kBatch / 2) flushSpool(current_);
       }
       return n;
     }
@@ -382,49 +373,57 @@ class Sources {
   }
 
  private:
+  // Every spooled input's points, filtered, lie back to back in one temporary file (inputs are read one
+  // after the other): [start, start + bytes).
   struct Spool {
-    std::unique_ptr<TempFile> file;
-    std::vector<PointRecord> buffer;
-    std::uint64_t bytes = 0, readPos = 0;
+    bool active = false;
+    std::uint64_t start = 0, bytes = 0, readPos = 0;
   };
   void flushSpool(std::size_t i) {
     Spool& s = spools_[i];
-    if (s.buffer.empty()) return;
-    const std::size_t size = s.buffer.size() * sizeof(PointRecord);
+    if (buffer_.empty()) return;
+    const std::size_t size = buffer_.size() * sizeof(PointRecord);
     // A copy is only a shortcut for an input that can be read again: it must not fill the temporary
     // disk (other jobs share it, and a tmpfs is memory), so it stops with options.spoolReserve left, and
     // a failed write drops it.  The input is then read again in each pass.
     const bool optional = inputs_[i]->rewindable();
     std::string failure;
-    if (optional && (s.bytes == 0 || s.bytes / kSpoolCheck != (s.bytes + size) / kSpoolCheck)) {
-      const std::uint64_t free = s.file->freeBytes();
-      if (free < options_.spoolReserve + size)
-        failure = "a copy of it would leave less than " + withCommas(options_.spoolReserve >> 20) +
-                  " MiB free on the temporary disk (" + withCommas(free >> 20) + " MiB free at " +
-                  s.file->path() + ")";
-    }
-    if (failure.empty()) {
-      try {
-        s.file->writeAt(s.bytes, s.buffer.data(), size);
-      } catch (const Error& e) {
-        if (!optional) throw;
-        failure = std::string("its copy failed: ") + e.what();
+    try {
+      if (!spoolFile_) spoolFile_ = std::make_unique<TempFile>(options_.tempDir, "spool");
+      if (optional && (s.bytes == 0 || s.bytes / kSpoolCheck != (s.bytes + size) / kSpoolCheck)) {
+        const std::uint64_t free = spoolFile_->freeBytes();
+        if (free < options_.spoolReserve + size)
+          failure = "a copy of it would leave less than " + withCommas(options_.spoolReserve >> 20) +
+                    " MiB free on the temporary disk (" + withCommas(free >> 20) + " MiB free at " +
+                    spoolFile_->path() + ")";
       }
+      if (failure.empty()) {
+        if (s.bytes == 0) s.start = spoolEnd_;
+        spoolFile_->writeAt(s.start + s.bytes, buffer_.data(), size);
+      }
+    } catch (const Error& e) {
+      if (!optional) throw;
+      failure = std::string("its copy failed: ") + e.what();
     }
+    buffer_.clear();
     if (!failure.empty()) {
       spoolFailures_.push_back(name(i) + ": " + failure);
       spooledBytes_ -= s.bytes;
+      spoolEnd_ = s.bytes > 0 ? s.start : spoolEnd_;  // its region was the last one
       s = Spool{};
       return;
     }
     s.bytes += size;
+    spoolEnd_ = s.start + s.bytes;
     spooledBytes_ += size;
-    s.buffer.clear();
   }
 
   const std::vector<PointStream*>& inputs_;
   const FinalizerOptions& options_;
   std::vector<Spool> spools_;
+  std::unique_ptr<TempFile> spoolFile_;  // created by the first spool write
+  std::uint64_t spoolEnd_ = 0;
+  std::vector<PointRecord> buffer_;  // the current input's points not yet written to its spool
   std::size_t current_ = 0;
   int pass_ = 0;
   bool spooling_ = false;

@@ -219,6 +219,47 @@ TEST(CliRun, FullDiskFailsCleanlyForEveryOutput) {
   EXPECT_NE(err.find("tinbuild: error: -"), std::string::npos) << err;
 }
 
+// A survey of more tiles than the process may hold descriptors: each file is open (and mapped) only
+// while a pass reads it, and the copies of costly inputs share one spool file.  Here 300 LAS and 300
+// XYZ tiles under a limit of 64 descriptors (before, tile 1020 of a survey failed with "Too many open
+// files" under the usual limit of 1024).
+TEST(CliRun, MoreTilesThanDescriptors) {
+  TINBUILD_REQUIRE_DATA();
+  if (std::system("command -v prlimit >/dev/null 2>&1") != 0) GTEST_SKIP() << "prlimit (util-linux) missing";
+  const auto out = test::scratchDir();
+  const fs::path las = out / "las", xyz = out / "xyz";
+  fs::create_directories(las);
+  fs::create_directories(xyz);
+  constexpr int kTiles = 300;
+  for (int i = 0; i < kTiles; ++i) {
+    char name[32];
+    std::snprintf(name, sizeof name, "t%03d", i);
+    fs::copy_file(test::dataPath("las/simple.las"), las / (std::string(name) + ".las"));
+    std::ofstream f(xyz / (std::string(name) + ".xyz"));
+    for (int k = 0; k < 20; ++k)
+      f << (i % 20) * 10 + k * 0.37 << ' ' << (i / 20) * 10 + k * 0.41 << ' ' << k * 0.1 << '\n';
+  }
+  const std::string limit = "exec prlimit --nofile=64 ";
+  auto r = tinbuild("finalize " + las.string() + " -o " + (out / "las.tfs").string() +
+                        " --compute-bounds -q --report " + (out / "las.json").string(),
+                    limit);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string lasReport = slurp(out / "las.json");
+  EXPECT_NE(lasReport.find("\"points_read\": " + std::to_string(kTiles * 1065)), std::string::npos)
+      << lasReport;
+  r = tinbuild("build " + xyz.string() + " --mesh " + (out / "xyz.smb").string() + " -q --report " +
+                   (out / "xyz.json").string(),
+               limit);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string xyzReport = slurp(out / "xyz.json");
+  EXPECT_NE(xyzReport.find("\"points_read\": " + std::to_string(kTiles * 20)), std::string::npos)
+      << xyzReport;
+  EXPECT_NE(xyzReport.find("\"spooled_bytes\": " + std::to_string(kTiles * 20 * 32)), std::string::npos)
+      << xyzReport;
+  r = tinbuild("verify " + (out / "xyz.smb").string() + " --points " + xyz.string(), limit);
+  EXPECT_EQ(r.code, 0) << r.err << r.out;
+}
+
 // Surveys come as directories of tiles and as patterns batch systems pass quoted.
 TEST(CliRun, DirectoriesAndPatternsAsInputs) {
   TINBUILD_REQUIRE_DATA();

@@ -5,8 +5,10 @@
 
 #include <gtest/gtest.h>
 
+#include <chrono>
 #include <cmath>
 #include <cstring>
+#include <filesystem>
 #include <vector>
 
 #include "libterrain/diagnostics.h"
@@ -469,6 +471,47 @@ namespace tinbuild {
 namespace {
 
 // Regression (found by fuzz_las): an EVLR offset near 2^64 overflowed the bounds check.
+TEST(LasReader, FileIsOpenOnlyWhileAPassReadsItAndMustNotChange) {
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  const auto copy = dir / "tile.las";
+  std::filesystem::copy_file(dataPath("las/simple.las"), copy);
+  auto openDescriptors = [] {
+    std::size_t n = 0;
+    for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) n += !e.path().empty();
+    return n;
+  };
+  const std::size_t before = openDescriptors();
+  Diagnostics diag;
+  LasReader r(copy.string(), diag);
+  EXPECT_EQ(openDescriptors(), before);  // the header is read; the file is closed again
+  std::vector<PointRecord> pts(4096);
+  std::size_t total = 0;
+  for (std::size_t n; (n = r.read(pts.data(), 100)) > 0;) {
+    if (total == 0) {
+      EXPECT_EQ(openDescriptors(), before + 1);
+    }
+    total += n;
+  }
+  EXPECT_EQ(total, r.info().pointCount);
+  EXPECT_EQ(openDescriptors(), before);  // closed at the end of the pass
+  r.rewind();
+  EXPECT_EQ(r.read(pts.data(), pts.size()), std::min<std::size_t>(pts.size(), total));
+  r.rewind();
+  // Replaced between passes (a new file under the same name): the next pass refuses it.
+  std::filesystem::remove(copy);
+  std::filesystem::copy_file(dataPath("las/simple.las"), copy);
+  // (The file system may hand out the same inode again, and its clock may not have ticked.)
+  std::filesystem::last_write_time(copy, std::filesystem::last_write_time(copy) + std::chrono::seconds(5));
+  try {
+    r.read(pts.data(), pts.size());
+    ADD_FAILURE() << "a replaced file was read";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("changed"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("tile.las"), std::string::npos) << e.what();
+  }
+}
+
 TEST(LasReader, AbsurdEvlrOffsetIsIgnored) {
   Crafted c;
   c.minor = 4;
