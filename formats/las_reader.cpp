@@ -9,6 +9,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <mutex>
 #include <sstream>
 
 #include "formats/crs.h"
@@ -625,13 +626,30 @@ std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecor
   return n;
 }
 
+namespace {
+
+// The decode crew of `threads` threads, shared by every reader that uses one (it lives while any does).
+std::shared_ptr<WorkCrew> sharedDecodeCrew(int threads) {
+  static std::mutex mutex;
+  static std::weak_ptr<WorkCrew> crews[LasReader::kMaxDecodeThreads + 1];
+  std::lock_guard lock(mutex);
+  std::shared_ptr<WorkCrew> crew = crews[threads].lock();
+  if (!crew) {
+    crew = std::make_shared<WorkCrew>(threads);
+    crews[threads] = crew;
+  }
+  return crew;
+}
+
+}  // namespace
+
 void LasReader::setDecodeThreads(int threads) {
   threads = std::clamp(threads, 1, kMaxDecodeThreads);
   if (stream_ || threads == 1) {
     crew_.reset();
     return;
   }
-  if (!crew_ || crew_->threads() != threads) crew_ = std::make_unique<WorkCrew>(threads);
+  if (!crew_ || crew_->threads() != threads) crew_ = sharedDecodeCrew(threads);
 }
 
 void LasReader::finishPass() {

@@ -64,7 +64,8 @@ class LasReader : public PointReader {
   void rewind() override;
 
   // Decode large batches of a mapped file on this many threads (default 1).  The points, bounds and
-  // counts are identical for any number; stdin is always decoded on one thread.
+  // counts are identical for any number; stdin is always decoded on one thread.  The threads belong to
+  // a crew that all readers asking for the same number share: a survey of many tiles starts them once.
   static constexpr int kMaxDecodeThreads = 16;
   void setDecodeThreads(int threads);
 
@@ -87,7 +88,7 @@ class LasReader : public PointReader {
   void closeFile();  // unmaps it and closes the descriptor
 
   Diagnostics& diag_;
-  std::unique_ptr<WorkCrew> crew_;
+  std::shared_ptr<WorkCrew> crew_;  // shared by every reader asking for the same number of threads
   SourceInfo info_;
   std::vector<LasVlr> vlrs_;
   // Whole-file bytes (mmap or caller's buffer), or nullptr in stream mode.

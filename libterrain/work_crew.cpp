@@ -46,6 +46,7 @@ void WorkCrew::run(int parts, const std::function<void(int)>& fn) {
     for (int p = 0; p < parts; ++p) fn(p);
     return;
   }
+  std::lock_guard one(runMutex_);
   std::unique_lock lock(mutex_);
   job_ = &fn;
   parts_ = parts;

@@ -25,12 +25,14 @@ class WorkCrew {
   WorkCrew& operator=(const WorkCrew&) = delete;
 
   int threads() const { return static_cast<int>(workers_.size()) + 1; }
+  // Callers on several threads may share a crew: their jobs run one after the other.
   void run(int parts, const std::function<void(int)>& fn);
 
  private:
   void loop(int index);
 
   std::vector<std::thread> workers_;
+  std::mutex runMutex_;  // one job at a time
   std::mutex mutex_;
   std::condition_variable wake_, done_;
   const std::function<void(int)>* job_ = nullptr;

@@ -9,6 +9,8 @@
 #include <cmath>
 #include <cstring>
 #include <filesystem>
+#include <memory>
+#include <thread>
 #include <vector>
 
 #include "libterrain/diagnostics.h"
@@ -510,6 +512,44 @@ TEST(LasReader, FileIsOpenOnlyWhileAPassReadsItAndMustNotChange) {
     EXPECT_NE(std::string(e.what()).find("changed"), std::string::npos) << e.what();
     EXPECT_NE(std::string(e.what()).find("tile.las"), std::string::npos) << e.what();
   }
+}
+
+TEST(LasReader, ReadersShareOneDecodeCrew) {
+  // A survey of many tiles must not start decode threads per tile; readers on two threads at once
+  // still decode exactly what one thread does.
+  TINBUILD_REQUIRE_DATA();
+  auto threadCount = [] {
+    std::size_t n = 0;
+    for (const auto& e : std::filesystem::directory_iterator("/proc/self/task")) n += !e.path().empty();
+    return n;
+  };
+  const std::string path = dataPath("las/zurich.las");
+  auto decodeAll = [&](LasReader& r) {
+    std::vector<PointRecord> all(r.info().pointCount), batch(1 << 16);
+    std::size_t got = 0;
+    for (std::size_t n; (n = r.read(batch.data(), batch.size())) > 0; got += n)
+      std::copy(batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n),
+                all.begin() + static_cast<std::ptrdiff_t>(got));
+    return all;
+  };
+  Diagnostics diag;
+  LasReader single(path, diag);
+  const std::vector<PointRecord> expected = decodeAll(single);
+  const std::size_t before = threadCount();
+  std::vector<std::unique_ptr<LasReader>> readers;
+  for (int i = 0; i < 40; ++i) {
+    readers.push_back(std::make_unique<LasReader>(path, diag));
+    readers.back()->setDecodeThreads(4);
+  }
+  EXPECT_LE(threadCount(), before + 3);  // one crew of 4 (the caller and 3 workers)
+  std::vector<PointRecord> a, b;
+  std::thread other([&] { a = decodeAll(*readers[0]); });
+  b = decodeAll(*readers[1]);
+  other.join();
+  ASSERT_EQ(a.size(), expected.size());
+  ASSERT_EQ(b.size(), expected.size());
+  EXPECT_EQ(std::memcmp(a.data(), expected.data(), a.size() * sizeof(PointRecord)), 0);
+  EXPECT_EQ(std::memcmp(b.data(), expected.data(), b.size() * sizeof(PointRecord)), 0);
 }
 
 TEST(LasReader, AbsurdEvlrOffsetIsIgnored) {
