@@ -391,6 +391,10 @@ void XyzReader::detectLayout(const ReaderOptions& options) {
     info_.crs.source = "user (--a_srs)";
   }
 
+  // A file is sniffed in small blocks (a survey's tiles are opened one after the other before any is
+  // read, and only their first lines matter here); stdin keeps what it read for its only pass.
+  const std::size_t fullBlock = blockSize_;
+  if (fd_ >= 0 && !stream_) blockSize_ = std::min<std::size_t>(blockSize_, 65536);
   buf_.resize(blockSize_ + std::min<std::size_t>(blockSize_, 65536));
   startPass();
 
@@ -455,6 +459,7 @@ void XyzReader::detectLayout(const ReaderOptions& options) {
     separator_ = headerLine_ ? headerSep : ' ';
   }
 
+  blockSize_ = fullBlock;
   info_.notes.push_back("XYZ separator: " + separatorName(separator_) +
                         (haveLine ? "" : " (no data line found)"));
   if (headerLine_ && headerSep != separator_)
