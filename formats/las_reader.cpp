@@ -9,7 +9,9 @@
 #include <cerrno>
 #include <cmath>
 #include <cstring>
+#include <deque>
 #include <mutex>
+#include <optional>
 #include <sstream>
 
 #include "formats/crs.h"
@@ -518,10 +520,17 @@ void LasReader::checkExtraBytes() {
 
 void LasReader::readCrs() {
   const std::string& file = info_.path;
+  std::string key;  // every record the CRS is made of, and the WKT bit
   GeoKeyRecords keys;
   std::string wkt, liblasWkt;
   bool haveWkt = false, haveLiblasWkt = false;
   for (const auto& v : vlrs_) {
+    if ((v.userId == "LASF_Projection" &&
+         (v.recordId == 34735 || v.recordId == 34736 || v.recordId == 34737 || v.recordId == 2112)) ||
+        (v.userId == "liblas" && v.recordId == 2112)) {
+      key += v.userId + '/' + std::to_string(v.recordId) + '/' + std::to_string(v.data.size()) + '/';
+      key.append(v.data.begin(), v.data.end());
+    }
     if (v.userId == "LASF_Projection") {
       if (v.recordId == 34735) {
         keys.directory.resize(v.data.size() / 2);
@@ -542,44 +551,73 @@ void LasReader::readCrs() {
       haveLiblasWkt = true;
     }
   }
-  CrsInfo fromKeys, fromWkt;
-  if (!keys.empty()) fromKeys = crsFromGeoKeys(keys, file, diag_);
-  if (haveWkt) fromWkt = crsFromWkt(wkt, file, diag_);
   const bool wktBit = (info_.globalEncoding & 0x10) != 0;
-  if (!fromKeys.empty() && !fromWkt.empty()) {
-    info_.crs = wktBit ? fromWkt : fromKeys;
-    // Compare the WKT with what the keys state (their EPSG code as the registry defines it) and with what
-    // GDAL made of the keys: either difference is a contradiction the user must hear about.
-    CrsInfo stated = fromKeys;
-    if (fromKeys.declaredEpsg) {
-      try {
-        stated = crsFromUser("EPSG:" + std::to_string(fromKeys.declaredEpsg));
-        stated.declaredEpsg = fromKeys.declaredEpsg;
-      } catch (const Error&) {
-        stated = fromKeys;
-      }
-    }
-    if (!sameCrs(fromKeys, fromWkt) || !sameCrs(stated, fromWkt)) {
-      if (!sameCrs(stated, fromWkt)) fromKeys = stated;
-      auto label = [](const CrsInfo& c) {
-        return "\"" + c.name + "\"" + (c.epsg ? " (EPSG:" + std::to_string(c.epsg) + ")" : "") + " in " +
-               c.linearUnit;
-      };
-      diag_.warn("crs.geokeys_wkt_disagree", file,
-                 "the GeoTIFF keys say " + label(fromKeys) + " but the WKT says " + label(fromWkt) +
-                     "; using the " +
-                     (wktBit ? "WKT (the global encoding WKT bit is set)"
-                             : "GeoTIFF keys (the global encoding WKT bit is not set)"));
-    }
-  } else if (!fromKeys.empty()) {
-    info_.crs = fromKeys;
-  } else if (!fromWkt.empty()) {
-    info_.crs = fromWkt;
-  } else if (haveLiblasWkt) {
-    // libLAS wrote a copy of the WKT under its own user id; use it when the standard records give nothing.
-    info_.crs = crsFromWkt(liblasWkt, file, diag_);
-    if (!info_.crs.empty()) info_.crs.source = "wkt (liblas)";
+  key += wktBit ? '1' : '0';
+  // The tiles of a survey carry the same records: interpret them once (GDAL and PROJ take about half a
+  // millisecond a tile) and give each tile the same CRS and the same warnings, under its own name.
+  struct Interpreted {
+    CrsInfo crs;
+    std::vector<Diagnostics::Entry> warnings;
+  };
+  static std::mutex cacheMutex;
+  static std::deque<std::pair<std::string, Interpreted>> cache;  // the last few, newest last
+  std::optional<Interpreted> found;
+  {
+    std::lock_guard lock(cacheMutex);
+    for (const auto& [k, v] : cache)
+      if (k == key) found = v;
   }
+  if (!found) {
+    Diagnostics local;
+    Interpreted fresh;
+    CrsInfo& crs = fresh.crs;
+    Diagnostics& diag = local;
+    CrsInfo fromKeys, fromWkt;
+    if (!keys.empty()) fromKeys = crsFromGeoKeys(keys, file, diag);
+    if (haveWkt) fromWkt = crsFromWkt(wkt, file, diag);
+    if (!fromKeys.empty() && !fromWkt.empty()) {
+      crs = wktBit ? fromWkt : fromKeys;
+      // Compare the WKT with what the keys state (their EPSG code as the registry defines it) and with what
+      // GDAL made of the keys: either difference is a contradiction the user must hear about.
+      CrsInfo stated = fromKeys;
+      if (fromKeys.declaredEpsg) {
+        try {
+          stated = crsFromUser("EPSG:" + std::to_string(fromKeys.declaredEpsg));
+          stated.declaredEpsg = fromKeys.declaredEpsg;
+        } catch (const Error&) {
+          stated = fromKeys;
+        }
+      }
+      if (!sameCrs(fromKeys, fromWkt) || !sameCrs(stated, fromWkt)) {
+        if (!sameCrs(stated, fromWkt)) fromKeys = stated;
+        auto label = [](const CrsInfo& c) {
+          return "\"" + c.name + "\"" + (c.epsg ? " (EPSG:" + std::to_string(c.epsg) + ")" : "") + " in " +
+                 c.linearUnit;
+        };
+        diag.warn("crs.geokeys_wkt_disagree", file,
+                  "the GeoTIFF keys say " + label(fromKeys) + " but the WKT says " + label(fromWkt) +
+                      "; using the " +
+                      (wktBit ? "WKT (the global encoding WKT bit is set)"
+                              : "GeoTIFF keys (the global encoding WKT bit is not set)"));
+      }
+    } else if (!fromKeys.empty()) {
+      crs = fromKeys;
+    } else if (!fromWkt.empty()) {
+      crs = fromWkt;
+    } else if (haveLiblasWkt) {
+      // libLAS wrote a copy of the WKT under its own user id; use it when the standard records give nothing.
+      crs = crsFromWkt(liblasWkt, file, diag);
+      if (!crs.empty()) crs.source = "wkt (liblas)";
+    }
+    fresh.warnings = local.entries();
+    std::lock_guard lock(cacheMutex);
+    cache.emplace_back(key, fresh);
+    if (cache.size() > 8) cache.pop_front();
+    found = std::move(fresh);
+  }
+  info_.crs = found->crs;
+  for (const auto& w : found->warnings)
+    diag_.warn(w.kind, w.file.empty() ? "" : file, w.firstMessage, w.count);
 }
 
 std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecord* out) {

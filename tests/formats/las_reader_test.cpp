@@ -552,6 +552,27 @@ TEST(LasReader, ReadersShareOneDecodeCrew) {
   EXPECT_EQ(std::memcmp(b.data(), expected.data(), b.size() * sizeof(PointRecord)), 0);
 }
 
+TEST(LasReader, TilesWithTheSameCrsRecordsGetTheSameCrsAndEachItsWarnings) {
+  // The CRS records are interpreted once per distinct content; every tile still gets the CRS and its
+  // own copy of the warnings they cause.
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  for (const char* name : {"a.las", "b.las"})
+    std::filesystem::copy_file(dataPath("edge/bad-geotiff-keys.las"), dir / name);
+  Diagnostics diag;
+  LasReader a((dir / "a.las").string(), diag);
+  LasReader b((dir / "b.las").string(), diag);
+  EXPECT_EQ(a.info().crs.wkt, b.info().crs.wkt);
+  EXPECT_EQ(a.info().crs.epsg, b.info().crs.epsg);
+  std::size_t forA = 0, forB = 0;
+  for (const auto& e : diag.entries()) {
+    forA += e.file == (dir / "a.las").string() && e.kind.rfind("crs.", 0) == 0;
+    forB += e.file == (dir / "b.las").string() && e.kind.rfind("crs.", 0) == 0;
+  }
+  EXPECT_GT(forA, 0u);
+  EXPECT_EQ(forA, forB);
+}
+
 TEST(LasReader, AbsurdEvlrOffsetIsIgnored) {
   Crafted c;
   c.minor = 4;
