@@ -1,5 +1,6 @@
 #include "formats/pipeline.h"
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -142,8 +143,20 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
         in.streams.push_back(in.readers[i].get());
         continue;
       }
-      in.transforms.push_back(std::make_unique<PointTransform>(source, work.crs));
-      PointTransform& t = *in.transforms.back();
+      // The tiles of a survey share their CRS: one transformation serves every input with the same
+      // source CRS (each costs milliseconds and megabytes to prepare; the inputs are read one after
+      // another, never at once).
+      PointTransform* shared = nullptr;
+      for (const auto& t : in.transforms)
+        if (t->source().wkt == source.wkt || sameCrs(t->source(), source)) {
+          shared = t.get();
+          break;
+        }
+      if (!shared) {
+        in.transforms.push_back(std::make_unique<PointTransform>(source, work.crs));
+        shared = in.transforms.back().get();
+      }
+      PointTransform& t = *shared;
       if (!labelled) {
         labelled = true;
         if (work.transformed) in.crs = t.resultCrs();
@@ -153,7 +166,8 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
         if (!note.empty()) {
           diag.warn(note == t.verticalNote() ? "crs.vertical_kept" : "crs.transform_accuracy", o.inputs[i],
                     note);
-          in.crsNotes.push_back(note);
+          if (std::find(in.crsNotes.begin(), in.crsNotes.end(), note) == in.crsNotes.end())
+            in.crsNotes.push_back(note);
         }
       in.transformed.push_back(std::make_unique<TransformingPointStream>(*in.readers[i], t));
       in.streams.push_back(in.transformed.back().get());
@@ -197,6 +211,7 @@ void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
   r.crsReason = in.crsReason;
   r.crsNotes = in.crsNotes;
   r.transformFailed = in.transformFailed();
+  r.transformations = in.transforms.size();
   if (r.transformFailed) {
     std::string first;
     for (const auto& t : in.transforms)
@@ -765,6 +780,7 @@ std::string formatRunJson(const RunReport& r) {
   for (const auto& n : r.crsNotes) j.value(n);
   j.endArray();
   j.key("transform_failed_points").value(r.transformFailed);
+  j.key("transformations").value(r.transformations);
   j.endObject();
   if (r.haveFinalizer) {
     const FinalizerStats& s = r.finalizer;

@@ -88,6 +88,7 @@ struct RunReport {
   std::string crsReason;              // why the points were transformed ("" = they were not)
   std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
   std::uint64_t transformFailed = 0;  // points PROJ could not transform (dropped, counted)
+  std::uint64_t transformations = 0;  // distinct transformations prepared (one per source CRS)
   std::string filter;                 // what the filter drops, in words
   bool haveFinalizer = false;
   FinalizerStats finalizer;

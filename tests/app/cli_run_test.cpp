@@ -258,6 +258,15 @@ TEST(CliRun, MoreTilesThanDescriptors) {
       << xyzReport;
   r = tinbuild("verify " + (out / "xyz.smb").string() + " --points " + xyz.string(), limit);
   EXPECT_EQ(r.code, 0) << r.err << r.out;
+  // Reprojected, the 300 tiles of one CRS share one transformation (each costs milliseconds and
+  // megabytes to prepare: before, 300 tiles took 1.8 s and 128 MB instead of 0.2 s and 52 MB).
+  r = tinbuild("finalize " + xyz.string() + " --a_srs EPSG:32610 --t_srs EPSG:32611 -o " +
+                   (out / "utm11.tfs").string() + " -q --report " + (out / "utm11.json").string(),
+               limit);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string utm11 = slurp(out / "utm11.json");
+  EXPECT_TRUE(std::regex_search(utm11, std::regex("\"transformations\": 1\\b"))) << utm11;
+  EXPECT_NE(utm11.find("\"points_streamed\": " + std::to_string(kTiles * 20)), std::string::npos) << utm11;
 }
 
 // Surveys come as directories of tiles and as patterns batch systems pass quoted.
