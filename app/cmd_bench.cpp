@@ -24,26 +24,28 @@ namespace {
 // One table for all benchmarks: main() parses every `tinbuild bench` command line against it before
 // runBench sees it, so the options of the forwarded benchmarks must be declared here too.
 std::vector<cli::OptionSpec> benchOptions() {
-  return {{"--points", "N", "suite, delaunay, finalize, stream: points per survey (suite 1M, finalize 10M)"},
-          {"--repeat", "R", "runs of each program, the best is kept (read: default 5; others: 1)"},
-          {"--kind", "KIND", "delaunay, finalize: strips (default), uniform or lattice"},
-          {"--swath", "M", "--kind strips: swath width in metres (default 500)"},
-          {"--home-strip", "", "--kind strips: add a strip crossing the area diagonally"},
-          {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
-          {"--seed", "S", "generator seed (default 1)"},
-          {"--no-cgal", "", "skip the CGAL runs"},
-          {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
-          {"--keep", "", "keep the generated files"},
-          {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
-          {"--threads", "N",
-           "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
-          {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
-          {"--columns", "SPEC", "read: XYZ input column mapping"},
-          {"--cell-points", "M", "stream: points per cell (default 4000)"},
-          {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
-          {"--within", "ORDER", "stream: point order within a cell, brio (default) or random"},
-          {"-o", "FILE", "stream: output (default stdout)", "--output"},
-          {"-q", "", "stream: no progress on stderr", "--quiet"}};
+  return {
+      {"--points", "N", "suite, delaunay, finalize, stream: points per survey (suite 1M, finalize 10M)"},
+      {"--repeat", "R", "runs of each program, the best is kept (read: default 5; others: 1)"},
+      {"--kind", "KIND", "delaunay, finalize: strips (default), uniform or lattice"},
+      {"--swath", "M", "--kind strips: swath width in metres (default 500)"},
+      {"--home-strip", "", "--kind strips: add a strip crossing the area diagonally"},
+      {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
+      {"--seed", "S", "generator seed (default 1)"},
+      {"--no-cgal", "", "skip the CGAL runs"},
+      {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
+      {"--keep", "", "keep the generated files"},
+      {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
+      {"--threads", "N",
+       "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
+      {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
+      {"--stored-order", "", "finalize: pass 3 reads the file in its stored order (finalize --stored-order)"},
+      {"--columns", "SPEC", "read: XYZ input column mapping"},
+      {"--cell-points", "M", "stream: points per cell (default 4000)"},
+      {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
+      {"--within", "ORDER", "stream: point order within a cell, brio (default) or random"},
+      {"-o", "FILE", "stream: output (default stdout)", "--output"},
+      {"-q", "", "stream: no progress on stderr", "--quiet"}};
 }
 
 // tinbuild-bench in the directory of the running executable (not $PATH: a build tree's tinbuild must
@@ -134,7 +136,7 @@ Command benchCommand() {
       "                      [--seed S] [--repeat R] [--threads N] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench lattice-vs-random [--side S] [--seed S] [--repeat R] [--no-cgal] [--dir DIR]\n"
       "       tinbuild bench finalize [--points N] [--kind KIND] [--swath M] [--home-strip] [--memory MB]\n"
-      "                      [--seed S] [--repeat R] [--threads N] [--dir DIR] [--keep]\n"
+      "                      [--stored-order] [--seed S] [--repeat R] [--threads N] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -148,7 +150,7 @@ Command benchCommand() {
       "bench lattice-vs-random: an S x S lattice (cocircular worst case) against as many random points.\n"
       "bench finalize: the finalizer's three passes (tinbuild finalize -o /dev/null --compute-bounds) on a\n"
       "generated survey (default 10M points, flight strips), each pass's speed against the raw read of the\n"
-      "same file (like cat, page cache), with the stream width and peak RSS.\n"
+      "same file (like cat, page cache), with the stream width, pass 3's read order and peak RSS.\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

@@ -101,7 +101,10 @@ std::vector<cli::OptionSpec> inputOptions() {
           {"--t_srs", "CRS", "work in this projected CRS: points are transformed with PROJ as they are read"},
           {"--strict-crs", "", "treat CRS contradictions and doubts as errors instead of warnings"},
           {"--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)"},
-          {"--compute-bounds", "", "compute the bounds in a first pass instead of using the LAS headers'"}};
+          {"--compute-bounds", "", "compute the bounds in a first pass instead of using the LAS headers'"},
+          {"--stored-order", "",
+           "stream the points in the order they are stored (default: in a narrower sweep order when one "
+           "exists)"}};
 }
 
 std::vector<cli::OptionSpec> triangulatorOptions() {
@@ -149,6 +152,7 @@ void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
   o.tSrs = args.get("--t_srs");
   o.strictCrs = args.has("--strict-crs");
   o.computeBounds = args.has("--compute-bounds");
+  fo.reorder = !args.has("--stored-order");
 }
 
 void parseTriangulatorOptions(const cli::ParsedArgs& args, PipelineOptions& o) {

@@ -103,12 +103,13 @@ const char* kUsage =
     "      finalizer and O(1) memory:  tinbuild-bench stream --points 1e9 | tinbuild triangulate - -o "
     "/dev/null\n"
     "  tinbuild-bench finalize [--points N] [--kind strips|uniform|lattice] [--swath M] [--home-strip]\n"
-    "                          [--seed S] [--repeat R] [--threads T] [--memory MB] [--dir DIR] [--keep]\n"
-    "                          [--tinbuild EXE]\n"
+    "                          [--seed S] [--repeat R] [--threads T] [--memory MB] [--stored-order]\n"
+    "                          [--dir DIR] [--keep] [--tinbuild EXE]\n"
     "      Writes a synthetic survey of N points (default 10M) as LAS (untimed), then alternates a raw\n"
     "      read of the file (like cat, from the page cache) with `tinbuild finalize -o /dev/null\n"
     "      --compute-bounds`; prints each pass's seconds, Mpoints/s and fraction of the raw read speed\n"
-    "      (best of R), the stream width and peak RSS.\n"
+    "      (best of R), the stream width, the read order of pass 3 and peak RSS.  --stored-order passes\n"
+    "      the same option to finalize (pass 3 reads the file in its stored order).\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -174,6 +175,20 @@ std::optional<double> jsonNumber(const std::string& json, const std::string& key
   const double v = std::strtod(p, &end);
   if (end == p) return std::nullopt;
   return v;
+}
+
+// The string value of "key": (plain text, no escapes), searched after "section": when one is given.
+std::string jsonString(const std::string& json, const std::string& key, const std::string& section = "") {
+  std::size_t from = 0;
+  if (!section.empty()) {
+    from = json.find("\"" + section + "\":");
+    if (from == std::string::npos) return "";
+  }
+  const std::string open = "\"" + key + "\": \"";
+  const std::size_t at = json.find(open, from);
+  if (at == std::string::npos) return "";
+  const std::size_t end = json.find('"', at + open.size());
+  return end == std::string::npos ? "" : json.substr(at + open.size(), end - at - open.size());
 }
 
 std::uint64_t jsonCount(const std::string& json, const std::string& key, const std::string& section = "") {
@@ -709,6 +724,7 @@ int finalizeMain(const std::vector<std::string>& argv) {
   Config cfg = makeConfig(args);
   const SurveySpec spec = surveyFromArgs(args, "finalize", 10000000);
   const std::string memory = args.value("--memory", "");
+  const bool storedOrder = args.flag("--stored-order");
   const std::string base = args.value("--dir", defaultTempBase());
   args.finish();
 
@@ -737,6 +753,7 @@ int finalizeMain(const std::vector<std::string>& argv) {
                                  "-q",       "--report", report, "--overwrite"};
     addThreads(cmd, cfg.threads);
     if (!memory.empty()) cmd.insert(cmd.end(), {"--memory", memory});
+    if (storedOrder) cmd.push_back("--stored-order");
     rawReadSeconds(r.las, rawBytes);  // warm-up: both sides read from the page cache
     for (int i = 0; i < cfg.repeat; ++i) {
       raw = std::min(raw, rawReadSeconds(r.las, rawBytes));
@@ -775,6 +792,11 @@ int finalizeMain(const std::vector<std::string>& argv) {
       group(jsonCount(json, "width")).c_str(), 100.0 * width / std::max(streamed, 1.0),
       group(jsonCount(json, "points_streamed")).c_str(), static_cast<int>(jsonCount(json, "depth", "grid")),
       group(jsonCount(json, "occupied_cells")).c_str());
+  std::printf("  read order  %s (pass 3 read %s batches; estimated width %s, %s in the stored order)\n",
+              jsonString(json, "order", "read_order").c_str(),
+              group(jsonCount(json, "batches", "read_order")).c_str(),
+              group(jsonCount(json, "estimated_width", "read_order")).c_str(),
+              group(jsonCount(json, "estimated_stored_width", "read_order")).c_str());
   std::printf("  memory      peak RSS %.1f MiB (wait4), chunk pool peak %.1f MiB, spilled %.1f MiB\n",
               mib(whole.rssKb), static_cast<double>(jsonCount(json, "peak_pool_bytes")) / 1048576.0,
               static_cast<double>(jsonCount(json, "spilled_bytes")) / 1048576.0);

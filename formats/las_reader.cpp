@@ -706,7 +706,7 @@ void LasReader::finishPass() {
 }
 
 std::size_t LasReader::read(PointRecord* out, std::size_t max) {
-  const std::uint64_t remaining = info_.pointCount - nextPoint_;
+  const std::uint64_t remaining = nextPoint_ < info_.pointCount ? info_.pointCount - nextPoint_ : 0;
   std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(max, remaining));
   const auto stride = static_cast<std::size_t>(info_.recordLength);
   if (n == 0) {
@@ -718,8 +718,9 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
     openFile();
     decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
     nextPoint_ += n;
+    passDecoded_ += n;
     releaseConsumed(pointOffset_ + nextPoint_ * stride);
-    if (nextPoint_ == info_.pointCount) {
+    if (passDecoded_ >= info_.pointCount) {
       finishPass();
       if (lazyFile_) closeFile();
     }
@@ -751,7 +752,7 @@ void LasReader::releaseConsumed(std::uint64_t upTo) {
   // deep, asynchronous I/O rather than a fault at a time), topped up every kAhead / 4.  A survey smaller
   // than kAhead is asked for whole at its first batch.
   constexpr std::uint64_t kAhead = std::uint64_t{1} << 30;
-  if (upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
+  if (!seeking_ && upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
     const std::uint64_t from = std::max(requested_, upTo) / page * page;
     const std::uint64_t to = std::min<std::uint64_t>(size_, upTo + kAhead);
     if (to > from) ::madvise(static_cast<std::uint8_t*>(mapping_) + from, to - from, MADV_WILLNEED);
@@ -759,17 +760,52 @@ void LasReader::releaseConsumed(std::uint64_t upTo) {
   }
   // The mapping's pages stay in the page cache, but counted in this process's RSS they would make a
   // streaming run look as large as its input: drop the pages already decoded, 1 MiB at a time.
+  // Out of order, a read is a whole range, and its pages are dropped at once, with a margin on both sides
+  // once the range is done (a fault maps the cached pages around it too, up to 64 KiB: they would stay
+  // mapped until their own range is read).
   constexpr std::uint64_t kChunk = std::uint64_t{1} << 20;
-  if (upTo < released_ + kChunk) return;
-  const std::uint64_t end = upTo / page * page;
+  constexpr std::uint64_t kFaultAround = std::uint64_t{128} << 10;
+  if (!seeking_ && upTo < released_ + kChunk) return;
+  std::uint64_t end = upTo / page * page;
+  if (seeking_ && upTo >= seekEnd_) {
+    end = std::min<std::uint64_t>((size_ + page - 1) / page * page, (upTo + kFaultAround) / page * page);
+    released_ = released_ > kFaultAround ? (released_ - kFaultAround) / page * page : 0;
+  }
   if (end <= released_) return;
   ::madvise(static_cast<std::uint8_t*>(mapping_) + released_, end - released_, MADV_DONTNEED);
   released_ = end;
 }
 
+void LasReader::seek(std::uint64_t record, std::uint64_t count) {
+  if (stream_) throw Error(info_.path + ": standard input cannot be read out of order");
+  if (record > info_.pointCount)
+    throw Error(info_.path + ": seek to point " + fmtCount(record) + " of " + fmtCount(info_.pointCount));
+  nextPoint_ = record;
+  seeking_ = true;
+  openFile();
+  if (!mapping_) return;
+  // Ask storage for the range now (a cold survey is then read in deep requests, not a fault at a time)
+  // and drop decoded pages from the RSS from its start on.
+  const auto stride = static_cast<std::uint64_t>(info_.recordLength);
+  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
+  const std::uint64_t from = (pointOffset_ + record * stride) / page * page;
+  const std::uint64_t to =
+      std::min<std::uint64_t>(size_, pointOffset_ + std::min(info_.pointCount, record + count) * stride);
+  if (to > from) ::madvise(static_cast<std::uint8_t*>(mapping_) + from, to - from, MADV_WILLNEED);
+  released_ = from;
+  requested_ = std::max<std::uint64_t>(to, from);
+  seekEnd_ = to;
+}
+
+void LasReader::suspend() {
+  if (lazyFile_) closeFile();
+}
+
 void LasReader::rewind() {
   if (stream_) throw Error(info_.path + ": standard input can be read only once");
   nextPoint_ = 0;
+  passDecoded_ = 0;
+  seeking_ = false;
   released_ = 0;
   requested_ = 0;
   decoded_ = Bounds3{};

@@ -62,6 +62,11 @@ class LasReader : public PointReader {
   std::size_t read(PointRecord* out, std::size_t max) override;
   bool rewindable() const override { return !stream_; }
   void rewind() override;
+  // A file (not stdin) can be read in any order of record ranges: the range is asked for from storage
+  // (MADV_WILLNEED) at the seek, and the window ahead of sequential reading is not used.
+  bool seekable() const override { return !stream_; }
+  void seek(std::uint64_t record, std::uint64_t count) override;
+  void suspend() override;
 
   // Decode large batches of a mapped file on this many threads (default 1).  The points, bounds and
   // counts are identical for any number; stdin is always decoded on one thread.  The threads belong to
@@ -108,9 +113,12 @@ class LasReader : public PointReader {
   std::uint64_t streamConsumed_ = 0;  // bytes consumed from stdin so far
 
   std::uint64_t pointOffset_ = 0;
-  std::uint64_t nextPoint_ = 0;  // index of the next point to decode in this pass
-  std::uint64_t released_ = 0;   // mapping bytes [0, released_) dropped from the RSS in this pass
-  std::uint64_t requested_ = 0;  // mapping bytes [0, requested_) asked for with MADV_WILLNEED this pass
+  std::uint64_t nextPoint_ = 0;    // index of the next point to decode in this pass
+  std::uint64_t released_ = 0;     // mapping bytes [0, released_) dropped from the RSS in this pass
+  std::uint64_t requested_ = 0;    // mapping bytes [0, requested_) asked for with MADV_WILLNEED this pass
+  std::uint64_t passDecoded_ = 0;  // records decoded in this pass (in any order)
+  bool seeking_ = false;           // this pass reads ranges out of order (no read-ahead window)
+  std::uint64_t seekEnd_ = 0;      // mapping offset where the range of the last seek ends
   Bounds3 decoded_;
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};

@@ -707,6 +707,10 @@ std::string formatRunSummary(const RunReport& r) {
                 "%.2f", s.points ? 100.0 * static_cast<double>(s.width) / static_cast<double>(s.points) : 0) +
             "% of the stream); pool peak " + bytesText(s.peakPoolBytes) + ", spilled " +
             bytesText(s.spilledBytes) + (s.spooledBytes ? ", spooled " + bytesText(s.spooledBytes) : ""));
+    if (s.readOrder != "stored")
+      line("order", "pass 3 read the survey's " + withCommas(s.readSegments) + " batches in " + s.readOrder +
+                        " order (estimated width " + withCommas(s.readOrderWidthEstimate) + " points, " +
+                        withCommas(s.storedOrderWidthEstimate) + " in the stored order)");
     line("passes", (s.pass1Run ? "1: " + formatDouble("%.3f s", s.pass1Seconds) + " (" +
                                      rate(f.read, s.pass1Seconds) + " M/s), "
                                : std::string("1: skipped (LAS header bounds), ")) +
@@ -815,6 +819,13 @@ std::string formatRunJson(const RunReport& r) {
     j.key("width_fraction")
         .value(s.points ? static_cast<double>(s.width) / static_cast<double>(s.points) : 0.0);
     j.key("max_in_memory_points").value(s.maxInMemoryPoints);
+    j.key("read_order").beginObject();
+    j.key("order").value(s.readOrder);
+    j.key("batches").value(s.readSegments);
+    j.key("estimated_width")
+        .value(s.readOrder == "stored" ? s.storedOrderWidthEstimate : s.readOrderWidthEstimate);
+    j.key("estimated_stored_width").value(s.storedOrderWidthEstimate);
+    j.endObject();
     j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBudget));
     j.key("peak_pool_bytes").value(s.peakPoolBytes);
     j.key("largest_chunk_bytes").value(s.largestChunkBytes);

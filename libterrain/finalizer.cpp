@@ -18,6 +18,7 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <utility>
 
 #include "libterrain/diagnostics.h"
@@ -29,8 +30,6 @@ namespace {
 
 constexpr std::uint64_t kSpoolCheck = std::uint64_t{64} << 20;  // how often an optional spool looks at
                                                                 // the free space it must leave
-constexpr std::size_t kBatch = std::size_t{1}
-                               << 15;  // 1 MiB: few hand-overs, and the batches in flight fit in L3
 constexpr std::uint32_t kNone = 0xffffffffu;
 constexpr int kMaxDepth = 15;
 constexpr int kMaxAutoDepth = 12;
@@ -96,6 +95,25 @@ struct HilbertTable {
   }
 };
 const HilbertTable kHilbert;
+
+// Position of cell (x, y) along the Hilbert curve through a 2^level x 2^level grid.
+std::uint64_t hilbertIndex(int level, std::uint32_t x, std::uint32_t y) {
+  std::uint64_t d = 0;
+  for (std::uint32_t s = level > 0 ? std::uint32_t{1} << (level - 1) : 0; s > 0; s >>= 1) {
+    const std::uint32_t rx = (x & s) ? 1 : 0, ry = (y & s) ? 1 : 0;
+    d += std::uint64_t{s} * s * ((3 * rx) ^ ry);
+    if (ry == 0) {  // rotate the quadrant
+      if (rx == 1) {
+        x = s - 1 - (x & (s - 1));
+        y = s - 1 - (y & (s - 1));
+      }
+      std::swap(x, y);
+    }
+    x &= s - 1;
+    y &= s - 1;
+  }
+  return d;
+}
 
 // GridSpec::column/row without std::floor (a slow instruction sequence on baseline x86-64).  f is
 // computed by the same two operations as GridSpec's, and for f > 0 floor(f) == trunc(f), so the results
@@ -297,7 +315,10 @@ class Progress {
 class Sources {
  public:
   Sources(const std::vector<PointStream*>& inputs, const FinalizerOptions& options)
-      : inputs_(inputs), options_(options), spools_(inputs.size()) {
+      : inputs_(inputs),
+        options_(options),
+        spools_(inputs.size()),
+        batch_(std::clamp<std::size_t>(options.batchPoints, 1, std::size_t{1} << 24)) {
     for (std::size_t i = 0; i < inputs_.size(); ++i)
       if (!inputs_[i]) throw Error("finalizer: null input stream");
   }
@@ -312,6 +333,26 @@ class Sources {
     return "input " + std::to_string(i + 1);
   }
   std::size_t current() const { return std::min(current_, inputs_.size() - 1); }
+
+  // A piece of one pass: the raw records [start, start + raw) of one input (records of its spool when
+  // it is spooled), of which `kept` pass the filter; `ordinal` is the index of the first kept one in the
+  // filtered sequence.  Pass 2 records the pieces (recordSegments); pass 3 may read them in any order
+  // (setSchedule) when every input can be read out of order.
+  struct Segment {
+    std::uint64_t start = 0, raw = 0, ordinal = 0;
+    std::uint32_t input = 0, kept = 0;
+  };
+  void recordSegments(bool on) { recording_ = on; }
+  const std::vector<Segment>& segments() const { return segments_; }
+  bool canSchedule() const {
+    for (std::size_t i = 0; i < inputs_.size(); ++i)
+      if (!spools_[i].active && !inputs_[i]->seekable()) return false;
+    return true;
+  }
+  // The next pass reads segments()[order[0]], segments()[order[1]], ... (empty: in stored order).
+  void setSchedule(std::vector<std::uint32_t> order) { schedule_ = std::move(order); }
+  // The filtered ordinal of the first point of the batch next() returned last.
+  std::uint64_t batchOrdinal() const { return batchOrdinal_; }
   std::uint64_t spooledBytes() const { return spooledBytes_; }
   const std::vector<std::string>& spoolFailures() const { return spoolFailures_; }
 
@@ -319,6 +360,11 @@ class Sources {
   void startPass(bool spool) {
     ++pass_;
     current_ = 0;
+    ended_ = false;
+    step_ = 0;
+    ordinal_ = 0;
+    rawPos_.assign(inputs_.size(), 0);
+    if (recording_) segments_.clear();
     spooling_ = spool && pass_ == 1;
     for (std::size_t i = 0; i < inputs_.size(); ++i) {
       Spool& s = spools_[i];
@@ -338,41 +384,113 @@ class Sources {
     }
   }
 
-  // Fills `out` (room for kBatch) with the next filtered points; 0 at the end of the pass.
+  // Points per batch (room the caller's buffers have): options.batchPoints.
+  std::size_t batch() const { return batch_; }
+
+  // Fills `out` (room for batch()) with the next filtered points; 0 at the end of the pass.
   std::size_t next(PointRecord* out, FilterCounts& counts) {
+    if (!schedule_.empty()) return nextScheduled(out, counts);
     while (current_ < inputs_.size()) {
       Spool& spool = spools_[current_];
       if (spool.active && pass_ > 1) {
         const std::uint64_t left = (spool.bytes - spool.readPos) / sizeof(PointRecord);
-        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, kBatch));
+        const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(left, batch_));
         if (n == 0) {
           ++current_;
           continue;
         }
+        const std::uint64_t start = spool.readPos / sizeof(PointRecord);
         spoolFile_->readAt(spool.start + spool.readPos, out, n * sizeof(PointRecord));
         spool.readPos += n * sizeof(PointRecord);
         counts.read += n;
         counts.kept += n;
-        return n;
+        return produced(start, n, n);
       }
-      const std::size_t raw = inputs_[current_]->read(out, kBatch);
-      if (raw == 0) {
+      // A batch is full (batch_ points kept) unless its input ends: so the batches, and the segments pass
+      // 3 may reorder, are the same however an input's reads come (a file, or its spooled copy).
+      const std::uint64_t start = rawPos_[current_];
+      std::size_t n = 0;
+      while (n < batch_ && !ended_) {
+        const std::size_t raw = inputs_[current_]->read(out + n, batch_ - n);
+        rawPos_[current_] += raw;
+        if (raw == 0)
+          ended_ = true;
+        else
+          n += options_.filter.apply(out + n, raw, counts);
+      }
+      if (n == 0) {
         if (spool.active && spooling_) flushSpool(current_);
         ++current_;
+        ended_ = false;
         continue;
       }
-      const std::size_t n = options_.filter.apply(out, raw, counts);
-      if (n == 0) continue;
       if (spool.active && spooling_) {
         buffer_.insert(buffer_.end(), out, out + n);
-        if (buffer_.size() >= kBatch / 2) flushSpool(current_);
+        if (buffer_.size() >= batch_ / 2) flushSpool(current_);
       }
-      return n;
+      return produced(start, rawPos_[current_] - start, n);
     }
     return 0;
   }
 
- private:
+  // Books a batch of n kept points read from raw records [start, start + raw) of the current input.
+  std::size_t produced(std::uint64_t start, std::uint64_t raw, std::size_t n) {
+    batchOrdinal_ = ordinal_;
+    if (recording_) {
+      Segment seg;
+      seg.start = start;
+      seg.ordinal = ordinal_;
+      seg.input = static_cast<std::uint32_t>(current_);
+      seg.raw = raw;
+      seg.kept = static_cast<std::uint32_t>(n);
+      segments_.push_back(seg);
+    }
+    ordinal_ += n;
+    return n;
+  }
+
+  // next() when a schedule is set: the segments in its order, each exactly as pass 2 saw it.
+  std::size_t nextScheduled(PointRecord* out, FilterCounts& counts) {
+    while (step_ < schedule_.size()) {
+      const Segment& seg = segments_[schedule_[step_++]];
+      if (seg.input != current_) suspendCurrent();
+      current_ = seg.input;
+      Spool& spool = spools_[current_];
+      std::size_t kept = 0;
+      if (spool.active) {
+        spoolFile_->readAt(spool.start + seg.start * sizeof(PointRecord), out, seg.raw * sizeof(PointRecord));
+        counts.read += seg.raw;
+        counts.kept += seg.raw;
+        kept = seg.raw;
+      } else {
+        // Read in pieces of at most what is left of the batch: the records a filter drops may make a
+        // segment longer than a batch.
+        PointStream& in = *inputs_[current_];
+        in.seek(seg.start, seg.raw);
+        for (std::uint64_t left = seg.raw; left > 0;) {
+          const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(left, batch_ - kept));
+          const std::size_t got = want > 0 ? in.read(out + kept, want) : 0;
+          if (got == 0) throw changed(seg);
+          left -= got;
+          kept += options_.filter.apply(out + kept, got, counts);
+        }
+      }
+      if (kept != seg.kept) throw changed(seg);
+      batchOrdinal_ = seg.ordinal;
+      return kept;
+    }
+    suspendCurrent();
+    return 0;
+  }
+  void suspendCurrent() {
+    if (current_ < inputs_.size() && !spools_[current_].active) inputs_[current_]->suspend();
+  }
+  Error changed(const Segment& seg) const {
+    return Error("finalizer: " + name(seg.input) + " yielded other points in pass " + std::to_string(pass_) +
+                 " than in the pass before (records " + withCommas(seg.start) + " .. " +
+                 withCommas(seg.start + seg.raw) + "; was it modified while being read?)");
+  }
+
   // Every spooled input's points, filtered, lie back to back in one temporary file (inputs are read one
   // after the other): [start, start + bytes).
   struct Spool {
@@ -421,12 +539,21 @@ class Sources {
   const std::vector<PointStream*>& inputs_;
   const FinalizerOptions& options_;
   std::vector<Spool> spools_;
+  std::size_t batch_;
   std::unique_ptr<TempFile> spoolFile_;  // created by the first spool write
   std::uint64_t spoolEnd_ = 0;
   std::vector<PointRecord> buffer_;  // the current input's points not yet written to its spool
   std::size_t current_ = 0;
   int pass_ = 0;
   bool spooling_ = false;
+  std::vector<std::uint64_t> rawPos_;  // raw records read from each input in this pass
+  std::uint64_t ordinal_ = 0;          // filtered points produced in this pass (stored order)
+  std::uint64_t batchOrdinal_ = 0;
+  bool ended_ = false;  // the current input's last read returned nothing
+  bool recording_ = false;
+  std::vector<Segment> segments_;
+  std::vector<std::uint32_t> schedule_;
+  std::size_t step_ = 0;
   std::uint64_t spooledBytes_ = 0;
   std::vector<std::string> spoolFailures_;
 };
@@ -536,8 +663,9 @@ class Prefetcher {
     const PointRecord* points = nullptr;
     const std::uint32_t* cells = nullptr;  // with a CellMap: the cell of each point
     std::size_t n = 0;
-    std::uint64_t read = 0;  // points offered to the filter so far in this pass
-    std::size_t input = 0;   // the input the batch came from
+    std::uint64_t read = 0;     // points offered to the filter so far in this pass
+    std::size_t input = 0;      // the input the batch came from
+    std::uint64_t ordinal = 0;  // of its first point in the filtered sequence (stored order)
   };
 
   // background = false reads each batch on the caller's thread when it is asked for (no thread).
@@ -545,8 +673,8 @@ class Prefetcher {
   Prefetcher(Sources& sources, bool background, const CellMap* cells = nullptr)
       : sources_(sources), background_(background), cellMap_(cells) {
     for (auto& slot : slots_) {
-      slot.points.resize(kBatch);
-      if (cellMap_) slot.cells.resize(kBatch);
+      slot.points.resize(sources_.batch());
+      if (cellMap_) slot.cells.resize(sources_.batch());
     }
     if (background_) thread_ = std::thread([this] { run(); });
   }
@@ -579,7 +707,7 @@ class Prefetcher {
     Slot& slot = slots_[tail_ % kSlots];
     if (slot.n == 0) {
       if (error_) std::rethrow_exception(error_);
-      return {nullptr, nullptr, 0, slot.read, slot.input};
+      return {nullptr, nullptr, 0, slot.read, slot.input, slot.ordinal};
     }
     holding_ = true;
     return batchOf(slot);
@@ -595,9 +723,10 @@ class Prefetcher {
     std::size_t n = 0;
     std::uint64_t read = 0;
     std::size_t input = 0;
+    std::uint64_t ordinal = 0;
   };
   static Batch batchOf(const Slot& s) {
-    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input};
+    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input, s.ordinal};
   }
 
   // Reads the next batch into `slot` (and maps it), with where the pass stands.
@@ -606,6 +735,7 @@ class Prefetcher {
     if (cellMap_) cellMap_->map(slot.points.data(), slot.n, slot.cells.data());
     slot.read = counts_.read;
     slot.input = sources_.current();
+    slot.ordinal = sources_.batchOrdinal();
   }
 
   void run() {
@@ -847,6 +977,7 @@ class Finalizer {
     // FilterCounts of the first full pass; later passes must agree.
     stats_.filter = firstCounts_;
     buildTree(cells, gridBounds, fine);
+    if (reorder_) chooseReadOrder();
     stats_.pass2Seconds = std::chrono::duration<double>(Clock::now() - t2).count();
     unit += 1;
 
@@ -878,6 +1009,11 @@ class Finalizer {
     std::vector<std::uint32_t> fineCounts(dense ? g.cellCount() : 0);
     std::vector<std::pair<std::uint64_t, std::uint64_t>> carries;  // (key, multiples of 2^32)
     CellIndex index(dense ? 16 : 1024);
+    // Pass 3 may read the batches of this pass in another order (chooseReadOrder): note where each
+    // came from and the box it covers.
+    reorder_ = options_.reorder && sources_.canSchedule();
+    sources_.recordSegments(reorder_);
+    boxes_.clear();
     sources_.startPass(false);  // pass 1 ran (and spooled) whenever an input cannot be rewound
     const FastGrid fg(g);
     std::uint64_t memoKey = ~std::uint64_t{0};
@@ -887,6 +1023,10 @@ class Finalizer {
     Prefetcher reader(sources_, options_.readAhead);
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       if (measureBounds) addBounds(b, batch.points, batch.n);
+      if (reorder_) {
+        Bounds3& box = boxes_.emplace_back();
+        addBounds(box, batch.points, batch.n);
+      }
       if (dense) {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
@@ -1068,6 +1208,117 @@ class Finalizer {
                               leafIndex_.bytes() + leafDense_.size() * sizeof(std::uint32_t);
   }
 
+  // ---- read order -------------------------------------------------------------------------------
+
+  // Pass 3 may read the batches of the survey in any order (every input can seek, or was spooled).  The
+  // width is set by the order: flight strips stored one after the other keep a strip's side-overlap band
+  // waiting until the next strip comes back over it; a strip flown on the way home keeps every cell it
+  // crosses open to the end.  Reading the batches of all strips along a common sweep instead completes
+  // cells behind a front as long as the survey is wide.  Each candidate order is scored by a simulation
+  // of chunking on the batches' boxes (a batch's points spread evenly over the cells of its box; a cell
+  // completes when the last batch whose box covers it has been read), and the narrowest wins if it
+  // saves at least a quarter of the stored order's width; otherwise the stored order stays (it reads
+  // the files sequentially).
+  void chooseReadOrder() {
+    const auto& segments = sources_.segments();
+    if (segments.size() != boxes_.size())
+      throw Error("finalizer: internal error: " + std::to_string(segments.size()) + " segments, " +
+                  std::to_string(boxes_.size()) + " boxes");
+    stats_.readSegments = segments.size();
+    if (segments.size() < 3) return;
+    struct CellBox {
+      std::uint32_t c0, r0, c1, r1;
+    };
+    std::vector<CellBox> leaf(segments.size());
+    for (std::size_t i = 0; i < segments.size(); ++i) {
+      const Bounds3& b = boxes_[i];
+      leaf[i] = {grid_.column(b.minX), grid_.row(b.minY), grid_.column(b.maxX), grid_.row(b.maxY)};
+    }
+    std::vector<Bounds3>().swap(boxes_);
+    // The simulation's grid: the leaves, coarser while the boxes would cover too many cells in all.
+    int level = std::min(depth_, 10);
+    for (;; --level) {
+      const int sh = depth_ - level;
+      std::uint64_t visits = 0;
+      for (const CellBox& c : leaf)
+        visits += std::uint64_t{(c.c1 >> sh) - (c.c0 >> sh) + 1} * ((c.r1 >> sh) - (c.r0 >> sh) + 1);
+      if (visits <= (std::uint64_t{1} << 25) || level == 0) break;
+    }
+    const int sh = depth_ - level;
+    const std::uint32_t side = std::uint32_t{1} << level;
+    std::vector<CellBox> sim(leaf.size());
+    std::vector<std::uint32_t> cover(std::size_t{side} * side, 0);
+    for (std::size_t i = 0; i < leaf.size(); ++i) {
+      sim[i] = {leaf[i].c0 >> sh, leaf[i].r0 >> sh, leaf[i].c1 >> sh, leaf[i].r1 >> sh};
+      for (std::uint32_t r = sim[i].r0; r <= sim[i].r1; ++r)
+        for (std::uint32_t c = sim[i].c0; c <= sim[i].c1; ++c) ++cover[std::size_t{r} * side + c];
+    }
+    std::vector<std::uint32_t> left;
+    std::vector<double> held;
+    auto simulate = [&](const std::vector<std::uint32_t>& order) {
+      left = cover;
+      held.assign(cover.size(), 0.0);
+      double width = 0, peak = 0;
+      for (const std::uint32_t i : order) {
+        const CellBox& c = sim[i];
+        const double share = static_cast<double>(segments[i].kept) /
+                             (static_cast<double>(c.c1 - c.c0 + 1) * (c.r1 - c.r0 + 1));
+        width += segments[i].kept;
+        peak = std::max(peak, width);  // (an upper bound for the moment the batch has been read)
+        for (std::uint32_t r = c.r0; r <= c.r1; ++r)
+          for (std::uint32_t col = c.c0; col <= c.c1; ++col) {
+            const std::size_t k = std::size_t{r} * side + col;
+            held[k] += share;
+            if (--left[k] == 0) width -= held[k];
+          }
+      }
+      return peak;
+    };
+
+    // Candidates: the stored order, sweeps along rows, columns and both diagonals (by box centre), and
+    // the Hilbert curve through the box centres.
+    const auto n = static_cast<std::uint32_t>(segments.size());
+    std::vector<std::uint32_t> stored(n);
+    std::iota(stored.begin(), stored.end(), 0u);
+    auto sortedBy = [&](auto key) {
+      std::vector<std::uint32_t> o = stored;
+      std::stable_sort(o.begin(), o.end(), [&](std::uint32_t a, std::uint32_t b) { return key(a) < key(b); });
+      return o;
+    };
+    auto cx = [&](std::uint32_t i) { return std::int64_t{leaf[i].c0} + leaf[i].c1; };
+    auto cy = [&](std::uint32_t i) { return std::int64_t{leaf[i].r0} + leaf[i].r1; };
+    struct Candidate {
+      const char* name;
+      std::vector<std::uint32_t> order;
+    };
+    std::vector<Candidate> candidates;
+    candidates.push_back({"rows", sortedBy([&](std::uint32_t i) { return std::pair(cy(i), cx(i)); })});
+    candidates.push_back({"columns", sortedBy([&](std::uint32_t i) { return std::pair(cx(i), cy(i)); })});
+    candidates.push_back(
+        {"diagonal", sortedBy([&](std::uint32_t i) { return std::pair(cx(i) + cy(i), cx(i)); })});
+    candidates.push_back(
+        {"antidiagonal", sortedBy([&](std::uint32_t i) { return std::pair(cx(i) - cy(i), cx(i)); })});
+    candidates.push_back({"hilbert", sortedBy([&](std::uint32_t i) {
+                            return hilbertIndex(depth_, static_cast<std::uint32_t>(cx(i) / 2),
+                                                static_cast<std::uint32_t>(cy(i) / 2));
+                          })});
+    const double storedWidth = simulate(stored);
+    stats_.storedOrderWidthEstimate = static_cast<std::uint64_t>(storedWidth + 0.5);
+    double best = storedWidth;
+    const Candidate* chosen = nullptr;
+    for (const Candidate& c : candidates) {
+      const double w = simulate(c.order);
+      if (w < best) {
+        best = w;
+        chosen = &c;
+      }
+    }
+    if (!chosen || best > 0.75 * storedWidth) return;
+    stats_.readOrder = chosen->name;
+    stats_.readOrderWidthEstimate = static_cast<std::uint64_t>(best + 0.5);
+    schedule_ = chosen->order;
+  }
+
   // ---- pass 3 -----------------------------------------------------------------------------------
 
   void stream() {
@@ -1080,13 +1331,17 @@ class Finalizer {
     out_.begin(info);
     emitEmptyTags();
 
+    sources_.recordSegments(false);
+    sources_.setSchedule(std::move(schedule_));
     sources_.startPass(false);
-    std::uint64_t ordinal = 0;
+    std::uint64_t done = 0;
     const CellMap cellMap(grid_, denseLeaves_ ? &leafDense_ : nullptr, &leafIndex_);
     Prefetcher reader(sources_, options_.readAhead, &cellMap);
     std::size_t input = 0;
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       input = batch.input;
+      // Ordinals are those of pass 2 (the stored order), whatever order the batches come in.
+      std::uint64_t ordinal = batch.ordinal;
       for (std::size_t i = 0; i < batch.n; ++i) {
         const PointRecord& p = batch.points[i];
         const std::uint32_t memo = batch.cells[i];
@@ -1097,10 +1352,11 @@ class Finalizer {
         ++ordinal;
         if (--leaf.remaining == 0) release(memo);
       }
-      progress_.update(ordinal);
+      done += batch.n;
+      progress_.update(done);
     }
-    if (ordinal != stats_.points || released_ != leaves_.size()) throw changedInput(input);
-    progress_.update(ordinal);  // the last chance to cancel before the outputs are committed
+    if (done != stats_.points || released_ != leaves_.size()) throw changedInput(input);
+    progress_.update(done);  // the last chance to cancel before the outputs are committed
     out_.end();
     stats_.peakPoolBytes = pool_.peak() * BlockPool::kBlockBytes;
   }
@@ -1378,6 +1634,10 @@ class Finalizer {
   FinalizerStats stats_;
   FilterCounts firstCounts_;
   bool firstCountsTaken_ = false;
+
+  bool reorder_ = false;                 // pass 2 records its batches for chooseReadOrder
+  std::vector<Bounds3> boxes_;           // of each batch of pass 2 (Sources::segments())
+  std::vector<std::uint32_t> schedule_;  // pass 3's order of those batches (empty: stored order)
 
   int depth_ = 0;
   GridSpec grid_;

@@ -30,9 +30,9 @@
 //           aggregated without re-reading.
 //   pass 3  streaming out.  Each point is appended to its leaf cell's chunk; when a leaf's count reaches
 //           zero the chunk is released: (a) sprinkle points, (b) the chunk in BRIO order, (c) one tag.
-//   In every pass a background thread reads and filters the next few batches (of 32768 points: few
-//   hand-overs, and the batches in flight stay in L3) while the calling thread works on the current one;
-//   the sequence is unchanged.
+//           The batches may be read in another order than stored (see "Read order").
+//   In every pass a background thread reads and filters the next few batches (of options.batchPoints)
+//   while the calling thread works on the current one; the sequence is unchanged.
 //
 // Grid and tags
 //   The grid is GridSpec (grid.h) over the bounds at depth k; leaf membership is exactly
@@ -66,6 +66,23 @@
 //   a pure function of the input, the options and the seed: output is identical run to run, with or
 //   without spilling, on any number of threads.
 //
+// Read order (options.reorder)
+//   The width is set by the order the points come in.  Flight strips stored one after the other keep a
+//   strip's side-overlap band waiting until the next strip comes back over it, a strip flown home keeps
+//   every cell it crosses open to the end, tiles named out of spatial order jump about.  When every
+//   input can be read out of order (PointStream::seekable, or spooled in pass 1), pass 2 records its
+//   batches ("segments": input, raw record range, kept count, ordinal of the first kept point) and the
+//   xy box of each.  A batch holds exactly options.batchPoints kept points unless its input ends, so the
+//   segments do not depend on how an input's reads come (a file and its spooled copy agree).  Then
+//   chooseReadOrder simulates chunking on the boxes (a batch's points spread evenly over the cells its
+//   box covers; a cell completes with the last batch covering it) for the stored order and for sweeps
+//   along rows, columns, both diagonals and a Hilbert curve through the box centres, and pass 3 reads
+//   the segments in the narrowest order if it saves at least a quarter of the stored order's width.
+//   Points keep their pass-2 ordinals (sprinkle points are found by them), every segment must yield
+//   the same kept count again, and an input is suspend()ed when reading moves to another one (a survey
+//   of thousands of tiles holds one or two files open).  The choice is a pure function of the input
+//   and the options.
+//
 // Threads (options.readAhead)
 //   A reading thread decodes and filters a few batches ahead, and in pass 3 also maps each point to its
 //   leaf and its BRIO sub-cell (kept in PointRecord::scratch until the chunk is ordered): pure functions
@@ -81,9 +98,9 @@
 //   (plus a 4-byte index per grid cell up to depth 11); pass 2's fine-cell table 4 bytes per fine cell
 //   plus 64 per occupied one (array) or about 90 per occupied fine cell (hash), freed before pass 3.
 //   The stream "width" reported
-//   is the most chunk points waiting at once (in memory or spilled).  It cannot be smaller than the
-//   points flown before a later pass over the same cells (for flight strips: one strip's side-overlap
-//   band), whatever the depth.
+//   is the most chunk points waiting at once (in memory or spilled).  In the stored order it cannot be
+//   smaller than the points flown before a later pass over the same cells (for flight strips: one
+//   strip's side-overlap band), whatever the depth; the read order above is how it gets below that.
 //
 // Errors: no points after filtering -> Error naming the counts by reason; an input that yields different
 // points in different passes -> Error; spill/spool I/O failures -> DataError naming the temporary file;
@@ -138,6 +155,12 @@ struct FinalizerOptions {
   bool spoolCostlyInputs = true;
   // Such a spool stops (and the input is read again) rather than leave less than this free in tempDir.
   std::uint64_t spoolReserve = std::uint64_t{1} << 30;
+  // Pass 3 may read the survey's batches in another order than stored, when that makes the stream
+  // narrower (see "Read order" above) and every input can be read out of order.  false: stored order.
+  bool reorder = true;
+  // Points per batch between the reading thread and the finalizer, and the unit pass 3 reorders
+  // (32768 points: about 1 MiB of LAS, few hand-overs, and the batches in flight stay in L3).
+  std::size_t batchPoints = std::size_t{1} << 15;
 };
 
 struct FinalizerStats {
@@ -164,6 +187,12 @@ struct FinalizerStats {
   std::uint64_t sprinkled = 0;          // points emitted as sprinkle points
   std::uint64_t emptyTags = 0;          // tags of empty cells, emitted up front
   std::uint64_t tags = 0;               // all tags, including emptyTags
+  // Read order of pass 3: "stored", or the sweep chosen ("rows", "columns", "diagonal",
+  // "antidiagonal", "hilbert").  The estimates are the simulation's (0 when no choice was made).
+  std::string readOrder = "stored";
+  std::uint64_t readSegments = 0;              // batches of pass 2 that could be reordered
+  std::uint64_t storedOrderWidthEstimate = 0;  // the stored order's simulated width
+  std::uint64_t readOrderWidthEstimate = 0;    // the chosen order's simulated width
   bool pass1Run = false;
   double pass1Seconds = 0, pass2Seconds = 0, pass3Seconds = 0;  // pass 2 includes any re-runs
   std::uint64_t pass2Runs = 0;

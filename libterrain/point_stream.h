@@ -6,8 +6,10 @@
 #pragma once
 
 #include <cstddef>
+#include <cstdint>
 #include <vector>
 
+#include "libterrain/error.h"
 #include "libterrain/point.h"
 
 namespace tinbuild {
@@ -23,6 +25,22 @@ class PointStream {
   // False when reading the stream again costs much more than reading back a copy of its points (text
   // to parse, coordinates to transform): a multi-pass reader may then keep a copy after its first pass.
   virtual bool cheapToReread() const { return true; }
+
+  // Random access within a pass, for a reader that visits the input in another order than it is stored
+  // (the finalizer's pass 3 reads a survey's batches in a spatially coherent order).  When seekable(),
+  // seek(record, count) makes the next read() start at raw record `record` (read()'s own numbering:
+  // records before any filtering, from 0 at the start of the pass), and announces that the next `count`
+  // records will be read (a hint for read-ahead).  Within one pass every record is still read exactly
+  // once, in whatever order.
+  virtual bool seekable() const { return false; }
+  virtual void seek(std::uint64_t record, std::uint64_t count) {
+    (void)record;
+    (void)count;
+    throw Error("this input cannot be read out of order");
+  }
+  // The caller will not read this stream for a while (it reads other inputs): release what a read holds
+  // open (a descriptor, a mapping).  The next read() reopens it.
+  virtual void suspend() {}
 };
 
 // Several streams read as one, in order (a survey of many tiles).  current() tells which stream the

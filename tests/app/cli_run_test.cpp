@@ -18,6 +18,8 @@
 #include <string>
 #include <vector>
 
+#include "formats/las_writer.h"
+#include "libterrain/synthetic_survey.h"
 #include "test_support.h"
 
 extern char** environ;
@@ -267,6 +269,49 @@ TEST(CliRun, MoreTilesThanDescriptors) {
   const std::string utm11 = slurp(out / "utm11.json");
   EXPECT_TRUE(std::regex_search(utm11, std::regex("\"transformations\": 1\\b"))) << utm11;
   EXPECT_NE(utm11.find("\"points_streamed\": " + std::to_string(kTiles * 20)), std::string::npos) << utm11;
+}
+
+// A survey stored as flight strips is streamed in a sweep across the strips: narrower, the same for the
+// file and for stdin, and the same TIN as in the stored order.
+TEST(CliRun, StripSurveyIsStreamedInANarrowerReadOrder) {
+  const auto out = test::scratchDir();
+  SurveySpec spec;
+  spec.points = 1000000;
+  const std::string las = (out / "strips.las").string();
+  writeSyntheticSurveyLas(spec, las, 32610, 0);
+  auto number = [](const std::string& json, const std::string& key) {
+    std::smatch m;
+    return std::regex_search(json, m, std::regex("\"" + key + "\": ([0-9.]+)")) ? std::stod(m[1]) : -1.0;
+  };
+  auto r = tinbuild("finalize " + las + " --compute-bounds -q -o " + (out / "a.tfs").string() + " --report " +
+                    (out / "a.json").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string swept = slurp(out / "a.json");
+  EXPECT_TRUE(
+      std::regex_search(swept, std::regex("\"order\": \"(rows|columns|diagonal|antidiagonal|hilbert)\"")))
+      << swept;
+  r = tinbuild("finalize " + las + " --compute-bounds --stored-order -q -o " + (out / "s.tfs").string() +
+               " --report " + (out / "s.json").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string stored = slurp(out / "s.json");
+  EXPECT_NE(stored.find("\"order\": \"stored\""), std::string::npos) << stored;
+  EXPECT_LT(number(swept, "width"), 0.75 * number(stored, "width")) << swept << stored;
+  // stdin is spooled and read back in the same order: the same bytes.
+  r = tinbuild("finalize - -q -o " + (out / "b.tfs").string(), "cat " + las + " | ");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(slurp(out / "a.tfs"), slurp(out / "b.tfs"));
+  // The TIN is canonical: whatever the order, the same triangles, and each verifies.
+  for (const std::string order : {"", " --stored-order"}) {
+    const std::string mesh = (out / ("tin" + std::to_string(order.size()) + ".smb")).string();
+    r = tinbuild("build " + las + order + " -q --mesh " + mesh + " --report " + mesh + ".json");
+    ASSERT_EQ(r.code, 0) << r.err;
+    r = tinbuild("verify " + mesh + " --points " + las);
+    EXPECT_EQ(r.code, 0) << r.err << r.out;
+  }
+  const std::string a = slurp(out / "tin0.smb.json"), b = slurp(out / "tin15.smb.json");
+  EXPECT_GT(number(a, "triangles"), 1.9e6);
+  EXPECT_EQ(number(a, "triangles"), number(b, "triangles"));
+  EXPECT_EQ(number(a, "vertices"), number(b, "vertices"));
 }
 
 // Surveys come as directories of tiles and as patterns batch systems pass quoted.

@@ -52,13 +52,30 @@ class VectorStream : public PointStream {
     ++rewinds;
   }
   bool cheapToReread() const override { return cheap_; }
+  // Random access like a LAS file's, when allowed (allowSeek).
+  bool seekable() const override { return seekable_; }
+  void seek(std::uint64_t record, std::uint64_t count) override {
+    if (!seekable_) throw Error("not seekable");
+    if (record > pts_.size() || count > pts_.size() - record) throw Error("seek outside the input");
+    pos_ = static_cast<std::size_t>(record);
+    ++seeks;
+  }
+  void suspend() override { ++suspends; }
+  VectorStream& allowSeek(bool on = true) {
+    seekable_ = on;
+    return *this;
+  }
+  // The next passes yield other points (a file modified during the run).
+  void replace(std::vector<PointRecord> pts) { pts_ = std::move(pts); }
   int rewinds = 0;
+  int seeks = 0, suspends = 0;
 
  private:
   std::vector<PointRecord> pts_;
   bool rewindable_;
   std::size_t maxRead_;
   bool cheap_;
+  bool seekable_ = false;
   std::size_t pos_ = 0;
 };
 
@@ -276,9 +293,11 @@ struct Result {
   FinalizerStats stats;
 };
 
-Result finalize(const std::vector<PointRecord>& pts, FinalizerOptions o = {}, bool rewindable = true) {
+Result finalize(const std::vector<PointRecord>& pts, FinalizerOptions o = {}, bool rewindable = true,
+                bool seekable = false) {
   Result r;
   VectorStream s(pts, rewindable);
+  s.allowSeek(seekable);
   Diagnostics diag;
   r.stats = finalizePoints({&s}, o, r.sink, diag);
   return r;
@@ -291,14 +310,26 @@ FinalizerOptions noFilter(int depth = -1) {
   return o;
 }
 
+// Checks every property for the input read in its stored order and, from a seekable input, in the read
+// order the finalizer chooses (which must be deterministic too, with and without the reading thread).
 void expectValid(const std::vector<PointRecord>& pts, const FinalizerOptions& o, const char* what) {
   SCOPED_TRACE(what);
-  Result a = finalize(pts, o);
-  EXPECT_EQ(checkStream(pts, a.sink), "");
-  EXPECT_EQ(a.stats.points, pts.size());
-  EXPECT_EQ(a.stats.sprinkled, a.stats.occupiedCells);
-  Result b = finalize(pts, o);
-  EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events)) << "not deterministic";
+  for (const bool seekable : {false, true}) {
+    SCOPED_TRACE(seekable ? "seekable input" : "stored order");
+    FinalizerOptions o1 = o;
+    if (seekable) o1.batchPoints = 997;  // batches, the unit of reordering, of a size these tests reach
+    Result a = finalize(pts, o1, true, seekable);
+    EXPECT_EQ(checkStream(pts, a.sink), "");
+    EXPECT_EQ(a.stats.points, pts.size());
+    EXPECT_EQ(a.stats.sprinkled, a.stats.occupiedCells);
+    if (!seekable) {
+      EXPECT_EQ(a.stats.readOrder, "stored");
+    }
+    FinalizerOptions o2 = o1;
+    o2.readAhead = !o.readAhead;
+    Result b = finalize(pts, o2, true, seekable);
+    EXPECT_TRUE(sameEvents(a.sink.events, b.sink.events)) << "not deterministic";
+  }
 }
 
 // Splits pts (in order) into the first point of each cell of the grid of `depth` over their bounds and
@@ -351,6 +382,126 @@ TEST(Finalizer, FlightStripsAndStripeAtTheEnd) {
   Result plain = finalize(strips, noFilter(5));
   EXPECT_GT(r.stats.width, 3 * plain.stats.width);
   EXPECT_GT(r.stats.width, home.size() / 3);
+}
+
+TEST(Finalizer, SweepOrderNarrowsFlightStripsAndAStripFlownHome) {
+  // Strips stored one after the other keep each strip's side-overlap band waiting for the next; a strip
+  // flown home diagonally keeps every cell it crosses open to the end.  From a seekable input pass 3
+  // reads the batches along a sweep instead: the same points and properties, a much narrower stream.
+  SurveySpec spec;
+  spec.points = 300000;
+  spec.seed = 5;
+  for (const bool home : {false, true}) {
+    SCOPED_TRACE(home ? "home strip" : "strips");
+    spec.homeStrip = home;
+    const auto pts = generate(spec);
+    FinalizerOptions o = noFilter();
+    o.batchPoints = 1000;
+    const Result stored = finalize(pts, o);
+    const Result swept = finalize(pts, o, true, true);
+    EXPECT_EQ(checkStream(pts, swept.sink), "");
+    EXPECT_EQ(stored.stats.readOrder, "stored");
+    EXPECT_NE(swept.stats.readOrder, "stored");
+    EXPECT_EQ(swept.stats.readSegments, 300u);
+    EXPECT_EQ(swept.stats.grid.depth, stored.stats.grid.depth);
+    // At this size a sweep's front (a row of 1/8 of the survey at depth 3) is a large part of the
+    // survey; the 10M and 100M figures are in docs/benchmarks.md.
+    EXPECT_LT(static_cast<double>(swept.stats.width),
+              (home ? 0.5 : 0.7) * static_cast<double>(stored.stats.width))
+        << swept.stats.width << " vs " << stored.stats.width;
+    // The simulation that chose the order predicts both widths within 25 %.
+    EXPECT_NEAR(static_cast<double>(swept.stats.readOrderWidthEstimate),
+                static_cast<double>(swept.stats.width), 0.25 * static_cast<double>(swept.stats.width));
+    EXPECT_NEAR(static_cast<double>(swept.stats.storedOrderWidthEstimate),
+                static_cast<double>(stored.stats.width), 0.25 * static_cast<double>(stored.stats.width));
+    // A spooled copy (stdin) is read in the same order: the same stream.
+    FinalizerOptions spool = o;
+    spool.tempDir = test::scratchDir().string();
+    const Result spooled = finalize(pts, spool, false);
+    EXPECT_TRUE(sameEvents(swept.sink.events, spooled.sink.events));
+    // The choice can be declined.
+    FinalizerOptions keep = o;
+    keep.reorder = false;
+    const Result declined = finalize(pts, keep, true, true);
+    EXPECT_EQ(declined.stats.readOrder, "stored");
+    EXPECT_TRUE(sameEvents(stored.sink.events, declined.sink.events));
+  }
+  // Input already in a coherent order (rows) is read as stored.
+  auto rows = randomPoints(100000, 9);
+  std::sort(rows.begin(), rows.end(), [](const PointRecord& a, const PointRecord& b) {
+    return a.y < b.y || (a.y == b.y && a.x < b.x);
+  });
+  FinalizerOptions small = noFilter();
+  small.batchPoints = 1000;
+  const Result coherent = finalize(rows, small, true, true);
+  EXPECT_EQ(coherent.stats.readOrder, "stored");
+}
+
+TEST(Finalizer, SweepOrderOverManyInputsAndFilteredBatches) {
+  // Tiles of one strip survey, read in any order across the files: every input is suspended when the
+  // reading moves to another one.  A filter that drops whole batches makes a batch of pass 2 span more
+  // records than a read returns: pass 3 reads them all again and keeps the same points.
+  SurveySpec spec;
+  spec.points = 200000;
+  spec.seed = 8;
+  auto pts = generate(spec);
+  // Every 7th run of 2500 points becomes noise (class 7, dropped by the default filter).
+  for (std::size_t i = 0; i < pts.size(); ++i)
+    if ((i / 2500) % 7 == 3) pts[i].classification = 7;
+  std::vector<PointRecord> kept;
+  for (const auto& p : pts)
+    if (p.classification != 7 && p.classification != 18 && !(p.flags & kFlagWithheld)) kept.push_back(p);
+  FinalizerOptions o;  // the default filter
+  o.tempDir = test::scratchDir().string();
+  o.batchPoints = 1000;
+  std::vector<std::unique_ptr<VectorStream>> parts;
+  std::vector<PointStream*> inputs;
+  const std::size_t cuts[] = {0, 30000, 30000, 110000, 170000, 200000};  // an empty one too
+  for (std::size_t i = 0; i + 1 < std::size(cuts); ++i) {
+    parts.push_back(std::make_unique<VectorStream>(
+        std::vector<PointRecord>(pts.begin() + static_cast<std::ptrdiff_t>(cuts[i]),
+                                 pts.begin() + static_cast<std::ptrdiff_t>(cuts[i + 1]))));
+    parts.back()->allowSeek();
+    inputs.push_back(parts.back().get());
+  }
+  RecordingSink sink;
+  Diagnostics diag;
+  const FinalizerStats st = finalizePoints(inputs, o, sink, diag);
+  EXPECT_EQ(checkStream(kept, sink), "");
+  EXPECT_NE(st.readOrder, "stored");
+  EXPECT_EQ(st.filter.kept, kept.size());
+  int suspends = 0;
+  for (const auto& p : parts) suspends += p->suspends;
+  EXPECT_GT(suspends, 4);
+  RecordingSink again;
+  o.readAhead = false;
+  for (const auto& p : parts) p->rewind();
+  finalizePoints(inputs, o, again, diag);
+  EXPECT_TRUE(sameEvents(sink.events, again.events));
+
+  // One input modified between pass 2 and pass 3 is an error naming it, also when read out of order.
+  struct Changing : VectorStream {
+    using VectorStream::VectorStream;
+    void rewind() override {
+      VectorStream::rewind();
+      if (rewinds == 3) replace(changed);
+    }
+    std::vector<PointRecord> changed;
+  };
+  Changing c(pts);
+  c.allowSeek();
+  c.changed = pts;
+  for (std::size_t i = 100000; i < 100500; ++i) c.changed[i].classification = 7;
+  FinalizerOptions named;
+  RecordingSink broken;
+  named.inputNames = {"tile.las"};
+  named.batchPoints = 1000;
+  try {
+    finalizePoints({&c}, named, broken, diag);
+    ADD_FAILURE() << "a modified input went unnoticed";
+  } catch (const Error& e) {
+    EXPECT_NE(std::string(e.what()).find("tile.las"), std::string::npos) << e.what();
+  }
 }
 
 TEST(Finalizer, OnePointPerCellThenTheRest) {
