@@ -183,7 +183,7 @@ LasReader::LasReader(const std::string& path, Diagnostics& diag) : diag_(diag) {
 }
 
 void LasReader::openFile() {
-  if (!lazyFile_ || mapping_) return;
+  if (!lazyFile_ || fd_ >= 0) return;
   const std::string& path = info_.path;
   fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
   if (fd_ < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
@@ -202,22 +202,17 @@ void LasReader::openFile() {
     throw DataError(
         path, "the file changed since its header was read (was it modified or replaced during the run?)");
   }
-  mapping_ = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd_, 0);
-  if (mapping_ == MAP_FAILED) {
-    const int e = errno;
-    mapping_ = nullptr;
-    ::close(fd_);
-    fd_ = -1;
-    throw DataError(path, std::string("cannot map the file: ") + std::strerror(e));
-  }
-  base_ = static_cast<const std::uint8_t*>(mapping_);
-  released_ = requested_ = 0;
+  // The points are read with pread into small buffers, not through a mapping: no page faults (costly
+  // on many virtual machines), nothing of the file counted in the RSS, and a seek is one large read.
+  requested_ = 0;
 }
 
 void LasReader::closeFile() {
-  if (mapping_) ::munmap(mapping_, size_);
+  if (mapping_) {
+    ::munmap(mapping_, size_);
+    base_ = nullptr;
+  }
   mapping_ = nullptr;
-  base_ = nullptr;
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
 }
@@ -620,25 +615,35 @@ void LasReader::readCrs() {
     diag_.warn(w.kind, w.file.empty() ? "" : file, w.firstMessage, w.count);
 }
 
+void LasReader::decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* out, Bounds3& bounds) const {
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  if (info_.pointFormat >= 6)
+    decodeRecords<true>(src, n, stride, info_.scale, info_.offset, out, bounds);
+  else
+    decodeRecords<false>(src, n, stride, info_.scale, info_.offset, out, bounds);
+}
+
 std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecord* out) {
   const auto stride = static_cast<std::size_t>(info_.recordLength);
+  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
+  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int, Bounds3& bounds) {
+    decodeInto(src + lo * stride, hi - lo, out + lo, bounds);
+  });
+}
+
+std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out, int parts,
+                                   const std::function<void(std::size_t, std::size_t, int, Bounds3&)>& fill) {
   // One part per crew thread, each with its own bounds and outside count, merged in part order.
   struct Part {
     Bounds3 bounds;
     std::uint64_t outside = 0;
   };
-  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
   Part partial[kMaxDecodeThreads];
   auto work = [&](int k) {
     const std::size_t lo = n * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
     const std::size_t hi = n * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
     Part& part = partial[k];
-    if (info_.pointFormat >= 6)
-      decodeRecords<true>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo,
-                          part.bounds);
-    else
-      decodeRecords<false>(src + lo * stride, hi - lo, stride, info_.scale, info_.offset, out + lo,
-                           part.bounds);
+    if (hi > lo) fill(lo, hi, k, part.bounds);
     if (!info_.hasHeaderBounds || hi == lo) return;
     const Bounds3& hb = info_.headerBounds;
     const Bounds3& b = part.bounds;
@@ -662,6 +667,41 @@ std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecor
     outside_ += partial[k].outside;
   }
   return n;
+}
+
+std::size_t LasReader::decodeFile(std::uint64_t first, std::size_t n, PointRecord* out) {
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  // Each part reads its records in pieces of about 256 KiB (they stay in the core's cache between the
+  // read and the decoding) into a buffer of its own, kept between calls.
+  const std::size_t piece = std::max<std::size_t>(1, (std::size_t{256} << 10) / stride);
+  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
+  if (readBuffers_.size() < static_cast<std::size_t>(parts))
+    readBuffers_.resize(static_cast<std::size_t>(parts));
+  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int k, Bounds3& bounds) {
+    std::vector<std::uint8_t>& buf = readBuffers_[static_cast<std::size_t>(k)];
+    if (buf.size() < piece * stride) buf.resize(piece * stride);
+    for (std::size_t i = lo; i < hi; i += piece) {
+      const std::size_t m = std::min(piece, hi - i);
+      readFully(buf.data(), m * stride, pointOffset_ + (first + i) * stride);
+      decodeInto(buf.data(), m, out + i, bounds);
+    }
+  });
+}
+
+void LasReader::readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {
+  while (size > 0) {
+    const ssize_t got = ::pread(fd_, dst, size, static_cast<off_t>(offset));
+    if (got < 0) {
+      if (errno == EINTR) continue;
+      throw DataError(info_.path, std::string("cannot read the points: ") + std::strerror(errno));
+    }
+    if (got == 0)
+      throw DataError(info_.path, "the file ended at byte " + fmtCount(offset) +
+                                      " while its points were read (was it truncated during the run?)");
+    dst += got;
+    size -= static_cast<std::size_t>(got);
+    offset += static_cast<std::uint64_t>(got);
+  }
 }
 
 namespace {
@@ -716,10 +756,13 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
   }
   if (!stream_) {
     openFile();
-    decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
+    if (lazyFile_)
+      decodeFile(nextPoint_, n, out);
+    else
+      decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
     nextPoint_ += n;
     passDecoded_ += n;
-    releaseConsumed(pointOffset_ + nextPoint_ * stride);
+    readAhead(pointOffset_ + nextPoint_ * stride);
     if (passDecoded_ >= info_.pointCount) {
       finishPass();
       if (lazyFile_) closeFile();
@@ -745,35 +788,19 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
   return n;
 }
 
-void LasReader::releaseConsumed(std::uint64_t upTo) {
-  if (!mapping_) return;
-  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
-  // Read ahead: keep the next kAhead bytes requested from storage (a cold survey is then read with
-  // deep, asynchronous I/O rather than a fault at a time), topped up every kAhead / 4.  A survey smaller
-  // than kAhead is asked for whole at its first batch.
+void LasReader::readAhead(std::uint64_t upTo) {
+  if (fd_ < 0 || seeking_) return;
+  // Keep the next kAhead bytes requested from storage (a cold survey is then read with deep,
+  // asynchronous I/O rather than a block at a time), topped up every kAhead / 4.  A survey smaller than
+  // kAhead is asked for whole at its first batch.  (Out of order, seek() asks for each range instead.)
   constexpr std::uint64_t kAhead = std::uint64_t{1} << 30;
-  if (!seeking_ && upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
-    const std::uint64_t from = std::max(requested_, upTo) / page * page;
+  if (upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
+    const std::uint64_t from = std::max(requested_, upTo);
     const std::uint64_t to = std::min<std::uint64_t>(size_, upTo + kAhead);
-    if (to > from) ::madvise(static_cast<std::uint8_t*>(mapping_) + from, to - from, MADV_WILLNEED);
+    if (to > from)
+      ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
     requested_ = to;
   }
-  // The mapping's pages stay in the page cache, but counted in this process's RSS they would make a
-  // streaming run look as large as its input: drop the pages already decoded, 1 MiB at a time.
-  // Out of order, a read is a whole range, and its pages are dropped at once, with a margin on both sides
-  // once the range is done (a fault maps the cached pages around it too, up to 64 KiB: they would stay
-  // mapped until their own range is read).
-  constexpr std::uint64_t kChunk = std::uint64_t{1} << 20;
-  constexpr std::uint64_t kFaultAround = std::uint64_t{128} << 10;
-  if (!seeking_ && upTo < released_ + kChunk) return;
-  std::uint64_t end = upTo / page * page;
-  if (seeking_ && upTo >= seekEnd_) {
-    end = std::min<std::uint64_t>((size_ + page - 1) / page * page, (upTo + kFaultAround) / page * page);
-    released_ = released_ > kFaultAround ? (released_ - kFaultAround) / page * page : 0;
-  }
-  if (end <= released_) return;
-  ::madvise(static_cast<std::uint8_t*>(mapping_) + released_, end - released_, MADV_DONTNEED);
-  released_ = end;
 }
 
 void LasReader::seek(std::uint64_t record, std::uint64_t count) {
@@ -783,18 +810,13 @@ void LasReader::seek(std::uint64_t record, std::uint64_t count) {
   nextPoint_ = record;
   seeking_ = true;
   openFile();
-  if (!mapping_) return;
-  // Ask storage for the range now (a cold survey is then read in deep requests, not a fault at a time)
-  // and drop decoded pages from the RSS from its start on.
+  if (fd_ < 0) return;
+  // Ask storage for the whole range now: a cold survey is then read in large requests.
   const auto stride = static_cast<std::uint64_t>(info_.recordLength);
-  const std::uint64_t page = static_cast<std::uint64_t>(::sysconf(_SC_PAGESIZE));
-  const std::uint64_t from = (pointOffset_ + record * stride) / page * page;
-  const std::uint64_t to =
-      std::min<std::uint64_t>(size_, pointOffset_ + std::min(info_.pointCount, record + count) * stride);
-  if (to > from) ::madvise(static_cast<std::uint8_t*>(mapping_) + from, to - from, MADV_WILLNEED);
-  released_ = from;
-  requested_ = std::max<std::uint64_t>(to, from);
-  seekEnd_ = to;
+  const std::uint64_t from = pointOffset_ + record * stride;
+  const std::uint64_t to = pointOffset_ + std::min(info_.pointCount, record + count) * stride;
+  if (to > from)
+    ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
 }
 
 void LasReader::suspend() {
@@ -806,7 +828,6 @@ void LasReader::rewind() {
   nextPoint_ = 0;
   passDecoded_ = 0;
   seeking_ = false;
-  released_ = 0;
   requested_ = 0;
   decoded_ = Bounds3{};
   outside_ = 0;

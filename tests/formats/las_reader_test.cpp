@@ -514,6 +514,28 @@ TEST(LasReader, FileIsOpenOnlyWhileAPassReadsItAndMustNotChange) {
   }
 }
 
+TEST(LasReader, FileTruncatedWhileAPassReadsItIsAnError) {
+  // Points are read with pread: a file cut short during a pass is an error naming it (through a mapping
+  // it would have been a SIGBUS).
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  const auto copy = dir / "cut.las";
+  std::filesystem::copy_file(dataPath("las/zurich.las"), copy);
+  Diagnostics diag;
+  LasReader r(copy.string(), diag);
+  std::vector<PointRecord> pts(1000);
+  ASSERT_EQ(r.read(pts.data(), pts.size()), pts.size());
+  std::filesystem::resize_file(copy, std::filesystem::file_size(copy) / 2);
+  try {
+    while (r.read(pts.data(), pts.size()) > 0) {
+    }
+    ADD_FAILURE() << "a truncated file was read to its end";
+  } catch (const DataError& e) {
+    EXPECT_NE(std::string(e.what()).find("cut.las"), std::string::npos) << e.what();
+    EXPECT_NE(std::string(e.what()).find("ended"), std::string::npos) << e.what();
+  }
+}
+
 TEST(LasReader, RangesReadOutOfOrderGiveTheSameRecords) {
   // The finalizer's pass 3 may read a file's record ranges in any order (seek): every range must decode
   // to exactly the records a sequential pass gives there, the pass must still end (bounds, file closed),
