@@ -819,6 +819,15 @@ void LasReader::seek(std::uint64_t record, std::uint64_t count) {
     ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
 }
 
+void LasReader::willRead(std::uint64_t record, std::uint64_t count) {
+  if (fd_ < 0 || record >= info_.pointCount) return;
+  const auto stride = static_cast<std::uint64_t>(info_.recordLength);
+  const std::uint64_t from = pointOffset_ + record * stride;
+  const std::uint64_t to = pointOffset_ + std::min(info_.pointCount, record + count) * stride;
+  if (to > from)
+    ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
+}
+
 void LasReader::suspend() {
   if (lazyFile_) closeFile();
 }

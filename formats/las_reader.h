@@ -70,6 +70,7 @@ class LasReader : public PointReader {
   // (POSIX_FADV_WILLNEED) at the seek, and the window ahead of sequential reading is not used.
   bool seekable() const override { return !stream_; }
   void seek(std::uint64_t record, std::uint64_t count) override;
+  void willRead(std::uint64_t record, std::uint64_t count) override;
   void suspend() override;
 
   // Decode large batches of a mapped file on this many threads (default 1).  The points, bounds and

@@ -467,6 +467,12 @@ class Sources {
         // segment longer than a batch.
         PointStream& in = *inputs_[current_];
         in.seek(seg.start, seg.raw);
+        // Ask for the next segments of the same input ahead (deep I/O on a cold survey): one segment
+        // further at each step, so kLookahead stay requested.
+        if (step_ == 1)
+          for (std::size_t k = step_; k < std::min(schedule_.size(), step_ + kLookahead); ++k) hint(k);
+        else if (step_ + kLookahead - 1 < schedule_.size())
+          hint(step_ + kLookahead - 1);
         for (std::uint64_t left = seg.raw; left > 0;) {
           const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(left, batch_ - kept));
           const std::size_t got = want > 0 ? in.read(out + kept, want) : 0;
@@ -481,6 +487,11 @@ class Sources {
     }
     suspendCurrent();
     return 0;
+  }
+  static constexpr std::size_t kLookahead = 16;
+  void hint(std::size_t k) {
+    const Segment& seg = segments_[schedule_[k]];
+    if (seg.input == current_ && !spools_[seg.input].active) inputs_[seg.input]->willRead(seg.start, seg.raw);
   }
   void suspendCurrent() {
     if (current_ < inputs_.size() && !spools_[current_].active) inputs_[current_]->suspend();

@@ -38,6 +38,12 @@ class PointStream {
     (void)count;
     throw Error("this input cannot be read out of order");
   }
+  // A hint: records [record, record + count) will be read soon (after a later seek).  Lets a file ask
+  // storage for them ahead of time.
+  virtual void willRead(std::uint64_t record, std::uint64_t count) {
+    (void)record;
+    (void)count;
+  }
   // The caller will not read this stream for a while (it reads other inputs): release what a read holds
   // open (a descriptor, a mapping).  The next read() reopens it.
   virtual void suspend() {}
