@@ -40,6 +40,7 @@ std::vector<cli::OptionSpec> benchOptions() {
        "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
       {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
       {"--stored-order", "", "finalize: pass 3 reads the file in its stored order (finalize --stored-order)"},
+      {"--cold", "", "finalize: the raw read and every pass read from storage (finalize --drop-cache)"},
       {"--columns", "SPEC", "read: XYZ input column mapping"},
       {"--cell-points", "M", "stream: points per cell (default 4000)"},
       {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
@@ -136,7 +137,8 @@ Command benchCommand() {
       "                      [--seed S] [--repeat R] [--threads N] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench lattice-vs-random [--side S] [--seed S] [--repeat R] [--no-cgal] [--dir DIR]\n"
       "       tinbuild bench finalize [--points N] [--kind KIND] [--swath M] [--home-strip] [--memory MB]\n"
-      "                      [--stored-order] [--seed S] [--repeat R] [--threads N] [--dir DIR] [--keep]\n"
+      "                      [--stored-order] [--cold] [--seed S] [--repeat R] [--threads N] [--dir DIR]\n"
+      "                      [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",

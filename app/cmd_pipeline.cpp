@@ -102,6 +102,9 @@ std::vector<cli::OptionSpec> inputOptions() {
           {"--strict-crs", "", "treat CRS contradictions and doubts as errors instead of warnings"},
           {"--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)"},
           {"--compute-bounds", "", "compute the bounds in a first pass instead of using the LAS headers'"},
+          {"--drop-cache", "",
+           "LAS input: drop the files from the page cache before each pass, so every pass reads from storage "
+           "(benchmarks)"},
           {"--stored-order", "",
            "stream the points in the order they are stored (default: in a narrower sweep order when one "
            "exists)"}};
@@ -153,6 +156,7 @@ void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
   o.strictCrs = args.has("--strict-crs");
   o.computeBounds = args.has("--compute-bounds");
   fo.reorder = !args.has("--stored-order");
+  o.reader.dropCache = args.has("--drop-cache");
 }
 
 void parseTriangulatorOptions(const cli::ParsedArgs& args, PipelineOptions& o) {

@@ -103,13 +103,15 @@ const char* kUsage =
     "      finalizer and O(1) memory:  tinbuild-bench stream --points 1e9 | tinbuild triangulate - -o "
     "/dev/null\n"
     "  tinbuild-bench finalize [--points N] [--kind strips|uniform|lattice] [--swath M] [--home-strip]\n"
-    "                          [--seed S] [--repeat R] [--threads T] [--memory MB] [--stored-order]\n"
+    "                          [--seed S] [--repeat R] [--threads T] [--memory MB] [--stored-order] "
+    "[--cold]\n"
     "                          [--dir DIR] [--keep] [--tinbuild EXE]\n"
     "      Writes a synthetic survey of N points (default 10M) as LAS (untimed), then alternates a raw\n"
     "      read of the file (like cat, from the page cache) with `tinbuild finalize -o /dev/null\n"
     "      --compute-bounds`; prints each pass's seconds, Mpoints/s and fraction of the raw read speed\n"
     "      (best of R), the stream width, the read order of pass 3 and peak RSS.  --stored-order passes\n"
-    "      the same option to finalize (pass 3 reads the file in its stored order).\n"
+    "      the same option to finalize (pass 3 reads the file in its stored order).  --cold: the raw read\n"
+    "      and every pass read from storage (the file is dropped from the page cache before each).\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -725,6 +727,7 @@ int finalizeMain(const std::vector<std::string>& argv) {
   const SurveySpec spec = surveyFromArgs(args, "finalize", 10000000);
   const std::string memory = args.value("--memory", "");
   const bool storedOrder = args.flag("--stored-order");
+  const bool cold = args.flag("--cold");
   const std::string base = args.value("--dir", defaultTempBase());
   args.finish();
 
@@ -754,8 +757,12 @@ int finalizeMain(const std::vector<std::string>& argv) {
     addThreads(cmd, cfg.threads);
     if (!memory.empty()) cmd.insert(cmd.end(), {"--memory", memory});
     if (storedOrder) cmd.push_back("--stored-order");
-    rawReadSeconds(r.las, rawBytes);  // warm-up: both sides read from the page cache
+    if (cold) cmd.push_back("--drop-cache");
+    // Warm: a warm-up read, then both sides read from the page cache.  Cold: both sides read from
+    // storage (the file is dropped from the page cache before the raw read and before each pass).
+    if (!cold) rawReadSeconds(r.las, rawBytes);
     for (int i = 0; i < cfg.repeat; ++i) {
+      if (cold) dropFromPageCache(r.las);
       raw = std::min(raw, rawReadSeconds(r.las, rawBytes));
       removeFiles({report});
       const ChildRun run = runChild(cfg.tinbuild, cmd, false);
@@ -775,9 +782,11 @@ int finalizeMain(const std::vector<std::string>& argv) {
   const double streamed = static_cast<double>(jsonCount(json, "points_streamed"));
   std::printf("  survey      %s\n", describeSurvey(r).c_str());
   std::printf(
-      "  input       %.1f MB of LAS; raw read (read(2) in 128 KiB blocks, like cat; page cache): "
+      "  input       %.1f MB of LAS; raw read (read(2) in 128 KiB blocks, like cat; %s): "
       "%.4f s = %.2f GB/s = %.1f M points/s\n",
-      static_cast<double>(rawBytes) / 1e6, raw, static_cast<double>(rawBytes) / raw / 1e9, n / raw / 1e6);
+      static_cast<double>(rawBytes) / 1e6,
+      cold ? "from storage: dropped from the page cache before it and before each pass" : "page cache", raw,
+      static_cast<double>(rawBytes) / raw / 1e9, n / raw / 1e6);
   std::printf("\n  %-40s %9s %12s %10s %12s\n", "pass", "seconds", "M points/s", "GB/s", "/ raw read");
   const char* names[3] = {"pass 1: bounds", "pass 2: counts per cell",
                           "pass 3: chunks, BRIO, sprinkles, tags"};

@@ -517,7 +517,9 @@ void checkCoordinatesPlausible(const CrsInfo& crs, double minX, double minY, dou
   }
 }
 
-void releaseCrsCaches() { OSRCleanup(); }
+void releaseCrsCaches() {
+  OSRCleanup();
+}
 
 bool sameCrs(const CrsInfo& a, const CrsInfo& b) {
   if (a.empty() || b.empty()) return a.empty() && b.empty();

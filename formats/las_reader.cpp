@@ -834,6 +834,11 @@ void LasReader::suspend() {
 
 void LasReader::rewind() {
   if (stream_) throw Error(info_.path + ": standard input can be read only once");
+  if (dropCache_ && lazyFile_) {
+    openFile();
+    ::posix_fadvise(fd_, 0, 0, POSIX_FADV_DONTNEED);
+    closeFile();
+  }
   nextPoint_ = 0;
   passDecoded_ = 0;
   seeking_ = false;

@@ -78,6 +78,9 @@ class LasReader : public PointReader {
   // a crew that all readers asking for the same number share: a survey of many tiles starts them once.
   static constexpr int kMaxDecodeThreads = 16;
   void setDecodeThreads(int threads);
+  // Every pass reads the file from storage: its pages are dropped from the page cache at rewind()
+  // (benchmarks of cold reading; `--drop-cache`).
+  void setDropCache(bool on) { dropCache_ = on; }
 
   const std::vector<LasVlr>& vlrs() const { return vlrs_; }
   // Bounds of the points decoded so far in this pass (complete after a full pass).
@@ -127,6 +130,7 @@ class LasReader : public PointReader {
   std::uint64_t requested_ = 0;  // file bytes [0, requested_) asked for with POSIX_FADV_WILLNEED this pass
   std::vector<std::vector<std::uint8_t>> readBuffers_;  // one per decode part (pread)
   std::uint64_t passDecoded_ = 0;                       // records decoded in this pass (in any order)
+  bool dropCache_ = false;
   bool seeking_ = false;  // this pass reads ranges out of order (no read-ahead window)
   Bounds3 decoded_;
   std::uint64_t outside_ = 0;

@@ -73,6 +73,7 @@ std::unique_ptr<PointReader> openPointReader(const std::string& path, const Read
   if (looksLikeLas(head, got)) {
     auto las = std::make_unique<LasReader>(path, diag);
     las->setDecodeThreads(options.decodeThreads);
+    las->setDropCache(options.dropCache);
     reader = std::move(las);
   } else if (hasLazExtension(path)) {
     throw DataError(path, "LAZ is not supported yet: decompress with laszip/pdal first");

@@ -60,7 +60,8 @@ struct ReaderOptions {
   std::string columns;        // XYZ: "x,y,z,class,..." column mapping by position ("" = auto)
   bool skipBadLines = false;  // XYZ: skip and count malformed lines instead of failing
   std::string assignSrs;      // --a_srs: overrides / supplies the CRS
-  int decodeThreads = 1;      // LAS: threads decoding large batches of a mapped file
+  int decodeThreads = 1;      // LAS: threads decoding large batches of a file
+  bool dropCache = false;     // LAS: drop the file from the page cache at the start of each pass
 };
 
 // Opens any supported input by content (LAS signature "LASF", LAZ refused, otherwise XYZ text).

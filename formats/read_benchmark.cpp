@@ -51,6 +51,15 @@ double rawReadSeconds(const std::string& path, std::uint64_t& bytes) {
   return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
+void dropFromPageCache(const std::string& path) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
+  ::fdatasync(fd);
+  const int e = ::posix_fadvise(fd, 0, 0, POSIX_FADV_DONTNEED);
+  ::close(fd);
+  if (e != 0) throw DataError(path, std::string("cannot drop it from the page cache: ") + std::strerror(e));
+}
+
 ReadBenchResult benchmarkRead(const std::string& path, const ReaderOptions& options, int repeats) {
   ReadBenchResult r;
   r.path = path;

@@ -25,6 +25,10 @@ struct ReadBenchResult {
 // bytes read in `bytes`.
 double rawReadSeconds(const std::string& path, std::uint64_t& bytes);
 
+// Drops a file's pages from the page cache (POSIX_FADV_DONTNEED; no privileges needed), so that the next
+// read of it comes from storage: a cold read, for benchmarks.  Dirty pages are written first.
+void dropFromPageCache(const std::string& path);
+
 ReadBenchResult benchmarkRead(const std::string& path, const ReaderOptions& options, int repeats);
 
 }  // namespace tinbuild

@@ -296,6 +296,10 @@ TEST(CliRun, StripSurveyIsStreamedInANarrowerReadOrder) {
   const std::string stored = slurp(out / "s.json");
   EXPECT_NE(stored.find("\"order\": \"stored\""), std::string::npos) << stored;
   EXPECT_LT(number(swept, "width"), 0.75 * number(stored, "width")) << swept << stored;
+  // Every pass read from storage (--drop-cache): the same bytes.
+  r = tinbuild("finalize " + las + " --compute-bounds --drop-cache -q -o " + (out / "c.tfs").string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(slurp(out / "a.tfs"), slurp(out / "c.tfs"));
   // stdin is spooled and read back in the same order: the same bytes.
   r = tinbuild("finalize - -q -o " + (out / "b.tfs").string(), "cat " + las + " | ");
   ASSERT_EQ(r.code, 0) << r.err;
@@ -463,6 +467,12 @@ TEST(CliRun, BenchFinalizeReportsEveryPassAgainstTheRawRead) {
     EXPECT_NE(r.out.find(row), std::string::npos) << row << " missing from\n" << r.out;
   EXPECT_NE(r.out.find(" streamed), depth "), std::string::npos) << r.out;
   EXPECT_TRUE(listDir(dir).empty()) << "the survey was not removed";
+  EXPECT_NE(r.out.find("read order  "), std::string::npos) << r.out;
+  // From storage: the file is dropped from the page cache before the raw read and each pass.
+  r = tinbuild("bench finalize --points 50k --cold --stored-order --dir " + dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("from storage"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("read order  stored"), std::string::npos) << r.out;
   EXPECT_NE(tinbuild("bench finalize --kind uniform --swath 100").code, 0);
 }
 
