@@ -672,13 +672,12 @@ std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out, int parts,
 std::size_t LasReader::decodeFile(std::uint64_t first, std::size_t n, PointRecord* out) {
   const auto stride = static_cast<std::size_t>(info_.recordLength);
   // Each part reads its records in pieces of about 256 KiB (they stay in the core's cache between the
-  // read and the decoding) into a buffer of its own, kept between calls.
+  // read and the decoding) into a buffer of the thread's own: a survey of thousands of tiles holds one
+  // buffer per decode thread, not one per tile.
   const std::size_t piece = std::max<std::size_t>(1, (std::size_t{256} << 10) / stride);
   const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
-  if (readBuffers_.size() < static_cast<std::size_t>(parts))
-    readBuffers_.resize(static_cast<std::size_t>(parts));
-  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int k, Bounds3& bounds) {
-    std::vector<std::uint8_t>& buf = readBuffers_[static_cast<std::size_t>(k)];
+  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int, Bounds3& bounds) {
+    thread_local std::vector<std::uint8_t> buf;
     if (buf.size() < piece * stride) buf.resize(piece * stride);
     for (std::size_t i = lo; i < hi; i += piece) {
       const std::size_t m = std::min(piece, hi - i);

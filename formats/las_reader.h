@@ -128,7 +128,6 @@ class LasReader : public PointReader {
   std::uint64_t pointOffset_ = 0;
   std::uint64_t nextPoint_ = 0;  // index of the next point to decode in this pass
   std::uint64_t requested_ = 0;  // file bytes [0, requested_) asked for with POSIX_FADV_WILLNEED this pass
-  std::vector<std::vector<std::uint8_t>> readBuffers_;  // one per decode part (pread)
   std::uint64_t passDecoded_ = 0;                       // records decoded in this pass (in any order)
   bool dropCache_ = false;
   bool seeking_ = false;  // this pass reads ranges out of order (no read-ahead window)
