@@ -41,6 +41,7 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
       {"--stored-order", "", "finalize: pass 3 reads the file in its stored order (finalize --stored-order)"},
       {"--cold", "", "finalize: the raw read and every pass read from storage (finalize --drop-cache)"},
+      {"--tiles", "K", "finalize: the survey as K x K tile files named in a shuffled order"},
       {"--columns", "SPEC", "read: XYZ input column mapping"},
       {"--cell-points", "M", "stream: points per cell (default 4000)"},
       {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
@@ -137,8 +138,8 @@ Command benchCommand() {
       "                      [--seed S] [--repeat R] [--threads N] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench lattice-vs-random [--side S] [--seed S] [--repeat R] [--no-cgal] [--dir DIR]\n"
       "       tinbuild bench finalize [--points N] [--kind KIND] [--swath M] [--home-strip] [--memory MB]\n"
-      "                      [--stored-order] [--cold] [--seed S] [--repeat R] [--threads N] [--dir DIR]\n"
-      "                      [--keep]\n"
+      "                      [--stored-order] [--cold] [--tiles K] [--seed S] [--repeat R] [--threads N]\n"
+      "                      [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",

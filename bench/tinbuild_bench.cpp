@@ -48,6 +48,7 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -56,7 +57,9 @@
 #include <fstream>
 #include <initializer_list>
 #include <limits>
+#include <memory>
 #include <optional>
+#include <random>
 #include <sstream>
 #include <string>
 #include <thread>
@@ -104,14 +107,16 @@ const char* kUsage =
     "/dev/null\n"
     "  tinbuild-bench finalize [--points N] [--kind strips|uniform|lattice] [--swath M] [--home-strip]\n"
     "                          [--seed S] [--repeat R] [--threads T] [--memory MB] [--stored-order] "
-    "[--cold]\n"
+    "[--cold] [--tiles K]\n"
     "                          [--dir DIR] [--keep] [--tinbuild EXE]\n"
     "      Writes a synthetic survey of N points (default 10M) as LAS (untimed), then alternates a raw\n"
     "      read of the file (like cat, from the page cache) with `tinbuild finalize -o /dev/null\n"
     "      --compute-bounds`; prints each pass's seconds, Mpoints/s and fraction of the raw read speed\n"
     "      (best of R), the stream width, the read order of pass 3 and peak RSS.  --stored-order passes\n"
     "      the same option to finalize (pass 3 reads the file in its stored order).  --cold: the raw read\n"
-    "      and every pass read from storage (the file is dropped from the page cache before each).\n"
+    "      and every pass read from storage (the file is dropped from the page cache before each).  --tiles "
+    "K:\n"
+    "      the survey as K x K tile files named in a shuffled order, finalized as a directory.\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -717,6 +722,54 @@ int suiteMain(const std::vector<std::string>& argv) {
   return 0;
 }
 
+// The survey as tiles x tiles LAS files in `dir` (a square grid over the survey; a tile keeps its points in
+// the survey's order), named t000.las, t001.las, ... in an order shuffled with the survey's seed, as tiles
+// named by something other than their place are.  Returns the files.
+std::vector<std::string> writeSyntheticSurveyTiles(const SurveySpec& spec, const std::string& dir,
+                                                   int tiles) {
+  SurveyGenerator generator(spec);
+  const double side = generator.side();
+  LasWriterOptions o;
+  o.versionMinor = 4;
+  o.pointFormat = 1;
+  o.horizontalEpsg = 32610;
+  for (int a = 0; a < 3; ++a) o.scale[a] = spec.quantum;
+  o.offset[0] = spec.originX;
+  o.offset[1] = spec.originY;
+  o.offset[2] = spec.originZ;
+  o.bufferBytes = std::size_t{64} << 10;
+  o.syncOnClose = false;
+  const auto count = static_cast<std::size_t>(tiles) * static_cast<std::size_t>(tiles);
+  std::vector<std::size_t> names(count);
+  for (std::size_t i = 0; i < count; ++i) names[i] = i;
+  std::shuffle(names.begin(), names.end(), std::mt19937_64(spec.seed));
+  std::vector<std::unique_ptr<LasWriter>> writers(count);
+  std::vector<std::string> files(count);
+  std::vector<PointRecord> batch(std::size_t{1} << 16);
+  auto index = [&](double v, double origin) {
+    return std::clamp(static_cast<int>(std::floor((v - origin) / side * tiles)), 0, tiles - 1);
+  };
+  for (std::size_t n; (n = generator.next(batch.data(), batch.size())) > 0;)
+    for (std::size_t i = 0; i < n; ++i) {
+      const auto t =
+          static_cast<std::size_t>(index(batch[i].y, spec.originY) * tiles + index(batch[i].x, spec.originX));
+      if (!writers[t]) {
+        char name[32];
+        std::snprintf(name, sizeof name, "t%03zu.las", names[t]);
+        files[t] = dir + "/" + name;
+        writers[t] = std::make_unique<LasWriter>(files[t], o);
+      }
+      writers[t]->write(&batch[i], 1);
+    }
+  std::vector<std::string> written;
+  for (std::size_t t = 0; t < count; ++t)
+    if (writers[t]) {
+      writers[t]->close();
+      written.push_back(files[t]);
+    }
+  return written;
+}
+
 // `finalize`: the finalizer's passes against the raw read speed of the same file (issue: pass throughput
 // at least half the raw read).  Each run is `tinbuild finalize survey.las -o /dev/null --compute-bounds`
 // in a child process, so all three passes run and are timed by the finalizer itself (its report); the
@@ -728,6 +781,7 @@ int finalizeMain(const std::vector<std::string>& argv) {
   const std::string memory = args.value("--memory", "");
   const bool storedOrder = args.flag("--stored-order");
   const bool cold = args.flag("--cold");
+  const int tiles = static_cast<int>(args.count("--tiles", 0, 0, 100));
   const std::string base = args.value("--dir", defaultTempBase());
   args.finish();
 
@@ -746,11 +800,33 @@ int finalizeMain(const std::vector<std::string>& argv) {
   std::string json;
   {
     TempDir dir(base, cfg.keep);
-    r.las = dir.path() + "/survey.las";
-    progress("writing " + group(spec.points) + " " + surveyKindName(spec.kind) + " points to " + r.las +
-             " (untimed)");
-    writeSyntheticSurveyLas(spec, r.las, 32610, 0);
-    r.lasBytes = fs::file_size(r.las);
+    std::vector<std::string> files;
+    if (tiles > 0) {
+      r.las = dir.path() + "/tiles";
+      fs::create_directories(r.las);
+      progress("writing " + group(spec.points) + " " + surveyKindName(spec.kind) + " points to " +
+               std::to_string(tiles) + " x " + std::to_string(tiles) + " tiles in " + r.las + " (untimed)");
+      files = writeSyntheticSurveyTiles(spec, r.las, tiles);
+    } else {
+      r.las = dir.path() + "/survey.las";
+      progress("writing " + group(spec.points) + " " + surveyKindName(spec.kind) + " points to " + r.las +
+               " (untimed)");
+      writeSyntheticSurveyLas(spec, r.las, 32610, 0);
+      files = {r.las};
+    }
+    r.lasBytes = 0;
+    for (const auto& f : files) r.lasBytes += fs::file_size(f);
+    // The raw read of every file, one after the other.
+    auto rawRead = [&] {
+      double seconds = 0;
+      rawBytes = 0;
+      for (const auto& f : files) {
+        std::uint64_t b = 0;
+        seconds += rawReadSeconds(f, b);
+        rawBytes += b;
+      }
+      return seconds;
+    };
     const std::string report = dir.path() + "/finalize.json";
     std::vector<std::string> cmd{"finalize", r.las,      "-o",   "/dev/null",  "--compute-bounds",
                                  "-q",       "--report", report, "--overwrite"};
@@ -760,10 +836,11 @@ int finalizeMain(const std::vector<std::string>& argv) {
     if (cold) cmd.push_back("--drop-cache");
     // Warm: a warm-up read, then both sides read from the page cache.  Cold: both sides read from
     // storage (the file is dropped from the page cache before the raw read and before each pass).
-    if (!cold) rawReadSeconds(r.las, rawBytes);
+    if (!cold) rawRead();
     for (int i = 0; i < cfg.repeat; ++i) {
-      if (cold) dropFromPageCache(r.las);
-      raw = std::min(raw, rawReadSeconds(r.las, rawBytes));
+      if (cold)
+        for (const auto& f : files) dropFromPageCache(f);
+      raw = std::min(raw, rawRead());
       removeFiles({report});
       const ChildRun run = runChild(cfg.tinbuild, cmd, false);
       whole.add(run);
@@ -780,7 +857,10 @@ int finalizeMain(const std::vector<std::string>& argv) {
   printHeader(cfg, "finalize", argv, loadBefore, loadAfter);
   const double n = static_cast<double>(spec.points);
   const double streamed = static_cast<double>(jsonCount(json, "points_streamed"));
-  std::printf("  survey      %s\n", describeSurvey(r).c_str());
+  const std::string tiled = tiles > 0 ? ", as " + std::to_string(tiles) + " x " + std::to_string(tiles) +
+                                            " tiles named in a shuffled order"
+                                      : "";
+  std::printf("  survey      %s%s\n", describeSurvey(r).c_str(), tiled.c_str());
   std::printf(
       "  input       %.1f MB of LAS; raw read (read(2) in 128 KiB blocks, like cat; %s): "
       "%.4f s = %.2f GB/s = %.1f M points/s\n",

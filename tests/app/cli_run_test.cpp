@@ -473,6 +473,12 @@ TEST(CliRun, BenchFinalizeReportsEveryPassAgainstTheRawRead) {
   ASSERT_EQ(r.code, 0) << r.err;
   EXPECT_NE(r.out.find("from storage"), std::string::npos) << r.out;
   EXPECT_NE(r.out.find("read order  stored"), std::string::npos) << r.out;
+  // As tile files: every point of the survey streamed, and the tiles removed.
+  r = tinbuild("bench finalize --points 50k --tiles 3 --dir " + dir.string());
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.out.find("3 x 3 tiles"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find(" of 49,9"), std::string::npos) << r.out;  // (the default filter drops some noise)
+  EXPECT_TRUE(listDir(dir).empty()) << "the tiles were not removed";
   EXPECT_NE(tinbuild("bench finalize --kind uniform --swath 100").code, 0);
 }
 
