@@ -77,7 +77,7 @@ class LasReader : public PointReader {
   // counts are identical for any number; stdin is always decoded on one thread.  The threads belong to
   // a crew that all readers asking for the same number share: a survey of many tiles starts them once.
   static constexpr int kMaxDecodeThreads = 16;
-  void setDecodeThreads(int threads);
+  void setDecodeThreads(int threads) override;
   // Every pass reads the file from storage: its pages are dropped from the page cache at rewind()
   // (benchmarks of cold reading; `--drop-cache`).
   void setDropCache(bool on) { dropCache_ = on; }

@@ -358,6 +358,8 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.memoryBudget = fo.memoryBudget;
   r.threads = effectiveThreads(o.threads);
   fo.readAhead = r.threads >= 2;
+  fo.countingThreads = r.threads;
+  fo.streamingDecodeThreads = o.reader.decodeThreads;
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
   r.finalizer = finalizePoints(in.streams, fo, writer, diag);
@@ -500,6 +502,8 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   tee.setThreaded(threadedOutputs);
   tee.setProgress(fo.progress, fo.progressData);
   fo.readAhead = threads >= 2;
+  fo.countingThreads = threads;
+  fo.streamingDecodeThreads = o.reader.decodeThreads;
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
   // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just

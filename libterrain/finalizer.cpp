@@ -343,6 +343,9 @@ class Sources {
     std::uint32_t input = 0, kept = 0;
   };
   void recordSegments(bool on) { recording_ = on; }
+  void setDecodeThreads(int threads) {
+    for (PointStream* in : inputs_) in->setDecodeThreads(std::max(1, threads));
+  }
   const std::vector<Segment>& segments() const { return segments_; }
   bool canSchedule() const {
     for (std::size_t i = 0; i < inputs_.size(); ++i)
@@ -904,7 +907,7 @@ class Finalizer {
       Bounds3 b;
       std::uint64_t n = 0;
       {
-        Prefetcher reader(sources_, options_.readAhead);
+        Prefetcher reader(sources_, countingReadAhead());
         for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
           addBounds(b, batch.points, batch.n);
           n += batch.n;
@@ -1001,6 +1004,14 @@ class Finalizer {
   }
 
  private:
+  // Pass 1: with options.countingThreads > 1 every core decodes (the inputs' decode threads) and the
+  // pass needs no reading thread of its own.
+  bool countingReadAhead() {
+    if (options_.countingThreads <= 0) return options_.readAhead;
+    sources_.setDecodeThreads(options_.countingThreads);
+    return options_.readAhead && options_.countingThreads <= 1;
+  }
+
   // ---- pass 2 -----------------------------------------------------------------------------------
 
   // Two levels below the leaves (16 candidates per leaf), without exceeding depth 12 unless asked to.
@@ -1031,17 +1042,22 @@ class Finalizer {
     std::uint32_t memo = kNone;
     std::uint64_t ordinal = 0;
     Bounds3 b;
+    if (options_.countingThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
     Prefetcher reader(sources_, options_.readAhead);
+    boxDepth_ = g.depth;
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       if (measureBounds) addBounds(b, batch.points, batch.n);
-      if (reorder_) {
-        Bounds3& box = boxes_.emplace_back();
-        addBounds(box, batch.points, batch.n);
-      }
+      // The batch's box in fine cells (for chooseReadOrder), from the columns and rows computed anyway.
+      std::uint32_t c0 = UINT32_MAX, r0 = UINT32_MAX, c1 = 0, r1 = 0;
       if (dense) {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
-          const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
+          const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
+          c0 = std::min(c0, col);
+          c1 = std::max(c1, col);
+          r0 = std::min(r0, row);
+          r1 = std::max(r1, row);
+          const std::uint64_t key = fg.key(col, row);
           const std::uint32_t before = fineCounts[key]++;
           if (before == 0 || before == UINT32_MAX) [[unlikely]] {
             auto carry =
@@ -1060,7 +1076,12 @@ class Finalizer {
       } else {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
-          const std::uint64_t key = fg.key(fg.column(p.x), fg.row(p.y));
+          const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
+          c0 = std::min(c0, col);
+          c1 = std::max(c1, col);
+          r0 = std::min(r0, row);
+          r1 = std::max(r1, row);
+          const std::uint64_t key = fg.key(col, row);
           if (key != memoKey) {
             bool inserted = false;
             memo = index.findOrInsert(key, static_cast<std::uint32_t>(cells.size()), inserted);
@@ -1077,6 +1098,7 @@ class Finalizer {
           }
         }
       }
+      if (reorder_) boxes_.push_back({c0, r0, c1, r1});
       progress_.update(batch.read);
     }
     const FilterCounts& counts = reader.counts();
@@ -1237,15 +1259,14 @@ class Finalizer {
                   std::to_string(boxes_.size()) + " boxes");
     stats_.readSegments = segments.size();
     if (segments.size() < 3) return;
-    struct CellBox {
-      std::uint32_t c0, r0, c1, r1;
-    };
+    // The boxes in leaf cells (fine cells nest exactly in the leaves).
+    const int down = boxDepth_ - depth_;
     std::vector<CellBox> leaf(segments.size());
     for (std::size_t i = 0; i < segments.size(); ++i) {
-      const Bounds3& b = boxes_[i];
-      leaf[i] = {grid_.column(b.minX), grid_.row(b.minY), grid_.column(b.maxX), grid_.row(b.maxY)};
+      const CellBox& b = boxes_[i];
+      leaf[i] = {b.c0 >> down, b.r0 >> down, b.c1 >> down, b.r1 >> down};
     }
-    std::vector<Bounds3>().swap(boxes_);
+    std::vector<CellBox>().swap(boxes_);
     // The simulation's grid: the leaves, coarser while the boxes would cover too many cells in all.
     int level = std::min(depth_, 10);
     for (;; --level) {
@@ -1342,6 +1363,7 @@ class Finalizer {
     out_.begin(info);
     emitEmptyTags();
 
+    if (options_.countingThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
     sources_.recordSegments(false);
     sources_.setSchedule(std::move(schedule_));
     sources_.startPass(false);
@@ -1646,8 +1668,12 @@ class Finalizer {
   FilterCounts firstCounts_;
   bool firstCountsTaken_ = false;
 
-  bool reorder_ = false;                 // pass 2 records its batches for chooseReadOrder
-  std::vector<Bounds3> boxes_;           // of each batch of pass 2 (Sources::segments())
+  bool reorder_ = false;  // pass 2 records its batches for chooseReadOrder
+  struct CellBox {
+    std::uint32_t c0, r0, c1, r1;  // columns c0..c1, rows r0..r1 (inclusive)
+  };
+  std::vector<CellBox> boxes_;  // of each batch of pass 2 (Sources::segments()), in cells of boxDepth_
+  int boxDepth_ = 0;
   std::vector<std::uint32_t> schedule_;  // pass 3's order of those batches (empty: stored order)
 
   int depth_ = 0;

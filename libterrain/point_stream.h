@@ -38,6 +38,9 @@ class PointStream {
     (void)count;
     throw Error("this input cannot be read out of order");
   }
+  // A hint: decode on this many threads (the caller's included) from now on, where the format allows
+  // it (LAS files).  The records are the same for any number.
+  virtual void setDecodeThreads(int threads) { (void)threads; }
   // A hint: records [record, record + count) will be read soon (after a later seek).  Lets a file ask
   // storage for them ahead of time.
   virtual void willRead(std::uint64_t record, std::uint64_t count) {

@@ -1448,7 +1448,9 @@ struct StreamingDelaunay::Impl {
     const Impl& impl;
     explicit OpenRegion(const Impl& i) : impl(i) {}
     std::uint64_t activeTriangles() const override { return impl.activeTris; }
-    void markOpen(const Box2* rects, std::size_t n, bool* open) const override { impl.markOpen(rects, n, open); }
+    void markOpen(const Box2* rects, std::size_t n, bool* open) const override {
+      impl.markOpen(rects, n, open);
+    }
   };
   OpenRegion region_{*this};
 
@@ -1478,8 +1480,8 @@ struct StreamingDelaunay::Impl {
         const double y0 = std::min(a.y, std::min(b.y, c.y)), y1 = std::max(a.y, std::max(b.y, c.y));
         if (x1 < all.minX || x0 > all.maxX || y1 < all.minY || y0 > all.maxY) continue;
         for (std::size_t i = 0; i < n; ++i)
-          if (!open[i] && !(x1 < rects[i].minX || x0 > rects[i].maxX || y1 < rects[i].minY ||
-                            y0 > rects[i].maxY))
+          if (!open[i] &&
+              !(x1 < rects[i].minX || x0 > rects[i].maxX || y1 < rects[i].minY || y0 > rects[i].maxY))
             open[i] = true;
       } else {
         // A ghost: later triangles beyond hull edge b -> a lie in the closed half-plane left of a -> b.
