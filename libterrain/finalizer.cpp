@@ -1049,15 +1049,18 @@ class Finalizer {
       if (measureBounds) addBounds(b, batch.points, batch.n);
       // The batch's box in fine cells (for chooseReadOrder), from the columns and rows computed anyway.
       std::uint32_t c0 = UINT32_MAX, r0 = UINT32_MAX, c1 = 0, r1 = 0;
+      auto keyOf = [&](const PointRecord& p) {
+        const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
+        c0 = std::min(c0, col);
+        c1 = std::max(c1, col);
+        r0 = std::min(r0, row);
+        r1 = std::max(r1, row);
+        return fg.key(col, row);
+      };
       if (dense) {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
-          const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
-          c0 = std::min(c0, col);
-          c1 = std::max(c1, col);
-          r0 = std::min(r0, row);
-          r1 = std::max(r1, row);
-          const std::uint64_t key = fg.key(col, row);
+          const std::uint64_t key = keyOf(p);
           const std::uint32_t before = fineCounts[key]++;
           if (before == 0 || before == UINT32_MAX) [[unlikely]] {
             auto carry =
@@ -1076,12 +1079,7 @@ class Finalizer {
       } else {
         for (std::size_t i = 0; i < batch.n; ++i, ++ordinal) {
           const PointRecord& p = batch.points[i];
-          const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
-          c0 = std::min(c0, col);
-          c1 = std::max(c1, col);
-          r0 = std::min(r0, row);
-          r1 = std::max(r1, row);
-          const std::uint64_t key = fg.key(col, row);
+          const std::uint64_t key = keyOf(p);
           if (key != memoKey) {
             bool inserted = false;
             memo = index.findOrInsert(key, static_cast<std::uint32_t>(cells.size()), inserted);

@@ -10,6 +10,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <initializer_list>
 #include <memory>
 #include <thread>
 #include <vector>
@@ -32,6 +33,24 @@ std::vector<PointRecord> readAll(PointReader& r) {
 
 bool hasWarning(const Diagnostics& d, const std::string& kind) {
   return d.count(kind) > 0;
+}
+
+// Descriptors this process holds open.
+std::size_t openDescriptors() {
+  std::size_t n = 0;
+  for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) n += !e.path().empty();
+  return n;
+}
+
+// f() must throw a DataError whose message holds every one of `parts`.
+template <class F>
+void expectDataError(F f, std::initializer_list<const char*> parts, const char* what) {
+  try {
+    f();
+    ADD_FAILURE() << what;
+  } catch (const DataError& e) {
+    for (const char* part : parts) EXPECT_NE(std::string(e.what()).find(part), std::string::npos) << e.what();
+  }
 }
 
 struct RealFile {
@@ -479,11 +498,6 @@ TEST(LasReader, FileIsOpenOnlyWhileAPassReadsItAndMustNotChange) {
   const auto dir = test::scratchDir();
   const auto copy = dir / "tile.las";
   std::filesystem::copy_file(dataPath("las/simple.las"), copy);
-  auto openDescriptors = [] {
-    std::size_t n = 0;
-    for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) n += !e.path().empty();
-    return n;
-  };
   const std::size_t before = openDescriptors();
   Diagnostics diag;
   LasReader r(copy.string(), diag);
@@ -506,13 +520,8 @@ TEST(LasReader, FileIsOpenOnlyWhileAPassReadsItAndMustNotChange) {
   std::filesystem::copy_file(dataPath("las/simple.las"), copy);
   // (The file system may hand out the same inode again, and its clock may not have ticked.)
   std::filesystem::last_write_time(copy, std::filesystem::last_write_time(copy) + std::chrono::seconds(5));
-  try {
-    r.read(pts.data(), pts.size());
-    ADD_FAILURE() << "a replaced file was read";
-  } catch (const DataError& e) {
-    EXPECT_NE(std::string(e.what()).find("changed"), std::string::npos) << e.what();
-    EXPECT_NE(std::string(e.what()).find("tile.las"), std::string::npos) << e.what();
-  }
+  expectDataError([&] { r.read(pts.data(), pts.size()); }, {"changed", "tile.las"},
+                  "a replaced file was read");
 }
 
 TEST(LasReader, ManyReadersHoldNoReadBufferEach) {
@@ -551,14 +560,12 @@ TEST(LasReader, FileTruncatedWhileAPassReadsItIsAnError) {
   std::vector<PointRecord> pts(1000);
   ASSERT_EQ(r.read(pts.data(), pts.size()), pts.size());
   std::filesystem::resize_file(copy, std::filesystem::file_size(copy) / 2);
-  try {
-    while (r.read(pts.data(), pts.size()) > 0) {
-    }
-    ADD_FAILURE() << "a truncated file was read to its end";
-  } catch (const DataError& e) {
-    EXPECT_NE(std::string(e.what()).find("cut.las"), std::string::npos) << e.what();
-    EXPECT_NE(std::string(e.what()).find("ended"), std::string::npos) << e.what();
-  }
+  expectDataError(
+      [&] {
+        while (r.read(pts.data(), pts.size()) > 0) {
+        }
+      },
+      {"cut.las", "ended"}, "a truncated file was read to its end");
 }
 
 TEST(LasReader, RangesReadOutOfOrderGiveTheSameRecords) {
@@ -567,11 +574,6 @@ TEST(LasReader, RangesReadOutOfOrderGiveTheSameRecords) {
   // and suspend() must release the file until the next read.
   TINBUILD_REQUIRE_DATA();
   const std::string path = dataPath("las/zurich.las");
-  auto openDescriptors = [] {
-    std::size_t n = 0;
-    for (const auto& e : std::filesystem::directory_iterator("/proc/self/fd")) n += !e.path().empty();
-    return n;
-  };
   Diagnostics diag;
   LasReader r(path, diag);
   ASSERT_TRUE(r.seekable());
