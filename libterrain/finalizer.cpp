@@ -1045,16 +1045,52 @@ class Finalizer {
     if (options_.countingThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
     Prefetcher reader(sources_, options_.readAhead);
     boxDepth_ = g.depth;
+    // Column and row histograms of the current batch, at most 1024 bins a side (cells of boxDepth_ >>
+    // histShift); each batch's box leaves out up to 1/512 of its points at each end.
+    const int histShift = std::max(0, g.depth - 10);
+    std::vector<std::uint32_t> colHist((std::size_t{1} << (g.depth - histShift)) + 1, 0), rowHist(colHist);
+    auto trimmedBox = [&](std::size_t points) {
+      const std::uint64_t trim = points / 512;
+      // The bins from the first past which more than `trim` points lie to the first past which at most
+      // `trim` remain; the histogram is cleared for the next batch.
+      auto range = [&](std::vector<std::uint32_t>& h, std::uint32_t& lo, std::uint32_t& hi) {
+        std::uint64_t below = 0;
+        bool haveLo = false, haveHi = false;
+        lo = hi = 0;
+        for (std::uint32_t i = 0; i < h.size(); ++i) {
+          if (h[i] == 0) continue;
+          below += h[i];
+          h[i] = 0;
+          if (!haveLo && below > trim) {
+            lo = i;
+            haveLo = true;
+          }
+          if (!haveHi && below + trim >= points) {
+            hi = i;
+            haveHi = true;
+          }
+        }
+        hi = std::max(hi, lo);
+      };
+      CellBox box{};
+      range(colHist, box.c0, box.c1);
+      range(rowHist, box.r0, box.r1);
+      // In cells of boxDepth_.
+      box.c0 <<= histShift;
+      box.r0 <<= histShift;
+      box.c1 = ((box.c1 + 1) << histShift) - 1;
+      box.r1 = ((box.r1 + 1) << histShift) - 1;
+      return box;
+    };
     for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
       if (measureBounds) addBounds(b, batch.points, batch.n);
-      // The batch's box in fine cells (for chooseReadOrder), from the columns and rows computed anyway.
-      std::uint32_t c0 = UINT32_MAX, r0 = UINT32_MAX, c1 = 0, r1 = 0;
+      // The batch's box (for chooseReadOrder), from the columns and rows computed anyway: histograms of
+      // its columns and rows, so that a few stray points (a bird, a multipath return) do not stretch
+      // the box of a batch across the survey.
       auto keyOf = [&](const PointRecord& p) {
         const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
-        c0 = std::min(c0, col);
-        c1 = std::max(c1, col);
-        r0 = std::min(r0, row);
-        r1 = std::max(r1, row);
+        ++colHist[col >> histShift];
+        ++rowHist[row >> histShift];
         return fg.key(col, row);
       };
       if (dense) {
@@ -1096,7 +1132,7 @@ class Finalizer {
           }
         }
       }
-      if (reorder_) boxes_.push_back({c0, r0, c1, r1});
+      if (reorder_) boxes_.push_back(trimmedBox(batch.n));
       progress_.update(batch.read);
     }
     const FilterCounts& counts = reader.counts();

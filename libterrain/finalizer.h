@@ -72,7 +72,8 @@
 //   every cell it crosses open to the end, tiles named out of spatial order jump about.  When every
 //   input can be read out of order (PointStream::seekable, or spooled in pass 1), pass 2 records its
 //   batches ("segments": input, raw record range, kept count, ordinal of the first kept point) and the
-//   xy box of each.  A batch holds exactly options.batchPoints kept points unless its input ends, so the
+//   box of each in fine cells, less up to 1/512 of its points at each end (from column and row
+//   histograms: a stray point must not stretch a batch's box across the survey).  A batch holds exactly options.batchPoints kept points unless its input ends, so the
 //   segments do not depend on how an input's reads come (a file and its spooled copy agree).  Then
 //   chooseReadOrder simulates chunking on the boxes (a batch's points spread evenly over the cells its
 //   box covers; a cell completes with the last batch covering it) for the stored order and for sweeps

@@ -426,6 +426,28 @@ TEST(Finalizer, SweepOrderNarrowsFlightStripsAndAStripFlownHome) {
     EXPECT_EQ(declined.stats.readOrder, "stored");
     EXPECT_TRUE(sameEvents(stored.sink.events, declined.sink.events));
   }
+  // Stray points (one in 20,000 moved to a random place, as birds and multipath returns are) must not
+  // stretch the batches' boxes across the survey: the sweep still wins.
+  {
+    spec.homeStrip = false;
+    auto pts = generate(spec);
+    Bounds3 b;
+    for (const auto& p : pts) b.add(p.x, p.y, p.z);
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> ux(b.minX, b.maxX), uy(b.minY, b.maxY);
+    for (std::size_t i = 1500; i < pts.size(); i += 20000) {
+      pts[i].x = std::round(ux(rng) * 100) / 100;
+      pts[i].y = std::round(uy(rng) * 100) / 100;
+    }
+    FinalizerOptions o = noFilter();
+    o.batchPoints = 1000;
+    const Result stored = finalize(pts, o);
+    const Result swept = finalize(pts, o, true, true);
+    EXPECT_EQ(checkStream(pts, swept.sink), "");
+    EXPECT_NE(swept.stats.readOrder, "stored");
+    EXPECT_LT(static_cast<double>(swept.stats.width), 0.8 * static_cast<double>(stored.stats.width))
+        << swept.stats.width << " vs " << stored.stats.width;
+  }
   // Input already in a coherent order (rows) is read as stored.
   auto rows = randomPoints(100000, 9);
   std::sort(rows.begin(), rows.end(), [](const PointRecord& a, const PointRecord& b) {
