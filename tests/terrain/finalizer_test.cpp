@@ -526,6 +526,44 @@ TEST(Finalizer, SweepOrderOverManyInputsAndFilteredBatches) {
   }
 }
 
+TEST(Finalizer, SweepOrderOverSeekableAndSpooledInputs) {
+  // A survey of LAS files and stdin (spooled in pass 1): all can be read out of order, the file from
+  // itself and stdin from its spool, and the stream is the one every input spooled gives.
+  SurveySpec spec;
+  spec.points = 150000;
+  spec.seed = 21;
+  spec.homeStrip = true;
+  const auto pts = generate(spec);
+  const std::size_t cuts[] = {0, 50000, 100000, 150000};
+  const auto dir = test::scratchDir();
+  auto run = [&](bool spoolAll) {
+    std::vector<std::unique_ptr<VectorStream>> parts;
+    std::vector<PointStream*> inputs;
+    for (std::size_t i = 0; i + 1 < std::size(cuts); ++i) {
+      const bool stdinLike = spoolAll || i == 1;
+      parts.push_back(std::make_unique<VectorStream>(
+          std::vector<PointRecord>(pts.begin() + static_cast<std::ptrdiff_t>(cuts[i]),
+                                   pts.begin() + static_cast<std::ptrdiff_t>(cuts[i + 1])),
+          !stdinLike));
+      parts.back()->allowSeek(!stdinLike);
+      inputs.push_back(parts.back().get());
+    }
+    FinalizerOptions o = noFilter();
+    o.batchPoints = 1000;
+    o.tempDir = dir.string();
+    Result r;
+    Diagnostics diag;
+    r.stats = finalizePoints(inputs, o, r.sink, diag);
+    return r;
+  };
+  const Result mixed = run(false), spooled = run(true);
+  EXPECT_EQ(checkStream(pts, mixed.sink), "");
+  EXPECT_NE(mixed.stats.readOrder, "stored");
+  EXPECT_EQ(mixed.stats.readOrder, spooled.stats.readOrder);
+  EXPECT_TRUE(sameEvents(mixed.sink.events, spooled.sink.events));
+  EXPECT_TRUE(std::filesystem::is_empty(dir));  // the spool is gone
+}
+
 TEST(Finalizer, OnePointPerCellThenTheRest) {
   auto pts = randomPoints(30000, 3, 500);
   const int depth = 4;
@@ -968,6 +1006,18 @@ TEST(Finalizer, WrongHeaderBoundsAreDetectedAndRedone) {
     EXPECT_GT(diag.count("finalize.points_outside_header_bounds"), 0u);
     EXPECT_EQ(checkStream(pts, sink), "");
     EXPECT_TRUE(sameEvents(computed.sink.events, sink.events));
+  }
+  {  // The same from a seekable input: the batches pass 3 reorders are those of the second pass 2.
+    VectorStream s(pts);
+    s.allowSeek();
+    RecordingSink sink;
+    Diagnostics diag;
+    FinalizerOptions seek = o;
+    seek.batchPoints = 1000;
+    const FinalizerStats st = finalizePoints({&s}, seek, sink, diag);
+    EXPECT_EQ(st.pass2Runs, 2u);
+    EXPECT_EQ(st.readSegments, 50u);
+    EXPECT_EQ(checkStream(pts, sink), "");
   }
   // Far too large: the grid would waste most cells.
   Bounds3 large = b;
