@@ -625,15 +625,15 @@ void LasReader::decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* 
 
 std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecord* out) {
   const auto stride = static_cast<std::size_t>(info_.recordLength);
-  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
-  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int, Bounds3& bounds) {
+  return decodeParts(n, out, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
     decodeInto(src + lo * stride, hi - lo, out + lo, bounds);
   });
 }
 
-std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out, int parts,
-                                   const std::function<void(std::size_t, std::size_t, int, Bounds3&)>& fill) {
+std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out,
+                                   const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill) {
   // One part per crew thread, each with its own bounds and outside count, merged in part order.
+  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
   struct Part {
     Bounds3 bounds;
     std::uint64_t outside = 0;
@@ -643,7 +643,7 @@ std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out, int parts,
     const std::size_t lo = n * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
     const std::size_t hi = n * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
     Part& part = partial[k];
-    if (hi > lo) fill(lo, hi, k, part.bounds);
+    if (hi > lo) fill(lo, hi, part.bounds);
     if (!info_.hasHeaderBounds || hi == lo) return;
     const Bounds3& hb = info_.headerBounds;
     const Bounds3& b = part.bounds;
@@ -675,8 +675,7 @@ std::size_t LasReader::decodeFile(std::uint64_t first, std::size_t n, PointRecor
   // read and the decoding) into a buffer of the thread's own: a survey of thousands of tiles holds one
   // buffer per decode thread, not one per tile.
   const std::size_t piece = std::max<std::size_t>(1, (std::size_t{256} << 10) / stride);
-  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
-  return decodeParts(n, out, parts, [&](std::size_t lo, std::size_t hi, int, Bounds3& bounds) {
+  return decodeParts(n, out, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
     thread_local std::vector<std::uint8_t> buf;
     if (buf.size() < piece * stride) buf.resize(piece * stride);
     for (std::size_t i = lo; i < hi; i += piece) {
@@ -809,13 +808,7 @@ void LasReader::seek(std::uint64_t record, std::uint64_t count) {
   nextPoint_ = record;
   seeking_ = true;
   openFile();
-  if (fd_ < 0) return;
-  // Ask storage for the whole range now: a cold survey is then read in large requests.
-  const auto stride = static_cast<std::uint64_t>(info_.recordLength);
-  const std::uint64_t from = pointOffset_ + record * stride;
-  const std::uint64_t to = pointOffset_ + std::min(info_.pointCount, record + count) * stride;
-  if (to > from)
-    ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
+  willRead(record, count);  // the whole range now: a cold survey is then read in large requests
 }
 
 void LasReader::willRead(std::uint64_t record, std::uint64_t count) {

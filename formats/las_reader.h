@@ -96,8 +96,9 @@ class LasReader : public PointReader {
   void finishPass();
   std::size_t decode(const std::uint8_t* src, std::size_t n, PointRecord* out);
   std::size_t decodeFile(std::uint64_t first, std::size_t n, PointRecord* out);  // pread, then decode
-  std::size_t decodeParts(std::size_t n, PointRecord* out, int parts,
-                          const std::function<void(std::size_t, std::size_t, int, Bounds3&)>& fill);
+  // Splits n records over the decode crew; fill(lo, hi, bounds) decodes [lo, hi) into out + lo.
+  std::size_t decodeParts(std::size_t n, PointRecord* out,
+                          const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill);
   void decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* out, Bounds3& bounds) const;
   void readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
   std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
@@ -126,9 +127,9 @@ class LasReader : public PointReader {
   std::uint64_t streamConsumed_ = 0;  // bytes consumed from stdin so far
 
   std::uint64_t pointOffset_ = 0;
-  std::uint64_t nextPoint_ = 0;  // index of the next point to decode in this pass
-  std::uint64_t requested_ = 0;  // file bytes [0, requested_) asked for with POSIX_FADV_WILLNEED this pass
-  std::uint64_t passDecoded_ = 0;                       // records decoded in this pass (in any order)
+  std::uint64_t nextPoint_ = 0;    // index of the next point to decode in this pass
+  std::uint64_t requested_ = 0;    // file bytes [0, requested_) asked for with POSIX_FADV_WILLNEED this pass
+  std::uint64_t passDecoded_ = 0;  // records decoded in this pass (in any order)
   bool dropCache_ = false;
   bool seeking_ = false;  // this pass reads ranges out of order (no read-ahead window)
   Bounds3 decoded_;

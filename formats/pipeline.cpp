@@ -344,6 +344,14 @@ int effectiveThreads(int requested) {
   return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 }
 
+// The finalizer's threads for a run on `threads` threads: a reading thread from 2 on; pass 1 decodes on
+// all of them, passes 2 and 3 on the readers' own decode threads.
+void setFinalizerThreads(FinalizerOptions& fo, int threads, const ReaderOptions& reader) {
+  fo.readAhead = threads >= 2;
+  fo.boundsPassThreads = threads;
+  fo.streamingDecodeThreads = reader.decodeThreads;
+}
+
 RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   const auto t0 = Clock::now();
   RunReport r;
@@ -357,9 +365,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.filter = fo.filter.describe();
   r.memoryBudget = fo.memoryBudget;
   r.threads = effectiveThreads(o.threads);
-  fo.readAhead = r.threads >= 2;
-  fo.countingThreads = r.threads;
-  fo.streamingDecodeThreads = o.reader.decodeThreads;
+  setFinalizerThreads(fo, r.threads, o.reader);
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
   r.finalizer = finalizePoints(in.streams, fo, writer, diag);
@@ -501,9 +507,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
       threads >= 2 && (gpkg || dem || (mesh && !writesBinaryStreamingMesh(o.meshOutput)));
   tee.setThreaded(threadedOutputs);
   tee.setProgress(fo.progress, fo.progressData);
-  fo.readAhead = threads >= 2;
-  fo.countingThreads = threads;
-  fo.streamingDecodeThreads = o.reader.decodeThreads;
+  setFinalizerThreads(fo, threads, o.reader);
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
   // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just

@@ -436,6 +436,7 @@ class Sources {
     return 0;
   }
 
+ private:
   // Books a batch of n kept points read from raw records [start, start + raw) of the current input.
   std::size_t produced(std::uint64_t start, std::uint64_t raw, std::size_t n) {
     batchOrdinal_ = ordinal_;
@@ -907,7 +908,7 @@ class Finalizer {
       Bounds3 b;
       std::uint64_t n = 0;
       {
-        Prefetcher reader(sources_, countingReadAhead());
+        Prefetcher reader(sources_, boundsPassReadAhead());
         for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
           addBounds(b, batch.points, batch.n);
           n += batch.n;
@@ -1004,12 +1005,12 @@ class Finalizer {
   }
 
  private:
-  // Pass 1: with options.countingThreads > 1 every core decodes (the inputs' decode threads) and the
+  // Pass 1: with options.boundsPassThreads > 1 every core decodes (the inputs' decode threads) and the
   // pass needs no reading thread of its own.
-  bool countingReadAhead() {
-    if (options_.countingThreads <= 0) return options_.readAhead;
-    sources_.setDecodeThreads(options_.countingThreads);
-    return options_.readAhead && options_.countingThreads <= 1;
+  bool boundsPassReadAhead() {
+    if (options_.boundsPassThreads <= 0) return options_.readAhead;
+    sources_.setDecodeThreads(options_.boundsPassThreads);
+    return options_.readAhead && options_.boundsPassThreads <= 1;
   }
 
   // ---- pass 2 -----------------------------------------------------------------------------------
@@ -1042,12 +1043,14 @@ class Finalizer {
     std::uint32_t memo = kNone;
     std::uint64_t ordinal = 0;
     Bounds3 b;
-    if (options_.countingThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
+    // Passes 2 and 3 decode on streamingDecodeThreads (pass 1 may have used more).
+    if (options_.boundsPassThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
     Prefetcher reader(sources_, options_.readAhead);
     boxDepth_ = g.depth;
     // Column and row histograms of the current batch, at most 1024 bins a side (cells of boxDepth_ >>
     // histShift); each batch's box leaves out up to 1/512 of its points at each end.
     const int histShift = std::max(0, g.depth - 10);
+    const bool histograms = reorder_;  // (a local: the hot loop keeps it in a register)
     std::vector<std::uint32_t> colHist((std::size_t{1} << (g.depth - histShift)) + 1, 0), rowHist(colHist);
     auto trimmedBox = [&](std::size_t points) {
       const std::uint64_t trim = points / 512;
@@ -1089,8 +1092,10 @@ class Finalizer {
       // the box of a batch across the survey.
       auto keyOf = [&](const PointRecord& p) {
         const std::uint32_t col = fg.column(p.x), row = fg.row(p.y);
-        ++colHist[col >> histShift];
-        ++rowHist[row >> histShift];
+        if (histograms) {
+          ++colHist[col >> histShift];
+          ++rowHist[row >> histShift];
+        }
         return fg.key(col, row);
       };
       if (dense) {
@@ -1294,20 +1299,15 @@ class Finalizer {
     stats_.readSegments = segments.size();
     if (segments.size() < 3) return;
     // The boxes in leaf cells (fine cells nest exactly in the leaves).
-    const int down = boxDepth_ - depth_;
     std::vector<CellBox> leaf(segments.size());
-    for (std::size_t i = 0; i < segments.size(); ++i) {
-      const CellBox& b = boxes_[i];
-      leaf[i] = {b.c0 >> down, b.r0 >> down, b.c1 >> down, b.r1 >> down};
-    }
+    for (std::size_t i = 0; i < segments.size(); ++i) leaf[i] = boxes_[i].coarser(boxDepth_ - depth_);
     std::vector<CellBox>().swap(boxes_);
     // The simulation's grid: the leaves, coarser while the boxes would cover too many cells in all.
     int level = std::min(depth_, 10);
     for (;; --level) {
       const int sh = depth_ - level;
       std::uint64_t visits = 0;
-      for (const CellBox& c : leaf)
-        visits += std::uint64_t{(c.c1 >> sh) - (c.c0 >> sh) + 1} * ((c.r1 >> sh) - (c.r0 >> sh) + 1);
+      for (const CellBox& c : leaf) visits += c.coarser(sh).area();
       if (visits <= (std::uint64_t{1} << 25) || level == 0) break;
     }
     const int sh = depth_ - level;
@@ -1315,7 +1315,7 @@ class Finalizer {
     std::vector<CellBox> sim(leaf.size());
     std::vector<std::uint32_t> cover(std::size_t{side} * side, 0);
     for (std::size_t i = 0; i < leaf.size(); ++i) {
-      sim[i] = {leaf[i].c0 >> sh, leaf[i].r0 >> sh, leaf[i].c1 >> sh, leaf[i].r1 >> sh};
+      sim[i] = leaf[i].coarser(sh);
       for (std::uint32_t r = sim[i].r0; r <= sim[i].r1; ++r)
         for (std::uint32_t c = sim[i].c0; c <= sim[i].c1; ++c) ++cover[std::size_t{r} * side + c];
     }
@@ -1327,8 +1327,7 @@ class Finalizer {
       double width = 0, peak = 0;
       for (const std::uint32_t i : order) {
         const CellBox& c = sim[i];
-        const double share = static_cast<double>(segments[i].kept) /
-                             (static_cast<double>(c.c1 - c.c0 + 1) * (c.r1 - c.r0 + 1));
+        const double share = static_cast<double>(segments[i].kept) / static_cast<double>(c.area());
         width += segments[i].kept;
         peak = std::max(peak, width);  // (an upper bound for the moment the batch has been read)
         for (std::uint32_t r = c.r0; r <= c.r1; ++r)
@@ -1397,7 +1396,6 @@ class Finalizer {
     out_.begin(info);
     emitEmptyTags();
 
-    if (options_.countingThreads > 0) sources_.setDecodeThreads(options_.streamingDecodeThreads);
     sources_.recordSegments(false);
     sources_.setSchedule(std::move(schedule_));
     sources_.startPass(false);
@@ -1705,6 +1703,9 @@ class Finalizer {
   bool reorder_ = false;  // pass 2 records its batches for chooseReadOrder
   struct CellBox {
     std::uint32_t c0, r0, c1, r1;  // columns c0..c1, rows r0..r1 (inclusive)
+    // The same box in the cells `levels` levels up.
+    CellBox coarser(int levels) const { return {c0 >> levels, r0 >> levels, c1 >> levels, r1 >> levels}; }
+    std::uint64_t area() const { return std::uint64_t{c1 - c0 + 1} * (r1 - r0 + 1); }
   };
   std::vector<CellBox> boxes_;  // of each batch of pass 2 (Sources::segments()), in cells of boxDepth_
   int boxDepth_ = 0;

@@ -73,8 +73,9 @@
 //   input can be read out of order (PointStream::seekable, or spooled in pass 1), pass 2 records its
 //   batches ("segments": input, raw record range, kept count, ordinal of the first kept point) and the
 //   box of each in fine cells, less up to 1/512 of its points at each end (from column and row
-//   histograms: a stray point must not stretch a batch's box across the survey).  A batch holds exactly options.batchPoints kept points unless its input ends, so the
-//   segments do not depend on how an input's reads come (a file and its spooled copy agree).  Then
+//   histograms: a stray point must not stretch a batch's box across the survey).  A batch holds exactly
+//   options.batchPoints kept points unless its input ends, so the segments do not depend on how an
+//   input's reads come (a file and its spooled copy agree).  Then
 //   chooseReadOrder simulates chunking on the boxes (a batch's points spread evenly over the cells its
 //   box covers; a cell completes with the last batch covering it) for the stored order and for sweeps
 //   along rows, columns, both diagonals and a Hilbert curve through the box centres, and pass 3 reads
@@ -84,12 +85,12 @@
 //   of thousands of tiles holds one or two files open).  The choice is a pure function of the input
 //   and the options.
 //
-// Threads (options.readAhead, countingThreads)
+// Threads (options.readAhead, boundsPassThreads)
 //   A reading thread decodes and filters a few batches ahead, and in pass 3 also maps each point to its
 //   leaf and its BRIO sub-cell (kept in PointRecord::scratch until the chunk is ordered): pure functions
 //   of the point and the grid.  The calling thread does the counting, chunking, ordering and tagging.
-//   Pass 1 only measures bounds, so with countingThreads > 1 it has no reading thread: the inputs decode
-//   on countingThreads threads (PointStream::setDecodeThreads) and the calling thread takes the bounds;
+//   Pass 1 only measures bounds, so with boundsPassThreads > 1 it has no reading thread: the inputs decode
+//   on boundsPassThreads threads (PointStream::setDecodeThreads) and the calling thread takes the bounds;
 //   passes 2 and 3 decode on streamingDecodeThreads.  (Pass 2 that way was slower: its counting on the
 //   calling thread then waits for the decoding, and the other way round.)
 //
@@ -154,11 +155,11 @@ struct FinalizerOptions {
   // Read the next batches on a background thread while the current one is worked on (false: everything
   // on the calling thread, for --threads 1).  The sequence of points is the same either way.
   bool readAhead = true;
-  // Pass 1 does little per point beyond reading it: with countingThreads > 1 the inputs decode on that
+  // Pass 1 does little per point beyond reading it: with boundsPassThreads > 1 the inputs decode on that
   // many threads and the pass runs on the calling thread without a reading thread, so every core
   // decodes.  Passes 2 and 3 then set streamingDecodeThreads (their reading and finalizer threads are
   // busy).  0: the inputs' decode threads are left as they are, and every pass reads ahead (readAhead).
-  int countingThreads = 0;
+  int boundsPassThreads = 0;
   int streamingDecodeThreads = 1;
   // In pass 1, also spool the inputs that are costly to read again (PointStream::cheapToReread: XYZ text,
   // reprojected points), so that passes 2 and 3 read 32-byte records back instead.  Costs 32 bytes a

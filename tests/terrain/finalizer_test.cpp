@@ -310,6 +310,25 @@ FinalizerOptions noFilter(int depth = -1) {
   return o;
 }
 
+// noFilter with batches of 1000 points: the unit pass 3 reorders, at a size these tests reach.
+FinalizerOptions smallBatches() {
+  FinalizerOptions o = noFilter();
+  o.batchPoints = 1000;
+  return o;
+}
+
+// The finalizer over pts in the stored order and from a seekable input (which may choose another
+// order); the second stream is checked.
+struct BothOrders {
+  Result stored, swept;
+};
+BothOrders bothOrders(const std::vector<PointRecord>& pts, const FinalizerOptions& o) {
+  BothOrders r{finalize(pts, o), finalize(pts, o, true, true)};
+  EXPECT_EQ(r.stored.stats.readOrder, "stored");
+  EXPECT_EQ(checkStream(pts, r.swept.sink), "");
+  return r;
+}
+
 // Checks every property for the input read in its stored order and, from a seekable input, in the read
 // order the finalizer chooses (which must be deterministic too, with and without the reading thread).
 void expectValid(const std::vector<PointRecord>& pts, const FinalizerOptions& o, const char* what) {
@@ -395,12 +414,8 @@ TEST(Finalizer, SweepOrderNarrowsFlightStripsAndAStripFlownHome) {
     SCOPED_TRACE(home ? "home strip" : "strips");
     spec.homeStrip = home;
     const auto pts = generate(spec);
-    FinalizerOptions o = noFilter();
-    o.batchPoints = 1000;
-    const Result stored = finalize(pts, o);
-    const Result swept = finalize(pts, o, true, true);
-    EXPECT_EQ(checkStream(pts, swept.sink), "");
-    EXPECT_EQ(stored.stats.readOrder, "stored");
+    const FinalizerOptions o = smallBatches();
+    const auto [stored, swept] = bothOrders(pts, o);
     EXPECT_NE(swept.stats.readOrder, "stored");
     EXPECT_EQ(swept.stats.readSegments, 300u);
     EXPECT_EQ(swept.stats.grid.depth, stored.stats.grid.depth);
@@ -439,11 +454,7 @@ TEST(Finalizer, SweepOrderNarrowsFlightStripsAndAStripFlownHome) {
       pts[i].x = std::round(ux(rng) * 100) / 100;
       pts[i].y = std::round(uy(rng) * 100) / 100;
     }
-    FinalizerOptions o = noFilter();
-    o.batchPoints = 1000;
-    const Result stored = finalize(pts, o);
-    const Result swept = finalize(pts, o, true, true);
-    EXPECT_EQ(checkStream(pts, swept.sink), "");
+    const auto [stored, swept] = bothOrders(pts, smallBatches());
     EXPECT_NE(swept.stats.readOrder, "stored");
     EXPECT_LT(static_cast<double>(swept.stats.width), 0.8 * static_cast<double>(stored.stats.width))
         << swept.stats.width << " vs " << stored.stats.width;
@@ -453,9 +464,7 @@ TEST(Finalizer, SweepOrderNarrowsFlightStripsAndAStripFlownHome) {
   std::sort(rows.begin(), rows.end(), [](const PointRecord& a, const PointRecord& b) {
     return a.y < b.y || (a.y == b.y && a.x < b.x);
   });
-  FinalizerOptions small = noFilter();
-  small.batchPoints = 1000;
-  const Result coherent = finalize(rows, small, true, true);
+  const Result coherent = finalize(rows, smallBatches(), true, true);
   EXPECT_EQ(coherent.stats.readOrder, "stored");
 }
 
@@ -548,8 +557,7 @@ TEST(Finalizer, SweepOrderOverSeekableAndSpooledInputs) {
       parts.back()->allowSeek(!stdinLike);
       inputs.push_back(parts.back().get());
     }
-    FinalizerOptions o = noFilter();
-    o.batchPoints = 1000;
+    FinalizerOptions o = smallBatches();
     o.tempDir = dir.string();
     Result r;
     Diagnostics diag;
