@@ -3,7 +3,7 @@
 #include <charconv>
 #include <sstream>
 
-#include "libterrain/error.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild::cli {
 

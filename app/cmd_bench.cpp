@@ -14,8 +14,8 @@
 #include <vector>
 
 #include "app/commands.h"
-#include "formats/read_benchmark.h"
-#include "libterrain/error.h"
+#include "app/jobs/read_benchmark.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild::app {
 

@@ -3,13 +3,13 @@
 #include <iostream>
 
 #include "app/commands.h"
+#include "app/jobs/pipeline.h"
+#include "app/jobs/survey_info.h"
 #include "app/progress.h"
-#include "formats/las_writer.h"
-#include "formats/pipeline.h"
-#include "formats/quicklook.h"
-#include "formats/survey_info.h"
-#include "libterrain/error.h"
-#include "libterrain/synthetic_survey.h"
+#include "formats/pointcloud/las_writer.h"
+#include "formats/raster/quicklook.h"
+#include "libterrain/core/error.h"
+#include "libterrain/synthetic/synthetic_survey.h"
 
 namespace tinbuild::app {
 

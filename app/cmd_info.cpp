@@ -3,9 +3,9 @@
 #include <thread>
 
 #include "app/commands.h"
-#include "formats/input_list.h"
-#include "formats/survey_info.h"
-#include "libterrain/error.h"
+#include "app/jobs/survey_info.h"
+#include "formats/pointcloud/input_list.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild::app {
 

@@ -1,5 +1,5 @@
 // The pipeline commands: finalize, triangulate, build.  They share the option tables (inputs, filters,
-// finalizer) and the parsing into PipelineOptions; each calls one entry point of formats/pipeline.h, then
+// finalizer) and the parsing into PipelineOptions; each calls one entry point of app/jobs/pipeline.h, then
 // prints the summary and writes the `--report` JSON.
 #include <unistd.h>
 
@@ -15,12 +15,11 @@
 #include <vector>
 
 #include "app/commands.h"
+#include "app/jobs/pipeline.h"
 #include "app/progress.h"
-#include "formats/conventional_mesh.h"
-#include "formats/input_list.h"
-#include "formats/output_file.h"
-#include "formats/pipeline.h"
-#include "libterrain/error.h"
+#include "formats/io/output_file.h"
+#include "formats/pointcloud/input_list.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild::app {
 
@@ -262,8 +261,6 @@ int runBuildCommand(const cli::ParsedArgs& args) {
         "build: name an output: --mesh FILE.smb|.sma|.ply|.obj, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
         "FILE.gpkg");
   if (!o.meshOutput.empty()) refuseBinaryToTerminal(o.meshOutput, "build");
-  if (o.meshLocal && !(isConventionalMeshPath(o.meshOutput)))
-    throw UsageError("--local applies to --mesh FILE.ply or FILE.obj");
   if (o.gpkgPoints && o.gpkgOutput.empty()) throw UsageError("--gpkg-points needs --gpkg FILE.gpkg");
   const char* demOnly[] = {"--step",        "--max-edge",    "--tile-size", "--tile-size-m", "--cog",
                            "--grid-origin", "--extent",      "--slope",     "--aspect",      "--hillshade",

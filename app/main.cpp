@@ -7,7 +7,7 @@
 
 #include "app/commands.h"
 #include "app/version.h"
-#include "libterrain/error.h"
+#include "libterrain/core/error.h"
 
 namespace {
 

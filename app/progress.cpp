@@ -8,7 +8,7 @@
 #include <cstdio>
 #include <fstream>
 
-#include "libterrain/error.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild::app {
 

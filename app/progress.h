@@ -1,6 +1,6 @@
 // What the CLI shows while a job runs, and how Ctrl-C stops it.
 //
-// The library reports progress in GDAL's convention (libterrain/progress.h).  ProgressDisplay turns the
+// The library reports progress in GDAL's convention (libterrain/core/progress.h).  ProgressDisplay turns the
 // calls into one of:
 //   live   one line on stderr, redrawn in place (stage, percent, points/s, ETA, memory) -- a terminal;
 //   lines  a plain line per stage and then every 10 s -- a log file or a batch system's output;
@@ -16,7 +16,7 @@
 #include <mutex>
 #include <string>
 
-#include "libterrain/progress.h"
+#include "libterrain/core/progress.h"
 
 namespace tinbuild::app {
 

@@ -18,8 +18,8 @@
 #include <string>
 #include <vector>
 
-#include "formats/las_writer.h"
-#include "libterrain/synthetic_survey.h"
+#include "formats/pointcloud/las_writer.h"
+#include "libterrain/synthetic/synthetic_survey.h"
 #include "test_support.h"
 
 extern char** environ;

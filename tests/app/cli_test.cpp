@@ -526,3 +526,20 @@ TEST(CliBuild, UnwritableReportLeavesNoOutput) {
 
 }  // namespace
 }  // namespace tinbuild
+
+namespace tinbuild {
+namespace {
+
+// --local is a PLY/OBJ option: the writer table resolves --mesh once and the job refuses it otherwise.
+TEST(Cli, LocalAppliesToPlyAndObjOnly) {
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  auto r = tinbuild("build " + test::dataPath("las/simple.las") + " --mesh " + (dir / "tin.smb").string() +
+                    " --local");
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("--local applies to --mesh FILE.ply or FILE.obj"), std::string::npos) << r.err;
+  EXPECT_FALSE(std::filesystem::exists(dir / "tin.smb"));
+}
+
+}  // namespace
+}  // namespace tinbuild

@@ -1,0 +1,889 @@
+#include "app/jobs/pipeline.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <memory>
+#include <thread>
+
+#include "formats/crs/reprojection.h"
+#include "formats/io/output_file.h"
+#include "formats/mesh/streaming_mesh.h"
+#include "formats/pointcloud/finalized_stream.h"
+#include "formats/registry/reader_registry.h"
+#include "formats/registry/writer_registry.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/finalizer/survey_stats.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+// The LAS headers' bounds, when every input is LAS and every header looks sane.
+bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Bounds3& out,
+                  std::uint64_t& points) {
+  Bounds3 all;
+  points = 0;
+  for (const auto& r : readers) {
+    const SourceInfo& s = r->info();
+    if (s.format != "LAS" || !s.hasHeaderBounds || s.path == "-") return false;
+    const Bounds3& b = s.headerBounds;
+    for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
+      if (!std::isfinite(v) || std::fabs(v) > 1e15) return false;
+    if (!(b.minX <= b.maxX && b.minY <= b.maxY && b.minZ <= b.maxZ)) return false;
+    if (s.headerPointCount == 0) continue;  // an empty file says nothing
+    // A degenerate box with many points is suspicious enough to compute the bounds instead.
+    if (s.headerPointCount > 1 && b.minX == b.maxX && b.minY == b.maxY) return false;
+    all.add(b);
+    points += s.headerPointCount;
+  }
+  if (all.empty()) return false;
+  out = all;
+  return true;
+}
+
+// Opened inputs with the finalizer options completed from them (CRS, trusted bounds, common scale), and,
+// when the run works in another CRS than the inputs', one PointTransform per input wrapping its reader.
+struct OpenedInputs {
+  std::vector<std::unique_ptr<PointReader>> readers;
+  std::vector<std::unique_ptr<PointTransform>> transforms;
+  std::vector<std::unique_ptr<TransformingPointStream>> transformed;
+  std::vector<PointStream*> streams;
+  CrsInfo crs;  // the working CRS (what every output is labelled with)
+  std::string crsReason;
+  std::vector<std::string> crsNotes;
+  // The unit z is in, in metres: the vertical CRS's unit when there is one (after a vertical
+  // transformation, the target's), else the input's horizontal unit (LAS convention for a 2D CRS);
+  // 1 when unknown.
+  double zUnitToMetre = 1;
+  std::uint64_t transformFailed() const {
+    std::uint64_t n = 0;
+    for (const auto& t : transformed) n += t->failedPoints();
+    return n;
+  }
+};
+
+// The centre of the data in the inputs' CRS: from the LAS headers when they are sane, else from a pass
+// over the points (only needed to pick a UTM zone for geographic input).
+void dataCentre(OpenedInputs& in, double& cx, double& cy) {
+  Bounds3 b;
+  std::uint64_t n = 0;
+  if (!headerBounds(in.readers, b, n)) {
+    std::vector<PointRecord> buf(65536);
+    for (auto& r : in.readers) {
+      if (!r->rewindable())
+        throw UsageError(
+            r->info().path +
+            ": geographic input read from stdin: name the projected CRS to work in with --t_srs");
+      for (;;) {
+        const std::size_t k = r->read(buf.data(), buf.size());
+        if (k == 0) break;
+        for (std::size_t i = 0; i < k; ++i) b.add(buf[i].x, buf[i].y, buf[i].z);
+      }
+      r->rewind();
+    }
+  }
+  cx = b.empty() ? 0 : 0.5 * (b.minX + b.maxX);
+  cy = b.empty() ? 0 : 0.5 * (b.minY + b.maxY);
+}
+
+OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnostics& diag) {
+  if (o.inputs.empty()) throw UsageError("give at least one input file (or - for stdin)");
+  int stdinCount = 0;
+  for (const auto& i : o.inputs) stdinCount += i == "-";
+  if (stdinCount > 1) throw UsageError("stdin (-) can be read only once");
+  OpenedInputs in;
+  for (const auto& path : o.inputs) {
+    in.readers.push_back(openPointReader(path, o.reader, diag));
+    in.streams.push_back(in.readers.back().get());
+  }
+  const CrsInfo inputCrs = in.readers.front()->info().crs;
+  for (std::size_t i = 1; i < in.readers.size(); ++i) {
+    const CrsInfo& c = in.readers[i]->info().crs;
+    if (sameCrs(inputCrs, c)) continue;
+    const std::string what = "its CRS (" + (c.empty() ? std::string("none") : c.name) + ") differs from " +
+                             o.inputs[0] + "'s (" + (inputCrs.empty() ? std::string("none") : inputCrs.name) +
+                             ")";
+    if (o.tSrs.empty() || c.empty() || inputCrs.empty())
+      throw DataError(o.inputs[i],
+                      what +
+                          "; all inputs of a run must share a CRS: reproject them with --t_srs, or "
+                          "assign one with --a_srs if the metadata is wrong");
+    diag.warn("crs.inputs_differ", o.inputs[i], what + "; each input is transformed to --t_srs");
+  }
+  if (o.strictCrs)
+    for (const auto& e : diag.entries())
+      if (e.kind.rfind("crs.", 0) == 0 || e.kind.rfind("las.crs", 0) == 0)
+        throw DataError(e.file.empty() ? o.inputs[0] : e.file, e.firstMessage + " (--strict-crs)");
+
+  // The working CRS: the inputs', --t_srs, or the UTM zone of geographic input.
+  double cx = 0, cy = 0;
+  if (inputCrs.geographic || !o.tSrs.empty()) dataCentre(in, cx, cy);
+  const WorkingCrs work = chooseWorkingCrs(inputCrs, o.tSrs, cx, cy);
+  in.crs = work.transformed ? work.crs : inputCrs;
+  in.crsReason = work.reason;
+  // With --t_srs every input whose own CRS differs is transformed, even when the first one needs nothing.
+  bool anyTransform = work.transformed;
+  if (!o.tSrs.empty())
+    for (const auto& r : in.readers) anyTransform = anyTransform || !sameCrs(r->info().crs, work.crs);
+  if (anyTransform) {
+    in.streams.clear();
+    bool labelled = false;
+    for (std::size_t i = 0; i < in.readers.size(); ++i) {
+      const CrsInfo& source = in.readers[i]->info().crs;
+      if (sameCrs(source, work.crs)) {
+        in.streams.push_back(in.readers[i].get());
+        continue;
+      }
+      // The tiles of a survey share their CRS: one transformation serves every input with the same
+      // source CRS (each costs milliseconds and megabytes to prepare; the inputs are read one after
+      // another, never at once).
+      PointTransform* shared = nullptr;
+      for (const auto& t : in.transforms)
+        if (t->source().wkt == source.wkt || sameCrs(t->source(), source)) {
+          shared = t.get();
+          break;
+        }
+      if (!shared) {
+        in.transforms.push_back(std::make_unique<PointTransform>(source, work.crs));
+        shared = in.transforms.back().get();
+      }
+      PointTransform& t = *shared;
+      if (!labelled) {
+        labelled = true;
+        if (work.transformed) in.crs = t.resultCrs();
+        if (!t.description().empty()) in.crsNotes.push_back("operation: " + t.description());
+      }
+      for (const std::string& note : {t.verticalNote(), t.horizontalNote()})
+        if (!note.empty()) {
+          diag.warn(note == t.verticalNote() ? "crs.vertical_kept" : "crs.transform_accuracy", o.inputs[i],
+                    note);
+          if (std::find(in.crsNotes.begin(), in.crsNotes.end(), note) == in.crsNotes.end())
+            in.crsNotes.push_back(note);
+        }
+      in.transformed.push_back(std::make_unique<TransformingPointStream>(*in.readers[i], t));
+      in.streams.push_back(in.transformed.back().get());
+    }
+  }
+  auto zUnit = [](const CrsInfo& c) {
+    if (c.empty()) return 1.0;
+    if (!c.verticalUnit.empty() && c.verticalUnitToMetre > 0) return c.verticalUnitToMetre;
+    return c.geographic ? 1.0 : c.linearUnitToMetre;
+  };
+  in.zUnitToMetre = zUnit(inputCrs);
+  if (work.transformed && in.transforms.front()->verticalTransformed()) in.zUnitToMetre = zUnit(in.crs);
+  if (in.crs.empty())
+    diag.warn("crs.none", "",
+              "the survey has no CRS: outputs are written without one (use --a_srs to assign it)");
+  fo.crsWkt = in.crs.wkt;
+  fo.inputNames = o.inputs;
+  Bounds3 hb;
+  std::uint64_t headerPoints = 0;
+  // Header bounds are in the inputs' CRS: of no use once the points are transformed.
+  if (!o.computeBounds && in.transforms.empty() && headerBounds(in.readers, hb, headerPoints)) {
+    fo.knownBounds = hb;
+    fo.expectedPoints = headerPoints;
+  }
+  bool sameScale = in.transforms.empty();  // transformed coordinates are no longer on the files' lattice
+  const SourceInfo& first = in.readers.front()->info();
+  for (const auto& r : in.readers) {
+    const SourceInfo& s = r->info();
+    sameScale = sameScale && s.hasScale && s.scale[0] == first.scale[0] && s.scale[1] == first.scale[1] &&
+                s.scale[2] == first.scale[2];
+  }
+  if (sameScale)
+    for (int i = 0; i < 3; ++i) fo.scale[i] = first.scale[i];
+  // The run carries the CRS as WKT from here on: give PROJ's caches back before the buffers grow.
+  releaseCrsCaches();
+  return in;
+}
+
+// After the run: what the transformation dropped, as a counted warning.
+void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
+  r.crsReason = in.crsReason;
+  r.crsNotes = in.crsNotes;
+  r.transformFailed = in.transformFailed();
+  r.transformations = in.transforms.size();
+  if (r.transformFailed) {
+    std::string first;
+    for (const auto& t : in.transforms)
+      if (!t->firstFailure().empty()) {
+        first = t->firstFailure();
+        break;
+      }
+    diag.warn("crs.transform_failed", "",
+              "points PROJ could not transform to the working CRS were dropped (first: " + first + ")",
+              r.transformFailed);
+  }
+}
+
+std::uint64_t fileSize(const std::string& path) {
+  std::error_code ec;
+  if (path == "-") return 0;
+  const auto n = std::filesystem::file_size(path, ec);
+  return ec ? 0 : static_cast<std::uint64_t>(n);
+}
+
+void finish(RunReport& r, const Diagnostics& diag, Clock::time_point t0) {
+  r.warnings = diag.entries();
+  r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  r.peakRssBytes = peakRssBytes();
+}
+
+void writePass(JsonWriter& j, bool run, double seconds, std::uint64_t points) {
+  j.beginObject();
+  j.key("run").value(run);
+  j.key("seconds").value(seconds);
+  j.key("points_per_second").value(run && seconds > 0 ? static_cast<double>(points) / seconds : 0.0);
+  j.endObject();
+}
+
+}  // namespace
+
+std::uint64_t peakRssBytes() {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line))
+    if (line.rfind("VmHWM:", 0) == 0) return std::stoull(line.substr(6)) * 1024;
+  return 0;
+}
+
+namespace {
+
+// Forwards a point stream and reports its progress (points passed on / points announced), GDAL-style;
+// the callback returning 0 cancels (CancelledError).
+class ProgressPointSink : public PointSink {
+ public:
+  ProgressPointSink(PointSink& out, ProgressFunc f, void* data, ProgressCounts* counts)
+      : out_(out), f_(f), data_(data), counts_(counts) {}
+  void begin(const StreamInfo& info) override {
+    total_ = info.points;
+    report();
+    out_.begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    out_.points(p, n);
+    done_ += n;
+    if (done_ - reported_ >= 65536) report();
+  }
+  void finalizeCell(const CellTag& cell) override { out_.finalizeCell(cell); }
+  void end() override {
+    report();
+    out_.end();
+  }
+
+ private:
+  void report() {
+    reported_ = done_;
+    if (!f_) return;
+    if (counts_) *counts_ = ProgressCounts{done_, total_};
+    const double c = total_ ? std::min(1.0, static_cast<double>(done_) / static_cast<double>(total_)) : 0.0;
+    if (!f_(c, "triangulating", data_)) throw CancelledError();
+  }
+  PointSink& out_;
+  ProgressFunc f_;
+  void* data_;
+  ProgressCounts* counts_;
+  std::uint64_t total_ = 0, done_ = 0, reported_ = 0;
+};
+
+// The outputs of a run, each resolved once to its row of the writer table (formats/registry), in the
+// order the tee feeds them: mesh, GeoPackage TIN, DEM.
+struct RunOutputs {
+  ResolvedOutput mesh, gpkg, dem;
+  std::vector<ResolvedOutput> all() const {
+    std::vector<ResolvedOutput> v;
+    for (const ResolvedOutput* r : {&mesh, &gpkg, &dem})
+      if (*r) v.push_back(*r);
+    return v;
+  }
+};
+
+RunOutputs resolveOutputs(const PipelineOptions& o) {
+  RunOutputs out;
+  out.mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
+  out.gpkg = resolveOutput(OutputOption::Gpkg, o.gpkgOutput);
+  out.dem = resolveOutput(OutputOption::Dem, o.dem.path);
+  if (o.meshLocal && !(out.mesh.is(WriterKind::Ply) || out.mesh.is(WriterKind::Obj)))
+    throw UsageError("--local applies to --mesh FILE.ply or FILE.obj");
+  return out;
+}
+
+// What the writers need besides their paths (the CRS and the DEM's lengths are completed later).
+WriterContext writerContext(const PipelineOptions& o) {
+  WriterContext c;
+  c.commandLine = o.commandLine;
+  c.overwrite = o.overwrite;
+  c.meshLocal = o.meshLocal;
+  c.gpkgPoints = o.gpkgPoints;
+  c.dem = o.dem.bands;
+  c.cog = o.dem.cog;
+  return c;
+}
+
+// Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
+// previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
+void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedOutput>& outputs) {
+  if (o.overwrite) return;
+  refuseExistingFile(o.finalizedOutput);
+  const WriterContext c = writerContext(o);
+  for (const ResolvedOutput& r : outputs)
+    for (const std::string& path : r.row->targets(r.path, c)) refuseExistingFile(path);
+}
+
+}  // namespace
+
+int effectiveThreads(int requested) {
+  if (requested > 0) return requested;
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+// The finalizer's threads for a run on `threads` threads: a reading thread from 2 on; pass 1 decodes on
+// all of them, passes 2 and 3 on the readers' own decode threads.
+void setFinalizerThreads(FinalizerOptions& fo, int threads, const ReaderOptions& reader) {
+  fo.readAhead = threads >= 2;
+  fo.boundsPassThreads = threads;
+  fo.streamingDecodeThreads = reader.decodeThreads;
+}
+
+RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "finalize";
+  r.inputs = o.inputs;
+  if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  refuseExistingOutputs(o, {});
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+  r.threads = effectiveThreads(o.threads);
+  setFinalizerThreads(fo, r.threads, o.reader);
+  FinalizedStreamWriter writer(o.finalizedOutput);
+  // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
+  r.finalizer = finalizePoints(in.streams, fo, writer, diag);
+  r.haveFinalizer = true;
+  r.outputs = {o.finalizedOutput};
+  r.outputBytes = writer.bytesWritten();
+  reportTransform(in, r, diag);
+  finish(r, diag, t0);
+  return r;
+}
+
+RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "triangulate";
+  r.inputs = {finalizedInput};
+  if (o.meshOutput.empty()) throw UsageError("triangulate: give the output mesh: -o FILE.smb|FILE.sma|-");
+  const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
+  if (!out.is(WriterKind::StreamingMeshBinary) && !out.is(WriterKind::StreamingMeshAscii))
+    throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use .sma or .smb)");
+  refuseExistingOutputs(o, {out});
+  const auto opened = out.row->open(out.path, writerContext(o));
+  MeshSink* mesh = opened->meshSink();
+  MeshTee tee;
+  opened->attach(tee);
+  r.threads = effectiveThreads(o.threads);
+  // SMB encoding is a copy, cheaper than handing the events to another thread; ASCII is not.
+  const bool threaded = r.threads >= 2 && !out.row->cheapInline;
+  tee.setThreaded(threaded);
+  tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  // Without a writer thread the one mesh writer is fed directly (the tee would only add a call).
+  StreamingDelaunay delaunay(threaded ? static_cast<MeshSink&>(tee) : *mesh, dopt);
+  ProgressPointSink progress(delaunay, o.finalizer.progress, o.finalizer.progressData,
+                             o.finalizer.progressCounts);
+  const StreamInfo info = readFinalizedStream(finalizedInput, progress);
+  if (!info.crsWkt.empty()) {
+    try {
+      r.crs = crsFromUser(info.crsWkt);
+    } catch (const Error&) {
+      r.crs.wkt = info.crsWkt;
+    }
+  }
+  r.delaunay = delaunay.stats();
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  r.outputs = {o.meshOutput};
+  r.outputBytes = fileSize(o.meshOutput);
+  finish(r, diag, t0);
+  return r;
+}
+
+RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "build";
+  r.inputs = o.inputs;
+  if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty())
+    throw UsageError(
+        "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE");
+  const RunOutputs outputs = resolveOutputs(o);
+  refuseExistingOutputs(o, outputs.all());
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+
+  // Open every output before any work, so an unwritable target or a bad length fails at once.
+  WriterContext context = writerContext(o);
+  context.crs = in.crs;
+  if (outputs.dem) {
+    DemOptions& d = context.dem;
+    DemReport& dr = r.dem;
+    dr.present = true;
+    dr.path = o.dem.path;
+    d.step = parseLength(o.dem.step, in.crs, "--step");
+    if (!(d.step > 0)) throw UsageError("--step must be positive, got '" + o.dem.step + "'");
+    d.maxEdge = parseLength(o.dem.maxEdge, in.crs, "--max-edge");
+    d.tileSize = o.dem.tileSize;
+    if (!o.dem.tileSizeLength.empty()) {
+      const double len = parseLength(o.dem.tileSizeLength, in.crs, "--tile-size-m");
+      d.tileSize = static_cast<int>(std::llround(len / d.step));
+      if (std::fabs(d.tileSize * d.step - len) > 1e-9 * len)
+        diag.warn("dem.tile_size_rounded", "",
+                  "--tile-size-m " + o.dem.tileSizeLength +
+                      " is not a whole number of --step pixels; tiles are " + std::to_string(d.tileSize) +
+                      " pixels");
+    }
+    // Slope and shading need z in the horizontal unit (feet of z over metres of x would tilt everything).
+    if (!in.crs.empty() && in.crs.linearUnitToMetre > 0) d.zToXY = in.zUnitToMetre / in.crs.linearUnitToMetre;
+    dr.step = d.step;
+    dr.maxEdge = d.maxEdge;
+    dr.unit = in.crs.empty() ? "" : in.crs.linearUnit;
+  }
+  std::vector<std::unique_ptr<OpenedOutput>> opened;
+  for (const ResolvedOutput& out : outputs.all()) opened.push_back(out.row->open(out.path, context));
+
+  // Declared after the outputs, so a writer thread still running when the run fails is stopped before
+  // any output is destroyed.
+  MeshTee tee;
+  for (auto& out : opened) out->attach(tee);
+  const int threads = effectiveThreads(o.threads);
+  // With two threads or more: the reader runs ahead of the finalizer, the triangulator has a thread
+  // and the outputs (the tee's consumers) another, all behind bounded queues -- except one output that
+  // is cheaper to encode than to queue (SMB).  Every stage sees the same sequence of events as on one
+  // thread, so the outputs are byte-identical for any count.
+  const bool threadedOutputs = threads >= 2 && !(opened.size() == 1 && outputs.all()[0].row->cheapInline);
+  tee.setThreaded(threadedOutputs);
+  tee.setProgress(fo.progress, fo.progressData);
+  setFinalizerThreads(fo, threads, o.reader);
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just
+  // before it ends the stream).
+  MeshSink* direct = opened.size() == 1 && !threadedOutputs ? opened[0]->meshSink() : nullptr;
+  StreamingDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), dopt);
+  if (threads >= 2) {
+    ConcurrentPointSink queue(delaunay);
+    r.finalizer = finalizePoints(in.streams, fo, queue, diag);
+  } else {
+    r.finalizer = finalizePoints(in.streams, fo, delaunay, diag);
+  }
+  r.threads = threads;
+  r.haveFinalizer = true;
+  r.delaunay = delaunay.stats();
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  const std::vector<ResolvedOutput> resolved = outputs.all();
+  for (std::size_t i = 0; i < opened.size(); ++i) {
+    const OpenedOutput& out = *opened[i];
+    const std::vector<std::string> files = out.files();
+    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+    r.outputBytes += out.bytes();
+    if (resolved[i].row->option == OutputOption::Gpkg) {
+      r.gpkgOutput = resolved[i].path;
+      r.gpkgTriangles = r.delaunay.trianglesEmitted;
+    }
+    if (const DemRasterizer* dem = out.rasterizer()) {
+      r.dem.layout = dem->layout();
+      r.dem.stats = dem->stats();
+      r.dem.files = files;
+      if (r.dem.stats.tilesWritten == 0)
+        diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
+    }
+  }
+  reportTransform(in, r, diag);
+  finish(r, diag, t0);
+  return r;
+}
+
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  VerifyReport r;
+  r.mesh = mesh;
+  MeshVerifier verifier;
+  readStreamingMesh(mesh, verifier);
+  r.check = verifier.report();
+  if (!o.inputs.empty()) {
+    // The same inputs, CRS handling (--t_srs, UTM for geographic input) and filters as `build`.
+    FinalizerOptions fo = o.finalizer;
+    OpenedInputs in = openInputs(o, fo, diag);
+    ConcatPointStream stream(in.streams);
+    if (!stream.rewindable())
+      throw UsageError("verify --points: the inputs must be files (they are read several times)");
+    SurveyStatsOptions so;
+    so.filter = &o.finalizer.filter;
+    so.memoryBudget = o.finalizer.memoryBudget;
+    const SurveyStats stats = analyzeSurvey(stream, so);
+    r.pointsChecked = true;
+    r.inputPoints = stats.counts.points;
+    r.pointsCountable = stats.duplicatesKnown || stats.counts.points == 0;
+    r.inputDuplicates = stats.duplicatesXY;
+    r.inputDistinct = stats.distinctXY.count;
+    r.pointsMatch = r.pointsCountable && stats.distinctXY == r.check.fingerprint;
+  }
+  r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  return r;
+}
+
+std::string formatVerifyText(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  std::string o = r.mesh + ": " + withCommas(c.vertices) + " vertices, " + withCommas(c.triangles) +
+                  " triangles, " + withCommas(c.interiorEdges) +
+                  " interior edges checked locally Delaunay (exact), " + withCommas(c.hullEdges) +
+                  " hull edges; at most " + withCommas(c.maxLiveVertices) + " live vertices and " +
+                  withCommas(c.maxOpenEdges) + " open edges; " + formatDouble("%.2f s", r.seconds) + "\n";
+  if (c.ok()) {
+    o += "  mesh: valid streaming mesh, counter-clockwise, Delaunay, convex hull covered (hull area " +
+         formatDouble("%.6g", c.hullArea) + " = sum of triangle areas)\n";
+  } else {
+    for (const auto& p : c.problems)
+      o += "  problem: " + p.kind + " (" + withCommas(p.count) + "x): " + p.first + "\n";
+  }
+  if (r.pointsChecked) {
+    if (!r.pointsCountable)
+      o += "  points: could not be compared (the inputs are too incoherent for the memory budget; raise "
+           "--memory)\n";
+    else if (r.pointsMatch)
+      o += "  points: every input point is used: the " + withCommas(r.inputDistinct) + " distinct xy of " +
+           withCommas(r.inputPoints) + " input points (after filters; " + withCommas(r.inputDuplicates) +
+           " duplicates) are exactly the mesh's vertices\n";
+    else
+      o += "  points: MISMATCH: the inputs have " + withCommas(r.inputDistinct) + " distinct xy (of " +
+           withCommas(r.inputPoints) + " points after filters), the mesh has " + withCommas(c.vertices) +
+           " vertices, and the sets differ\n";
+  }
+  o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
+  return o;
+}
+
+std::string formatVerifyJson(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  JsonWriter j;
+  j.beginObject();
+  j.key("mesh").value(r.mesh);
+  j.key("ok").value(r.ok());
+  j.key("vertices").value(c.vertices);
+  j.key("triangles").value(c.triangles);
+  j.key("interior_edges").value(c.interiorEdges);
+  j.key("hull_edges").value(c.hullEdges);
+  j.key("hull_area").value(c.hullArea);
+  j.key("triangle_area").value(c.triangleArea);
+  j.key("max_live_vertices").value(c.maxLiveVertices);
+  j.key("max_open_edges").value(c.maxOpenEdges);
+  j.key("problems").beginArray();
+  for (const auto& p : c.problems) {
+    j.beginObject();
+    j.key("kind").value(p.kind);
+    j.key("first").value(p.first);
+    j.key("count").value(p.count);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("points");
+  if (!r.pointsChecked) {
+    j.null();
+  } else {
+    j.beginObject();
+    j.key("input_points").value(r.inputPoints);
+    j.key("input_distinct_xy").value(r.inputDistinct);
+    j.key("input_duplicates").value(r.inputDuplicates);
+    j.key("comparable").value(r.pointsCountable);
+    j.key("match").value(r.pointsMatch);
+    j.endObject();
+  }
+  j.key("seconds").value(r.seconds);
+  j.endObject();
+  return j.str() + "\n";
+}
+
+std::string formatRunSummary(const RunReport& r) {
+  std::string o;
+  auto line = [&](const std::string& label, const std::string& text) {
+    o += "  " + label + std::string(label.size() < 10 ? 10 - label.size() : 1, ' ') + text + "\n";
+  };
+  auto rate = [](std::uint64_t n, double t) {
+    return t > 0 ? formatDouble("%.1f", static_cast<double>(n) / t / 1e6) : "-";
+  };
+  std::string outs;
+  for (const auto& p : r.outputs) outs += (outs.empty() ? "" : ", ") + p;
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    const FilterCounts& f = s.filter;
+    o += "tinbuild " + r.command + ": " + withCommas(f.read) + " points read from " +
+         std::to_string(r.inputs.size()) + (r.inputs.size() == 1 ? " file" : " files") + ", " +
+         withCommas(s.points) + " streamed";
+  } else {
+    o += "tinbuild " + r.command + ": " + withCommas(r.delaunay.pointsIn) + " points read from " +
+         r.inputs.front();
+  }
+  o += "; wrote " + outs + (r.outputBytes ? " (" + bytesText(r.outputBytes) + ")" : "") + " in " +
+       formatDouble("%.2f", r.seconds) + " s on " + std::to_string(r.threads) +
+       (r.threads == 1 ? " thread" : " threads") + ", peak memory " + bytesText(r.peakRssBytes) + "\n";
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    const FilterCounts& f = s.filter;
+    line("CRS",
+         r.crs.empty()
+             ? std::string("none (outputs carry no CRS)")
+             : r.crs.name + (r.crs.epsg ? " (EPSG:" + std::to_string(r.crs.epsg) + ")" : "") + ", " +
+                   r.crs.linearUnit + (r.crs.verticalName.empty() ? "" : "; heights " + r.crs.verticalName) +
+                   (r.crsReason.empty() ? "" : "; " + r.crsReason) +
+                   (r.transformFailed
+                        ? "; " + withCommas(r.transformFailed) + " points could not be transformed (dropped)"
+                        : ""));
+    if (f.dropped()) {
+      std::string d = withCommas(f.dropped()) + " dropped:";
+      if (f.withheld) d += " " + withCommas(f.withheld) + " withheld;";
+      if (f.byClass) {
+        d += " " + withCommas(f.byClass) + " by class (";
+        bool first = true;
+        for (int c = 0; c < 256; ++c)
+          if (f.droppedByClass[c]) {
+            d += (first ? "" : ", ") + std::to_string(c) + ": " + withCommas(f.droppedByClass[c]);
+            first = false;
+          }
+        d += ");";
+      }
+      if (f.byReturn) d += " " + withCommas(f.byReturn) + " by return;";
+      if (f.clipped) d += " " + withCommas(f.clipped) + " outside --clip;";
+      d.pop_back();
+      line("filter", d);
+    }
+    line("grid", "depth " + std::to_string(s.grid.depth) + " (" + std::to_string(s.grid.side()) + " x " +
+                     std::to_string(s.grid.side()) + " cells of " + formatDouble("%.4g", s.grid.cellSize()) +
+                     "), " + withCommas(s.occupiedCells) + " occupied, " +
+                     formatDouble("%.0f", s.averagePerCell) + " points per cell on average, " +
+                     withCommas(s.maxPerCell) + " at most" +
+                     (s.boundsFromHeader ? "; bounds from the LAS headers" : ""));
+    line(
+        "width",
+        withCommas(s.width) + " points buffered at most (" +
+            formatDouble(
+                "%.2f", s.points ? 100.0 * static_cast<double>(s.width) / static_cast<double>(s.points) : 0) +
+            "% of the stream); pool peak " + bytesText(s.peakPoolBytes) + ", spilled " +
+            bytesText(s.spilledBytes) + (s.spooledBytes ? ", spooled " + bytesText(s.spooledBytes) : ""));
+    if (s.readOrder != "stored")
+      line("order", "pass 3 read the survey's " + withCommas(s.readSegments) + " batches in " + s.readOrder +
+                        " order (estimated width " + withCommas(s.readOrderWidthEstimate) + " points, " +
+                        withCommas(s.storedOrderWidthEstimate) + " in the stored order)");
+    line("passes", (s.pass1Run ? "1: " + formatDouble("%.3f s", s.pass1Seconds) + " (" +
+                                     rate(f.read, s.pass1Seconds) + " M/s), "
+                               : std::string("1: skipped (LAS header bounds), ")) +
+                       "2: " + formatDouble("%.3f s", s.pass2Seconds) + " (" +
+                       rate(f.read * s.pass2Runs, s.pass2Seconds) +
+                       " M/s), 3: " + formatDouble("%.3f s", s.pass3Seconds) + " (" +
+                       rate(f.read, s.pass3Seconds) + " M/s)");
+  }
+  if (r.haveDelaunay) {
+    const DelaunayStats& d = r.delaunay;
+    line("TIN", withCommas(d.verticesOut) + " vertices, " + withCommas(d.trianglesEmitted) + " triangles (" +
+                    withCommas(d.trianglesKilled) + " killed by later points)" +
+                    (d.duplicatesDropped ? ", " + withCommas(d.duplicatesDropped) +
+                                               " xy duplicates dropped (kept the " + r.duplicateRule + ")"
+                                         : std::string()));
+    line("memory", "at most " + withCommas(d.maxActiveTriangles) + " active triangles and " +
+                       withCommas(d.maxActiveVertices) + " active vertices (" + bytesText(d.peakBytes) +
+                       " triangulator arrays)");
+  }
+  if (r.dem.present) {
+    const DemReport& d = r.dem;
+    const std::string unit = d.unit.empty() ? std::string("units") : d.unit;
+    line("DEM", withCommas(static_cast<std::uint64_t>(std::max<std::int64_t>(0, d.layout.width()))) + " x " +
+                    withCommas(static_cast<std::uint64_t>(std::max<std::int64_t>(0, d.layout.height()))) +
+                    " pixels of " + formatDouble("%.6g", d.step) + " " + unit + ", " +
+                    withCommas(d.stats.pixelsWritten) + " with a value; " + withCommas(d.stats.tilesWritten) +
+                    " tiles written (" + withCommas(d.stats.tilesCompletedEarly) +
+                    " during the run), at most " + withCommas(d.stats.maxOpenTiles) + " open (" +
+                    bytesText(d.stats.peakTileBytes) + ")" +
+                    (d.maxEdge > 0 ? "; --max-edge " + formatDouble("%.6g", d.maxEdge) + " " + unit +
+                                         " blanked " + withCommas(d.stats.pixelsMaxEdge) + " pixels"
+                                   : std::string()));
+  }
+  return o;
+}
+
+std::string formatRunJson(const RunReport& r) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("command").value(r.command);
+  j.key("inputs").beginArray();
+  for (const auto& i : r.inputs) j.value(i);
+  j.endArray();
+  j.key("outputs").beginArray();
+  for (const auto& p : r.outputs) j.value(p);
+  j.endArray();
+  j.key("output_bytes").value(r.outputBytes);
+  j.key("crs").beginObject();
+  if (r.crs.empty()) {
+    j.key("name").null();
+    j.key("epsg").null();
+    j.key("wkt").null();
+  } else {
+    j.key("name").value(r.crs.name);
+    if (r.crs.epsg)
+      j.key("epsg").value(r.crs.epsg);
+    else
+      j.key("epsg").null();
+    j.key("units").value(r.crs.linearUnit);
+    j.key("vertical").value(r.crs.verticalName);
+    if (r.crs.verticalEpsg)
+      j.key("vertical_epsg").value(r.crs.verticalEpsg);
+    else
+      j.key("vertical_epsg").null();
+    j.key("vertical_units").value(r.crs.verticalUnit);
+    j.key("wkt").value(r.crs.wkt);
+  }
+  j.key("transformed").value(!r.crsReason.empty());
+  j.key("reason").value(r.crsReason);
+  j.key("notes").beginArray();
+  for (const auto& n : r.crsNotes) j.value(n);
+  j.endArray();
+  j.key("transform_failed_points").value(r.transformFailed);
+  j.key("transformations").value(r.transformations);
+  j.endObject();
+  if (r.haveFinalizer) {
+    const FinalizerStats& s = r.finalizer;
+    j.key("filter").value(r.filter);
+    j.key("points_read").value(s.filter.read);
+    j.key("points_streamed").value(s.points);
+    j.key("filtered").beginObject();
+    j.key("withheld").value(s.filter.withheld);
+    j.key("class").value(s.filter.byClass);
+    j.key("return").value(s.filter.byReturn);
+    j.key("clip").value(s.filter.clipped);
+    j.key("by_class").beginObject();
+    for (int c = 0; c < 256; ++c)
+      if (s.filter.droppedByClass[c]) j.key(std::to_string(c)).value(s.filter.droppedByClass[c]);
+    j.endObject();
+    j.endObject();
+    j.key("bounds");
+    writeBoundsJson(j, s.bounds);
+    j.key("grid").beginObject();
+    j.key("depth").value(s.grid.depth);
+    j.key("origin").beginArray().value(s.grid.originX).value(s.grid.originY).endArray();
+    j.key("size").value(s.grid.size);
+    j.key("cell_size").value(s.grid.cellSize());
+    j.key("fine_depth").value(s.fineDepth);
+    j.key("bounds_from_header").value(s.boundsFromHeader);
+    j.key("bounds_retries").value(s.boundsRetries);
+    j.endObject();
+    j.key("occupied_cells").value(s.occupiedCells);
+    j.key("average_per_cell").value(s.averagePerCell);
+    j.key("max_per_cell").value(s.maxPerCell);
+    j.key("width").value(s.width);
+    j.key("width_fraction")
+        .value(s.points ? static_cast<double>(s.width) / static_cast<double>(s.points) : 0.0);
+    j.key("max_in_memory_points").value(s.maxInMemoryPoints);
+    j.key("read_order").beginObject();
+    j.key("order").value(s.readOrder);
+    j.key("batches").value(s.readSegments);
+    j.key("estimated_width")
+        .value(s.readOrder == "stored" ? s.storedOrderWidthEstimate : s.readOrderWidthEstimate);
+    j.key("estimated_stored_width").value(s.storedOrderWidthEstimate);
+    j.endObject();
+    j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBudget));
+    j.key("peak_pool_bytes").value(s.peakPoolBytes);
+    j.key("largest_chunk_bytes").value(s.largestChunkBytes);
+    j.key("bookkeeping_bytes").value(s.bookkeepingBytes);
+    j.key("fine_table_bytes").value(s.fineTableBytes);
+    j.key("spilled_bytes").value(s.spilledBytes);
+    j.key("spilled_chunks").value(s.spilledChunks);
+    j.key("spill_events").value(s.spillEvents);
+    j.key("spooled_bytes").value(s.spooledBytes);
+    j.key("sprinkled").value(s.sprinkled);
+    j.key("tags").value(s.tags);
+    j.key("empty_tags").value(s.emptyTags);
+    j.key("passes").beginObject();
+    j.key("pass1");
+    writePass(j, s.pass1Run, s.pass1Seconds, s.filter.read);
+    j.key("pass2");
+    writePass(j, true, s.pass2Seconds, s.filter.read * s.pass2Runs);
+    j.key("pass2_runs").value(s.pass2Runs);
+    j.key("pass3");
+    writePass(j, true, s.pass3Seconds, s.filter.read);
+    j.endObject();
+  }
+  if (r.haveDelaunay) {
+    const DelaunayStats& d = r.delaunay;
+    j.key("triangulation").beginObject();
+    j.key("points_in").value(d.pointsIn);
+    j.key("vertices").value(d.verticesOut);
+    j.key("triangles").value(d.trianglesEmitted);
+    j.key("duplicates_dropped").value(d.duplicatesDropped);
+    j.key("duplicate_rule").value(r.duplicateRule);
+    j.key("max_active_triangles").value(d.maxActiveTriangles);
+    j.key("max_active_vertices").value(d.maxActiveVertices);
+    j.key("peak_bytes").value(d.peakBytes);
+    j.key("killed_triangles").value(d.trianglesKilled);
+    j.key("walk_steps").value(d.walkSteps);
+    j.key("restarts_leaf").value(d.restartsLeaf);
+    j.key("restarts_neighbour").value(d.restartsNeighbour);
+    j.key("restarts_exhaustive").value(d.restartsExhaustive);
+    j.key("certification_checks").value(d.certificationChecks);
+    j.endObject();
+  }
+  if (r.dem.present) {
+    const DemReport& d = r.dem;
+    const DemLayout& l = d.layout;
+    j.key("dem").beginObject();
+    j.key("path").value(d.path);
+    j.key("step").value(d.step);
+    j.key("unit").value(d.unit);
+    j.key("max_edge").value(d.maxEdge);
+    j.key("width").value(static_cast<std::int64_t>(std::max<std::int64_t>(0, l.width())));
+    j.key("height").value(static_cast<std::int64_t>(std::max<std::int64_t>(0, l.height())));
+    j.key("extent").beginArray().value(l.west()).value(l.south()).value(l.east()).value(l.north()).endArray();
+    j.key("tile_size").value(l.tileSize);
+    j.key("nodata").value(static_cast<double>(l.nodata));
+    j.key("pixels_written").value(d.stats.pixelsWritten);
+    j.key("pixels_max_edge").value(d.stats.pixelsMaxEdge);
+    j.key("tiles_written").value(d.stats.tilesWritten);
+    j.key("tiles_empty").value(d.stats.tilesEmpty);
+    j.key("tiles_completed_during_run").value(d.stats.tilesCompletedEarly);
+    j.key("max_open_tiles").value(d.stats.maxOpenTiles);
+    j.key("peak_tile_bytes").value(d.stats.peakTileBytes);
+    j.key("files").beginArray();
+    for (const auto& f : d.files) j.value(f);
+    j.endArray();
+    j.endObject();
+  }
+  if (!r.gpkgOutput.empty()) {
+    j.key("gpkg").beginObject();
+    j.key("path").value(r.gpkgOutput);
+    j.key("triangles").value(r.gpkgTriangles);
+    j.endObject();
+  }
+  j.key("seconds").value(r.seconds);
+  j.key("peak_rss_bytes").value(r.peakRssBytes);
+  j.key("threads").value(static_cast<std::uint64_t>(r.threads));
+  j.key("warnings");
+  writeWarningsJson(j, r.warnings);
+  j.endObject();
+  return j.str() + "\n";
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,133 @@
+// The streaming pipeline as library entry points: finalize, triangulate, build.
+//
+//   inputs (LAS/XYZ) -> readers -> filter -> finalizer -> [queue] -> streaming Delaunay -> mesh writer
+//
+// runFinalize writes the finalized point stream; runTriangulate turns one into a streaming mesh;
+// runBuild does both in one process (the finalized stream never touches the disk).  With
+// options.threads >= 2 the reader, the finalizer, the triangulator and the outputs each run on a thread
+// of their own behind bounded queues; every stage sees the sequence it would see on one thread, so the
+// outputs are byte-identical for any thread count (docs/design.md, "Threads").  An existing output is an
+// error before any work unless options.overwrite.  options.finalizer.progress is called GDAL-style
+// during the passes and before the outputs are committed; returning 0 cancels (CancelledError, no
+// output left behind).  All three open the inputs the same
+// way: every file is checked, the CRSs must agree (a mismatch is a warning naming both), LAS header
+// bounds are used when every header looks sane (the finalizer verifies them and falls back to computed
+// bounds), and a common scale is passed on.  Each returns a RunReport for the summary on stderr and the
+// `--report` JSON.  Outputs are written to temporary names and renamed only on success.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "formats/crs/crs.h"
+#include "formats/pointcloud/point_reader.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/mesh_verifier.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
+#include "libterrain/raster/dem_rasterizer.h"
+
+namespace tinbuild {
+
+// What `build --dem` asks for.  Lengths are kept as typed (metres unless they carry a unit, see
+// formats/crs/reprojection.h) and converted once the run's CRS is known; extent and origin are in CRS units.
+struct DemRequest {
+  std::string path;             // --dem DIR | FILE.tif | FILE.gpkg ("" = no DEM)
+  std::string step = "1";       // --step
+  std::string maxEdge = "100";  // --max-edge (0 = no limit)
+  int tileSize = 2048;          // --tile-size (pixels)
+  std::string tileSizeLength;   // --tile-size-m (a length; overrides tileSize)
+  bool cog = false;             // --cog
+  DemOptions bands;             // slope/aspect/hillshade/count/edgeLength, nodata, extent, origin
+};
+
+struct PipelineOptions {
+  std::vector<std::string> inputs;
+  ReaderOptions reader;
+  FinalizerOptions finalizer;  // depth, memory, temp dir, filter, progress; CRS and bounds are filled in
+  bool computeBounds = false;  // do not trust the LAS headers' bounds
+  DelaunayOptions delaunay;
+  std::string finalizedOutput;  // runFinalize: the finalized stream ("-" = stdout)
+  std::string meshOutput;       // runBuild / runTriangulate: .sma, .smb ("-" = SMB on stdout), .ply, .obj
+  bool meshLocal = false;       // PLY/OBJ: local coordinates (float32 after subtracting an origin)
+  std::string gpkgOutput;       // runBuild: GeoPackage TIN
+  bool gpkgPoints = false;      // ... with a layer of the vertices
+  DemRequest dem;               // runBuild: DEM rasters
+  std::string commandLine;      // recorded in the outputs' metadata
+  std::string tSrs;             // --t_srs: the working CRS (points are transformed in the reader stage)
+  bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings
+  bool overwrite = false;       // --overwrite: replace existing outputs (else an existing one is an error)
+  int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
+};
+
+// --threads 0 -> the number of cores (at least 1).
+int effectiveThreads(int requested);
+
+// What the DEM part of a run did (RunReport::dem).
+struct DemReport {
+  bool present = false;
+  std::string path;
+  DemLayout layout;
+  DemStats stats;
+  double step = 0, maxEdge = 0;  // in CRS units, as used
+  std::string unit;              // the CRS's horizontal unit ("metre", "US survey foot", "" = no CRS)
+  std::vector<std::string> files;
+};
+
+struct RunReport {
+  std::string command;
+  std::vector<std::string> inputs;
+  std::vector<std::string> outputs;
+  std::uint64_t outputBytes = 0;
+  CrsInfo crs;                        // the working CRS (outputs carry it)
+  std::string crsReason;              // why the points were transformed ("" = they were not)
+  std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
+  std::uint64_t transformFailed = 0;  // points PROJ could not transform (dropped, counted)
+  std::uint64_t transformations = 0;  // distinct transformations prepared (one per source CRS)
+  std::string filter;                 // what the filter drops, in words
+  bool haveFinalizer = false;
+  FinalizerStats finalizer;
+  std::size_t memoryBudget = 0;
+  bool haveDelaunay = false;
+  DelaunayStats delaunay;
+  std::string duplicateRule;
+  DemReport dem;
+  std::string gpkgOutput;
+  std::uint64_t gpkgTriangles = 0;
+  std::vector<Diagnostics::Entry> warnings;
+  double seconds = 0;
+  std::uint64_t peakRssBytes = 0;
+  int threads = 1;
+};
+
+RunReport runFinalize(const PipelineOptions& options, Diagnostics& diag);
+RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& options,
+                         Diagnostics& diag);
+RunReport runBuild(const PipelineOptions& options, Diagnostics& diag);
+
+// `tinbuild verify`: checks a streaming mesh file independently (libterrain/delaunay/mesh_verifier.h) and,
+// when options.inputs is not empty, that its vertices are exactly the distinct (x, y) of those inputs after
+// options.finalizer.filter.  Memory is bounded by the mesh's and the survey's stream width.
+struct VerifyReport {
+  std::string mesh;
+  MeshCheckReport check;
+  bool pointsChecked = false;
+  bool pointsCountable = true;  // false: the inputs were too incoherent for the memory budget
+  std::uint64_t inputPoints = 0, inputDistinct = 0, inputDuplicates = 0;
+  bool pointsMatch = false;
+  double seconds = 0;
+  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch); }
+};
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);
+std::string formatVerifyText(const VerifyReport& report);
+std::string formatVerifyJson(const VerifyReport& report);
+
+// The human summary (a few lines for stderr) and the JSON report (stable keys, see docs/usage.md).
+std::string formatRunSummary(const RunReport& report);
+std::string formatRunJson(const RunReport& report);
+
+// This process's peak resident set size so far (VmHWM), in bytes; 0 when unknown.
+std::uint64_t peakRssBytes();
+
+}  // namespace tinbuild

@@ -1,0 +1,842 @@
+#include "formats/pointcloud/las_reader.h"
+
+#include <fcntl.h>
+#include <sys/mman.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <bit>
+#include <cerrno>
+#include <cmath>
+#include <cstring>
+#include <deque>
+#include <mutex>
+#include <optional>
+#include <sstream>
+
+#include "formats/crs/crs.h"
+#include "formats/io/stdin_source.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/work_crew.h"
+
+namespace tinbuild {
+
+static_assert(std::endian::native == std::endian::little, "the LAS decoder assumes a little-endian host");
+
+namespace {
+
+template <class T>
+T le(const std::uint8_t* p) {
+  T v;
+  std::memcpy(&v, p, sizeof v);
+  return v;
+}
+
+std::string fixedString(const std::uint8_t* p, std::size_t n) {
+  std::size_t len = 0;
+  while (len < n && p[len] != 0) ++len;
+  std::string s(reinterpret_cast<const char*>(p), len);
+  while (!s.empty() && s.back() == ' ') s.pop_back();
+  return s;
+}
+
+constexpr int kRecordLength[11] = {20, 28, 26, 34, 57, 63, 30, 36, 38, 59, 67};
+constexpr std::size_t kVlrHeader = 54;
+constexpr std::size_t kEvlrHeader = 60;
+constexpr std::size_t kStreamBlock = 4u << 20;
+
+std::string fmtCount(std::uint64_t n) {
+  return std::to_string(n);
+}
+
+std::string fmtRange(double lo, double hi) {
+  std::ostringstream s;
+  s.precision(12);
+  s << "[" << lo << ", " << hi << "]";
+  return s.str();
+}
+
+// Decodes `n` records of one layout family.  Legacy = formats 0-5, extended = 6-10.  The loop does no
+// allocation and no call per point; the compiler keeps the scale/offset in registers.
+// Decodes `n` records of one layout family (legacy = formats 0-5, extended = 6-10) with no allocation
+// and no call per point.  Bounds are tracked on the raw integers (integer min/max has a one-cycle
+// dependency chain, where double min/max would bound the loop by its latency) and converted once per
+// batch: double(X) * scale + offset is monotonic in X, so the converted extremes are exactly the
+// extremes of the decoded coordinates.
+template <bool kExtended>
+void decodeRecords(const std::uint8_t* src, std::size_t n, std::size_t stride, const double* scale,
+                   const double* offset, PointRecord* out, Bounds3& bounds) {
+  if (n == 0) return;
+  const double sx = scale[0], sy = scale[1], sz = scale[2];
+  const double ox = offset[0], oy = offset[1], oz = offset[2];
+  std::int32_t lo[3] = {INT32_MAX, INT32_MAX, INT32_MAX}, hi[3] = {INT32_MIN, INT32_MIN, INT32_MIN};
+  for (std::size_t i = 0; i < n; ++i) {
+    const std::uint8_t* r = src + i * stride;
+    PointRecord& p = out[i];
+    const std::int32_t X = le<std::int32_t>(r), Y = le<std::int32_t>(r + 4), Z = le<std::int32_t>(r + 8);
+    lo[0] = std::min(lo[0], X);
+    hi[0] = std::max(hi[0], X);
+    lo[1] = std::min(lo[1], Y);
+    hi[1] = std::max(hi[1], Y);
+    lo[2] = std::min(lo[2], Z);
+    hi[2] = std::max(hi[2], Z);
+    // Two roundings (product, then sum), never fused: the value every LAS tool computes.
+    const double px = static_cast<double>(X) * sx;
+    const double py = static_cast<double>(Y) * sy;
+    const double pz = static_cast<double>(Z) * sz;
+    p.x = px + ox;
+    p.y = py + oy;
+    p.z = pz + oz;
+    p.intensity = le<std::uint16_t>(r + 12);
+    const std::uint8_t b14 = r[14], b15 = r[15];
+    if constexpr (kExtended) {
+      p.returnNumber = b14 & 0x0F;
+      p.numberOfReturns = static_cast<std::uint8_t>(b14 >> 4);
+      p.flags = b15 & 0x0F;  // synthetic, key-point, withheld, overlap: same bit order as PointFlag
+      p.classification = r[16];
+    } else {
+      p.returnNumber = b14 & 0x07;
+      p.numberOfReturns = (b14 >> 3) & 0x07;
+      p.classification = b15 & 0x1F;
+      p.flags = static_cast<std::uint8_t>(b15 >> 5);  // synthetic, key-point, withheld
+    }
+  }
+  const double s[3] = {sx, sy, sz}, o[3] = {ox, oy, oz};
+  double a[3], b[3];
+  for (int k = 0; k < 3; ++k) {
+    const double u = static_cast<double>(lo[k]) * s[k], v = static_cast<double>(hi[k]) * s[k];
+    a[k] = std::min(u + o[k], v + o[k]);
+    b[k] = std::max(u + o[k], v + o[k]);
+  }
+  bounds.add(a[0], a[1], a[2]);
+  bounds.add(b[0], b[1], b[2]);
+}
+
+int extraBytesTypeSize(int type, int options) {
+  if (type == 0) return options;  // "undocumented extra bytes": options holds the byte count
+  static constexpr int base[11] = {0, 1, 1, 2, 2, 4, 4, 8, 8, 4, 8};
+  if (type >= 1 && type <= 10) return base[type];
+  if (type >= 11 && type <= 20) return 2 * base[type - 10];  // deprecated 2-element arrays
+  if (type >= 21 && type <= 30) return 3 * base[type - 20];  // deprecated 3-element arrays
+  return -1;
+}
+
+}  // namespace
+
+int lasStandardRecordLength(int pointFormat) {
+  return pointFormat >= 0 && pointFormat <= 10 ? kRecordLength[pointFormat] : 0;
+}
+
+bool looksLikeLas(const std::uint8_t* head, std::size_t size) {
+  return size >= 4 && std::memcmp(head, "LASF", 4) == 0;
+}
+
+LasReader::LasReader(const std::string& path, Diagnostics& diag) : diag_(diag) {
+  info_.path = path;
+  if (path == "-") {
+    stream_ = true;
+  } else {
+    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+    if (fd_ < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
+    struct stat st {};
+    if (::fstat(fd_, &st) != 0) {
+      int e = errno;
+      ::close(fd_);
+      throw DataError(path, std::string("cannot stat: ") + std::strerror(e));
+    }
+    if (!S_ISREG(st.st_mode)) {
+      // A FIFO or device: read it as a stream, single pass.
+      stream_ = true;
+    } else {
+      size_ = static_cast<std::size_t>(st.st_size);
+      fileIno_ = static_cast<std::uint64_t>(st.st_ino);
+      fileDev_ = static_cast<std::uint64_t>(st.st_dev);
+      fileMtimeNs_ = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+      if (size_ > 0) {
+        mapping_ = ::mmap(nullptr, size_, PROT_READ, MAP_PRIVATE, fd_, 0);
+        if (mapping_ == MAP_FAILED) {
+          int e = errno;
+          ::close(fd_);
+          throw DataError(path, std::string("cannot map the file: ") + std::strerror(e));
+        }
+        // No advice for the whole file: WILLNEED over a survey larger than RAM would read it all into
+        // a page cache that evicts it again before it is decoded.  read() asks for a window ahead.
+        base_ = static_cast<const std::uint8_t*>(mapping_);
+      } else {
+        static const std::uint8_t kEmpty = 0;
+        base_ = &kEmpty;
+      }
+    }
+  }
+  try {
+    parse();
+  } catch (...) {
+    if (mapping_) ::munmap(mapping_, size_);
+    if (fd_ >= 0) ::close(fd_);
+    throw;
+  }
+  if (mapping_) {  // the header is read: map the file again when its points are
+    lazyFile_ = true;
+    closeFile();
+  }
+}
+
+void LasReader::openFile() {
+  if (!lazyFile_ || fd_ >= 0) return;
+  const std::string& path = info_.path;
+  fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd_ < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
+  struct stat st {};
+  if (::fstat(fd_, &st) != 0) {
+    const int e = errno;
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(path, std::string("cannot stat: ") + std::strerror(e));
+  }
+  const std::int64_t mtime = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  if (static_cast<std::size_t>(st.st_size) != size_ || static_cast<std::uint64_t>(st.st_ino) != fileIno_ ||
+      static_cast<std::uint64_t>(st.st_dev) != fileDev_ || mtime != fileMtimeNs_) {
+    ::close(fd_);
+    fd_ = -1;
+    throw DataError(
+        path, "the file changed since its header was read (was it modified or replaced during the run?)");
+  }
+  // The points are read with pread into small buffers, not through a mapping: no page faults (costly
+  // on many virtual machines), nothing of the file counted in the RSS, and a seek is one large read.
+  requested_ = 0;
+}
+
+void LasReader::closeFile() {
+  if (mapping_) {
+    ::munmap(mapping_, size_);
+    base_ = nullptr;
+  }
+  mapping_ = nullptr;
+  if (fd_ >= 0) ::close(fd_);
+  fd_ = -1;
+}
+
+LasReader::LasReader(const std::string& name, const std::uint8_t* data, std::size_t size, Diagnostics& diag)
+    : diag_(diag), base_(data), size_(size) {
+  info_.path = name;
+  parse();
+}
+
+LasReader::~LasReader() {
+  if (mapping_) ::munmap(mapping_, size_);
+  if (fd_ >= 0) ::close(fd_);
+}
+
+std::size_t LasReader::fillStream(std::size_t want) {
+  if (streamEnd_ - streamBegin_ >= want || streamEof_) return streamEnd_ - streamBegin_;
+  if (streamBegin_ > 0) {
+    std::memmove(streamBuf_.data(), streamBuf_.data() + streamBegin_, streamEnd_ - streamBegin_);
+    streamEnd_ -= streamBegin_;
+    streamBegin_ = 0;
+  }
+  if (streamBuf_.size() < std::max(want, kStreamBlock)) streamBuf_.resize(std::max(want, kStreamBlock));
+  while (streamEnd_ < want && !streamEof_) {
+    std::size_t got;
+    if (fd_ >= 0) {
+      ssize_t r;
+      do r = ::read(fd_, streamBuf_.data() + streamEnd_, streamBuf_.size() - streamEnd_);
+      while (r < 0 && errno == EINTR);
+      if (r < 0) throw DataError(info_.path, std::string("read error: ") + std::strerror(errno));
+      got = static_cast<std::size_t>(r);
+    } else {
+      got = readStdin(streamBuf_.data() + streamEnd_, streamBuf_.size() - streamEnd_);
+    }
+    if (got == 0) streamEof_ = true;
+    streamEnd_ += got;
+  }
+  return streamEnd_ - streamBegin_;
+}
+
+void LasReader::parse() {
+  const std::string& file = info_.path;
+  // The header and VLRs: in stream mode they are read into streamBuf_ and parsed from there.
+  const std::uint8_t* h;
+  std::size_t avail;
+  if (stream_) {
+    avail = fillStream(375);
+    h = streamBuf_.data();
+  } else {
+    h = base_;
+    avail = size_;
+  }
+  if (avail < 4 || !looksLikeLas(h, avail))
+    throw DataError(file, "not a LAS file (it does not start with the signature \"LASF\")");
+  if (avail < 227)
+    throw DataError(file, "truncated LAS header: the file has " + fmtCount(avail) +
+                              " bytes, a LAS header needs at least 227");
+  info_.format = "LAS";
+  const std::uint8_t rawFormat = h[104];
+  const std::uint16_t headerSize = le<std::uint16_t>(h + 94);
+  if (rawFormat & 0xC0)
+    throw DataError(file,
+                    "LAZ is not supported yet: decompress with laszip/pdal first "
+                    "(the point format byte has the compression bit set)");
+  info_.versionMajor = h[24];
+  info_.versionMinor = h[25];
+  if (info_.versionMajor != 1)
+    throw DataError(file, "unsupported LAS version " + std::to_string(info_.versionMajor) + "." +
+                              std::to_string(info_.versionMinor) + " (tinbuild reads LAS 1.0 to 1.4)");
+  if (info_.versionMinor > 4) {
+    diag_.warn("las.newer_minor_version", file,
+               "LAS 1." + std::to_string(info_.versionMinor) + " is newer than 1.4; reading it as LAS 1.4");
+  }
+  const int minor = std::min<int>(info_.versionMinor, 4);
+  const std::size_t needHeader = minor >= 4 ? 375 : minor == 3 ? 235 : 227;
+  if (headerSize < needHeader)
+    throw DataError(file, "corrupted LAS header: header size field is " + std::to_string(headerSize) +
+                              " but LAS 1." + std::to_string(info_.versionMinor) + " needs at least " +
+                              std::to_string(needHeader) + " bytes");
+  if (stream_) {
+    avail = fillStream(headerSize);
+    h = streamBuf_.data();
+  }
+  if (avail < headerSize)
+    throw DataError(file, "truncated LAS header: header size is " + std::to_string(headerSize) +
+                              " bytes but the file has only " + fmtCount(avail));
+
+  info_.globalEncoding = minor >= 2 ? le<std::uint16_t>(h + 6) : 0;
+  info_.systemIdentifier = fixedString(h + 26, 32);
+  info_.generatingSoftware = fixedString(h + 58, 32);
+  info_.creationDay = le<std::uint16_t>(h + 90);
+  info_.creationYear = le<std::uint16_t>(h + 92);
+  pointOffset_ = le<std::uint32_t>(h + 96);
+  info_.vlrCount = le<std::uint32_t>(h + 100);
+  info_.pointFormat = rawFormat & 0x3F;
+  info_.recordLength = le<std::uint16_t>(h + 105);
+  const std::uint64_t legacyCount = le<std::uint32_t>(h + 107);
+  for (int i = 0; i < 5; ++i) info_.headerPointsByReturn[i] = le<std::uint32_t>(h + 111 + 4 * i);
+  for (int i = 0; i < 3; ++i) {
+    info_.scale[i] = le<double>(h + 131 + 8 * i);
+    info_.offset[i] = le<double>(h + 155 + 8 * i);
+  }
+  info_.hasScale = true;
+  Bounds3& hb = info_.headerBounds;
+  hb.maxX = le<double>(h + 179);
+  hb.minX = le<double>(h + 187);
+  hb.maxY = le<double>(h + 195);
+  hb.minY = le<double>(h + 203);
+  hb.maxZ = le<double>(h + 211);
+  hb.minZ = le<double>(h + 219);
+  info_.hasHeaderBounds = std::isfinite(hb.minX) && std::isfinite(hb.maxX) && std::isfinite(hb.minY) &&
+                          std::isfinite(hb.maxY) && std::isfinite(hb.minZ) && std::isfinite(hb.maxZ);
+
+  if (info_.pointFormat > 10)
+    throw DataError(file, "unknown point data record format " + std::to_string(info_.pointFormat) +
+                              " (LAS defines formats 0 to 10)");
+  const int standard = kRecordLength[info_.pointFormat];
+  if (info_.recordLength < standard)
+    throw DataError(file, "point record length " + std::to_string(info_.recordLength) +
+                              " is shorter than the " + std::to_string(standard) + " bytes point format " +
+                              std::to_string(info_.pointFormat) + " needs");
+  info_.extraBytesPerRecord = info_.recordLength - standard;
+  for (int i = 0; i < 3; ++i) {
+    static const char* axis[3] = {"x", "y", "z"};
+    if (!(info_.scale[i] != 0.0) || !std::isfinite(info_.scale[i]))
+      throw DataError(file, std::string("invalid ") + axis[i] + " scale factor " +
+                                std::to_string(info_.scale[i]) +
+                                " in the header (it must be finite and non-zero)");
+    if (!std::isfinite(info_.offset[i]))
+      throw DataError(file, std::string("invalid ") + axis[i] + " offset in the header (not finite)");
+    // Writers round header bounds in different ways; one scale unit of slack absorbs that.
+    boundsSlack_[i] = std::fabs(info_.scale[i]);
+  }
+
+  std::uint64_t waveformStart = 0, evlrStart = 0;
+  if (minor >= 3) waveformStart = le<std::uint64_t>(h + 227);
+  std::uint64_t count = legacyCount;
+  if (minor >= 4) {
+    evlrStart = le<std::uint64_t>(h + 235);
+    info_.evlrCount = le<std::uint32_t>(h + 243);
+    const std::uint64_t count64 = le<std::uint64_t>(h + 247);
+    for (int i = 0; i < 15; ++i) info_.headerPointsByReturn[i] = le<std::uint64_t>(h + 255 + 8 * i);
+    if (count64 == 0 && legacyCount != 0) {
+      diag_.warn("las.count64_zero", file,
+                 "the 64-bit point count is 0 but the legacy count says " + fmtCount(legacyCount) +
+                     "; using the legacy count");
+      count = legacyCount;
+    } else {
+      if (legacyCount != 0 && legacyCount != count64)
+        diag_.warn("las.legacy_count_mismatch", file,
+                   "legacy point count " + fmtCount(legacyCount) + " disagrees with the 64-bit count " +
+                       fmtCount(count64) + "; using the 64-bit count");
+      count = count64;
+    }
+  }
+  info_.headerPointCount = count;
+
+  if (pointOffset_ < headerSize)
+    throw DataError(file, "point data offset " + fmtCount(pointOffset_) + " lies inside the header (" +
+                              std::to_string(headerSize) + " bytes)");
+  if (stream_) {
+    avail = fillStream(pointOffset_);
+    h = streamBuf_.data();
+    if (avail < pointOffset_)
+      throw DataError(file, "truncated: the point data should start at byte " + fmtCount(pointOffset_) +
+                                " but the input ends at byte " + fmtCount(avail));
+  } else if (pointOffset_ > size_) {
+    throw DataError(file, "point data offset " + fmtCount(pointOffset_) +
+                              " lies beyond the end of the file (" + fmtCount(size_) + " bytes)");
+  }
+
+  // VLRs between the header and the point data.
+  {
+    std::uint64_t pos = headerSize;
+    std::uint32_t parsed = 0;
+    for (; parsed < info_.vlrCount; ++parsed) {
+      if (pos + kVlrHeader > pointOffset_) break;
+      const std::uint8_t* v = h + pos;
+      LasVlr vlr;
+      vlr.userId = fixedString(v + 2, 16);
+      vlr.recordId = le<std::uint16_t>(v + 18);
+      vlr.dataLength = le<std::uint16_t>(v + 20);
+      vlr.description = fixedString(v + 22, 32);
+      vlr.dataOffset = pos + kVlrHeader;
+      if (vlr.dataOffset + vlr.dataLength > pointOffset_) break;
+      vlr.data.assign(h + vlr.dataOffset, h + vlr.dataOffset + vlr.dataLength);
+      pos = vlr.dataOffset + vlr.dataLength;
+      vlrs_.push_back(std::move(vlr));
+    }
+    if (parsed < info_.vlrCount) {
+      diag_.warn("las.vlr_overrun", file,
+                 "the header declares " + fmtCount(info_.vlrCount) + " VLRs but only " + fmtCount(parsed) +
+                     " fit before the point data at byte " + fmtCount(pointOffset_) +
+                     "; the rest are ignored");
+    }
+    if (stream_) streamBegin_ = pointOffset_;
+  }
+
+  // Where the point records must end: at the EVLRs or internal waveform data when those follow them.
+  if (!stream_) {
+    std::uint64_t end = size_;
+    if (evlrStart > pointOffset_ && evlrStart <= size_) end = std::min<std::uint64_t>(end, evlrStart);
+    const bool internalWaveform = (info_.globalEncoding & 0x2) != 0;
+    if (internalWaveform && waveformStart > pointOffset_ && waveformStart <= size_) {
+      end = std::min<std::uint64_t>(end, waveformStart);
+      info_.waveformBytes =
+          (evlrStart > waveformStart && evlrStart <= size_ ? evlrStart : size_) - waveformStart;
+    }
+    const std::uint64_t holds = (end - pointOffset_) / static_cast<std::uint64_t>(info_.recordLength);
+    if (count > holds)
+      throw DataError(file, "file is truncated: the header says " + fmtCount(count) +
+                                " points but the file holds " + fmtCount(holds) + " (" +
+                                fmtCount(end - pointOffset_) + " bytes of point data, " +
+                                std::to_string(info_.recordLength) + " bytes per record)");
+    const std::uint64_t trailing =
+        end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
+    if (trailing > 0 && evlrStart == 0 && !internalWaveform)
+      info_.notes.push_back(fmtCount(trailing) + " bytes after the last point record are ignored");
+
+    // EVLRs (LAS 1.4).
+    if (info_.evlrCount > 0) {
+      std::uint64_t pos = evlrStart;
+      std::uint32_t parsed = 0;
+      if (evlrStart < pointOffset_ + count * static_cast<std::uint64_t>(info_.recordLength)) pos = size_ + 1;
+      for (; parsed < info_.evlrCount; ++parsed) {
+        if (pos > size_ || size_ - pos < kEvlrHeader) break;  // (no overflow for absurd offsets)
+        const std::uint8_t* v = base_ + pos;
+        LasVlr vlr;
+        vlr.extended = true;
+        vlr.userId = fixedString(v + 2, 16);
+        vlr.recordId = le<std::uint16_t>(v + 18);
+        vlr.dataLength = le<std::uint64_t>(v + 20);
+        vlr.description = fixedString(v + 28, 32);
+        vlr.dataOffset = pos + kEvlrHeader;
+        if (vlr.dataLength > size_ - vlr.dataOffset) break;
+        // Keep payloads tinbuild interprets (CRS, extra bytes); skip the bulk ones (waveforms).
+        if (vlr.userId == "LASF_Projection" || vlr.userId == "liblas" || vlr.userId == "LASF_Spec")
+          vlr.data.assign(base_ + vlr.dataOffset, base_ + vlr.dataOffset + vlr.dataLength);
+        pos = vlr.dataOffset + vlr.dataLength;
+        vlrs_.push_back(std::move(vlr));
+      }
+      if (parsed < info_.evlrCount)
+        diag_.warn("las.evlr_overrun", file,
+                   "the header declares " + fmtCount(info_.evlrCount) + " EVLRs but only " +
+                       fmtCount(parsed) + " lie within the file; the rest are ignored");
+    }
+    info_.pointCount = count;
+    info_.pointCountKnown = true;
+  } else {
+    info_.pointCount = count;
+    info_.pointCountKnown = false;  // confirmed only when the stream ends
+  }
+
+  for (const auto& v : vlrs_) {
+    if (v.userId == "laszip encoded" && v.recordId == 22204)
+      throw DataError(file,
+                      "LAZ is not supported yet: decompress with laszip/pdal first "
+                      "(the file carries a LASzip VLR)");
+  }
+  if (info_.pointFormat >= 4 && info_.pointFormat != 6 && info_.pointFormat != 7 && info_.pointFormat != 8 &&
+      info_.waveformBytes > 0)
+    info_.notes.push_back("internal waveform data (" + fmtCount(info_.waveformBytes) + " bytes) skipped");
+  checkExtraBytes();
+  readCrs();
+  nextPoint_ = 0;
+}
+
+void LasReader::checkExtraBytes() {
+  const std::string& file = info_.path;
+  const int extra = info_.extraBytesPerRecord;
+  int described = -1;
+  for (const auto& v : vlrs_) {
+    if (v.userId != "LASF_Spec" || v.recordId != 4) continue;
+    described = 0;
+    if (v.data.size() % 192 != 0)
+      diag_.warn("las.extra_bytes_vlr_size", file,
+                 "Extra Bytes VLR length " + fmtCount(v.data.size()) + " is not a multiple of 192");
+    for (std::size_t off = 0; off + 192 <= v.data.size(); off += 192) {
+      const int size = extraBytesTypeSize(v.data[off + 2], v.data[off + 3]);
+      if (size < 0) {
+        described = -2;
+        break;
+      }
+      described += size;
+    }
+  }
+  if (described == -2 || described > extra) {
+    diag_.warn("las.extra_bytes_malformed", file,
+               "the Extra Bytes VLR describes " +
+                   (described < 0 ? std::string("unknown") : std::to_string(described)) +
+                   " bytes per point but the records carry " + std::to_string(extra) +
+                   " extra bytes; the description is ignored (extra bytes are skipped)");
+  }
+  if (extra > 0) {
+    std::string note = std::to_string(extra) + " extra bytes per record skipped";
+    if (described < 0) note += " (not described by an Extra Bytes VLR)";
+    info_.notes.push_back(note);
+  }
+}
+
+void LasReader::readCrs() {
+  const std::string& file = info_.path;
+  std::string key;  // every record the CRS is made of, and the WKT bit
+  GeoKeyRecords keys;
+  std::string wkt, liblasWkt;
+  bool haveWkt = false, haveLiblasWkt = false;
+  for (const auto& v : vlrs_) {
+    if ((v.userId == "LASF_Projection" &&
+         (v.recordId == 34735 || v.recordId == 34736 || v.recordId == 34737 || v.recordId == 2112)) ||
+        (v.userId == "liblas" && v.recordId == 2112)) {
+      key += v.userId + '/' + std::to_string(v.recordId) + '/' + std::to_string(v.data.size()) + '/';
+      key.append(v.data.begin(), v.data.end());
+    }
+    if (v.userId == "LASF_Projection") {
+      if (v.recordId == 34735) {
+        keys.directory.resize(v.data.size() / 2);
+        for (std::size_t i = 0; i < keys.directory.size(); ++i)
+          keys.directory[i] = le<std::uint16_t>(v.data.data() + 2 * i);
+      } else if (v.recordId == 34736) {
+        keys.doubles.resize(v.data.size() / 8);
+        for (std::size_t i = 0; i < keys.doubles.size(); ++i)
+          keys.doubles[i] = le<double>(v.data.data() + 8 * i);
+      } else if (v.recordId == 34737) {
+        keys.ascii.assign(v.data.begin(), v.data.end());
+      } else if (v.recordId == 2112) {
+        wkt.assign(v.data.begin(), v.data.end());
+        haveWkt = true;
+      }
+    } else if (v.userId == "liblas" && v.recordId == 2112) {
+      liblasWkt.assign(v.data.begin(), v.data.end());
+      haveLiblasWkt = true;
+    }
+  }
+  const bool wktBit = (info_.globalEncoding & 0x10) != 0;
+  key += wktBit ? '1' : '0';
+  // The tiles of a survey carry the same records: interpret them once (GDAL and PROJ take about half a
+  // millisecond a tile) and give each tile the same CRS and the same warnings, under its own name.
+  struct Interpreted {
+    CrsInfo crs;
+    std::vector<Diagnostics::Entry> warnings;
+  };
+  static std::mutex cacheMutex;
+  static std::deque<std::pair<std::string, Interpreted>> cache;  // the last few, newest last
+  std::optional<Interpreted> found;
+  {
+    std::lock_guard lock(cacheMutex);
+    for (const auto& [k, v] : cache)
+      if (k == key) found = v;
+  }
+  if (!found) {
+    Diagnostics local;
+    Interpreted fresh;
+    CrsInfo& crs = fresh.crs;
+    Diagnostics& diag = local;
+    CrsInfo fromKeys, fromWkt;
+    if (!keys.empty()) fromKeys = crsFromGeoKeys(keys, file, diag);
+    if (haveWkt) fromWkt = crsFromWkt(wkt, file, diag);
+    if (!fromKeys.empty() && !fromWkt.empty()) {
+      crs = wktBit ? fromWkt : fromKeys;
+      // Compare the WKT with what the keys state (their EPSG code as the registry defines it) and with what
+      // GDAL made of the keys: either difference is a contradiction the user must hear about.
+      CrsInfo stated = fromKeys;
+      if (fromKeys.declaredEpsg) {
+        try {
+          stated = crsFromUser("EPSG:" + std::to_string(fromKeys.declaredEpsg));
+          stated.declaredEpsg = fromKeys.declaredEpsg;
+        } catch (const Error&) {
+          stated = fromKeys;
+        }
+      }
+      if (!sameCrs(fromKeys, fromWkt) || !sameCrs(stated, fromWkt)) {
+        if (!sameCrs(stated, fromWkt)) fromKeys = stated;
+        auto label = [](const CrsInfo& c) {
+          return "\"" + c.name + "\"" + (c.epsg ? " (EPSG:" + std::to_string(c.epsg) + ")" : "") + " in " +
+                 c.linearUnit;
+        };
+        diag.warn("crs.geokeys_wkt_disagree", file,
+                  "the GeoTIFF keys say " + label(fromKeys) + " but the WKT says " + label(fromWkt) +
+                      "; using the " +
+                      (wktBit ? "WKT (the global encoding WKT bit is set)"
+                              : "GeoTIFF keys (the global encoding WKT bit is not set)"));
+      }
+    } else if (!fromKeys.empty()) {
+      crs = fromKeys;
+    } else if (!fromWkt.empty()) {
+      crs = fromWkt;
+    } else if (haveLiblasWkt) {
+      // libLAS wrote a copy of the WKT under its own user id; use it when the standard records give nothing.
+      crs = crsFromWkt(liblasWkt, file, diag);
+      if (!crs.empty()) crs.source = "wkt (liblas)";
+    }
+    fresh.warnings = local.entries();
+    std::lock_guard lock(cacheMutex);
+    cache.emplace_back(key, fresh);
+    if (cache.size() > 8) cache.pop_front();
+    found = std::move(fresh);
+  }
+  info_.crs = found->crs;
+  for (const auto& w : found->warnings)
+    diag_.warn(w.kind, w.file.empty() ? "" : file, w.firstMessage, w.count);
+}
+
+void LasReader::decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* out, Bounds3& bounds) const {
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  if (info_.pointFormat >= 6)
+    decodeRecords<true>(src, n, stride, info_.scale, info_.offset, out, bounds);
+  else
+    decodeRecords<false>(src, n, stride, info_.scale, info_.offset, out, bounds);
+}
+
+std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecord* out) {
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  return decodeParts(n, out, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
+    decodeInto(src + lo * stride, hi - lo, out + lo, bounds);
+  });
+}
+
+std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out,
+                                   const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill) {
+  // One part per crew thread, each with its own bounds and outside count, merged in part order.
+  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
+  struct Part {
+    Bounds3 bounds;
+    std::uint64_t outside = 0;
+  };
+  Part partial[kMaxDecodeThreads];
+  auto work = [&](int k) {
+    const std::size_t lo = n * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
+    const std::size_t hi = n * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
+    Part& part = partial[k];
+    if (hi > lo) fill(lo, hi, part.bounds);
+    if (!info_.hasHeaderBounds || hi == lo) return;
+    const Bounds3& hb = info_.headerBounds;
+    const Bounds3& b = part.bounds;
+    const double sx = boundsSlack_[0], sy = boundsSlack_[1], sz = boundsSlack_[2];
+    if (b.minX < hb.minX - sx || b.maxX > hb.maxX + sx || b.minY < hb.minY - sy || b.maxY > hb.maxY + sy ||
+        b.minZ < hb.minZ - sz || b.maxZ > hb.maxZ + sz) {
+      for (std::size_t i = lo; i < hi; ++i) {
+        const PointRecord& q = out[i];
+        if (q.x < hb.minX - sx || q.x > hb.maxX + sx || q.y < hb.minY - sy || q.y > hb.maxY + sy ||
+            q.z < hb.minZ - sz || q.z > hb.maxZ + sz)
+          ++part.outside;
+      }
+    }
+  };
+  if (parts > 1)
+    crew_->run(parts, work);
+  else
+    work(0);
+  for (int k = 0; k < parts; ++k) {
+    decoded_.add(partial[k].bounds);
+    outside_ += partial[k].outside;
+  }
+  return n;
+}
+
+std::size_t LasReader::decodeFile(std::uint64_t first, std::size_t n, PointRecord* out) {
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  // Each part reads its records in pieces of about 256 KiB (they stay in the core's cache between the
+  // read and the decoding) into a buffer of the thread's own: a survey of thousands of tiles holds one
+  // buffer per decode thread, not one per tile.
+  const std::size_t piece = std::max<std::size_t>(1, (std::size_t{256} << 10) / stride);
+  return decodeParts(n, out, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
+    thread_local std::vector<std::uint8_t> buf;
+    if (buf.size() < piece * stride) buf.resize(piece * stride);
+    for (std::size_t i = lo; i < hi; i += piece) {
+      const std::size_t m = std::min(piece, hi - i);
+      readFully(buf.data(), m * stride, pointOffset_ + (first + i) * stride);
+      decodeInto(buf.data(), m, out + i, bounds);
+    }
+  });
+}
+
+void LasReader::readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {
+  while (size > 0) {
+    const ssize_t got = ::pread(fd_, dst, size, static_cast<off_t>(offset));
+    if (got < 0) {
+      if (errno == EINTR) continue;
+      throw DataError(info_.path, std::string("cannot read the points: ") + std::strerror(errno));
+    }
+    if (got == 0)
+      throw DataError(info_.path, "the file ended at byte " + fmtCount(offset) +
+                                      " while its points were read (was it truncated during the run?)");
+    dst += got;
+    size -= static_cast<std::size_t>(got);
+    offset += static_cast<std::uint64_t>(got);
+  }
+}
+
+namespace {
+
+// The decode crew of `threads` threads, shared by every reader that uses one (it lives while any does).
+std::shared_ptr<WorkCrew> sharedDecodeCrew(int threads) {
+  static std::mutex mutex;
+  static std::weak_ptr<WorkCrew> crews[LasReader::kMaxDecodeThreads + 1];
+  std::lock_guard lock(mutex);
+  std::shared_ptr<WorkCrew> crew = crews[threads].lock();
+  if (!crew) {
+    crew = std::make_shared<WorkCrew>(threads);
+    crews[threads] = crew;
+  }
+  return crew;
+}
+
+}  // namespace
+
+void LasReader::setDecodeThreads(int threads) {
+  threads = std::clamp(threads, 1, kMaxDecodeThreads);
+  if (stream_ || threads == 1) {
+    crew_.reset();
+    return;
+  }
+  if (!crew_ || crew_->threads() != threads) crew_ = sharedDecodeCrew(threads);
+}
+
+void LasReader::finishPass() {
+  if (passReported_) return;
+  passReported_ = true;
+  if (outside_ > 0) {
+    const Bounds3& hb = info_.headerBounds;
+    diag_.warn("las.points_outside_header_bounds", info_.path,
+               fmtCount(outside_) + " points lie outside the header bounds (header x " +
+                   fmtRange(hb.minX, hb.maxX) + " y " + fmtRange(hb.minY, hb.maxY) + " z " +
+                   fmtRange(hb.minZ, hb.maxZ) + "; actual x " + fmtRange(decoded_.minX, decoded_.maxX) +
+                   " y " + fmtRange(decoded_.minY, decoded_.maxY) + " z " +
+                   fmtRange(decoded_.minZ, decoded_.maxZ) + "); using the actual bounds",
+               outside_);
+  }
+}
+
+std::size_t LasReader::read(PointRecord* out, std::size_t max) {
+  const std::uint64_t remaining = nextPoint_ < info_.pointCount ? info_.pointCount - nextPoint_ : 0;
+  std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(max, remaining));
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  if (n == 0) {
+    if (stream_ && !info_.pointCountKnown) info_.pointCountKnown = true;
+    finishPass();
+    return 0;
+  }
+  if (!stream_) {
+    openFile();
+    if (lazyFile_)
+      decodeFile(nextPoint_, n, out);
+    else
+      decode(base_ + pointOffset_ + nextPoint_ * stride, n, out);
+    nextPoint_ += n;
+    passDecoded_ += n;
+    readAhead(pointOffset_ + nextPoint_ * stride);
+    if (passDecoded_ >= info_.pointCount) {
+      finishPass();
+      if (lazyFile_) closeFile();
+    }
+    return n;
+  }
+  // Stream: decode what is buffered, a block at a time.
+  n = std::min(n, std::max<std::size_t>(1, kStreamBlock / stride));
+  std::size_t avail = fillStream(n * stride);
+  if (avail < n * stride) {
+    const std::uint64_t holds = nextPoint_ + avail / stride;
+    if (holds < info_.pointCount)
+      throw DataError(info_.path, "input is truncated: the header says " + fmtCount(info_.pointCount) +
+                                      " points but the input holds " + fmtCount(holds));
+  }
+  decode(streamBuf_.data() + streamBegin_, n, out);
+  streamBegin_ += n * stride;
+  nextPoint_ += n;
+  if (nextPoint_ == info_.pointCount) {
+    info_.pointCountKnown = true;
+    finishPass();
+  }
+  return n;
+}
+
+void LasReader::readAhead(std::uint64_t upTo) {
+  if (fd_ < 0 || seeking_) return;
+  // Keep the next kAhead bytes requested from storage (a cold survey is then read with deep,
+  // asynchronous I/O rather than a block at a time), topped up every kAhead / 4.  A survey smaller than
+  // kAhead is asked for whole at its first batch.  (Out of order, seek() asks for each range instead.)
+  constexpr std::uint64_t kAhead = std::uint64_t{1} << 30;
+  if (upTo + kAhead * 3 / 4 >= requested_ && requested_ < size_) {
+    const std::uint64_t from = std::max(requested_, upTo);
+    const std::uint64_t to = std::min<std::uint64_t>(size_, upTo + kAhead);
+    if (to > from)
+      ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
+    requested_ = to;
+  }
+}
+
+void LasReader::seek(std::uint64_t record, std::uint64_t count) {
+  if (stream_) throw Error(info_.path + ": standard input cannot be read out of order");
+  if (record > info_.pointCount)
+    throw Error(info_.path + ": seek to point " + fmtCount(record) + " of " + fmtCount(info_.pointCount));
+  nextPoint_ = record;
+  seeking_ = true;
+  openFile();
+  willRead(record, count);  // the whole range now: a cold survey is then read in large requests
+}
+
+void LasReader::willRead(std::uint64_t record, std::uint64_t count) {
+  if (fd_ < 0 || record >= info_.pointCount) return;
+  const auto stride = static_cast<std::uint64_t>(info_.recordLength);
+  const std::uint64_t from = pointOffset_ + record * stride;
+  const std::uint64_t to = pointOffset_ + std::min(info_.pointCount, record + count) * stride;
+  if (to > from)
+    ::posix_fadvise(fd_, static_cast<off_t>(from), static_cast<off_t>(to - from), POSIX_FADV_WILLNEED);
+}
+
+void LasReader::suspend() {
+  if (lazyFile_) closeFile();
+}
+
+void LasReader::rewind() {
+  if (stream_) throw Error(info_.path + ": standard input can be read only once");
+  if (dropCache_ && lazyFile_) {
+    openFile();
+    ::posix_fadvise(fd_, 0, 0, POSIX_FADV_DONTNEED);
+    closeFile();
+  }
+  nextPoint_ = 0;
+  passDecoded_ = 0;
+  seeking_ = false;
+  requested_ = 0;
+  decoded_ = Bounds3{};
+  outside_ = 0;
+}
+
+}  // namespace tinbuild

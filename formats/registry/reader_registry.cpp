@@ -1,0 +1,138 @@
+#include "formats/registry/reader_registry.h"
+
+#include <fcntl.h>
+#include <unistd.h>
+
+#include <cerrno>
+#include <cstring>
+
+#include "formats/io/stdin_source.h"
+#include "formats/pointcloud/las_reader.h"
+#include "formats/pointcloud/xyz_reader.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+namespace {
+
+// Presents another reader with the CRS replaced (--a_srs), so readers need not know about overrides.
+class CrsOverride : public PointReader {
+ public:
+  CrsOverride(std::unique_ptr<PointReader> inner, CrsInfo crs)
+      : inner_(std::move(inner)), info_(inner_->info()) {
+    info_.crs = std::move(crs);
+  }
+  const SourceInfo& info() const override {
+    // Counts become known during reading; mirror them.
+    info_.pointCount = inner_->info().pointCount;
+    info_.pointCountKnown = inner_->info().pointCountKnown;
+    return info_;
+  }
+  std::size_t read(PointRecord* out, std::size_t max) override { return inner_->read(out, max); }
+  bool rewindable() const override { return inner_->rewindable(); }
+  bool cheapToReread() const override { return inner_->cheapToReread(); }
+  void rewind() override { inner_->rewind(); }
+
+ private:
+  std::unique_ptr<PointReader> inner_;
+  mutable SourceInfo info_;
+};
+
+bool hasSignature(const std::uint8_t* head, std::size_t size) {
+  return looksLikeLas(head, size);
+}
+
+// LAS 1.4's header is 375 bytes; a COPC file's first VLR follows it at once: user id "copc", record 1.
+bool recognisesCopc(const std::uint8_t* head, std::size_t size) {
+  constexpr std::size_t kVlr = 375;
+  if (!hasSignature(head, size) || size < kVlr + 20) return false;
+  static const char kUser[16] = {'c', 'o', 'p', 'c'};
+  return std::memcmp(head + kVlr + 2, kUser, 16) == 0 && head[kVlr + 18] == 1 && head[kVlr + 19] == 0;
+}
+bool recognisesLaz(const std::uint8_t* head, std::size_t size) {
+  return hasSignature(head, size) && size > 104 && (head[104] & 0xC0) != 0;
+}
+bool recognisesAnything(const std::uint8_t*, std::size_t) {
+  return true;
+}
+
+std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOptions& options,
+                                     Diagnostics& diag) {
+  auto las = std::make_unique<LasReader>(path, diag);
+  las->setDecodeThreads(options.decodeThreads);
+  las->setDropCache(options.dropCache);
+  return las;
+}
+std::unique_ptr<PointReader> openXyz(const std::string& path, const ReaderOptions& options,
+                                     Diagnostics& diag) {
+  return std::make_unique<XyzReader>(path, options, diag);
+}
+
+// Reads up to kSniffBytes from the start of PATH (stdin: pushed back for the reader).
+std::size_t sniff(const std::string& path, std::uint8_t* head) {
+  std::size_t got = 0;
+  if (path == "-") {
+    while (got < kSniffBytes) {
+      const std::size_t r = readStdin(head + got, kSniffBytes - got);
+      if (r == 0) break;
+      got += r;
+    }
+    unreadStdin(head, got);
+    return got;
+  }
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
+  while (got < kSniffBytes) {
+    ssize_t r;
+    do r = ::read(fd, head + got, kSniffBytes - got);
+    while (r < 0 && errno == EINTR);
+    if (r < 0) {
+      const int e = errno;
+      ::close(fd);
+      throw DataError(path, std::string("cannot read: ") + std::strerror(e));
+    }
+    if (r == 0) break;
+    got += static_cast<std::size_t>(r);
+  }
+  ::close(fd);
+  return got;
+}
+
+}  // namespace
+
+const std::vector<ReaderRow>& readerTable() {
+  // Until the LAZ codec lands, COPC and LAZ open the LAS reader, which refuses them with a clear message.
+  static const std::vector<ReaderRow> table = {
+      {"COPC", recognisesCopc, openLas},
+      {"LAZ", recognisesLaz, openLas},
+      {"LAS", hasSignature, openLas},
+      {"XYZ", recognisesAnything, openXyz},
+  };
+  return table;
+}
+
+const ReaderRow& recogniseInput(const std::uint8_t* head, std::size_t size) {
+  for (const ReaderRow& row : readerTable())
+    if (row.recognises(head, size)) return row;
+  return readerTable().back();
+}
+
+std::unique_ptr<PointReader> openPointReader(const std::string& path, const ReaderOptions& options,
+                                             Diagnostics& diag) {
+  std::uint8_t head[kSniffBytes] = {};
+  const std::size_t got = sniff(path, head);
+  std::unique_ptr<PointReader> reader = recogniseInput(head, got).open(path, options, diag);
+  if (!options.assignSrs.empty()) {
+    CrsInfo crs = crsFromUser(options.assignSrs);
+    crs.source = "user (--a_srs)";
+    if (!reader->info().crs.empty() && !sameCrs(reader->info().crs, crs))
+      diag.warn(
+          "crs.overridden", path,
+          "the file's CRS \"" + reader->info().crs.name + "\" is replaced by --a_srs \"" + crs.name + "\"");
+    reader = std::make_unique<CrsOverride>(std::move(reader), std::move(crs));
+  }
+  return reader;
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,210 @@
+#include "formats/registry/writer_registry.h"
+
+#include <algorithm>
+#include <filesystem>
+
+#include "formats/io/output_file.h"
+#include "formats/mesh/conventional_mesh.h"
+#include "formats/mesh/gpkg_tin_writer.h"
+#include "formats/mesh/streaming_mesh.h"
+#include "formats/raster/dem_writer.h"
+#include "libterrain/core/error.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+std::uint64_t sizeOf(const std::string& path) {
+  std::error_code ec;
+  const auto n = std::filesystem::file_size(path, ec);
+  return ec ? 0 : static_cast<std::uint64_t>(n);
+}
+
+// ---- meshes: streaming (SMB, SMA), conventional (PLY, OBJ) ----
+
+class MeshOutput : public OpenedOutput {
+ public:
+  MeshOutput(std::string path, std::unique_ptr<MeshSink> sink)
+      : path_(std::move(path)), sink_(std::move(sink)) {}
+  void attach(MeshTee& tee) override { tee.add(*sink_); }
+  MeshSink* meshSink() override { return sink_.get(); }
+  std::vector<std::string> files() const override { return {path_}; }
+  std::uint64_t bytes() const override { return sizeOf(path_); }
+
+ private:
+  std::string path_;
+  std::unique_ptr<MeshSink> sink_;
+};
+
+bool isStreamingMesh(const std::string& path, MeshFileFormat want) {
+  MeshFileFormat f;
+  return streamingMeshWriterFormat(path, f) && f == want;
+}
+bool matchesSmb(const std::string& path) {
+  return isStreamingMesh(path, MeshFileFormat::Smb);
+}
+bool matchesSma(const std::string& path) {
+  return isStreamingMesh(path, MeshFileFormat::Sma);
+}
+
+bool isConventional(const std::string& path, ConventionalMeshFormat want) {
+  return isConventionalMeshPath(path) && conventionalMeshFormatForPath(path) == want;
+}
+bool matchesPly(const std::string& path) {
+  return isConventional(path, ConventionalMeshFormat::Ply);
+}
+bool matchesObj(const std::string& path) {
+  return isConventional(path, ConventionalMeshFormat::Obj);
+}
+
+std::vector<std::string> oneFile(const std::string& path, const WriterContext&) {
+  return {path};
+}
+// PLY and OBJ carry their CRS in a .prj sidecar.
+std::vector<std::string> fileAndPrj(const std::string& path, const WriterContext&) {
+  return {path, prjPathFor(path)};
+}
+
+template <MeshFileFormat F>
+std::unique_ptr<OpenedOutput> openStreamingMesh(const std::string& path, const WriterContext&) {
+  return std::make_unique<MeshOutput>(path, openMeshWriter(path, F));
+}
+
+template <ConventionalMeshFormat F>
+std::unique_ptr<OpenedOutput> openConventionalMesh(const std::string& path, const WriterContext& c) {
+  ConventionalMeshOptions mo;
+  mo.local = c.meshLocal;
+  mo.commandLine = c.commandLine;
+  return std::make_unique<MeshOutput>(path, openConventionalMeshWriter(path, F, mo));
+}
+
+// ---- GeoPackage TIN ----
+
+class TriangleOutput : public OpenedOutput {
+ public:
+  TriangleOutput(std::string path, std::unique_ptr<TriangleSink> sink)
+      : path_(std::move(path)), sink_(std::move(sink)) {}
+  void attach(MeshTee& tee) override { tee.add(*sink_); }
+  std::vector<std::string> files() const override { return {path_}; }
+  std::uint64_t bytes() const override { return sizeOf(path_); }
+
+ private:
+  std::string path_;
+  std::unique_ptr<TriangleSink> sink_;
+};
+
+bool matchesAnyPath(const std::string& path) {
+  return !path.empty();
+}
+
+std::unique_ptr<OpenedOutput> openGpkgTin(const std::string& path, const WriterContext& c) {
+  GpkgTinOptions go;
+  go.path = path;
+  go.points = c.gpkgPoints;
+  go.commandLine = c.commandLine;
+  return std::make_unique<TriangleOutput>(path, openGpkgTinWriter(go));
+}
+
+// ---- DEM rasters: the rasterizer (libterrain) feeding the GDAL writer ----
+
+class DemOutput : public OpenedOutput {
+ public:
+  DemOutput(const DemWriterOptions& wo, const DemOptions& d)
+      : writer_(std::make_unique<DemWriter>(wo)), rasterizer_(std::make_unique<DemRasterizer>(d, *writer_)) {}
+  void attach(MeshTee& tee) override { tee.add(*rasterizer_); }
+  std::vector<std::string> files() const override { return writer_->outputs(); }
+  std::uint64_t bytes() const override { return writer_->bytesWritten(); }
+  const DemRasterizer* rasterizer() const override { return rasterizer_.get(); }
+
+ private:
+  std::unique_ptr<DemWriter> writer_;  // declared first: the rasterizer writes into it until destroyed
+  std::unique_ptr<DemRasterizer> rasterizer_;
+};
+
+bool matchesDemTiff(const std::string& path) {
+  return demTargetForPath(path) == DemTarget::SingleTiff;
+}
+bool matchesDemGpkg(const std::string& path) {
+  return demTargetForPath(path) == DemTarget::GeoPackage;
+}
+bool matchesDemDirectory(const std::string& path) {
+  return !path.empty() && demTargetForPath(path) == DemTarget::TileDirectory;
+}
+
+DemWriterOptions demWriterOptions(const std::string& path, DemTarget target, const WriterContext& c) {
+  DemWriterOptions wo;
+  wo.path = path;
+  wo.target = target;
+  wo.cog = c.cog;
+  wo.crs = c.crs;
+  wo.commandLine = c.commandLine;
+  setBands(wo, c.dem);
+  wo.replace = c.overwrite;
+  return wo;
+}
+
+// A directory target is refused when it holds anything but our own staging leftovers; the job checks
+// the directory itself, so it is the one target named.
+std::vector<std::string> demDirectoryTargets(const std::string& path, const WriterContext&) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) {
+    for (const auto& e : std::filesystem::directory_iterator(path, ec))
+      if (e.path().filename().string().rfind(".tinbuild-", 0) != 0)
+        throw DataError(path, "the DEM directory is not empty; pass --overwrite to replace the DEM in it");
+    return {};
+  }
+  return {path};
+}
+
+template <DemTarget T>
+std::vector<std::string> demFileTargets(const std::string& path, const WriterContext& c) {
+  return demOutputPaths(demWriterOptions(path, T, c));
+}
+
+template <DemTarget T>
+std::unique_ptr<OpenedOutput> openDem(const std::string& path, const WriterContext& c) {
+  DemOptions d = c.dem;
+  if (T != DemTarget::TileDirectory) {
+    // One raster: tiles are whole 256-pixel blocks of the file, anchored at its corner.
+    d.anchorTilesAtRaster = true;
+    d.tileSize = std::max(256, (d.tileSize + 255) / 256 * 256);
+  }
+  return std::make_unique<DemOutput>(demWriterOptions(path, T, c), d);
+}
+
+}  // namespace
+
+const std::vector<WriterRow>& writerTable() {
+  // Matched in this order: PLY and OBJ before SMB, so a named pipe called out.ply carries PLY.
+  static const std::vector<WriterRow> table = {
+      {WriterKind::Ply, OutputOption::Mesh, "PLY", matchesPly, false, fileAndPrj,
+       openConventionalMesh<ConventionalMeshFormat::Ply>},
+      {WriterKind::Obj, OutputOption::Mesh, "OBJ", matchesObj, false, fileAndPrj,
+       openConventionalMesh<ConventionalMeshFormat::Obj>},
+      {WriterKind::StreamingMeshAscii, OutputOption::Mesh, "SMA", matchesSma, false, oneFile,
+       openStreamingMesh<MeshFileFormat::Sma>},
+      {WriterKind::StreamingMeshBinary, OutputOption::Mesh, "SMB", matchesSmb, true, oneFile,
+       openStreamingMesh<MeshFileFormat::Smb>},
+      {WriterKind::GpkgTin, OutputOption::Gpkg, "GeoPackage TIN", matchesAnyPath, false, oneFile,
+       openGpkgTin},
+      {WriterKind::DemGeoTiff, OutputOption::Dem, "GeoTIFF", matchesDemTiff, false,
+       demFileTargets<DemTarget::SingleTiff>, openDem<DemTarget::SingleTiff>},
+      {WriterKind::DemGeoPackage, OutputOption::Dem, "GeoPackage raster", matchesDemGpkg, false,
+       demFileTargets<DemTarget::GeoPackage>, openDem<DemTarget::GeoPackage>},
+      {WriterKind::DemTileDirectory, OutputOption::Dem, "GeoTIFF tiles + VRT", matchesDemDirectory, false,
+       demDirectoryTargets, openDem<DemTarget::TileDirectory>},
+  };
+  return table;
+}
+
+ResolvedOutput resolveOutput(OutputOption option, const std::string& path) {
+  if (path.empty()) return {};
+  for (const WriterRow& row : writerTable())
+    if (row.option == option && row.matches(path)) return {&row, path};
+  if (option == OutputOption::Mesh)
+    throw UsageError("cannot tell the mesh format of '" + path + "' (use .smb, .sma, .ply or .obj)");
+  throw UsageError("no writer for '" + path + "'");
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,53 @@
+// The finalized point stream as a push interface: what the finalizer emits and the triangulator eats.
+//
+// A finalized stream interleaves points and finalization tags over a GridSpec of 2^depth x 2^depth leaf
+// cells.  A tag names a quadtree cell (level, col, row) with 0 <= level <= depth: at level L the grid has
+// 2^L x 2^L cells, and cell (L, c, r) covers leaf columns [c * 2^(depth-L), (c+1) * 2^(depth-L)) and the
+// same rows.  A tag promises that no point whose leaf cell (grid.column(x), grid.row(y)) lies inside the
+// tagged cell will follow.  Tags may come for empty cells (before any point) and at coarse levels.  After
+// end() everything is final.
+//
+// Geometry of cells: leaf membership is decided by GridSpec::column/row (floating-point), so a point may
+// lie up to a few ulps outside the nominal square [origin + c * cellSize, origin + (c+1) * cellSize).
+// Consumers that reason about regions (the triangulator's certification) must treat finalized regions
+// conservatively: shrink them (or grow unfinalized ones) by kCellTolerance * grid.size.
+//
+// Points arrive in batches; a batch never straddles a tag (tags are separate calls), so the order of
+// points and tags is exact.  Implementations may be called from one thread only.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <string>
+
+#include "libterrain/core/point.h"
+#include "libterrain/finalizer/grid.h"
+
+namespace tinbuild {
+
+// Relative slack (of grid.size) between a cell's nominal square and the points GridSpec assigns to it.
+inline constexpr double kCellTolerance = 1e-9;
+
+struct CellTag {
+  std::uint8_t level = 0;
+  std::uint32_t col = 0, row = 0;
+};
+
+struct StreamInfo {
+  GridSpec grid;
+  Bounds3 bounds;               // of the points that will be streamed (after filters)
+  std::uint64_t points = 0;     // how many will be streamed
+  std::string crsWkt;           // working CRS ("" = none)
+  double scale[3] = {0, 0, 0};  // common quantum of the inputs when known (0 = unknown), informative
+};
+
+class PointSink {
+ public:
+  virtual ~PointSink() = default;
+  virtual void begin(const StreamInfo& info) = 0;
+  virtual void points(const PointRecord* p, std::size_t n) = 0;
+  virtual void finalizeCell(const CellTag& cell) = 0;
+  virtual void end() = 0;
+};
+
+}  // namespace tinbuild

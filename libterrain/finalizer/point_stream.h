@@ -1,0 +1,89 @@
+// The pull interface every multi-pass stage reads points through.
+//
+// The finalizer and `info` read a survey several times (bounds, counts per cell, then the stream), so a
+// stream can be rewound when its source allows it (files yes, stdin no).  Batches are filled into a
+// caller-owned buffer: no per-point virtual call, no per-point allocation.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <vector>
+
+#include "libterrain/core/error.h"
+#include "libterrain/core/point.h"
+
+namespace tinbuild {
+
+class PointStream {
+ public:
+  virtual ~PointStream() = default;
+  // Fills up to `max` records; returns how many (0 = end of this pass).
+  virtual std::size_t read(PointRecord* out, std::size_t max) = 0;
+  virtual bool rewindable() const = 0;
+  // Starts the next pass at the first point.  Throws Error when not rewindable.
+  virtual void rewind() = 0;
+  // False when reading the stream again costs much more than reading back a copy of its points (text
+  // to parse, coordinates to transform): a multi-pass reader may then keep a copy after its first pass.
+  virtual bool cheapToReread() const { return true; }
+
+  // Random access within a pass, for a reader that visits the input in another order than it is stored
+  // (the finalizer's pass 3 reads a survey's batches in a spatially coherent order).  When seekable(),
+  // seek(record, count) makes the next read() start at raw record `record` (read()'s own numbering:
+  // records before any filtering, from 0 at the start of the pass), and announces that the next `count`
+  // records will be read (a hint for read-ahead).  Within one pass every record is still read exactly
+  // once, in whatever order.
+  virtual bool seekable() const { return false; }
+  virtual void seek(std::uint64_t record, std::uint64_t count) {
+    (void)record;
+    (void)count;
+    throw Error("this input cannot be read out of order");
+  }
+  // A hint: decode on this many threads (the caller's included) from now on, where the format allows
+  // it (LAS files).  The records are the same for any number.
+  virtual void setDecodeThreads(int threads) { (void)threads; }
+  // A hint: records [record, record + count) will be read soon (after a later seek).  Lets a file ask
+  // storage for them ahead of time.
+  virtual void willRead(std::uint64_t record, std::uint64_t count) {
+    (void)record;
+    (void)count;
+  }
+  // The caller will not read this stream for a while (it reads other inputs): release what a read holds
+  // open (a descriptor, a mapping).  The next read() reopens it.
+  virtual void suspend() {}
+};
+
+// Several streams read as one, in order (a survey of many tiles).  current() tells which stream the
+// last batch came from.  Rewindable when every part is.
+class ConcatPointStream : public PointStream {
+ public:
+  explicit ConcatPointStream(std::vector<PointStream*> parts) : parts_(std::move(parts)) {}
+  std::size_t read(PointRecord* out, std::size_t max) override {
+    while (current_ < parts_.size()) {
+      const std::size_t n = parts_[current_]->read(out, max);
+      if (n > 0) return n;
+      ++current_;
+    }
+    return 0;
+  }
+  bool rewindable() const override {
+    for (const auto* p : parts_)
+      if (!p->rewindable()) return false;
+    return true;
+  }
+  void rewind() override {
+    for (auto* p : parts_) p->rewind();
+    current_ = 0;
+  }
+  bool cheapToReread() const override {
+    for (const auto* p : parts_)
+      if (!p->cheapToReread()) return false;
+    return true;
+  }
+  std::size_t current() const { return current_; }
+
+ private:
+  std::vector<PointStream*> parts_;
+  std::size_t current_ = 0;
+};
+
+}  // namespace tinbuild

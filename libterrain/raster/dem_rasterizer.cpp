@@ -1,0 +1,410 @@
+#include "libterrain/raster/dem_rasterizer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <string>
+
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/delaunay_predicates.h"
+#include "libterrain/delaunay/predicates.h"
+
+namespace tinbuild {
+
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+constexpr double kDeg = 180.0 / kPi;
+
+std::int64_t floorDiv(std::int64_t a, std::int64_t b) {
+  std::int64_t q = a / b;
+  if ((a % b != 0) && ((a < 0) != (b < 0))) --q;
+  return q;
+}
+
+// Grid line k and pixel centre k: the single formulas every part of the rasterizer uses.
+inline double gridLine(double origin, double step, std::int64_t k) {
+  return origin + static_cast<double>(k) * step;
+}
+inline double centre(double origin, double step, std::int64_t k) {
+  return origin + (static_cast<double>(k) + 0.5) * step;
+}
+
+// The pixel k with gridLine(k) <= v < gridLine(k + 1).
+std::int64_t pixelOf(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::floor((v - origin) / step));
+  while (gridLine(origin, step, k) > v) --k;
+  while (gridLine(origin, step, k + 1) <= v) ++k;
+  return k;
+}
+
+// The first k with centre(k) >= v, and the last k with centre(k) <= v.
+std::int64_t firstCentreAtOrAfter(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::ceil((v - origin) / step - 0.5));
+  while (centre(origin, step, k) < v) ++k;
+  while (centre(origin, step, k - 1) >= v) --k;
+  return k;
+}
+std::int64_t lastCentreAtOrBefore(double origin, double step, double v) {
+  auto k = static_cast<std::int64_t>(std::floor((v - origin) / step - 0.5));
+  while (centre(origin, step, k) > v) --k;
+  while (centre(origin, step, k + 1) <= v) ++k;
+  return k;
+}
+
+// Does the counter-clockwise edge u -> v include p?  Strictly left: yes; exactly on the line: by the
+// (eps, eps^2) rule of the header.  The triangulator's inline orient front end: orient2d's exact sign.
+inline bool edgeIncludes(const Point2& u, const Point2& v, const Point2& p) {
+  const double sign = delaunay::orient(u, v, p);
+  if (sign > 0) return true;
+  if (sign < 0) return false;
+  return v.y < u.y || (v.y == u.y && v.x > u.x);
+}
+
+// The tiles the raster covers: the first tile's lattice indices and how many there are each way (the
+// rasterizer and its tracker must agree on the keys: (ty - firstTy) * tilesX + (tx - firstTx)).
+void tileSpan(const DemLayout& l, std::int64_t& firstTx, std::int64_t& firstTy, std::int64_t& tilesX,
+              std::int64_t& tilesY) {
+  const std::int64_t T = l.tileSize;
+  if (l.width() <= 0) {
+    firstTx = firstTy = tilesX = tilesY = 0;
+    return;
+  }
+  firstTx = floorDiv(l.colMin - l.tileCol0, T);
+  firstTy = floorDiv(l.rowMin - l.tileRow0, T);
+  tilesX = floorDiv(l.colMax - l.tileCol0, T) - firstTx + 1;
+  tilesY = floorDiv(l.rowMax - l.tileRow0, T) - firstTy + 1;
+}
+
+// The pixels of tile (tx, ty): its lattice cell clipped to the raster (inclusive ranges).
+struct TilePixels {
+  std::int64_t col0, row0, col1, row1;
+};
+TilePixels tilePixels(const DemLayout& l, std::int64_t tx, std::int64_t ty) {
+  const std::int64_t T = l.tileSize;
+  const std::int64_t c0 = l.tileCol0 + tx * T, r0 = l.tileRow0 + ty * T;
+  return {std::max(c0, l.colMin), std::max(r0, l.rowMin), std::min(c0 + T - 1, l.colMax),
+          std::min(r0 + T - 1, l.rowMax)};
+}
+
+// The pixel (i, j) a point falls in, when it is inside the raster (closed on the west and south side).
+bool pixelAt(const DemLayout& l, double x, double y, std::int64_t& i, std::int64_t& j) {
+  i = pixelOf(l.originX, l.step, x);
+  j = pixelOf(l.originY, l.step, y);
+  return i >= l.colMin && i <= l.colMax && j >= l.rowMin && j <= l.rowMax;
+}
+
+}  // namespace
+
+DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
+  if (!(o.step > 0) || !std::isfinite(o.step)) throw UsageError("DEM: the step must be a positive number");
+  if (o.tileSize < 16 || o.tileSize > 65536)
+    throw UsageError("DEM: the tile size must be 16..65536 pixels, got " + std::to_string(o.tileSize));
+  if (!std::isfinite(o.originX) || !std::isfinite(o.originY))
+    throw UsageError("DEM: the grid origin must be finite");
+  DemLayout l;
+  l.step = o.step;
+  l.originX = o.originX;
+  l.originY = o.originY;
+  l.tileSize = o.tileSize;
+  l.nodata = o.nodata;
+  double minX, minY, maxX, maxY;
+  if (o.extent) {
+    minX = o.extent->minX, minY = o.extent->minY, maxX = o.extent->maxX, maxY = o.extent->maxY;
+    if (!(minX < maxX && minY < maxY) || !std::isfinite(minX + minY + maxX + maxY))
+      throw UsageError("DEM: the extent must have xmin < xmax and ymin < ymax");
+  } else {
+    if (data.empty()) return l;  // no points: an empty raster (nothing is written)
+    minX = data.minX, minY = data.minY, maxX = data.maxX, maxY = data.maxY;
+  }
+  const double span = std::max(maxX - minX, maxY - minY) / o.step;
+  if (!(span < 2147483647.0))
+    throw UsageError("DEM: the raster would be more than 2^31 pixels wide at this step (" +
+                     std::to_string(span) + "); choose a larger --step or an --extent");
+  l.colMin = pixelOf(o.originX, o.step, minX);
+  l.rowMin = pixelOf(o.originY, o.step, minY);
+  // The last pixel whose square reaches the maximum (a maximum exactly on a grid line ends there).
+  l.colMax = std::max(l.colMin, pixelOf(o.originX, o.step, maxX) -
+                                    (gridLine(o.originX, o.step, pixelOf(o.originX, o.step, maxX)) == maxX));
+  l.rowMax = std::max(l.rowMin, pixelOf(o.originY, o.step, maxY) -
+                                    (gridLine(o.originY, o.step, pixelOf(o.originY, o.step, maxY)) == maxY));
+  if (o.anchorTilesAtRaster) {
+    l.tileCol0 = l.colMin;
+    const std::int64_t tilesY = (l.height() + o.tileSize - 1) / o.tileSize;
+    l.tileRow0 = l.rowMax + 1 - tilesY * o.tileSize;  // tiles end exactly at the raster's north edge
+  }
+  return l;
+}
+
+struct DemRasterizer::Open {
+  DemTile tile;
+  std::uint64_t dataPixels = 0;  // pixels with data in any band
+};
+
+DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out)
+    : opt_(options), out_(out), tracker_(options) {}
+DemRasterizer::~DemRasterizer() = default;
+
+std::int64_t DemRasterizer::tileKey(std::int64_t tx, std::int64_t ty) const {
+  return (ty - firstTy_) * tilesX_ + (tx - firstTx_);
+}
+
+void DemRasterizer::begin(const MeshInfo& info) {
+  layout_ = demLayout(opt_, info.bounds);
+  stats_ = DemStats{};
+  open_.clear();
+  done_.clear();
+  tileSpan(layout_, firstTx_, firstTy_, tilesX_, tilesY_);
+  const double az = opt_.hillshadeAzimuth / kDeg, alt = opt_.hillshadeAltitude / kDeg;
+  lightX_ = std::sin(az) * std::cos(alt);
+  lightY_ = std::cos(az) * std::cos(alt);
+  lightZ_ = std::sin(alt);
+  begun_ = true;
+  out_.begin(layout_, info);
+}
+
+DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
+  const std::int64_t key = tileKey(tx, ty);
+  auto it = open_.find(key);
+  if (it != open_.end()) return *it->second;
+  if (done_.count(key))
+    throw Error("DEM: internal error: a triangle reached tile (" + std::to_string(tx) + ", " +
+                std::to_string(ty) + ") after it was written");
+  auto o = std::make_unique<Open>();
+  DemTile& t = o->tile;
+  t.tx = tx;
+  t.ty = ty;
+  const TilePixels px = tilePixels(layout_, tx, ty);
+  t.col0 = px.col0;
+  t.row0 = px.row0;
+  t.width = static_cast<int>(px.col1 - px.col0 + 1);
+  t.height = static_cast<int>(px.row1 - px.row0 + 1);
+  const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
+  t.z.assign(n, opt_.nodata);
+  if (opt_.slope) t.slope.assign(n, opt_.nodata);
+  if (opt_.aspect) t.aspect.assign(n, opt_.nodata);
+  if (opt_.edgeLength) t.edgeLength.assign(n, opt_.nodata);
+  if (opt_.hillshade) t.hillshade.assign(n, 0);
+  if (opt_.count) t.count.assign(n, 0);
+  Open& ref = *o;
+  open_.emplace(key, std::move(o));
+  stats_.maxOpenTiles = std::max<std::uint64_t>(stats_.maxOpenTiles, open_.size());
+  std::uint64_t bytes = 0;
+  for (const auto& [k, p] : open_) {
+    (void)k;
+    const DemTile& d = p->tile;
+    bytes += (d.z.size() + d.slope.size() + d.aspect.size() + d.edgeLength.size()) * 4 + d.hillshade.size() +
+             d.count.size() * 2;
+  }
+  stats_.peakTileBytes = std::max(stats_.peakTileBytes, bytes);
+  return ref;
+}
+
+void DemRasterizer::vertex(const MeshVertex& v) {
+  std::int64_t i, j;
+  if (!opt_.count || tilesX_ == 0 || !pixelAt(layout_, v.x, v.y, i, j)) return;
+  const std::int64_t T = layout_.tileSize;
+  Open& o = tileAt(floorDiv(i - layout_.tileCol0, T), floorDiv(j - layout_.tileRow0, T));
+  DemTile& t = o.tile;
+  const std::size_t idx =
+      static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width + static_cast<std::size_t>(i - t.col0);
+  if (t.count[idx] == 0 && t.z[idx] == opt_.nodata) ++o.dataPixels;
+  if (t.count[idx] < 65535) ++t.count[idx];
+}
+
+void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
+  if (tilesX_ == 0) return;
+  const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
+  const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
+  const DemLayout& L = layout_;
+  const std::int64_t i0 = std::max(L.colMin, firstCentreAtOrAfter(L.originX, L.step, x0));
+  const std::int64_t i1 = std::min(L.colMax, lastCentreAtOrBefore(L.originX, L.step, x1));
+  if (i0 > i1) return;
+  const std::int64_t j0 = std::max(L.rowMin, firstCentreAtOrAfter(L.originY, L.step, y0));
+  const std::int64_t j1 = std::min(L.rowMax, lastCentreAtOrBefore(L.originY, L.step, y1));
+  if (j0 > j1) return;
+
+  // Canonical rotation: the lexicographically smallest vertex first (counter-clockwise order kept).
+  const MeshVertex* v[3] = {&va, &vb, &vc};
+  int first = 0;
+  for (int k = 1; k < 3; ++k)
+    if (lexLess({v[k]->x, v[k]->y}, {v[first]->x, v[first]->y})) first = k;
+  const MeshVertex& a = *v[first];
+  const MeshVertex& b = *v[(first + 1) % 3];
+  const MeshVertex& c = *v[(first + 2) % 3];
+  const Point2 pa{a.x, a.y}, pb{b.x, b.y}, pc{c.x, c.y};
+
+  const double bx = b.x - a.x, by = b.y - a.y, bz = b.z - a.z;
+  const double cx = c.x - a.x, cy = c.y - a.y, cz = c.z - a.z;
+  const double det = bx * cy - by * cx;
+  const double gx = (bz * cy - cz * by) / det;
+  const double gy = (cz * bx - bz * cx) / det;
+  const double e2 = std::max(
+      bx * bx + by * by, std::max(cx * cx + cy * cy, (c.x - b.x) * (c.x - b.x) + (c.y - b.y) * (c.y - b.y)));
+  const bool tooLong = opt_.maxEdge > 0 && e2 > opt_.maxEdge * opt_.maxEdge;
+  const float edge = static_cast<float>(std::sqrt(e2));
+  float slope = opt_.nodata, aspect = opt_.nodata;
+  std::uint8_t shade = 0;
+  if (!tooLong && (opt_.slope || opt_.aspect || opt_.hillshade)) {
+    const double sx = gx * opt_.zToXY, sy = gy * opt_.zToXY;
+    const double g = std::sqrt(sx * sx + sy * sy);
+    slope = static_cast<float>(std::atan(g) * kDeg);
+    if (g > 0) {
+      double asp = std::atan2(-sx, -sy) * kDeg;
+      if (asp < 0) asp += 360;
+      aspect = static_cast<float>(asp);
+    }
+    const double dot = (-sx * lightX_ - sy * lightY_ + lightZ_) / std::sqrt(sx * sx + sy * sy + 1);
+    shade = static_cast<std::uint8_t>(1 + std::lround(254 * std::max(0.0, dot)));
+  }
+
+  bool any = false;
+  const std::int64_t T = L.tileSize;
+  Open* cur = nullptr;
+  std::int64_t curTx = 0, curTy = 0;
+  for (std::int64_t j = j0; j <= j1; ++j) {
+    const double py = centre(L.originY, L.step, j);
+    const std::int64_t ty = floorDiv(j - L.tileRow0, T);
+    for (std::int64_t i = i0; i <= i1; ++i) {
+      const Point2 p{centre(L.originX, L.step, i), py};
+      if (!edgeIncludes(pa, pb, p) || !edgeIncludes(pb, pc, p) || !edgeIncludes(pc, pa, p)) continue;
+      const std::int64_t tx = floorDiv(i - L.tileCol0, T);
+      if (!cur || tx != curTx || ty != curTy) {
+        cur = &tileAt(tx, ty);
+        curTx = tx;
+        curTy = ty;
+      }
+      DemTile& t = cur->tile;
+      const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
+                              static_cast<std::size_t>(i - t.col0);
+      any = true;
+      const bool hadData = t.z[idx] != opt_.nodata || (!t.count.empty() && t.count[idx] > 0) ||
+                           (!t.edgeLength.empty() && t.edgeLength[idx] != opt_.nodata);
+      if (!hadData) ++cur->dataPixels;
+      if (!t.edgeLength.empty()) t.edgeLength[idx] = edge;
+      if (tooLong) {
+        ++stats_.pixelsMaxEdge;
+        continue;
+      }
+      const double z = a.z + gx * (p.x - a.x) + gy * (p.y - a.y);
+      t.z[idx] = static_cast<float>(z);
+      ++t.validPixels;
+      ++stats_.pixelsWritten;
+      if (!t.slope.empty()) t.slope[idx] = slope;
+      if (!t.aspect.empty()) t.aspect[idx] = aspect;
+      if (!t.hillshade.empty()) t.hillshade[idx] = shade;
+    }
+  }
+  if (any) ++stats_.trianglesRasterized;
+}
+
+void DemRasterizer::complete(std::int64_t key) {
+  done_.insert(key);
+  auto it = open_.find(key);
+  if (it == open_.end()) return;
+  std::unique_ptr<Open> o = std::move(it->second);
+  open_.erase(it);
+  if (o->dataPixels == 0) {
+    ++stats_.tilesEmpty;
+    return;
+  }
+  out_.tile(o->tile);
+  ++stats_.tilesWritten;
+}
+
+void DemRasterizer::areasComplete(const std::int64_t* keys, std::size_t n) {
+  for (std::size_t i = 0; i < n; ++i) {
+    if (open_.count(keys[i])) ++stats_.tilesCompletedEarly;
+    complete(keys[i]);
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// DemTileTracker
+
+void DemTileTracker::begin(const MeshInfo& info) {
+  layout_ = demLayout(opt_, info.bounds);
+  touched_.clear();
+  lastKey_ = -1;
+  emittedSinceCheck_ = scans_ = 0;
+  invStep_ = 1.0 / layout_.step;
+  tileSpan(layout_, firstTx_, firstTy_, tilesX_, tilesY_);
+}
+
+void DemTileTracker::touch(std::int64_t txMin, std::int64_t txMax, std::int64_t tyMin, std::int64_t tyMax) {
+  for (std::int64_t ty = tyMin; ty <= tyMax; ++ty)
+    for (std::int64_t tx = txMin; tx <= txMax; ++tx) {
+      const std::int64_t key = (ty - firstTy_) * tilesX_ + (tx - firstTx_);
+      if (key == lastKey_) continue;  // the common case: the same tile as the previous triangle
+      touched_.insert(key);
+      lastKey_ = key;
+    }
+}
+
+void DemTileTracker::vertex(const MeshVertex& v) {
+  std::int64_t i, j;
+  if (!opt_.count || tilesX_ == 0 || !pixelAt(layout_, v.x, v.y, i, j)) return;
+  const std::int64_t T = layout_.tileSize;
+  const std::int64_t tx = floorDiv(i - layout_.tileCol0, T), ty = floorDiv(j - layout_.tileRow0, T);
+  touch(tx, tx, ty, ty);
+}
+
+void DemTileTracker::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
+  ++emittedSinceCheck_;
+  if (tilesX_ == 0) return;
+  // The tiles under the bounding box, from pixel indices estimated with one multiplication and widened
+  // by a pixel each way: a superset of the tiles the rasterizer can open for this triangle (it writes
+  // only pixel centres inside the box), found without the exact rounding the rasterizer needs.  This
+  // runs on the triangulator's thread for every triangle, so it must stay cheap.
+  const DemLayout& L = layout_;
+  const double x0 = std::min(va.x, std::min(vb.x, vc.x)), x1 = std::max(va.x, std::max(vb.x, vc.x));
+  const double y0 = std::min(va.y, std::min(vb.y, vc.y)), y1 = std::max(va.y, std::max(vb.y, vc.y));
+  const double fx0 = std::floor((x0 - L.originX) * invStep_) - 1,
+               fx1 = std::floor((x1 - L.originX) * invStep_) + 1;
+  const double fy0 = std::floor((y0 - L.originY) * invStep_) - 1,
+               fy1 = std::floor((y1 - L.originY) * invStep_) + 1;
+  const double T = L.tileSize;
+  auto tileOf = [&](double pixel, std::int64_t anchor) {
+    return static_cast<std::int64_t>(std::floor((pixel - static_cast<double>(anchor)) / T));
+  };
+  const std::int64_t tx0 = std::max(firstTx_, tileOf(fx0, L.tileCol0));
+  const std::int64_t tx1 = std::min(firstTx_ + tilesX_ - 1, tileOf(fx1, L.tileCol0));
+  const std::int64_t ty0 = std::max(firstTy_, tileOf(fy0, L.tileRow0));
+  const std::int64_t ty1 = std::min(firstTy_ + tilesY_ - 1, tileOf(fy1, L.tileRow0));
+  if (tx0 > tx1 || ty0 > ty1) return;
+  touch(tx0, tx1, ty0, ty1);
+}
+
+void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int64_t>& complete) {
+  if (!opt_.streaming || touched_.empty()) return;
+  if (emittedSinceCheck_ < std::max<std::uint64_t>(4096, region.activeTriangles())) return;
+  emittedSinceCheck_ = 0;
+  boxes_.clear();
+  keys_.clear();
+  for (const std::int64_t key : touched_) {
+    const TilePixels px = tilePixels(layout_, firstTx_ + key % tilesX_, firstTy_ + key / tilesX_);
+    boxes_.push_back(Box2{gridLine(layout_.originX, layout_.step, px.col0),
+                          gridLine(layout_.originY, layout_.step, px.row0),
+                          gridLine(layout_.originX, layout_.step, px.col1 + 1),
+                          gridLine(layout_.originY, layout_.step, px.row1 + 1)});
+    keys_.push_back(key);
+  }
+  std::unique_ptr<bool[]> isOpen(new bool[boxes_.size()]());
+  region.markOpen(boxes_.data(), boxes_.size(), isOpen.get());
+  ++scans_;
+  for (std::size_t i = 0; i < keys_.size(); ++i)
+    if (!isOpen[i]) {
+      complete.push_back(keys_[i]);
+      touched_.erase(keys_[i]);
+    }
+  lastKey_ = -1;
+}
+
+void DemRasterizer::end() {
+  if (!begun_) throw Error("DEM: end() without begin()");
+  while (!open_.empty()) complete(open_.begin()->first);
+  begun_ = false;
+  out_.end();
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,29 @@
+// libterrain: the streaming core, pure C++20 with no GDAL, PROJ or file formats.
+//
+// The data flow (docs/design.md, "The pipeline"):
+//   PointStream (pulled in batches, several passes) -> finalizer -> PointSink (points and finalization
+//   tags) -> StreamingDelaunay -> MeshSink (vertices, triangles, vertex finalization) -> MeshTee ->
+//   outputs, among them the DemRasterizer.
+//
+// The folders (docs/design.md, "The tree"):
+//   core/       errors (Error, DataError, UsageError, CancelledError), Diagnostics (warn once per kind,
+//               count every time), JSON and report text, the GDAL-style progress convention, WorkCrew
+//               (decode threads), points and boxes.
+//   finalizer/  the spatial finalizer: the 2^k grid (CellMap, bit-exact membership), PointStream and
+//               PointSink, point filters, chunking with a memory budget and spill, BRIO, sprinkles, the
+//               read order of pass 3, survey statistics.
+//   delaunay/   exact predicates (floating-point filter, exact fallback, symbolic perturbation), the
+//               streaming Delaunay triangulator (certification against finalized space), the verifier.
+//   mesh/       MeshSink / TriangleSink and the MeshTee that fans a mesh out to many outputs, on a writer
+//               thread when asked, with checkpoint agents for "is this area complete?".
+//   raster/     the DEM rasterizer: TIN interpolation at pixel centres, tiles released when complete.
+//   synthetic/  realistic synthetic surveys (terrain, classes, returns, flight strips) for the demo,
+//               tests and benchmarks.
+// Nothing here includes formats/ or app/.
+#pragma once
+
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
+#include "libterrain/mesh/mesh_tee.h"
+#include "libterrain/raster/dem_rasterizer.h"

@@ -1,0 +1,119 @@
+// The product pipeline on real surveys against CGAL: every ../shared/data/las file with more than 10k
+// points is read, filtered (the default: withheld and classes 7, 18 dropped), finalized and triangulated
+// by tinbuild, and the set of triangles must equal CGAL's Delaunay_triangulation_2 of the same points.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <filesystem>
+#include <memory>
+#include <vector>
+
+#include "formats/pointcloud/las_reader.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
+#include "test_support.h"
+
+#if __has_include(<CGAL/Delaunay_triangulation_2.h>)
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#define TINBUILD_TEST_HAVE_CGAL 1
+#endif
+
+namespace tinbuild {
+namespace {
+
+using Tri = std::array<double, 6>;
+
+// A triangle as its three (x, y) corners, rotated so the lexicographically smallest comes first
+// (orientation kept), so equal triangles compare equal whatever vertex they start at.
+Tri canonical(double ax, double ay, double bx, double by, double cx, double cy) {
+  std::array<std::array<double, 2>, 3> v{{{ax, ay}, {bx, by}, {cx, cy}}};
+  const auto first = std::min_element(v.begin(), v.end()) - v.begin();
+  Tri t;
+  for (int k = 0; k < 3; ++k) {
+    const auto& p = v[static_cast<std::size_t>((first + k) % 3)];
+    t[static_cast<std::size_t>(2 * k)] = p[0];
+    t[static_cast<std::size_t>(2 * k + 1)] = p[1];
+  }
+  return t;
+}
+
+class TriangleCollector : public MeshSink {
+ public:
+  std::vector<Tri> triangles;
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double) override {
+    if (id >= xy_.size()) xy_.resize(id + 1);
+    xy_[id] = {x, y};
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    triangles.push_back(canonical(xy_[a][0], xy_[a][1], xy_[b][0], xy_[b][1], xy_[c][0], xy_[c][1]));
+  }
+  void finalizeVertex(std::uint64_t) override {}
+  void end() override {}
+
+ private:
+  std::vector<std::array<double, 2>> xy_;
+};
+
+class RealSurveys : public ::testing::TestWithParam<const char*> {};
+
+TEST_P(RealSurveys, TinEqualsCgal) {
+  TINBUILD_REQUIRE_DATA();
+#ifndef TINBUILD_TEST_HAVE_CGAL
+  GTEST_SKIP() << "CGAL headers not available";
+#else
+  const std::string path = test::dataPath(std::string("las/") + GetParam());
+  Diagnostics diag;
+  // tinbuild: the real finalizer and triangulator, default options.
+  LasReader reader(path, diag);
+  TriangleCollector ours;
+  StreamingDelaunay delaunay(ours);
+  FinalizerOptions fo;
+  std::vector<PointStream*> inputs{&reader};
+  finalizePoints(inputs, fo, delaunay, diag);
+  std::sort(ours.triangles.begin(), ours.triangles.end());
+
+  // CGAL: the same filtered points, range insertion.
+  using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+  std::vector<K::Point_2> points;
+  LasReader again(path, diag);
+  std::vector<PointRecord> batch(1 << 14);
+  const PointFilter filter;
+  for (std::size_t n; (n = again.read(batch.data(), batch.size())) > 0;)
+    for (std::size_t i = 0; i < n; ++i)
+      if (filter.accept(batch[i])) points.emplace_back(batch[i].x, batch[i].y);
+  CGAL::Delaunay_triangulation_2<K> dt;
+  dt.insert(points.begin(), points.end());
+  std::vector<Tri> theirs;
+  for (auto f = dt.finite_faces_begin(); f != dt.finite_faces_end(); ++f) {
+    const auto& a = f->vertex(0)->point();
+    const auto& b = f->vertex(1)->point();
+    const auto& c = f->vertex(2)->point();
+    theirs.push_back(canonical(a.x(), a.y(), b.x(), b.y(), c.x(), c.y()));
+  }
+  std::sort(theirs.begin(), theirs.end());
+  EXPECT_EQ(ours.triangles.size(), theirs.size()) << GetParam();
+  EXPECT_TRUE(ours.triangles == theirs) << GetParam() << ": the triangle sets differ";
+  EXPECT_EQ(delaunay.stats().verticesOut, dt.number_of_vertices());
+#endif
+}
+
+INSTANTIATE_TEST_SUITE_P(SharedData, RealSurveys,
+                         ::testing::Values("4_6_crop.las", "Megaplot.las", "MixedConifer.las",
+                                           "Topography.las", "autzen_trim.las", "autzen_trim_7.las",
+                                           "bcts_1.las", "certainty3d-color-utm-feet-navd88.las",
+                                           "file_with_both_wkt_and_geotiff_vlrs.las", "hexbin-crop.las",
+                                           "point-version-1-point-wise.las", "sample_lareunion_epsg2975.las",
+                                           "vegetation_1_3.las", "zurich.las"),
+                         [](const ::testing::TestParamInfo<const char*>& p) {
+                           std::string n = p.param;
+                           for (auto& c : n)
+                             if (!std::isalnum(static_cast<unsigned char>(c))) c = '_';
+                           return n;
+                         });
+
+}  // namespace
+}  // namespace tinbuild

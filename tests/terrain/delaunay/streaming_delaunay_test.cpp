@@ -1,0 +1,1036 @@
+// StreamingDelaunay: the emitted triangles must be exactly CGAL's Delaunay triangulation of the distinct
+// xy points (set equality), whatever the grid depth, batch sizes and tag order; the output must be a
+// valid streaming mesh; memory must follow the stream's width.
+//
+// The streams are made by a small chunking finalizer written here (not the product's finalizer): points
+// are bucketed by leaf cell in stream order, and a cell's points and its leaf tag are emitted when its
+// last point has passed.  Variants: everything then end(); tags of empty cells first; coarse tags when
+// four siblings are final.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <chrono>
+#include <cmath>
+#include <cstdint>
+#include <cstdlib>
+#include <functional>
+#include <iostream>
+#include <map>
+#include <random>
+#include <string>
+#include <unordered_map>
+#include <vector>
+
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/delaunay_predicates.h"
+#include "libterrain/delaunay/predicates.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/grid.h"
+#include "libterrain/synthetic/synthetic_survey.h"
+
+#if __has_include(<CGAL/Delaunay_triangulation_2.h>)
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#define TINBUILD_TEST_HAVE_CGAL 1
+#endif
+
+namespace tinbuild {
+namespace {
+
+using Points = std::vector<PointRecord>;
+using Tri6 = std::array<double, 6>;  // x0 y0 x1 y1 x2 y2, counter-clockwise, lexicographically least first
+
+Tri6 canonical(double ax, double ay, double bx, double by, double cx, double cy) {
+  std::array<std::array<double, 2>, 3> v{{{ax, ay}, {bx, by}, {cx, cy}}};
+  int m = 0;
+  for (int i = 1; i < 3; ++i)
+    if (v[i] < v[m]) m = i;
+  Tri6 t;
+  for (int i = 0; i < 3; ++i) {
+    t[2 * i] = v[(m + i) % 3][0];
+    t[2 * i + 1] = v[(m + i) % 3][1];
+  }
+  return t;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Inputs.
+
+Points survey(SurveySpec::Kind kind, std::uint64_t n, std::uint64_t seed = 1, double spacing = 0.5) {
+  SurveySpec spec;
+  spec.kind = kind;
+  spec.points = n;
+  spec.seed = seed;
+  spec.spacing = spacing;
+  SurveyGenerator gen(spec);
+  Points pts(n);
+  std::size_t got = 0;
+  while (got < n) {
+    const std::size_t k = gen.next(pts.data() + got, n - got);
+    if (k == 0) break;
+    got += k;
+  }
+  pts.resize(got);
+  return pts;
+}
+
+PointRecord rec(double x, double y, double z = 0) {
+  PointRecord p;
+  p.x = x;
+  p.y = y;
+  p.z = z;
+  return p;
+}
+
+Points randomPoints(std::size_t n, std::uint64_t seed, double origin = 500000.0, double extent = 1000.0) {
+  std::mt19937_64 rng(seed);
+  Points pts;
+  for (std::size_t i = 0; i < n; ++i) {
+    // Quantized to 1 cm like LIDAR, so exact ties happen too.
+    const double x = origin + static_cast<double>(rng() % static_cast<std::uint64_t>(extent * 100)) * 0.01;
+    const double y = origin + static_cast<double>(rng() % static_cast<std::uint64_t>(extent * 100)) * 0.01;
+    pts.push_back(rec(x, y, static_cast<double>(rng() % 1000) * 0.01));
+  }
+  return pts;
+}
+
+Bounds3 boundsOf(const Points& pts) {
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  return b;
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The test finalizer.
+
+struct Feed {
+  enum class Mode { Chunks, AllThenEnd, EmptyTagsFirst };
+  Mode mode = Mode::Chunks;
+  std::size_t batch = 1000;
+  bool coarseTags = false;  // tag a parent as soon as its four children are final
+};
+
+class TestFinalizer {
+ public:
+  TestFinalizer(PointSink& sink, const GridSpec& grid, const Feed& feed)
+      : sink_(sink), grid_(grid), feed_(feed) {
+    for (int l = 0; l <= grid.depth; ++l) final_.emplace_back(std::size_t{1} << (2 * l), 0);
+  }
+
+  void run(const Points& pts) {
+    StreamInfo info;
+    info.grid = grid_;
+    info.bounds = boundsOf(pts);
+    info.points = pts.size();
+    sink_.begin(info);
+    if (feed_.mode == Feed::Mode::AllThenEnd) {
+      send(pts);
+      sink_.end();
+      return;
+    }
+    std::vector<std::uint32_t> count(grid_.cellCount(), 0);
+    for (const auto& p : pts) ++count[grid_.cellOf(p.x, p.y)];
+    if (feed_.mode == Feed::Mode::EmptyTagsFirst)
+      for (std::uint64_t c = 0; c < count.size(); ++c)
+        if (count[c] == 0) tag(c);
+    std::unordered_map<std::uint64_t, Points> buckets;
+    for (const auto& p : pts) {
+      const std::uint64_t c = grid_.cellOf(p.x, p.y);
+      Points& b = buckets[c];
+      b.push_back(p);
+      if (b.size() == count[c]) {
+        send(b);
+        buckets.erase(c);
+        tag(c);
+      }
+    }
+    sink_.end();
+  }
+
+ private:
+  void send(const Points& pts) {
+    for (std::size_t i = 0; i < pts.size(); i += feed_.batch)
+      sink_.points(pts.data() + i, std::min(feed_.batch, pts.size() - i));
+  }
+  void tag(std::uint64_t cell) {
+    std::uint32_t col = static_cast<std::uint32_t>(cell % grid_.side());
+    std::uint32_t row = static_cast<std::uint32_t>(cell / grid_.side());
+    int level = grid_.depth;
+    for (;;) {
+      sink_.finalizeCell(CellTag{static_cast<std::uint8_t>(level), col, row});
+      final_[level][(std::size_t{row} << level) + col] = 1;
+      if (!feed_.coarseTags || level == 0) return;
+      const std::uint32_t pc = col / 2, pr = row / 2;
+      for (std::uint32_t q = 0; q < 4; ++q)
+        if (!final_[level][(std::size_t{2 * pr + q / 2} << level) + 2 * pc + q % 2]) return;
+      --level;
+      col = pc;
+      row = pr;
+    }
+  }
+
+  PointSink& sink_;
+  GridSpec grid_;
+  Feed feed_;
+  std::vector<std::vector<std::uint8_t>> final_;
+};
+
+// ---------------------------------------------------------------------------------------------------------
+// A MeshSink that checks the streaming-mesh invariants and collects the triangles.
+
+class CheckingSink : public MeshSink {
+ public:
+  struct V {
+    double x, y, z;
+    bool finalized;
+  };
+  std::vector<V> vertices;
+  std::vector<Tri6> triangles;
+  std::uint64_t errors = 0;
+  std::string firstError;
+  bool began = false, ended = false;
+
+  void begin(const MeshInfo&) override { began = true; }
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    if (id != vertices.size()) fail("vertex id " + std::to_string(id) + " not sequential");
+    vertices.push_back(V{x, y, z, false});
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    for (const std::uint64_t id : {a, b, c}) {
+      if (id >= vertices.size()) return fail("triangle uses vertex " + std::to_string(id) + " before it");
+      if (vertices[id].finalized) return fail("triangle uses finalized vertex " + std::to_string(id));
+    }
+    const V &p = vertices[a], &q = vertices[b], &r = vertices[c];
+    if (!(orient2d({p.x, p.y}, {q.x, q.y}, {r.x, r.y}) > 0)) fail("triangle not counter-clockwise");
+    triangles.push_back(canonical(p.x, p.y, q.x, q.y, r.x, r.y));
+  }
+  void finalizeVertex(std::uint64_t id) override {
+    if (id >= vertices.size()) return fail("finalizing unknown vertex");
+    if (vertices[id].finalized) return fail("vertex finalized twice");
+    vertices[id].finalized = true;
+  }
+  void end() override {
+    ended = true;
+    for (std::size_t i = 0; i < vertices.size(); ++i)
+      if (!vertices[i].finalized) return fail("vertex " + std::to_string(i) + " never finalized");
+  }
+
+ private:
+  void fail(const std::string& what) {
+    if (errors++ == 0) firstError = what;
+  }
+};
+
+// A sink that only counts (for measurements).
+class CountingSink : public MeshSink {
+ public:
+  std::uint64_t v = 0, t = 0, f = 0;
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t, double, double, double) override { ++v; }
+  void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override { ++t; }
+  void finalizeVertex(std::uint64_t) override { ++f; }
+  void end() override {}
+};
+
+struct Result {
+  std::vector<Tri6> triangles;  // sorted
+  std::vector<CheckingSink::V> vertices;
+  DelaunayStats stats;
+};
+
+Result triangulate(const Points& pts, int depth, const Feed& feed = {}, const DelaunayOptions& opt = {}) {
+  CheckingSink sink;
+  StreamingDelaunay dt(sink, opt);
+  TestFinalizer fin(dt, makeGrid(boundsOf(pts), depth), feed);
+  fin.run(pts);
+  EXPECT_EQ(sink.errors, 0u) << "first streaming-mesh error: " << sink.firstError;
+  EXPECT_TRUE(sink.began && sink.ended);
+  Result r;
+  r.triangles = std::move(sink.triangles);
+  std::sort(r.triangles.begin(), r.triangles.end());
+  r.vertices = std::move(sink.vertices);
+  r.stats = dt.stats();
+  EXPECT_EQ(r.stats.pointsIn, pts.size());
+  EXPECT_EQ(r.stats.pointsIn, r.stats.verticesOut + r.stats.duplicatesDropped);
+  EXPECT_EQ(r.stats.trianglesEmitted, r.triangles.size());
+  EXPECT_EQ(r.stats.verticesOut, r.vertices.size());
+  return r;
+}
+
+std::size_t distinctXY(const Points& pts) {
+  std::vector<std::pair<double, double>> xy;
+  for (const auto& p : pts) xy.emplace_back(p.x, p.y);
+  std::sort(xy.begin(), xy.end());
+  return static_cast<std::size_t>(std::unique(xy.begin(), xy.end()) - xy.begin());
+}
+
+#ifdef TINBUILD_TEST_HAVE_CGAL
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Dt = CGAL::Delaunay_triangulation_2<K>;
+
+std::vector<Tri6> cgalTriangles(const Points& pts) {
+  std::vector<std::pair<double, double>> xy;
+  for (const auto& p : pts) xy.emplace_back(p.x, p.y);
+  std::sort(xy.begin(), xy.end());
+  xy.erase(std::unique(xy.begin(), xy.end()), xy.end());
+  std::vector<K::Point_2> cp;
+  cp.reserve(xy.size());
+  for (const auto& [x, y] : xy) cp.emplace_back(x, y);
+  Dt dt;
+  dt.insert(cp.begin(), cp.end());
+  std::vector<Tri6> out;
+  out.reserve(dt.number_of_faces());
+  for (auto f = dt.finite_faces_begin(); f != dt.finite_faces_end(); ++f) {
+    const auto &a = f->vertex(0)->point(), &b = f->vertex(1)->point(), &c = f->vertex(2)->point();
+    out.push_back(canonical(a.x(), a.y(), b.x(), b.y(), c.x(), c.y()));
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+#endif
+
+void expectSameTriangles(const std::vector<Tri6>& ours, const std::vector<Tri6>& theirs, const char* what) {
+  EXPECT_EQ(ours.size(), theirs.size()) << what;
+  std::vector<Tri6> onlyOurs, onlyTheirs;
+  std::set_difference(ours.begin(), ours.end(), theirs.begin(), theirs.end(), std::back_inserter(onlyOurs));
+  std::set_difference(theirs.begin(), theirs.end(), ours.begin(), ours.end(), std::back_inserter(onlyTheirs));
+  EXPECT_TRUE(onlyOurs.empty() && onlyTheirs.empty())
+      << what << ": " << onlyOurs.size() << " triangles only ours, " << onlyTheirs.size()
+      << " only the reference";
+  for (std::size_t i = 0; i < std::min<std::size_t>(onlyOurs.size(), 3); ++i)
+    ADD_FAILURE() << "only ours: (" << onlyOurs[i][0] << "," << onlyOurs[i][1] << ") (" << onlyOurs[i][2]
+                  << "," << onlyOurs[i][3] << ") (" << onlyOurs[i][4] << "," << onlyOurs[i][5] << ")";
+}
+
+void expectMatchesCgal(const Points& pts, const Result& r, const char* what) {
+#ifdef TINBUILD_TEST_HAVE_CGAL
+  expectSameTriangles(r.triangles, cgalTriangles(pts), what);
+#else
+  (void)pts;
+  (void)r;
+  (void)what;
+  GTEST_SKIP() << "CGAL headers not available";
+#endif
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Equality with CGAL.
+
+TEST(StreamingDelaunay, RandomInputMatchesCgal) {
+  for (const std::size_t n : {10000u, 200000u}) {
+    const Points pts = randomPoints(n, n);
+    const Result r = triangulate(pts, n > 50000 ? 5 : 3);
+    expectMatchesCgal(pts, r, "random");
+    EXPECT_EQ(r.vertices.size(), distinctXY(pts));
+  }
+}
+
+TEST(StreamingDelaunay, UniformSurveyMatchesCgal) {
+  const Points pts = survey(SurveySpec::Kind::UniformRandom, 100000, 7);
+  expectMatchesCgal(pts, triangulate(pts, 4), "uniform survey");
+}
+
+TEST(StreamingDelaunay, FlightStripsMatchCgal) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 300000, 3);
+  const Result r = triangulate(pts, 6);
+  expectMatchesCgal(pts, r, "flight strips");
+  EXPECT_GT(r.stats.duplicatesDropped, 0u);  // the generator re-measures 0.1 % of pulses at the same xy
+}
+
+TEST(StreamingDelaunay, LatticeInputMatchesCgal) {
+  // 1000 x 1000 grid in row order: every 4 neighbours are cocircular; only the perturbation decides.
+  const Points pts = survey(SurveySpec::Kind::Lattice, 1000000, 1);
+  ASSERT_EQ(pts.size(), 1000000u);
+  const Result r = triangulate(pts, 5);
+  expectMatchesCgal(pts, r, "lattice 1000x1000");
+  EXPECT_EQ(r.triangles.size(), 2u * 999u * 999u);
+}
+
+TEST(StreamingDelaunay, LatticeAtUtmOffsetsMatchesCgal) {
+  // Coordinates like 500000.01 + i * 0.01 are not exactly equally spaced in binary: near-ties everywhere.
+  Points pts;
+  for (int j = 0; j < 150; ++j)
+    for (int i = 0; i < 150; ++i) pts.push_back(rec(500000.01 + i * 0.01, 4100000.01 + j * 0.01, i + j));
+  expectMatchesCgal(pts, triangulate(pts, 3), "lattice at UTM offsets");
+  // ... and the exactly quantized version (k * 0.01 as a LAS reader decodes it).
+  Points q;
+  for (int j = 0; j < 150; ++j)
+    for (int i = 0; i < 150; ++i) q.push_back(rec((50000001 + i) * 0.01, (410000001 + j) * 0.01));
+  expectMatchesCgal(q, triangulate(q, 4), "quantized lattice");
+}
+
+TEST(StreamingDelaunay, ShuffledLatticeWithHolesMatchesCgal) {
+  Points pts;
+  std::mt19937_64 rng(5);
+  for (int j = 0; j < 200; ++j)
+    for (int i = 0; i < 200; ++i)
+      if (rng() % 7 != 0) pts.push_back(rec(i * 0.25, j * 0.25));
+  std::shuffle(pts.begin(), pts.end(), rng);
+  expectMatchesCgal(pts, triangulate(pts, 3), "shuffled lattice with holes");
+}
+
+TEST(StreamingDelaunay, CocircularPointsMatchCgal) {
+  // Points on a few concentric circles (Pythagorean radii: exact integer coordinates), all cocircular.
+  Points pts;
+  for (int r : {5, 25, 65, 85})
+    for (int x = -r; x <= r; ++x)
+      for (int y = -r; y <= r; ++y)
+        if (x * x + y * y == r * r) pts.push_back(rec(1000 + x, 2000 + y));
+  for (int i = 0; i < 10; ++i) pts.push_back(rec(1000 + i, 2000 - i));
+  expectMatchesCgal(pts, triangulate(pts, 2), "cocircular");
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Independence of depth, batch size and tag order.
+
+TEST(StreamingDelaunay, DepthDoesNotChangeTriangles) {
+  const Points pts = randomPoints(20000, 11);
+  const Result ref = triangulate(pts, 0);
+  expectMatchesCgal(pts, ref, "depth 0");
+  for (int depth = 1; depth <= 8; ++depth) {
+    const Result r = triangulate(pts, depth);
+    EXPECT_TRUE(r.triangles == ref.triangles) << "depth " << depth;
+  }
+}
+
+TEST(StreamingDelaunay, BatchSizeDoesNotChangeTriangles) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 30000, 2);
+  const Result ref = triangulate(pts, 4);
+  for (const std::size_t batch : {1u, 7u, 4096u, 1000000u}) {
+    Feed f;
+    f.batch = batch;
+    EXPECT_TRUE(triangulate(pts, 4, f).triangles == ref.triangles) << "batch " << batch;
+  }
+}
+
+TEST(StreamingDelaunay, TagOrderVariantsGiveSameTriangles) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 50000, 4);
+  const Result ref = triangulate(pts, 5);
+  expectMatchesCgal(pts, ref, "strips");
+  Feed all;
+  all.mode = Feed::Mode::AllThenEnd;
+  EXPECT_TRUE(triangulate(pts, 5, all).triangles == ref.triangles) << "all then end";
+  Feed empty;
+  empty.mode = Feed::Mode::EmptyTagsFirst;
+  const Result e = triangulate(pts, 5, empty);
+  EXPECT_TRUE(e.triangles == ref.triangles) << "empty cells first";
+  Feed coarse;
+  coarse.mode = Feed::Mode::EmptyTagsFirst;
+  coarse.coarseTags = true;
+  EXPECT_TRUE(triangulate(pts, 5, coarse).triangles == ref.triangles) << "coarse tags";
+  Feed coarse7 = coarse;
+  EXPECT_TRUE(triangulate(pts, 7, coarse7).triangles == ref.triangles) << "coarse tags, depth 7";
+}
+
+TEST(StreamingDelaunay, SingleCellDepthZero) {
+  const Points pts = randomPoints(5000, 3);
+  const Result r = triangulate(pts, 0);
+  expectMatchesCgal(pts, r, "depth 0");
+  // Nothing can be final before the only cell is: everything stays active until its tag.
+  EXPECT_GE(r.stats.maxActiveTriangles, r.triangles.size());
+}
+
+TEST(StreamingDelaunay, OutputIsDeterministic) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 20000, 9);
+  auto run = [&] {
+    CheckingSink sink;
+    StreamingDelaunay dt(sink);
+    TestFinalizer(dt, makeGrid(boundsOf(pts), 5), Feed{}).run(pts);
+    std::vector<double> seq;
+    for (const auto& v : sink.vertices) seq.insert(seq.end(), {v.x, v.y, v.z});
+    for (const auto& t : sink.triangles) seq.insert(seq.end(), t.begin(), t.end());
+    return seq;
+  };
+  EXPECT_TRUE(run() == run());
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Duplicates.
+
+TEST(StreamingDelaunay, DuplicatesFollowTheRule) {
+  const Points base = randomPoints(3000, 21);
+  // Each point three times with different z, the copies spread through the stream.
+  Points pts;
+  for (int copy = 0; copy < 3; ++copy)
+    for (const auto& p : base) {
+      PointRecord q = p;
+      q.z = copy == 0 ? 10.0 : copy == 1 ? 5.0 : 20.0;
+      pts.push_back(q);
+    }
+  const std::size_t distinct = distinctXY(base);
+  const std::pair<DelaunayOptions::DuplicateRule, double> rules[] = {
+      {DelaunayOptions::DuplicateRule::Lowest, 5.0},
+      {DelaunayOptions::DuplicateRule::Highest, 20.0},
+      {DelaunayOptions::DuplicateRule::First, 10.0}};
+  for (const auto& [rule, z] : rules) {
+    Diagnostics diag;
+    DelaunayOptions opt;
+    opt.duplicates = rule;
+    opt.diagnostics = &diag;
+    const Result r = triangulate(pts, 3, Feed{}, opt);
+    EXPECT_EQ(r.vertices.size(), distinct) << duplicateRuleName(rule);
+    EXPECT_EQ(r.stats.duplicatesDropped, pts.size() - distinct);
+    EXPECT_EQ(r.stats.duplicatesAfterWrite, 0u);
+    EXPECT_EQ(diag.count("delaunay.duplicate_xy"), pts.size() - distinct);
+    std::size_t wrong = 0;
+    for (const auto& v : r.vertices) wrong += v.z != z;
+    EXPECT_EQ(wrong, 0u) << duplicateRuleName(rule);
+    expectMatchesCgal(base, r, "duplicates");
+  }
+}
+
+TEST(StreamingDelaunay, DuplicateHeavyLattice) {
+  // A small lattice where every point comes 1..4 times, shuffled: ties and duplicates together.
+  Points pts;
+  std::mt19937_64 rng(8);
+  for (int j = 0; j < 120; ++j)
+    for (int i = 0; i < 120; ++i) {
+      const int copies = 1 + static_cast<int>(rng() % 4);
+      for (int c = 0; c < copies; ++c) pts.push_back(rec(100 + i, 200 + j, static_cast<double>(rng() % 100)));
+    }
+  std::shuffle(pts.begin(), pts.end(), rng);
+  const Result r = triangulate(pts, 4);
+  EXPECT_EQ(r.vertices.size(), 120u * 120u);
+  expectMatchesCgal(pts, r, "duplicate-heavy lattice");
+  // Lowest z survives.
+  std::map<std::pair<double, double>, double> lowest;
+  for (const auto& p : pts) {
+    auto [it, inserted] = lowest.emplace(std::make_pair(p.x, p.y), p.z);
+    if (!inserted) it->second = std::min(it->second, p.z);
+  }
+  std::size_t wrong = 0;
+  for (const auto& v : r.vertices) wrong += lowest.at({v.x, v.y}) != v.z;
+  EXPECT_EQ(wrong, 0u);
+}
+
+TEST(StreamingDelaunay, ParseDuplicateRule) {
+  EXPECT_EQ(parseDuplicateRule("lowest"), DelaunayOptions::DuplicateRule::Lowest);
+  EXPECT_EQ(parseDuplicateRule("highest"), DelaunayOptions::DuplicateRule::Highest);
+  EXPECT_EQ(parseDuplicateRule("first"), DelaunayOptions::DuplicateRule::First);
+  EXPECT_FALSE(parseDuplicateRule("median").has_value());
+  EXPECT_STREQ(duplicateRuleName(DelaunayOptions::DuplicateRule::Highest), "highest");
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Degenerate inputs.
+
+TEST(StreamingDelaunay, FewerThanThreePoints) {
+  for (std::size_t n = 0; n <= 2; ++n) {
+    Points pts;
+    for (std::size_t i = 0; i < n; ++i) pts.push_back(rec(10.0 + static_cast<double>(i), 20.0, 1.0));
+    const Result r = triangulate(pts, 2);
+    EXPECT_EQ(r.vertices.size(), n);
+    EXPECT_TRUE(r.triangles.empty());
+  }
+  // Two points, one repeated: one vertex dropped.
+  const Result r = triangulate({rec(1, 1, 3), rec(2, 2, 1), rec(1, 1, 2)}, 1);
+  EXPECT_EQ(r.vertices.size(), 2u);
+  EXPECT_EQ(r.stats.duplicatesDropped, 1u);
+  EXPECT_TRUE(r.triangles.empty());
+}
+
+TEST(StreamingDelaunay, ThreePoints) {
+  const Points pts{rec(0, 0), rec(1, 0), rec(0, 1)};
+  const Result r = triangulate(pts, 1);
+  ASSERT_EQ(r.triangles.size(), 1u);
+  EXPECT_EQ(r.triangles[0], canonical(0, 0, 1, 0, 0, 1));
+  const Result c = triangulate({rec(0, 0), rec(1, 1), rec(2, 2)}, 1);
+  EXPECT_TRUE(c.triangles.empty());
+  EXPECT_EQ(c.vertices.size(), 3u);
+}
+
+TEST(StreamingDelaunay, CollinearInputs) {
+  // All on one (diagonal) line, shuffled, with duplicates: vertices only.
+  Points line;
+  for (int i = 0; i < 2000; ++i) line.push_back(rec(100 + i * 0.5, 300 + i * 0.25, i));
+  line.push_back(rec(100, 300, -1));
+  std::mt19937_64 rng(1);
+  std::shuffle(line.begin(), line.end(), rng);
+  const Result r = triangulate(line, 4);
+  EXPECT_TRUE(r.triangles.empty());
+  EXPECT_EQ(r.vertices.size(), 2000u);
+  EXPECT_EQ(r.stats.duplicatesDropped, 1u);
+
+  // A long collinear prefix, then the plane: the fan start must still give CGAL's triangulation.
+  Points mixed = line;
+  const Points rest = randomPoints(3000, 4, 100, 1000);
+  mixed.insert(mixed.end(), rest.begin(), rest.end());
+  expectMatchesCgal(mixed, triangulate(mixed, 3), "collinear prefix");
+
+  // Collinear points, then one point off the line, on either side.
+  for (const double side : {1.0, -1.0}) {
+    Points fan;
+    for (int i = 0; i < 50; ++i) fan.push_back(rec(i, 0));
+    fan.push_back(rec(25.5, 10 * side));
+    const Result f = triangulate(fan, 2);
+    EXPECT_EQ(f.triangles.size(), 49u);
+    expectMatchesCgal(fan, f, "fan");
+  }
+
+  // Points on two horizontal lines: collinear hull edges on both sides.
+  Points two;
+  for (int i = 0; i < 300; ++i) {
+    two.push_back(rec(i, 0));
+    two.push_back(rec(i + 0.5, 1));
+  }
+  std::shuffle(two.begin(), two.end(), rng);
+  expectMatchesCgal(two, triangulate(two, 3), "two lines");
+}
+
+TEST(StreamingDelaunay, TinyAndHugeExtents) {
+  // Grid sizes far below and above the coordinates' magnitude: tolerances must hold both ways.
+  Points tiny;
+  std::mt19937_64 rng(3);
+  for (int i = 0; i < 2000; ++i)
+    tiny.push_back(rec(4100000.0 + static_cast<double>(rng() % 1000) * 0x1p-30,
+                       4100000.0 + static_cast<double>(rng() % 1000) * 0x1p-30));
+  expectMatchesCgal(tiny, triangulate(tiny, 4), "tiny extent");
+  const Points huge = randomPoints(5000, 2, -1e7, 2e7);
+  expectMatchesCgal(huge, triangulate(huge, 5), "huge extent");
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The inline predicate front ends and the conservative circumdisk (delaunay_predicates.h).
+
+bool sameXY(const Point2& a, const Point2& b) {
+  return a.x == b.x && a.y == b.y;
+}
+
+int sign(double v) {
+  return (v > 0) - (v < 0);
+}
+
+TEST(StreamingDelaunay, PredicateFrontEndsAgreeWithLibrary) {
+  std::mt19937_64 rng(17);
+  struct Set {
+    const char* name;
+    std::function<Point2()> draw;
+  };
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  auto pick = [&](int n) {
+    return static_cast<double>(static_cast<int>(rng() % static_cast<std::uint64_t>(n)));
+  };
+  const std::vector<Set> sets = {
+      {"random",
+       [&] {
+         return Point2{uni(0, 1), uni(0, 1)};
+       }},
+      {"lattice 0.5 at UTM",
+       [&] {
+         return Point2{500000 + 0.5 * pick(6), 4100000 + 0.5 * pick(6)};
+       }},
+      {"lattice 0.01 at UTM",
+       [&] {
+         return Point2{500000.01 + 0.01 * pick(5), 4100000.01 + 0.01 * pick(5)};
+       }},
+      {"quantized 1 cm",
+       [&] {
+         return Point2{(50000000 + pick(6)) * 0.01, (410000000 + pick(6)) * 0.01};
+       }},
+      {"small integers, mixed signs",
+       [&] {
+         return Point2{pick(7) - 3, pick(7) - 3};
+       }},
+      {"huge",
+       [&] {
+         return Point2{1e30 * (pick(5) + 1), 1e30 * (pick(5) - 2)};
+       }},
+      {"tiny",
+       [&] {
+         return Point2{1e-30 * pick(5), 1e-30 * pick(5)};
+       }},
+  };
+  for (const Set& set : sets) {
+    int orientZero = 0, ties = 0, checked = 0;
+    for (int i = 0; i < 20000; ++i) {
+      Point2 a = set.draw(), b = set.draw(), c = set.draw();
+      const Point2 d = set.draw();
+      const double o = orient2d(a, b, c);
+      ASSERT_EQ(sign(delaunay::orient(a, b, c)), sign(o)) << set.name;
+      if (o == 0) {
+        ++orientZero;
+        continue;
+      }
+      if (o < 0) std::swap(a, b);
+      if (sameXY(d, a) || sameXY(d, b) || sameXY(d, c)) continue;
+      ++checked;
+      ties += incircle(a, b, c, d) == 0;
+      ASSERT_EQ(delaunay::inCircle(a, b, c, d), incirclePerturbed(a, b, c, d)) << set.name;
+    }
+    std::cout << "[ PREDS    ] " << set.name << ": " << checked << " incircle checks, " << ties
+              << " exact ties, " << orientZero << " collinear triples\n";
+  }
+}
+
+TEST(StreamingDelaunay, CircumdiskContainsTheExactCircle) {
+  // Nearly flat triangles at UTM coordinates (the centre is far away and badly conditioned) and ordinary
+  // ones: the vertices lie on the exact circle, so they must lie in the computed disk; so must points the
+  // exact incircle puts inside.  Distances are measured in long double (more precise than the bound's
+  // margin for the ill-conditioned cases, which is what this test is about).
+  std::mt19937_64 rng(23);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  int everything = 0, tested = 0;
+  for (int i = 0; i < 20000; ++i) {
+    const Point2 a{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    const Point2 b{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    // c: near the segment's midpoint, off it by 0 .. 2^k ulps.
+    const double ulp = std::nextafter(4100000.0, 5e6) - 4100000.0;
+    const double off = ulp * std::ldexp(1.0, static_cast<int>(rng() % 40)) * (rng() % 2 ? 1 : -1);
+    Point2 c{(a.x + b.x) / 2 + off * (a.y - b.y) / 100, (a.y + b.y) / 2 + off * (b.x - a.x) / 100};
+    if (i % 4 == 0) c = Point2{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+    Point2 p = a, q = b;
+    const double o = orient2d(p, q, c);
+    if (o == 0) continue;
+    if (o < 0) std::swap(p, q);
+    const delaunay::Disk disk = delaunay::circumDisk(p, q, c);
+    if (disk.everything) {
+      ++everything;
+      continue;
+    }
+    ++tested;
+    auto inside = [&](const Point2& v) {
+      const long double dx = static_cast<long double>(v.x) - disk.cx,
+                        dy = static_cast<long double>(v.y) - disk.cy;
+      return std::sqrt(dx * dx + dy * dy) <= static_cast<long double>(disk.r);
+    };
+    ASSERT_TRUE(inside(p) && inside(q) && inside(c)) << "triangle " << i;
+    for (int k = 0; k < 20; ++k) {
+      const Point2 s{p.x + (c.x - p.x) * uni(-1, 2), p.y + (q.y - p.y) * uni(-1, 2)};
+      if (incircle(p, q, c, s) >= 0) {
+        ASSERT_TRUE(inside(s)) << "triangle " << i;
+      }
+    }
+  }
+  std::cout << "[ DISKS    ] " << tested << " disks checked, " << everything
+            << " too flat (touch everything)\n";
+  EXPECT_GT(tested, 10000);
+}
+
+TEST(StreamingDelaunay, PairedIncircleAgreesWithLibrary) {
+  // inCircle2 (two filters in one SSE2 register) against incirclePerturbed, lane by lane, on random points
+  // and on lattices (exact ties: a lane the filter cannot decide goes to the slow stages alone).
+  std::mt19937_64 rng(29);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  auto pick = [&](int n) {
+    return static_cast<double>(static_cast<int>(rng() % static_cast<std::uint64_t>(n)));
+  };
+  const std::vector<std::function<Point2()>> sets = {
+      [&] {
+        return Point2{uni(0, 1), uni(0, 1)};
+      },
+      [&] {
+        return Point2{500000 + 0.5 * pick(6), 4100000 + 0.5 * pick(6)};
+      },
+      [&] {
+        return Point2{500000 + uni(0, 100), 4100000 + uni(0, 100)};
+      },
+      [&] {
+        return Point2{1e-30 * pick(5), 1e-30 * pick(5)};
+      },
+  };
+  int checked = 0;
+  for (const auto& draw : sets) {
+    for (int i = 0; i < 20000; ++i) {
+      const Point2 d = draw();
+      std::array<Point2, 3> t[2];
+      bool ok = true;
+      for (auto& tri : t) {
+        tri = {draw(), draw(), draw()};
+        const double o = orient2d(tri[0], tri[1], tri[2]);
+        if (o < 0) std::swap(tri[0], tri[1]);
+        ok = ok && o != 0 && !sameXY(d, tri[0]) && !sameXY(d, tri[1]) && !sameXY(d, tri[2]);
+      }
+      if (!ok) continue;
+      ++checked;
+      const unsigned both = delaunay::inCircle2(t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], d);
+      ASSERT_EQ((both & 1u) != 0, incirclePerturbed(t[0][0], t[0][1], t[0][2], d) > 0) << i;
+      ASSERT_EQ((both & 2u) != 0, incirclePerturbed(t[1][0], t[1][1], t[1][2], d) > 0) << i;
+    }
+  }
+  EXPECT_GT(checked, 20000);
+}
+
+TEST(StreamingDelaunay, DivisionFreeDiskBoundIsConservative) {
+  // circumdiskInside claims 2R <= M (M: the least distance from the vertices' bounding box to the far
+  // sides of the rectangle), which puts the disk inside.  Rectangles are drawn with M within a relative
+  // 1e-17 .. 1e-9 of 2R on either side; whenever the test says yes, 2R <= M must hold (checked in long
+  // double), and points the exact incircle puts in the disk must lie in the rectangle.
+  std::mt19937_64 rng(31);
+  auto uni = [&](double lo, double hi) { return std::uniform_real_distribution<double>(lo, hi)(rng); };
+  int accepted = 0, rejectedOutside = 0;
+  for (int i = 0; i < 40000; ++i) {
+    const double base = i % 2 ? 0.0 : 500000.0;
+    Point2 a{base + uni(0, 10), base + uni(0, 10)}, b{base + uni(0, 10), base + uni(0, 10)};
+    const Point2 c{base + uni(0, 10), base + uni(0, 10)};
+    const double o = orient2d(a, b, c);
+    if (o == 0) continue;
+    if (o < 0) std::swap(a, b);
+    using L = long double;
+    auto sq = [](L x, L y) { return x * x + y * y; };
+    const L bx = L(b.x) - a.x, by = L(b.y) - a.y, cx = L(c.x) - a.x, cy = L(c.y) - a.y;
+    const L ex = L(c.x) - b.x, ey = L(c.y) - b.y;
+    const L twoR = std::sqrt(sq(bx, by) * sq(cx, cy) * sq(ex, ey)) / std::fabs(bx * cy - by * cx);
+    const double rel = std::ldexp(1.0, -static_cast<int>(30 + rng() % 27)) * (rng() % 2 ? 1 : -1);
+    const L m = twoR * (1 + static_cast<L>(rel));
+    const double minX = std::min({a.x, b.x, c.x}), maxX = std::max({a.x, b.x, c.x});
+    const double minY = std::min({a.y, b.y, c.y}), maxY = std::max({a.y, b.y, c.y});
+    // The far sides at distance m (rounded to doubles: the distances actually used are recomputed).
+    const delaunay::Rect r{static_cast<double>(maxX - m - (rng() % 2 ? uni(0, 1e-3) : 0.0) * twoR),
+                           static_cast<double>(maxY - m), static_cast<double>(minX + m),
+                           static_cast<double>(minY + m + (rng() % 2 ? uni(0, 1e-3) : 0.0) * twoR)};
+    const L trueM = std::min({L(maxX) - r.x0, L(r.x1) - minX, L(maxY) - r.y0, L(r.y1) - minY});
+    if (!delaunay::circumdiskInside(a, b, c, r)) {
+      rejectedOutside += twoR > trueM;
+      continue;
+    }
+    ++accepted;
+    ASSERT_LE(twoR, trueM * (1 + 1e-15L)) << i;
+    for (int k = 0; k < 20; ++k) {
+      const Point2 s{a.x + uni(-2, 2) * static_cast<double>(twoR),
+                     a.y + uni(-2, 2) * static_cast<double>(twoR)};
+      if (incircle(a, b, c, s) >= 0) {
+        ASSERT_TRUE(s.x >= r.x0 && s.x <= r.x1 && s.y >= r.y0 && s.y <= r.y1) << i;
+      }
+    }
+  }
+  std::cout << "[ DISKS    ] division-free bound: " << accepted << " accepted, " << rejectedOutside
+            << " rejected with 2R > M\n";
+  EXPECT_GT(accepted, 5000);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Streaming behaviour.
+
+TEST(StreamingDelaunay, MemoryFollowsStreamWidth) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 1000000, 1);
+  const Result r = triangulate(pts, 7);
+  std::cout << "[ STREAM   ] 1M flight-strip points, depth 7: " << r.triangles.size()
+            << " triangles, max active " << r.stats.maxActiveTriangles << " triangles, "
+            << r.stats.maxActiveVertices << " vertices, peak " << static_cast<double>(r.stats.peakBytes) / 1e6
+            << " MB; restarts leaf/neighbour/exhaustive " << r.stats.restartsLeaf << "/"
+            << r.stats.restartsNeighbour << "/" << r.stats.restartsExhaustive << "\n";
+  EXPECT_LT(r.stats.maxActiveTriangles, r.triangles.size() / 10);
+  EXPECT_LT(r.stats.maxActiveVertices, r.vertices.size() / 10);
+  EXPECT_GT(r.stats.certificationChecks, 0u);
+}
+
+TEST(StreamingDelaunay, TrianglesAreWrittenEarly) {
+  // Cells tagged as they complete: most triangles are written long before end().
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 100000, 6);
+  CheckingSink sink;
+  StreamingDelaunay dt(sink);
+  const GridSpec grid = makeGrid(boundsOf(pts), 6);
+  // Feed every cell but hold back end(): count what is out before it.
+  StreamInfo info;
+  info.grid = grid;
+  dt.begin(info);
+  std::vector<std::uint32_t> count(grid.cellCount(), 0);
+  for (const auto& p : pts) ++count[grid.cellOf(p.x, p.y)];
+  std::unordered_map<std::uint64_t, Points> buckets;
+  for (const auto& p : pts) {
+    const std::uint64_t c = grid.cellOf(p.x, p.y);
+    auto& b = buckets[c];
+    b.push_back(p);
+    if (b.size() == count[c]) {
+      dt.points(b.data(), b.size());
+      dt.finalizeCell(CellTag{6, static_cast<std::uint32_t>(c % 64), static_cast<std::uint32_t>(c / 64)});
+      buckets.erase(c);
+    }
+  }
+  for (std::uint64_t c = 0; c < count.size(); ++c)
+    if (count[c] == 0)
+      dt.finalizeCell(CellTag{6, static_cast<std::uint32_t>(c % 64), static_cast<std::uint32_t>(c / 64)});
+  const std::size_t before = sink.triangles.size();
+  dt.end();
+  EXPECT_EQ(sink.errors, 0u) << sink.firstError;
+  // Every cell was final before end(): every triangle was written before it.
+  EXPECT_EQ(before, sink.triangles.size());
+  EXPECT_GT(before, 0u);
+}
+
+TEST(StreamingDelaunay, RejectsBrokenStreams) {
+  CountingSink sink;
+  const Points pts = randomPoints(100, 1);
+  const GridSpec grid = makeGrid(boundsOf(pts), 2);
+  StreamInfo info;
+  info.grid = grid;
+  {
+    StreamingDelaunay dt(sink);
+    dt.begin(info);
+    dt.points(pts.data(), pts.size());
+    const std::uint64_t c = grid.cellOf(pts[0].x, pts[0].y);
+    dt.finalizeCell(CellTag{2, static_cast<std::uint32_t>(c % 4), static_cast<std::uint32_t>(c / 4)});
+    EXPECT_THROW(dt.points(pts.data(), 1), Error);  // a point after its cell's tag
+  }
+  {
+    StreamingDelaunay dt(sink);
+    dt.begin(info);
+    const PointRecord far = rec(grid.originX - 10, grid.originY + 1);
+    EXPECT_THROW(dt.points(&far, 1), Error);  // outside the grid
+    const PointRecord nan = rec(std::nan(""), 1);
+    EXPECT_THROW(dt.points(&nan, 1), Error);
+    EXPECT_THROW(dt.finalizeCell(CellTag{3, 0, 0}), Error);  // level > depth
+    EXPECT_THROW(dt.finalizeCell(CellTag{1, 2, 0}), Error);  // column outside
+  }
+  {
+    StreamingDelaunay dt(sink);
+    EXPECT_THROW(dt.points(pts.data(), 1), Error);  // before begin()
+  }
+}
+
+TEST(StreamingDelaunay, ReusableAfterEnd) {
+  CheckingSink first, second;
+  const Points pts = randomPoints(2000, 5);
+  StreamingDelaunay dt(first);
+  TestFinalizer(dt, makeGrid(boundsOf(pts), 3), Feed{}).run(pts);
+  const auto firstStats = dt.stats();
+  TestFinalizer(dt, makeGrid(boundsOf(pts), 2), Feed{}).run(pts);
+  EXPECT_EQ(dt.stats().pointsIn, firstStats.pointsIn);
+  EXPECT_EQ(first.triangles.size() * 2, dt.stats().trianglesEmitted + firstStats.trianglesEmitted);
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// Measurement (not a test): run with --gtest_also_run_disabled_tests --gtest_filter='*Benchmark*'.
+// TINBUILD_BENCH_POINTS sets the size (default 1M).  Events are prepared in memory as a finalizer would
+// produce them (cells complete in stream order, points of a cell in BRIO order: random rounds of
+// doubling size, each sorted along a Hilbert curve); only the triangulator is timed, against CGAL's
+// range insertion of the same points in the same run.
+
+std::uint64_t hilbertIndex(std::uint32_t x, std::uint32_t y, int order) {
+  std::uint64_t d = 0;
+  for (std::uint32_t s = 1u << (order - 1); s > 0; s /= 2) {
+    const std::uint32_t rx = (x & s) > 0, ry = (y & s) > 0;
+    d += std::uint64_t{s} * s * ((3 * rx) ^ ry);
+    if (ry == 0) {
+      if (rx == 1) {
+        x = s - 1 - x;
+        y = s - 1 - y;
+      }
+      std::swap(x, y);
+    }
+  }
+  return d;
+}
+
+struct Event {
+  bool tag;
+  std::size_t begin, end;  // points range
+  CellTag cell;
+};
+
+void brio(Points& pts, std::size_t b, std::size_t e, const GridSpec& grid, std::mt19937_64& rng) {
+  std::shuffle(pts.begin() + static_cast<std::ptrdiff_t>(b), pts.begin() + static_cast<std::ptrdiff_t>(e),
+               rng);
+  const double scale = 65535.0 / grid.size;
+  auto key = [&](const PointRecord& p) {
+    return hilbertIndex(static_cast<std::uint32_t>((p.x - grid.originX) * scale),
+                        static_cast<std::uint32_t>((p.y - grid.originY) * scale), 16);
+  };
+  // Rounds: the last half, the quarter before, ... each sorted along the curve.
+  std::size_t hi = e;
+  while (hi > b) {
+    const std::size_t n = hi - b;
+    const std::size_t lo = n > 64 ? hi - n / 2 : b;
+    std::vector<std::pair<std::uint64_t, PointRecord>> tmp;
+    for (std::size_t i = lo; i < hi; ++i) tmp.emplace_back(key(pts[i]), pts[i]);
+    std::sort(tmp.begin(), tmp.end(), [](const auto& x, const auto& y) { return x.first < y.first; });
+    for (std::size_t i = lo; i < hi; ++i) pts[i] = tmp[i - lo].second;
+    hi = lo;
+  }
+}
+
+std::vector<Event> prepare(Points& pts, const GridSpec& grid) {
+  std::vector<std::uint32_t> count(grid.cellCount(), 0);
+  for (const auto& p : pts) ++count[grid.cellOf(p.x, p.y)];
+  std::unordered_map<std::uint64_t, Points> buckets;
+  Points ordered;
+  ordered.reserve(pts.size());
+  std::vector<Event> events;
+  std::mt19937_64 rng(1);
+  for (std::uint64_t c = 0; c < count.size(); ++c)
+    if (count[c] == 0)
+      events.push_back(
+          Event{true, 0, 0,
+                CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
+                        static_cast<std::uint32_t>(c / grid.side())}});
+  for (const auto& p : pts) {
+    const std::uint64_t c = grid.cellOf(p.x, p.y);
+    auto& b = buckets[c];
+    b.push_back(p);
+    if (b.size() == count[c]) {
+      const std::size_t start = ordered.size();
+      ordered.insert(ordered.end(), b.begin(), b.end());
+      brio(ordered, start, ordered.size(), grid, rng);
+      events.push_back(Event{false, start, ordered.size(), {}});
+      events.push_back(
+          Event{true, 0, 0,
+                CellTag{static_cast<std::uint8_t>(grid.depth), static_cast<std::uint32_t>(c % grid.side()),
+                        static_cast<std::uint32_t>(c / grid.side())}});
+      buckets.erase(c);
+    }
+  }
+  pts.swap(ordered);
+  return events;
+}
+
+TEST(StreamingDelaunay, DISABLED_Benchmark) {
+  const char* env = std::getenv("TINBUILD_BENCH_POINTS");
+  const std::uint64_t n = env ? std::strtoull(env, nullptr, 10) : 1000000;
+  struct Case {
+    const char* name;
+    SurveySpec::Kind kind;
+  };
+  for (const Case& c :
+       {Case{"uniform", SurveySpec::Kind::UniformRandom}, Case{"strips", SurveySpec::Kind::FlightStrips},
+        Case{"lattice", SurveySpec::Kind::Lattice}}) {
+    Points pts = survey(c.kind, n, 1);
+    const int depth = std::max(chooseDepth(pts.size()), 1);
+    const GridSpec grid = makeGrid(boundsOf(pts), depth);
+    const std::vector<Event> events = prepare(pts, grid);
+    CountingSink sink;
+    StreamingDelaunay dt(sink);
+    StreamInfo info;
+    info.grid = grid;
+    resetPredicateStats();
+    const auto t0 = std::chrono::steady_clock::now();
+    dt.begin(info);
+    for (const Event& e : events) {
+      if (e.tag)
+        dt.finalizeCell(e.cell);
+      else
+        for (std::size_t i = e.begin; i < e.end; i += 4096)
+          dt.points(pts.data() + i, std::min<std::size_t>(4096, e.end - i));
+    }
+    dt.end();
+    const double ours = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    const PredicateStats ps = predicateStats();
+    double theirs = 0;
+#ifdef TINBUILD_TEST_HAVE_CGAL
+    {
+      std::vector<K::Point_2> cp;
+      cp.reserve(pts.size());
+      for (const auto& p : pts) cp.emplace_back(p.x, p.y);
+      const auto t1 = std::chrono::steady_clock::now();
+      Dt cdt;
+      cdt.insert(cp.begin(), cp.end());
+      theirs = std::chrono::duration<double>(std::chrono::steady_clock::now() - t1).count();
+      EXPECT_EQ(cdt.number_of_faces(), sink.t);
+    }
+#endif
+    const DelaunayStats& s = dt.stats();
+    std::cout << "[ BENCH    ] " << c.name << " " << n << " depth " << depth << ": ours " << ours << " s ("
+              << static_cast<double>(n) / ours / 1e6 << " Mpts/s), CGAL " << theirs << " s, ratio "
+              << theirs / ours << "; max active tris " << s.maxActiveTriangles << ", verts "
+              << s.maxActiveVertices << ", peak " << static_cast<double>(s.peakBytes) / 1e6
+              << " MB; walk steps/pt " << static_cast<double>(s.walkSteps) / static_cast<double>(n)
+              << "; restarts " << s.restartsLeaf << "/" << s.restartsNeighbour << "/" << s.restartsExhaustive
+              << "; cert checks " << s.certificationChecks << " (cheap " << s.certifiedCheap << ", parked "
+              << s.parked << "); exact incircle " << ps.incircleExact << ", ties " << ps.perturbedTies
+              << "\n";
+  }
+}
+
+}  // namespace
+}  // namespace tinbuild

@@ -1,0 +1,379 @@
+// DemRasterizer: pixel ownership is a partition (no pixel written twice or missed), values are the TIN's
+// linear interpolation, tiles are completed early while the triangulation streams, and the streaming
+// raster equals the non-streaming one bit for bit (any triangle order).
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <map>
+#include <random>
+#include <set>
+#include <vector>
+
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
+#include "libterrain/mesh/mesh_tee.h"
+#include "libterrain/raster/dem_rasterizer.h"
+#include "libterrain/synthetic/synthetic_survey.h"
+
+namespace tinbuild {
+namespace {
+
+class VectorStream : public PointStream {
+ public:
+  explicit VectorStream(std::vector<PointRecord> pts) : pts_(std::move(pts)) {}
+  std::size_t read(PointRecord* out, std::size_t max) override {
+    const std::size_t n = std::min(max, pts_.size() - pos_);
+    std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_),
+              pts_.begin() + static_cast<std::ptrdiff_t>(pos_ + n), out);
+    pos_ += n;
+    return n;
+  }
+  bool rewindable() const override { return true; }
+  void rewind() override { pos_ = 0; }
+
+ private:
+  std::vector<PointRecord> pts_;
+  std::size_t pos_ = 0;
+};
+
+// Assembles the whole raster from the tiles it is handed; checks no tile comes twice.
+struct Assembler : DemTileSink {
+  DemLayout layout;
+  std::vector<float> z, slope, edge;
+  std::vector<std::uint8_t> shade;
+  std::vector<std::uint16_t> count;
+  std::set<std::pair<std::int64_t, std::int64_t>> seen;
+  int tiles = 0;
+  bool ended = false;
+  void begin(const DemLayout& l, const MeshInfo&) override {
+    layout = l;
+    const std::size_t n = static_cast<std::size_t>(std::max<std::int64_t>(0, l.width() * l.height()));
+    z.assign(n, l.nodata);
+    slope.assign(n, l.nodata);
+    edge.assign(n, l.nodata);
+    shade.assign(n, 0);
+    count.assign(n, 0);
+  }
+  void tile(const DemTile& t) override {
+    EXPECT_TRUE(seen.insert({t.tx, t.ty}).second) << "tile handed over twice";
+    ++tiles;
+    for (int r = 0; r < t.height; ++r)
+      for (int c = 0; c < t.width; ++c) {
+        const std::size_t src = static_cast<std::size_t>(r) * t.width + c;
+        const std::size_t dst = static_cast<std::size_t>(t.rasterY(layout) + r) * layout.width() +
+                                static_cast<std::size_t>(t.rasterX(layout) + c);
+        z[dst] = t.z[src];
+        if (!t.slope.empty()) slope[dst] = t.slope[src];
+        if (!t.edgeLength.empty()) edge[dst] = t.edgeLength[src];
+        if (!t.hillshade.empty()) shade[dst] = t.hillshade[src];
+        if (!t.count.empty()) count[dst] = t.count[src];
+      }
+  }
+  void end() override { ended = true; }
+  // Value at global pixel (i, j).
+  float at(std::int64_t i, std::int64_t j) const {
+    return z[static_cast<std::size_t>(layout.rowMax - j) * layout.width() +
+             static_cast<std::size_t>(i - layout.colMin)];
+  }
+};
+
+std::vector<PointRecord> survey(SurveySpec::Kind kind, std::uint64_t n, std::uint64_t seed = 3) {
+  SurveySpec spec;
+  spec.kind = kind;
+  spec.points = n;
+  spec.seed = seed;
+  SurveyGenerator gen(spec);
+  std::vector<PointRecord> pts(n);
+  std::size_t got = 0;
+  while (got < n) {
+    const std::size_t k = gen.next(pts.data() + got, n - got);
+    if (k == 0) break;
+    got += k;
+  }
+  pts.resize(got);
+  return pts;
+}
+
+// Records the mesh (for replays in other orders).
+struct MeshRecorder : TriangleSink {
+  MeshInfo info;
+  std::vector<std::array<MeshVertex, 3>> tris;
+  std::vector<MeshVertex> verts;
+  void begin(const MeshInfo& i) override { info = i; }
+  void vertex(const MeshVertex& v) override { verts.push_back(v); }
+  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override {
+    tris.push_back({a, b, c});
+  }
+  void end() override {}
+};
+
+struct DemRun {
+  Assembler raster;
+  DemStats stats;
+  MeshRecorder mesh;
+};
+
+// Finalizes and triangulates `pts` streaming, rasterizing on the fly.
+void runStreaming(const std::vector<PointRecord>& pts, const DemOptions& opt, DemRun& run, int depth = -1) {
+  VectorStream s(pts);
+  DemRasterizer dem(opt, run.raster);
+  MeshTee tee;
+  tee.add(dem);
+  tee.add(run.mesh);
+  StreamingDelaunay del(tee);
+  FinalizerOptions fo;
+  fo.depth = depth;
+  Diagnostics diag;
+  finalizePoints({&s}, fo, del, diag);
+  run.stats = dem.stats();
+}
+
+// Replays recorded triangles (vertices first) into a non-streaming rasterizer.
+void replay(const MeshRecorder& m, DemOptions opt, Assembler& out, std::vector<std::size_t> order = {}) {
+  opt.streaming = false;
+  DemRasterizer dem(opt, out);
+  dem.begin(m.info);
+  for (const auto& v : m.verts) dem.vertex(v);
+  if (order.empty())
+    for (std::size_t i = 0; i < m.tris.size(); ++i) order.push_back(i);
+  for (std::size_t i : order) {
+    const auto& t = m.tris[i];
+    dem.triangle(t[0], t[1], t[2]);
+  }
+  dem.end();
+}
+
+bool sameBits(const std::vector<float>& a, const std::vector<float>& b) {
+  return a.size() == b.size() && std::memcmp(a.data(), b.data(), a.size() * sizeof(float)) == 0;
+}
+
+TEST(DemRasterizer, LayoutSnapsToTheGlobalGrid) {
+  DemOptions o;
+  o.step = 2;
+  Bounds3 b;
+  b.add(101.0, 203.5, 0);
+  b.add(149.0, 260.0, 1);
+  const DemLayout l = demLayout(o, b);
+  EXPECT_EQ(l.colMin, 50);  // 100 <= 101 < 102
+  EXPECT_EQ(l.colMax, 74);  // 148 <= 149 < 150
+  EXPECT_EQ(l.rowMin, 101);
+  EXPECT_EQ(l.rowMax, 129);  // 260 lies on a grid line: the last pixel ends there
+  EXPECT_DOUBLE_EQ(l.west(), 100);
+  EXPECT_DOUBLE_EQ(l.north(), 260);
+  // Another origin one step away gives the same pixels.
+  o.originX = -2;
+  o.originY = 4;
+  const DemLayout l2 = demLayout(o, b);
+  EXPECT_DOUBLE_EQ(l2.west(), 100);
+  EXPECT_DOUBLE_EQ(l2.north(), 260);
+  // Tiles anchored at the raster's corner end at its north edge.
+  o.tileSize = 16;
+  o.anchorTilesAtRaster = true;
+  const DemLayout l3 = demLayout(o, b);
+  EXPECT_EQ((l3.rowMax + 1 - l3.tileRow0) % 16, 0);
+  EXPECT_EQ(l3.tileCol0, l3.colMin);
+  EXPECT_THROW(demLayout(DemOptions{.step = 0, .extent = {}}, b), UsageError);
+  DemOptions tiny;
+  tiny.step = 1e-9;
+  EXPECT_THROW(demLayout(tiny, b), UsageError);
+}
+
+// A lattice whose pixel centres fall exactly on vertices and edges: every pixel centre inside the hull is
+// written exactly once, and the values are exact on a plane.
+TEST(DemRasterizer, LatticeCentresOnEdgesArePartitioned) {
+  std::vector<PointRecord> pts;
+  for (int j = 0; j <= 40; ++j)
+    for (int i = 0; i <= 40; ++i) {
+      PointRecord p;
+      p.x = 1000.5 + i;  // pixel centres (step 1, origin 0) at k + 0.5: exactly on the vertices
+      p.y = 2000.5 + j;
+      p.z = 3 * p.x - 2 * p.y + 7;
+      pts.push_back(p);
+    }
+  for (double step : {1.0, 0.5, 0.25}) {
+    DemOptions o;
+    o.step = step;
+    o.tileSize = 16;
+    DemRun run;
+    runStreaming(pts, o, run);
+    std::uint64_t valid = 0;
+    const DemLayout& L = run.raster.layout;
+    for (std::int64_t j = L.rowMin; j <= L.rowMax; ++j)
+      for (std::int64_t i = L.colMin; i <= L.colMax; ++i) {
+        const double x = L.originX + (static_cast<double>(i) + 0.5) * step;
+        const double y = L.originY + (static_cast<double>(j) + 0.5) * step;
+        const float v = run.raster.at(i, j);
+        const bool interior = x > 1000.5 && x < 1040.5 && y > 2000.5 && y < 2040.5;
+        if (interior) {
+          ASSERT_NE(v, o.nodata) << "missed pixel " << i << "," << j << " step " << step;
+        }
+        if (v != o.nodata) {
+          ++valid;
+          EXPECT_NEAR(v, 3 * x - 2 * y + 7, 1e-6 * std::fabs(3 * x));
+        }
+      }
+    // Every write went to a distinct pixel: no pixel was written twice.
+    EXPECT_EQ(run.stats.pixelsWritten, valid) << "step " << step;
+  }
+}
+
+TEST(DemRasterizer, StreamingEqualsNonStreamingBitForBit) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
+  DemOptions o;
+  o.step = 1;
+  o.tileSize = 64;  // many tiles, so many complete early
+  o.slope = o.hillshade = o.edgeLength = o.count = true;
+  o.maxEdge = 5;
+  DemRun run;
+  runStreaming(pts, o, run);
+  EXPECT_TRUE(run.raster.ended);
+  EXPECT_GT(run.stats.tilesCompletedEarly, run.stats.tilesWritten / 2) << "tiles should stream out early";
+  EXPECT_LT(run.stats.maxOpenTiles, run.stats.tilesWritten) << "not all tiles may be open at once";
+  EXPECT_GT(run.stats.pixelsWritten, 40000u);  // 200k points at 4 per m^2
+
+  Assembler ref;
+  replay(run.mesh, o, ref);
+  EXPECT_TRUE(sameBits(run.raster.z, ref.z));
+  EXPECT_TRUE(sameBits(run.raster.slope, ref.slope));
+  EXPECT_TRUE(sameBits(run.raster.edge, ref.edge));
+  EXPECT_EQ(run.raster.shade, ref.shade);
+  EXPECT_EQ(run.raster.count, ref.count);
+
+  // Any triangle order, and vertices listed from another corner, give the same bits.
+  std::vector<std::size_t> order(run.mesh.tris.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::mt19937_64 rng(7);
+  std::shuffle(order.begin(), order.end(), rng);
+  MeshRecorder rotated = run.mesh;
+  for (auto& t : rotated.tris) std::rotate(t.begin(), t.begin() + 1, t.end());
+  Assembler shuffled;
+  replay(rotated, o, shuffled, order);
+  EXPECT_TRUE(sameBits(run.raster.z, shuffled.z));
+
+  // The count band counts every vertex inside the raster.
+  std::uint64_t counted = 0;
+  for (auto c : run.raster.count) counted += c;
+  EXPECT_EQ(counted, run.mesh.verts.size());
+}
+
+TEST(DemRasterizer, GridDepthDoesNotChangeTheRaster) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 60000, 5);
+  DemOptions o;
+  o.step = 0.7;
+  o.tileSize = 32;
+  DemRun a, b;
+  runStreaming(pts, o, a, 3);
+  runStreaming(pts, o, b, 7);
+  EXPECT_TRUE(sameBits(a.raster.z, b.raster.z));
+}
+
+TEST(DemRasterizer, MaxEdgeLeavesLongTrianglesEmpty) {
+  // Two clusters far apart: the triangles bridging them are long.
+  std::vector<PointRecord> pts;
+  std::mt19937_64 rng(1);
+  std::uniform_real_distribution<double> u(0, 10);
+  for (int k = 0; k < 400; ++k) {
+    PointRecord p;
+    p.x = u(rng) + (k % 2 ? 100 : 0);
+    p.y = u(rng);
+    p.z = 1;
+    pts.push_back(p);
+  }
+  DemOptions o;
+  o.step = 0.5;
+  o.maxEdge = 5;
+  o.edgeLength = true;
+  DemRun run;
+  runStreaming(pts, o, run);
+  EXPECT_GT(run.stats.pixelsMaxEdge, 1000u);
+  // The gap (x = 30..80) is nodata in the DEM but has edge lengths > 5.
+  const DemLayout& L = run.raster.layout;
+  const std::int64_t i = static_cast<std::int64_t>(std::floor(50 / o.step)),
+                     j = static_cast<std::int64_t>(std::floor(5 / o.step));
+  EXPECT_EQ(run.raster.at(i, j), o.nodata);
+  const std::size_t idx =
+      static_cast<std::size_t>(L.rowMax - j) * L.width() + static_cast<std::size_t>(i - L.colMin);
+  EXPECT_GT(run.raster.edge[idx], 5.0f);
+}
+
+TEST(DemRasterizer, SlopeAspectHillshadeOfAPlane) {
+  // z = 0.1 x: slope atan(0.1), facing west (downslope towards -x): aspect 270.
+  std::vector<PointRecord> pts;
+  for (int j = 0; j < 20; ++j)
+    for (int i = 0; i < 20; ++i) {
+      PointRecord p;
+      p.x = i * 1.3;
+      p.y = j * 1.1;
+      p.z = 0.1 * p.x;
+      pts.push_back(p);
+    }
+  DemOptions o;
+  o.step = 1;
+  o.slope = o.aspect = o.hillshade = true;
+  struct Grab : DemTileSink {
+    std::vector<DemTile> tiles;
+    void begin(const DemLayout&, const MeshInfo&) override {}
+    void tile(const DemTile& t) override { tiles.push_back(t); }
+    void end() override {}
+  } grab;
+  VectorStream s(pts);
+  DemRasterizer dem(o, grab);
+  MeshTee tee;
+  tee.add(dem);
+  StreamingDelaunay del(tee);
+  Diagnostics diag;
+  finalizePoints({&s}, FinalizerOptions{}, del, diag);
+  ASSERT_EQ(grab.tiles.size(), 1u);
+  const DemTile& t = grab.tiles[0];
+  int checked = 0;
+  for (std::size_t k = 0; k < t.z.size(); ++k) {
+    if (t.z[k] == o.nodata) continue;
+    EXPECT_NEAR(t.slope[k], std::atan(0.1) * 180 / M_PI, 1e-4);
+    EXPECT_NEAR(t.aspect[k], 270, 1e-4);
+    // Light from the north-west at 45 degrees on a west-facing slope: brighter than flat.
+    const double flat = 1 + 254 * std::sin(M_PI / 4);
+    EXPECT_GT(t.hillshade[k], flat);
+    ++checked;
+  }
+  EXPECT_GT(checked, 300);
+}
+
+TEST(DemRasterizer, NoPointsWritesNothing) {
+  Assembler a;
+  DemOptions o;
+  DemRasterizer dem(o, a);
+  dem.begin(MeshInfo{});
+  dem.end();
+  EXPECT_EQ(a.tiles, 0);
+  EXPECT_TRUE(a.ended);
+}
+
+TEST(VertexTable, InsertFindEraseUnderChurn) {
+  VertexTable t;
+  std::map<std::uint64_t, double> ref;
+  std::mt19937_64 rng(3);
+  std::uint64_t next = 0;
+  for (int step = 0; step < 200000; ++step) {
+    if (ref.empty() || rng() % 3 != 0) {
+      t.insert(MeshVertex{next, double(next), 0, 0});
+      ref[next] = double(next);
+      ++next;
+    } else {
+      auto it = ref.begin();
+      std::advance(it, static_cast<long>(rng() % std::min<std::size_t>(ref.size(), 50)));
+      t.erase(it->first);
+      ref.erase(it);
+    }
+  }
+  EXPECT_EQ(t.size(), ref.size());
+  for (const auto& [id, x] : ref) EXPECT_EQ(t.at(id).x, x);
+  EXPECT_THROW(t.at(next + 5), Error);
+}
+
+}  // namespace
+}  // namespace tinbuild
