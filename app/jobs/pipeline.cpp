@@ -34,7 +34,7 @@ bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Boun
   points = 0;
   for (const auto& r : readers) {
     const SourceInfo& s = r->info();
-    if (s.format != "LAS" || !s.hasHeaderBounds || s.path == "-") return false;
+    if (!isLasFamily(s.format) || !s.hasHeaderBounds || s.path == "-") return false;
     const Bounds3& b = s.headerBounds;
     for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
       if (!std::isfinite(v) || std::fabs(v) > 1e15) return false;
@@ -95,14 +95,18 @@ void dataCentre(OpenedInputs& in, double& cx, double& cy) {
   cy = b.empty() ? 0 : 0.5 * (b.minY + b.maxY);
 }
 
-OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnostics& diag) {
+// `needIntensity` false: a job whose outputs use no intensity (a TIN, a DEM) lets LAZ readers skip it.
+OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnostics& diag,
+                        bool needIntensity = true) {
+  ReaderOptions readerOptions = o.reader;
+  readerOptions.intensity = readerOptions.intensity && needIntensity;
   if (o.inputs.empty()) throw UsageError("give at least one input file (or - for stdin)");
   int stdinCount = 0;
   for (const auto& i : o.inputs) stdinCount += i == "-";
   if (stdinCount > 1) throw UsageError("stdin (-) can be read only once");
   OpenedInputs in;
   for (const auto& path : o.inputs) {
-    in.readers.push_back(openPointReader(path, o.reader, diag));
+    in.readers.push_back(openPointReader(path, readerOptions, diag));
     in.streams.push_back(in.readers.back().get());
   }
   const CrsInfo inputCrs = in.readers.front()->info().crs;
@@ -432,7 +436,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   const RunOutputs outputs = resolveOutputs(o);
   refuseExistingOutputs(o, outputs.all());
   FinalizerOptions fo = o.finalizer;
-  OpenedInputs in = openInputs(o, fo, diag);
+  OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.memoryBudget = fo.memoryBudget;

@@ -17,6 +17,13 @@ namespace tinbuild {
 
 namespace {
 
+// Uncompressed record bytes per compressed byte (LAZ, COPC); 0 when unknown.
+double compressionRatio(const SourceInfo& src) {
+  if (src.compressedBytes == 0) return 0;
+  return static_cast<double>(src.headerPointCount) * src.recordLength /
+         static_cast<double>(src.compressedBytes);
+}
+
 std::string num(double v, int precision = 10) {
   char buf[64];
   std::snprintf(buf, sizeof buf, "%.*g", precision, v);
@@ -245,12 +252,25 @@ std::string formatInfoJson(const InfoReport& r) {
     j.beginObject();
     j.key("path").value(src.path);
     j.key("format").value(src.format);
-    if (src.format == "LAS") {
+    if (isLasFamily(src.format)) {
       j.key("version").value(std::to_string(src.versionMajor) + "." + std::to_string(src.versionMinor));
       j.key("point_format").value(src.pointFormat);
       j.key("record_length").value(src.recordLength);
       j.key("extra_bytes").value(src.extraBytesPerRecord);
       j.key("header_points").value(src.headerPointCount);
+      if (!src.lazCompressor.empty()) {
+        j.key("compression").beginObject();
+        j.key("compressor").value(src.lazCompressor);
+        j.key("chunk_size");
+        if (src.lazChunkSize)
+          j.value(static_cast<std::uint64_t>(src.lazChunkSize));
+        else
+          j.value("variable");
+        j.key("chunks").value(src.lazChunks);
+        j.key("compressed_bytes").value(src.compressedBytes);
+        j.key("ratio").value(compressionRatio(src));
+        j.endObject();
+      }
       j.key("header_bounds");
       writeBoundsJson(j, src.headerBounds);
       j.key("scale").beginArray().value(src.scale[0]).value(src.scale[1]).value(src.scale[2]).endArray();
@@ -296,12 +316,22 @@ std::string formatInfoText(const InfoReport& r) {
   for (const auto& f : r.files) {
     const SourceInfo& src = f.source;
     o << src.path << "\n";
-    if (src.format == "LAS") {
+    if (isLasFamily(src.format)) {
       line("format",
-           "LAS " + std::to_string(src.versionMajor) + "." + std::to_string(src.versionMinor) +
+           src.format + " " + std::to_string(src.versionMajor) + "." + std::to_string(src.versionMinor) +
                ", point format " + std::to_string(src.pointFormat) + ", " + std::to_string(src.recordLength) +
                " bytes per record" +
                (src.extraBytesPerRecord ? " (" + std::to_string(src.extraBytesPerRecord) + " extra)" : ""));
+      if (!src.lazCompressor.empty())
+        line(
+            "compression",
+            src.lazCompressor + " chunks of " +
+                (src.lazChunkSize ? withCommas(src.lazChunkSize) + " points" : std::string("variable size")) +
+                (src.lazChunks ? ", " + withCommas(src.lazChunks) + " chunks" : ", chunk table repaired") +
+                ", " + fixed(compressionRatio(src), 2) + " : 1 (" + withCommas(src.compressedBytes) +
+                " bytes for " +
+                withCommas(src.headerPointCount * static_cast<std::uint64_t>(src.recordLength)) +
+                " bytes of records)");
       if (!src.generatingSoftware.empty() || !src.systemIdentifier.empty())
         line("software",
              src.generatingSoftware + (src.systemIdentifier.empty() ? "" : " / " + src.systemIdentifier));

@@ -16,6 +16,9 @@
 
 #include "formats/crs/crs.h"
 #include "formats/io/stdin_source.h"
+#include "formats/pointcloud/laz/chunk_codec.h"
+#include "formats/pointcloud/laz/laz_error.h"
+#include "formats/pointcloud/laz/laz_format.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/work_crew.h"
@@ -273,10 +276,7 @@ void LasReader::parse() {
   info_.format = "LAS";
   const std::uint8_t rawFormat = h[104];
   const std::uint16_t headerSize = le<std::uint16_t>(h + 94);
-  if (rawFormat & 0xC0)
-    throw DataError(file,
-                    "LAZ is not supported yet: decompress with laszip/pdal first "
-                    "(the point format byte has the compression bit set)");
+  const bool compressedBits = (rawFormat & 0xC0) != 0;
   info_.versionMajor = h[24];
   info_.versionMinor = h[25];
   if (info_.versionMajor != 1)
@@ -410,6 +410,18 @@ void LasReader::parse() {
     }
     if (stream_) streamBegin_ = pointOffset_;
   }
+  const LasVlr* lazVlr = nullptr;
+  for (const auto& v : vlrs_)
+    if (v.userId == laz::kLaszipVlrUserId && v.recordId == laz::kLaszipVlrRecordId) lazVlr = &v;
+  const bool compressed = compressedBits || lazVlr;
+  if (compressed && !lazVlr)
+    throw DataError(file,
+                    "the point format byte says the points are compressed (LAZ), but the file has no LASzip "
+                    "VLR (\"laszip encoded\", 22204) to say how");
+  if (compressed && stream_)
+    throw DataError(file,
+                    "LAZ cannot be read from standard input (its chunk table lies at the end of the file): "
+                    "give the file's name");
 
   // Where the point records must end: at the EVLRs or internal waveform data when those follow them.
   if (!stream_) {
@@ -421,22 +433,26 @@ void LasReader::parse() {
       info_.waveformBytes =
           (evlrStart > waveformStart && evlrStart <= size_ ? evlrStart : size_) - waveformStart;
     }
+    lazDataEnd_ = end;
     const std::uint64_t holds = (end - pointOffset_) / static_cast<std::uint64_t>(info_.recordLength);
-    if (count > holds)
+    if (!compressed && count > holds)
       throw DataError(file, "file is truncated: the header says " + fmtCount(count) +
                                 " points but the file holds " + fmtCount(holds) + " (" +
                                 fmtCount(end - pointOffset_) + " bytes of point data, " +
                                 std::to_string(info_.recordLength) + " bytes per record)");
     const std::uint64_t trailing =
-        end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
-    if (trailing > 0 && evlrStart == 0 && !internalWaveform)
+        compressed ? 0 : end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
+    if (!compressed && trailing > 0 && evlrStart == 0 && !internalWaveform)
       info_.notes.push_back(fmtCount(trailing) + " bytes after the last point record are ignored");
 
     // EVLRs (LAS 1.4).
     if (info_.evlrCount > 0) {
       std::uint64_t pos = evlrStart;
       std::uint32_t parsed = 0;
-      if (evlrStart < pointOffset_ + count * static_cast<std::uint64_t>(info_.recordLength)) pos = size_ + 1;
+      const std::uint64_t pointsEnd =
+          compressed ? pointOffset_ + 8
+                     : pointOffset_ + count * static_cast<std::uint64_t>(info_.recordLength);
+      if (evlrStart < pointsEnd) pos = size_ + 1;
       for (; parsed < info_.evlrCount; ++parsed) {
         if (pos > size_ || size_ - pos < kEvlrHeader) break;  // (no overflow for absurd offsets)
         const std::uint8_t* v = base_ + pos;
@@ -466,12 +482,7 @@ void LasReader::parse() {
     info_.pointCountKnown = false;  // confirmed only when the stream ends
   }
 
-  for (const auto& v : vlrs_) {
-    if (v.userId == "laszip encoded" && v.recordId == 22204)
-      throw DataError(file,
-                      "LAZ is not supported yet: decompress with laszip/pdal first "
-                      "(the file carries a LASzip VLR)");
-  }
+  if (compressed) setupLaz(*lazVlr);
   if (info_.pointFormat >= 4 && info_.pointFormat != 6 && info_.pointFormat != 7 && info_.pointFormat != 8 &&
       info_.waveformBytes > 0)
     info_.notes.push_back("internal waveform data (" + fmtCount(info_.waveformBytes) + " bytes) skipped");
@@ -686,6 +697,243 @@ std::size_t LasReader::decodeFile(std::uint64_t first, std::size_t n, PointRecor
   });
 }
 
+// ---- LAZ: the chunk index and parallel chunk decoding ----------------------------------------------
+
+struct LasReader::Laz {
+  struct Chunk {
+    std::uint64_t first = 0, count = 0;   // points
+    std::uint64_t offset = 0, bytes = 0;  // where its compressed bytes lie
+  };
+  laz::LazInfo info;
+  std::vector<Chunk> chunks;  // every chunk, or (sequential) those found so far
+  bool sequential = false;    // no usable chunk table: chunks are found by decoding them in turn
+  bool complete = false;      // sequential: every chunk has been found (later passes may run in parallel)
+  std::uint64_t dataStart = 0, dataEnd = 0;
+  std::size_t nextChunk = 0;
+  std::vector<laz::ChunkDecoder> decoders;  // one per decode thread
+  std::vector<std::uint8_t> raw;            // decoded LAS records of the chunks in hand
+  std::size_t rawPos = 0, rawCount = 0;
+  std::uint32_t layers = laz::kAllLayers;
+  void restart() {
+    nextChunk = 0;
+    rawPos = rawCount = 0;
+    if (sequential && complete) sequential = false;
+  }
+};
+
+void LasReader::setupLaz(const LasVlr& vlr) {
+  const std::string& file = info_.path;
+  auto z = std::make_unique<Laz>();
+  try {
+    z->info = laz::LazInfo::parse(vlr.data.data(), vlr.data.size());
+  } catch (const laz::LazError& e) {
+    throw DataError(file, std::string("the LASzip VLR is malformed: ") + e.what());
+  }
+  const laz::LazInfo& li = z->info;
+  if (li.compressor != 2 && li.compressor != 3)
+    throw DataError(file, "LASzip compressor " + std::to_string(li.compressor) +
+                              " is not supported (tinbuild reads chunked LAZ: compressor 2, pointwise "
+                              "chunks, and 3, layered chunks)");
+  if (li.recordLength() != static_cast<std::uint32_t>(info_.recordLength))
+    throw DataError(file, "the LASzip VLR's items make records of " + std::to_string(li.recordLength()) +
+                              " bytes but the header says " + std::to_string(info_.recordLength));
+  try {
+    z->decoders.emplace_back(li);  // unknown items or item versions fail now, not in the middle of a run
+  } catch (const laz::LazError& e) {
+    throw DataError(file, e.what());
+  }
+  info_.format = "LAZ";
+  if (!vlrs_.empty() && vlrs_.front().userId == "copc" && vlrs_.front().recordId == 1) info_.format = "COPC";
+  info_.lazCompressor = li.compressor == 3 ? "layered" : "pointwise";
+  info_.lazChunkSize = li.variableChunks() ? 0 : li.chunkSize;
+
+  const std::uint64_t total = info_.pointCount;
+  z->dataStart = pointOffset_ + 8;
+  z->dataEnd = lazDataEnd_;
+  std::string problem;
+  std::int64_t tableOffset = -2;
+  if (pointOffset_ + 8 <= size_) tableOffset = le<std::int64_t>(base_ + pointOffset_);
+  // A writer that could not seek back leaves -1 there and the offset in the file's last 8 bytes.
+  if (tableOffset == -1 && size_ >= 8) tableOffset = le<std::int64_t>(base_ + size_ - 8);
+  if (total > 0) {
+    if (pointOffset_ + 8 > size_) {
+      problem = "the file ends before the chunk table's offset";
+    } else if (tableOffset < static_cast<std::int64_t>(z->dataStart) ||
+               static_cast<std::uint64_t>(tableOffset) + 8 > size_) {
+      problem = "its offset (" + std::to_string(tableOffset) + ") lies outside the file";
+    } else {
+      const auto at = static_cast<std::uint64_t>(tableOffset);
+      try {
+        const std::vector<laz::ChunkEntry> entries = laz::readChunkTable(
+            base_ + at, static_cast<std::size_t>(size_ - at), li.variableChunks(), li.chunkSize);
+        std::uint64_t pos = z->dataStart, first = 0;
+        for (std::size_t i = 0; i < entries.size() && problem.empty(); ++i) {
+          const laz::ChunkEntry& e = entries[i];
+          const std::uint64_t n =
+              li.variableChunks() ? e.pointCount : std::min<std::uint64_t>(li.chunkSize, total - first);
+          if (first >= total || n == 0)
+            problem = "it lists more chunks than the header's " + fmtCount(total) + " points fill";
+          else if (e.byteCount == 0 || e.byteCount > at - pos)
+            problem = "chunk " + std::to_string(i) + " would run past the table at byte " + fmtCount(at);
+          else
+            z->chunks.push_back({first, n, pos, e.byteCount});
+          pos += e.byteCount;
+          first += n;
+        }
+        if (problem.empty() && first != total)
+          problem = "its chunks hold " + fmtCount(first) + " points but the header says " + fmtCount(total);
+        z->dataEnd = at;
+      } catch (const laz::LazError& e) {
+        problem = e.what();
+      }
+    }
+  }
+  if (!problem.empty()) {
+    if (li.compressor == 2 && li.variableChunks())
+      throw DataError(file, "the chunk table is missing or damaged (" + problem +
+                                "), and chunks of variable size cannot be found without it");
+    diag_.warn("laz.chunk_table_repaired", file,
+               "the chunk table is missing or damaged (" + problem +
+                   "); the chunks are found by decoding them one after the other (a writer stopped "
+                   "before it finished the file leaves this)");
+    z->chunks.clear();
+    z->sequential = true;
+  }
+  info_.lazChunks = z->sequential ? 0 : z->chunks.size();
+  info_.compressedBytes = z->dataEnd > pointOffset_ ? z->dataEnd - pointOffset_ : 0;
+  laz_ = std::move(z);
+}
+
+void LasReader::setLazLayers(std::uint32_t layers) {
+  if (laz_) laz_->layers = layers;
+}
+
+void LasReader::fillLazChunks() {
+  Laz& z = *laz_;
+  const std::string& file = info_.path;
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  const std::uint64_t total = info_.pointCount;
+  if (z.sequential) {
+    // Find the next chunk where the last one ended; decode it alone.
+    const std::uint64_t first = z.chunks.empty() ? 0 : z.chunks.back().first + z.chunks.back().count;
+    const std::uint64_t pos = z.chunks.empty() ? z.dataStart : z.chunks.back().offset + z.chunks.back().bytes;
+    if (z.nextChunk < z.chunks.size()) {
+      // Found in an earlier, unfinished pass: decode it again from the index.
+    } else {
+      if (first >= total) throw Error(file + ": LAZ read past the last point");
+      if (pos >= z.dataEnd)
+        throw DataError(file, "the file ends after " + fmtCount(first) + " of the header's " +
+                                  fmtCount(total) + " points (chunk " + std::to_string(z.chunks.size()) +
+                                  " would start at byte " + fmtCount(pos) + ")");
+      std::uint64_t n =
+          z.info.variableChunks() ? 0 : std::min<std::uint64_t>(z.info.chunkSize, total - first);
+      std::uint64_t window = z.dataEnd - pos;
+      std::vector<std::uint8_t>& bytes = z.raw;  // reuse: the compressed bytes first, then decode elsewhere
+      std::vector<std::uint8_t> chunk(static_cast<std::size_t>(std::min<std::uint64_t>(window, 4)));
+      readLazBytes(chunk.data(), chunk.size(), pos);
+      if (n == 0) {  // layered chunks start with their point count
+        if (chunk.size() < 4)
+          throw DataError(file, "the file ends inside chunk " + std::to_string(z.chunks.size()));
+        n = le<std::uint32_t>(chunk.data());
+        if (n == 0 || n > total - first)
+          throw DataError(file, "LAZ chunk " + std::to_string(z.chunks.size()) + " (at byte " +
+                                    fmtCount(pos) + ") is damaged: it says it holds " + fmtCount(n) +
+                                    " points");
+      }
+      // A chunk is smaller than its records but for pathological data: twice as much and some slack.
+      window = std::min<std::uint64_t>(window, n * stride * 2 + (64u << 10));
+      chunk.resize(static_cast<std::size_t>(window));
+      readLazBytes(chunk.data(), chunk.size(), pos);
+      bytes.assign(static_cast<std::size_t>(n) * stride, 0);
+      std::size_t used = 0;
+      try {
+        const std::uint64_t got =
+            z.decoders[0].decode(chunk.data(), chunk.size(), n, bytes.data(), z.layers, used);
+        if (got != n) throw laz::LazError("it holds " + fmtCount(got) + " points, not " + fmtCount(n));
+      } catch (const laz::LazError& e) {
+        throw DataError(file, "LAZ chunk " + std::to_string(z.chunks.size()) + " (at byte " + fmtCount(pos) +
+                                  ") is damaged: " + e.what());
+      }
+      z.chunks.push_back({first, n, pos, used});
+      if (first + n == total) z.complete = true;
+      ++z.nextChunk;
+      z.rawPos = 0;
+      z.rawCount = static_cast<std::size_t>(n);
+      return;
+    }
+  }
+  const int threads = z.sequential ? 1 : (crew_ ? crew_->threads() : 1);
+  const std::size_t k =
+      std::min<std::size_t>(static_cast<std::size_t>(threads), z.chunks.size() - z.nextChunk);
+  if (k == 0) throw DataError(file, "the chunks hold fewer points than the header's " + fmtCount(total));
+  std::size_t offsets[kMaxDecodeThreads + 1] = {};
+  for (std::size_t i = 0; i < k; ++i)
+    offsets[i + 1] = offsets[i] + static_cast<std::size_t>(z.chunks[z.nextChunk + i].count);
+  if (z.raw.size() < offsets[k] * stride) z.raw.resize(offsets[k] * stride);
+  while (z.decoders.size() < k) z.decoders.emplace_back(z.info);
+  auto work = [&](int part) {
+    const std::size_t index = z.nextChunk + static_cast<std::size_t>(part);
+    const Laz::Chunk& c = z.chunks[index];
+    thread_local std::vector<std::uint8_t> bytes;
+    if (bytes.size() < c.bytes) bytes.resize(static_cast<std::size_t>(c.bytes));
+    readLazBytes(bytes.data(), static_cast<std::size_t>(c.bytes), c.offset);
+    std::size_t used = 0;
+    try {
+      const std::uint64_t got = z.decoders[static_cast<std::size_t>(part)].decode(
+          bytes.data(), static_cast<std::size_t>(c.bytes), c.count, z.raw.data() + offsets[part] * stride,
+          z.layers, used);
+      if (got != c.count)
+        throw laz::LazError("it holds " + fmtCount(got) + " points, the chunk table says " +
+                            fmtCount(c.count));
+    } catch (const laz::LazError& e) {
+      throw DataError(file, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(c.offset) +
+                                ") is damaged: " + e.what());
+    }
+  };
+  if (k > 1)
+    crew_->run(static_cast<int>(k), work);
+  else
+    work(0);
+  z.nextChunk += k;
+  z.rawPos = 0;
+  z.rawCount = offsets[k];
+}
+
+void LasReader::readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {
+  if (lazyFile_) {
+    readFully(dst, size, offset);
+    return;
+  }
+  if (offset > size_ || size > size_ - offset)
+    throw DataError(info_.path, "the file ended at byte " + fmtCount(size_) + " while its points were read");
+  std::memcpy(dst, base_ + offset, size);
+}
+
+std::size_t LasReader::readLaz(PointRecord* out, std::size_t n) {
+  Laz& z = *laz_;
+  openFile();
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  std::size_t done = 0;
+  while (done < n) {
+    if (z.rawPos == z.rawCount) fillLazChunks();
+    const std::size_t m = std::min(n - done, z.rawCount - z.rawPos);
+    const std::uint8_t* src = z.raw.data() + z.rawPos * stride;
+    PointRecord* dst = out + done;
+    decodeParts(m, dst, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
+      decodeInto(src + lo * stride, hi - lo, dst + lo, bounds);
+    });
+    z.rawPos += m;
+    done += m;
+  }
+  nextPoint_ += n;
+  passDecoded_ += n;
+  if (passDecoded_ >= info_.pointCount) {
+    finishPass();
+    if (lazyFile_) closeFile();
+  }
+  return n;
+}
+
 void LasReader::readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {
   while (size > 0) {
     const ssize_t got = ::pread(fd_, dst, size, static_cast<off_t>(offset));
@@ -752,6 +1000,7 @@ std::size_t LasReader::read(PointRecord* out, std::size_t max) {
     finishPass();
     return 0;
   }
+  if (laz_) return readLaz(out, n);
   if (!stream_) {
     openFile();
     if (lazyFile_)
@@ -837,6 +1086,7 @@ void LasReader::rewind() {
   requested_ = 0;
   decoded_ = Bounds3{};
   outside_ = 0;
+  if (laz_) laz_->restart();
 }
 
 }  // namespace tinbuild

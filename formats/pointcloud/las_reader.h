@@ -63,12 +63,15 @@ class LasReader : public PointReader {
   LasReader& operator=(const LasReader&) = delete;
 
   const SourceInfo& info() const override { return info_; }
+  // LAZ is costly to decode: the finalizer spools its first pass and reads the copy again, so every
+  // point is decoded once per run.
+  bool cheapToReread() const override { return !laz_; }
   std::size_t read(PointRecord* out, std::size_t max) override;
   bool rewindable() const override { return !stream_; }
   void rewind() override;
   // A file (not stdin) can be read in any order of record ranges: the range is asked for from storage
   // (POSIX_FADV_WILLNEED) at the seek, and the window ahead of sequential reading is not used.
-  bool seekable() const override { return !stream_; }
+  bool seekable() const override { return !stream_ && !laz_; }
   void seek(std::uint64_t record, std::uint64_t count) override;
   void willRead(std::uint64_t record, std::uint64_t count) override;
   void suspend() override;
@@ -81,6 +84,10 @@ class LasReader : public PointReader {
   // Every pass reads the file from storage: its pages are dropped from the page cache at rewind()
   // (benchmarks of cold reading; `--drop-cache`).
   void setDropCache(bool on) { dropCache_ = on; }
+
+  // LAZ: which layers of layered (LAS 1.4, point formats 6-10) chunks to decode (laz::kLayer* bits);
+  // the bytes of the others stay zero.  All by default.
+  void setLazLayers(std::uint32_t layers);
 
   const std::vector<LasVlr>& vlrs() const { return vlrs_; }
   // Bounds of the points decoded so far in this pass (complete after a full pass).
@@ -101,6 +108,12 @@ class LasReader : public PointReader {
                           const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill);
   void decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* out, Bounds3& bounds) const;
   void readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
+  // LAZ (formats/pointcloud/laz): the chunk index, and decoding chunks on the decode crew.
+  struct Laz;
+  void setupLaz(const LasVlr& vlr);
+  void fillLazChunks();
+  std::size_t readLaz(PointRecord* out, std::size_t n);
+  void readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
   std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
   void readAhead(std::uint64_t upTo);        // asks storage for a window ahead of sequential reading
   void openFile();   // opens the file for a pass (checks that it is the file parse() read)
@@ -136,6 +149,8 @@ class LasReader : public PointReader {
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};
   bool passReported_ = false;
+  std::unique_ptr<Laz> laz_;
+  std::uint64_t lazDataEnd_ = 0;  // where the compressed points must end (EVLRs, waveform data or EOF)
 };
 
 }  // namespace tinbuild

@@ -26,7 +26,7 @@ class Diagnostics;
 // What an input says about itself (from its header, or from a first look at the data).
 struct SourceInfo {
   std::string path;
-  std::string format;                      // "LAS", "XYZ"
+  std::string format;                      // "LAS", "LAZ", "COPC", "XYZ"
   int versionMajor = 0, versionMinor = 0;  // LAS version
   int pointFormat = -1;                    // LAS point data record format 0..10, -1 for text
   int recordLength = 0;                    // LAS point record length in bytes
@@ -45,6 +45,12 @@ struct SourceInfo {
   int creationDay = 0, creationYear = 0;
   std::uint32_t vlrCount = 0, evlrCount = 0;
   std::uint64_t waveformBytes = 0;  // internal waveform data (skipped, counted)
+  // LAZ and COPC: "pointwise" (compressor 2) or "layered" (3), the chunk size (0 = variable), the
+  // number of chunks (0 when the chunk table had to be repaired) and the compressed point data's bytes.
+  std::string lazCompressor;
+  std::uint32_t lazChunkSize = 0;
+  std::uint64_t lazChunks = 0;
+  std::uint64_t compressedBytes = 0;
   CrsInfo crs;
   std::vector<std::string> notes;  // human notes on repairs made while opening
 };
@@ -56,12 +62,18 @@ class PointReader : public PointStream {
 };
 
 // Options the readers understand (the CLI fills them).
+// True for the formats read by the LAS reader (LAS, LAZ, COPC): same header, VLRs, records.
+inline bool isLasFamily(const std::string& format) {
+  return format == "LAS" || format == "LAZ" || format == "COPC";
+}
+
 struct ReaderOptions {
   std::string columns;        // XYZ: "x,y,z,class,..." column mapping by position ("" = auto)
   bool skipBadLines = false;  // XYZ: skip and count malformed lines instead of failing
   std::string assignSrs;      // --a_srs: overrides / supplies the CRS
   int decodeThreads = 1;      // LAS: threads decoding large batches of a file
   bool dropCache = false;     // LAS: drop the file from the page cache at the start of each pass
+  bool intensity = true;      // LAZ: decode intensity (a TIN does not need it; layered chunks skip it)
 };
 
 }  // namespace tinbuild

@@ -8,6 +8,7 @@
 
 #include "formats/io/stdin_source.h"
 #include "formats/pointcloud/las_reader.h"
+#include "formats/pointcloud/laz/chunk_codec.h"
 #include "formats/pointcloud/xyz_reader.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
@@ -64,6 +65,17 @@ std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOption
   las->setDropCache(options.dropCache);
   return las;
 }
+// LAZ and COPC are read by the LAS reader, which decodes their chunks (formats/pointcloud/laz).
+std::unique_ptr<PointReader> openLaz(const std::string& path, const ReaderOptions& options,
+                                     Diagnostics& diag) {
+  auto las = std::make_unique<LasReader>(path, diag);
+  las->setDecodeThreads(options.decodeThreads);
+  las->setDropCache(options.dropCache);
+  std::uint32_t layers = laz::kLayerXY | laz::kLayerZ | laz::kLayerClass | laz::kLayerFlags;
+  if (options.intensity) layers |= laz::kLayerIntensity;
+  las->setLazLayers(layers);
+  return las;
+}
 std::unique_ptr<PointReader> openXyz(const std::string& path, const ReaderOptions& options,
                                      Diagnostics& diag) {
   return std::make_unique<XyzReader>(path, options, diag);
@@ -102,10 +114,9 @@ std::size_t sniff(const std::string& path, std::uint8_t* head) {
 }  // namespace
 
 const std::vector<ReaderRow>& readerTable() {
-  // Until the LAZ codec lands, COPC and LAZ open the LAS reader, which refuses them with a clear message.
   static const std::vector<ReaderRow> table = {
-      {"COPC", recognisesCopc, openLas},
-      {"LAZ", recognisesLaz, openLas},
+      {"COPC", recognisesCopc, openLaz},
+      {"LAZ", recognisesLaz, openLaz},
       {"LAS", hasSignature, openLas},
       {"XYZ", recognisesAnything, openXyz},
   };

@@ -206,13 +206,13 @@ const EdgeCase kEdgeCases[] = {
     {"1.2-no-points.las", "header says 1065 points but the file holds 0", ""},
     {"1.2-with-color-clipped.las", "header says 1065 points but the file holds 1064", ""},
     {"5points_14.las", "", "crs.wkt_empty"},
-    {"Semis_2022_0906_6665_LA93_IGN69_nok.laz", "LAZ is not supported yet", ""},
+    {"Semis_2022_0906_6665_LA93_IGN69_nok.laz", "header size field is 0", ""},
     {"bad-geotiff-keys.las", "", "crs.geokeys_malformed"},
     {"bad_points_1.1.las", "", ""},
     {"bad_vlr_count.las", "", "las.vlr_overrun"},
     {"garbage_nVariableLength.las", "header says 719 points but the file holds 718", ""},
     {"gps-time-nan.las", "", ""},
-    {"lone-star.copc.laz", "LAZ is not supported yet", ""},
+    {"lone-star.copc.laz", "", "crs.geocentric"},
     {"lots_of_vlr.las", "", ""},
     {"malformed_extrabytes.las", "", "las.extra_bytes_malformed"},
     {"no-points-1.3.las", "", ""},
@@ -220,7 +220,7 @@ const EdgeCase kEdgeCases[] = {
     {"simple1_3.las", "", "las.points_outside_header_bounds"},
     {"simple1_4.las", "", ""},
     {"spurious.las", "", "las.points_outside_header_bounds"},
-    {"test_pdalfail_0643_6319_LA93_IGN69.laz", "LAZ is not supported yet", ""},
+    {"test_pdalfail_0643_6319_LA93_IGN69.laz", "", "crs.geokeys_no_crs"},
     {"unregistered_extra_bytes.las", "", ""},
     {"warsaw_small.las", "", "crs.wkt_invalid"},
 };
@@ -401,8 +401,8 @@ TEST(LasReader, RejectsBrokenHeaders) {
   }
   {
     auto b = good;
-    b[104] = 1 | 0x80;
-    EXPECT_NE(errorOf(b).find("LAZ is not supported yet"), std::string::npos);
+    b[104] = 1 | 0x80;  // compressed, but no LASzip VLR says how
+    EXPECT_NE(errorOf(b).find("has no LASzip VLR"), std::string::npos);
   }
   {
     auto b = good;
@@ -476,14 +476,16 @@ TEST(LasReader, ExtraBytesAreSkippedAndNoted) {
   ASSERT_FALSE(r.info().notes.empty());
 }
 
-TEST(LasReader, LaszipVlrIsRefused) {
+// A LASzip VLR too short to say how the points are compressed is an error naming the VLR (LAZ itself
+// is read: formats/pointcloud/laz and tests/formats/pointcloud/laz_reader_test.cpp).
+TEST(LasReader, MalformedLaszipVlrIsAnError) {
   Crafted c;
   c.vlrCount = 1;
   c.vlrBytes.assign(54, 0);
   std::memcpy(&c.vlrBytes[2], "laszip encoded", 14);
   const std::uint16_t id = 22204;
   std::memcpy(&c.vlrBytes[18], &id, 2);
-  EXPECT_NE(errorOf(craft(c)).find("LAZ is not supported yet"), std::string::npos);
+  EXPECT_NE(errorOf(craft(c)).find("the LASzip VLR is malformed"), std::string::npos) << errorOf(craft(c));
 }
 
 }  // namespace
