@@ -32,7 +32,9 @@ int runDemo(const cli::ParsedArgs& args) {
   spec.seed = 2006;
   spec.swath = swath;
   spec.homeStrip = args.has("--home-strip");
-  const std::string las = (dir / "survey.las").string();
+  // Real surveys are delivered as LAZ, so the demo's is too (--las writes it uncompressed).
+  const bool writeLaz = !args.has("--las");
+  const std::string las = (dir / (writeLaz ? "survey.laz" : "survey.las")).string();
   ProgressDisplay progress(parseProgressMode(args.get("--progress"), false));
   installCancelHandlers();
   std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << std::endl;
@@ -41,6 +43,7 @@ int runDemo(const cli::ParsedArgs& args) {
   lo.pointFormat = 1;
   lo.horizontalEpsg = 32610;
   lo.verticalEpsg = 5703;
+  lo.laz = writeLaz;
   writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   progress.finish();
 
@@ -85,7 +88,8 @@ int runDemo(const cli::ParsedArgs& args) {
 
   std::cout
       << "\nwritten in " << dir.string() << ":\n"
-      << "  survey.las          the survey (LAS 1.4, point format 1)\n"
+      << (writeLaz ? "  survey.laz          the survey (LAZ: LAS 1.4, point format 1, compressed)\n"
+                   : "  survey.las          the survey (LAS 1.4, point format 1)\n")
       << "  survey-info.json    `tinbuild info --json` of it\n"
       << "  tin.smb             the bare-earth TIN (ground and water points) as a binary streaming mesh\n"
       << "  tin.gpkg            the TIN as a GeoPackage layer of triangles (open it in QGIS)\n"
@@ -105,12 +109,13 @@ Command demoCommand() {
       "tinbuild demo [DIR] [--points MILLIONS]",
       "synthesize a realistic survey and process it",
       "Synthesizes a realistic airborne survey (flight strips with overlap over a river valley, ground,\n"
-      "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAS in\n"
+      "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAZ in\n"
       "DIR (default ./tinbuild-demo), reports on it with `info`, runs `build` to a TIN (streaming mesh\n"
       "and GeoPackage) and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
       {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
        {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},
+       {"--las", "", "write the survey as uncompressed LAS (survey.las) instead of LAZ (survey.laz)"},
        {"--progress", "MODE", "auto (default), lines, json or none"}},
       runDemo};
 }

@@ -13,6 +13,7 @@
 #include <cstring>
 #include <limits>
 
+#include "formats/pointcloud/laz/laz_error.h"
 #include "libterrain/core/error.h"
 #include "libterrain/synthetic/synthetic_survey.h"
 
@@ -69,13 +70,13 @@ void today(int& dayOfYear, int& year) {
 }
 
 void appendVlr(std::vector<std::uint8_t>& out, std::uint16_t recordId, const std::string& description,
-               const std::vector<std::uint8_t>& payload) {
+               const std::vector<std::uint8_t>& payload, const char* userId = "LASF_Projection") {
   if (payload.size() > 65535) throw UsageError("LAS: a VLR payload is limited to 65535 bytes (WKT too long)");
   const std::size_t at = out.size();
   out.resize(at + kVlrHeaderSize + payload.size());
   std::uint8_t* p = out.data() + at;
   putU16(p, 0);  // reserved
-  putChars(p + 2, "LASF_Projection", 16);
+  putChars(p + 2, userId, 16);
   putU16(p + 18, recordId);
   putU16(p + 20, static_cast<std::uint16_t>(payload.size()));
   putChars(p + 22, description, 32);
@@ -188,6 +189,20 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
     appendVlr(vlrs, 2112, "OGC Coordinate System WKT", text);
     ++vlrCount_;
   }
+  if (o.laz) {
+    // LAZ: the LASzip VLR says how the points are compressed (formats/pointcloud/laz/laz_format.h).
+    if (o.lazChunkSize == 0) throw UsageError("LAZ: the chunk size must be at least 1 point");
+    try {
+      lazInfo_ = laz::LazInfo::forPointFormat(o.pointFormat, static_cast<std::uint16_t>(recordLength_),
+                                              o.lazChunkSize);
+      encoder_ = std::make_unique<laz::ChunkEncoder>(lazInfo_);
+    } catch (const laz::LazError& e) {
+      throw UsageError(std::string("LAZ: ") + e.what());
+    }
+    appendVlr(vlrs, laz::kLaszipVlrRecordId, "tinbuild LAZ (LASzip compatible)", lazInfo_.serialize(),
+              laz::kLaszipVlrUserId);
+    ++vlrCount_;
+  }
   if (o.versionMinor == 4 && (extended || !o.wkt.empty())) globalEncoding_ |= 1u << 4;
   headerSize_ = o.versionMinor == 4 ? kHeaderSize14 : kHeaderSize12;
   pointOffset_ = static_cast<std::uint32_t>(headerSize_ + vlrs.size());
@@ -199,7 +214,9 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
     if (options_.creationYear < 0) options_.creationYear = year;
   }
 
-  const std::size_t records = std::max<std::size_t>(1, options_.bufferBytes / recordLength_);
+  // LAZ: the buffer holds one chunk; each flush compresses it.
+  const std::size_t records = o.laz ? static_cast<std::size_t>(o.lazChunkSize)
+                                    : std::max<std::size_t>(1, options_.bufferBytes / recordLength_);
   buffer_.resize(records * recordLength_);
 
   fd_ = createTemporaryBeside(path_, tempPath_);
@@ -208,6 +225,11 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
     writeAt(0, head.data(), head.size());
     if (!vlrs.empty()) writeAt(headerSize_, vlrs.data(), vlrs.size());
     fileOffset_ = pointOffset_;
+    if (o.laz) {  // the chunk table's offset, patched by close()
+      const std::uint8_t placeholder[8] = {0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff, 0xff};
+      writeAt(pointOffset_, placeholder, 8);
+      fileOffset_ += 8;
+    }
   } catch (...) {
     fail();
     throw;
@@ -253,6 +275,16 @@ void LasWriter::writeAt(std::uint64_t offset, const std::uint8_t* data, std::siz
 
 void LasWriter::flush() {
   if (used_ == 0) return;
+  if (encoder_) {
+    const std::size_t n = used_ / static_cast<std::size_t>(recordLength_);
+    compressed_.clear();
+    encoder_->encode(buffer_.data(), n, compressed_);
+    writeAt(fileOffset_, compressed_.data(), compressed_.size());
+    fileOffset_ += compressed_.size();
+    chunks_.push_back({n, compressed_.size()});
+    used_ = 0;
+    return;
+  }
   writeAt(fileOffset_, buffer_.data(), used_);
   fileOffset_ += used_;
   used_ = 0;
@@ -359,7 +391,7 @@ std::vector<std::uint8_t> LasWriter::header() const {
   putU16(p + 94, headerSize_);
   putU32(p + 96, pointOffset_);
   putU32(p + 100, vlrCount_);
-  p[104] = static_cast<std::uint8_t>(o.pointFormat);
+  p[104] = static_cast<std::uint8_t>(o.pointFormat | (o.laz ? 0x80 : 0));  // bit 7: compressed (LAZ)
   putU16(p + 105, static_cast<std::uint16_t>(recordLength_));
   // Legacy 32-bit counts: always in 1.2 (write() keeps the count in range); in 1.4 only for formats
   // 0-5 and when they fit, zero otherwise.
@@ -395,6 +427,16 @@ void LasWriter::close() {
   if (failed_) throw DataError(path_, "cannot complete the file after an earlier failure");
   try {
     flush();
+    if (encoder_) {
+      // The chunk table follows the last chunk; its offset goes into the 8 bytes before the first.
+      const std::vector<std::uint8_t> table = laz::encodeChunkTable(chunks_, lazInfo_.variableChunks());
+      const std::uint64_t at = fileOffset_;
+      writeAt(at, table.data(), table.size());
+      fileOffset_ += table.size();
+      std::uint8_t offset[8];
+      std::memcpy(offset, &at, 8);
+      writeAt(pointOffset_, offset, 8);
+    }
     const auto head = header();
     writeAt(0, head.data(), head.size());
     if (options_.syncOnClose && ::fsync(fd_) != 0) throw DataError(path_, "fsync failed: " + errnoText());

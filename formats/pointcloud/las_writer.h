@@ -36,6 +36,12 @@
 //   the WKT bit is always set for them and an EPSG code without WKT is refused (tinbuild writes no WKT
 //   by hand: callers get it from crs.cpp, i.e. GDAL).
 //
+// LAZ (options.laz): the same file with the points compressed by our LASzip-compatible codec: the
+// point format byte gets bit 7, a "laszip encoded" VLR (22204) describes the items, the 8 bytes at the
+// point data offset hold the chunk table's offset, chunks of options.lazChunkSize points follow, and the
+// chunk table ends the file.  Every LAZ reader reads it; tinbuild writes LAZ for its demo, tests and
+// benchmarks (surveys arrive as LAZ), not as a product output.
+//
 // Errors: options that cannot be written throw UsageError from the constructor; I/O failures and
 // unrepresentable points throw DataError naming the target path.  After any exception from write() or
 // close() the writer is failed: close() throws again and the destructor removes the temporary file.
@@ -43,9 +49,12 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
+#include "formats/pointcloud/laz/chunk_codec.h"
+#include "formats/pointcloud/laz/laz_format.h"
 #include "libterrain/core/point.h"
 
 namespace tinbuild {
@@ -73,6 +82,10 @@ struct LasWriterOptions {
   std::uint16_t pointSourceId = 0;  // written into every point record
   std::size_t bufferBytes = std::size_t{1} << 20;
   bool syncOnClose = true;  // fsync before the rename, so the renamed file is complete on disk
+  // LAZ: compress the points (formats/pointcloud/laz) in chunks of this many points, with a chunk table
+  // at the end, as LASzip writes them: pointwise v2 items for formats 0-5, layered v3 for 6-10.
+  bool laz = false;
+  std::uint32_t lazChunkSize = 50000;
 };
 
 class LasWriter {
@@ -123,6 +136,11 @@ class LasWriter {
   std::int32_t maxInt_[3] = {};
   bool closed_ = false;
   bool failed_ = false;
+  // LAZ
+  laz::LazInfo lazInfo_;
+  std::unique_ptr<laz::ChunkEncoder> encoder_;
+  std::vector<laz::ChunkEntry> chunks_;
+  std::vector<std::uint8_t> compressed_;
 };
 
 // Streams a synthetic survey into a LAS file: scale = quantum and offset = origin, so every coordinate is

@@ -328,6 +328,13 @@ class Sources {
       if (!s->rewindable()) return false;
     return true;
   }
+  // Some input is costly to read again (LAZ, XYZ text, reprojection) and would be spooled by pass 1.
+  bool anyCostly() const {
+    if (!options_.spoolCostlyInputs) return false;
+    for (auto* s : inputs_)
+      if (!s->cheapToReread()) return true;
+    return false;
+  }
   std::string name(std::size_t i) const {
     if (i < options_.inputNames.size() && !options_.inputNames[i].empty()) return options_.inputNames[i];
     return "input " + std::to_string(i + 1);
@@ -895,7 +902,10 @@ class Finalizer {
         options_.knownBounds && !options_.knownBounds->empty() && std::isfinite(options_.knownBounds->minX) &&
         std::isfinite(options_.knownBounds->maxX) && std::isfinite(options_.knownBounds->minY) &&
         std::isfinite(options_.knownBounds->maxY);
-    stats_.pass1Run = !haveHeader || !rewindable;
+    // Pass 1 also runs when the header bounds are known but an input is costly to read again: it is
+    // then the one pass that decodes that input (LAZ: each point decoded once per run), spooling it for
+    // passes 2 and 3, and it checks the header bounds on the way.
+    stats_.pass1Run = !haveHeader || !rewindable || sources_.anyCostly();
     const double units = stats_.pass1Run ? 3 : 2;
     double unit = 0;
 

@@ -445,7 +445,7 @@ TEST(CliRun, DemoWritesEveryProductAndVerifies) {
   auto r = tinbuild("demo " + (out / "demo").string() + " --points 1 --progress=none");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("verify: OK"), std::string::npos) << r.out;
-  for (const char* f : {"survey.las", "survey-info.json", "tin.smb", "tin.gpkg", "dem/mosaic.vrt",
+  for (const char* f : {"survey.laz", "survey-info.json", "tin.smb", "tin.gpkg", "dem/mosaic.vrt",
                         "dem/hillshade.vrt", "dem.png", "build-report.json"})
     EXPECT_TRUE(fs::exists(out / "demo" / f)) << f;
   EXPECT_EQ(slurp(out / "demo" / "dem.png").substr(1, 3), "PNG");
