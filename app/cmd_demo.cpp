@@ -6,6 +6,7 @@
 #include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
 #include "app/progress.h"
+#include "formats/crs/crs.h"
 #include "formats/pointcloud/las_writer.h"
 #include "formats/raster/quicklook.h"
 #include "libterrain/core/error.h"
@@ -44,8 +45,16 @@ int runDemo(const cli::ParsedArgs& args) {
   lo.horizontalEpsg = 32610;
   lo.verticalEpsg = 5703;
   lo.laz = writeLaz;
+  lo.pointFormat = args.getInt("--point-format", 1, 0, 8);
+  if (lo.pointFormat >= 4 && lo.pointFormat <= 5)
+    throw UsageError("demo: --point-format takes 0-3 or 6-8 (formats with waveforms are not synthesized)");
+  if (lo.pointFormat >= 6) lo.wkt = crsFromUser("EPSG:32610+5703").wkt;  // formats 6-10 carry WKT only
   writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   progress.finish();
+  if (args.has("--survey-only")) {
+    std::cout << "tinbuild demo: wrote " << las << " (--survey-only: nothing else)" << std::endl;
+    return 0;
+  }
 
   InfoOptions info;
   info.inputs = {las};
@@ -116,6 +125,8 @@ Command demoCommand() {
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
        {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},
        {"--las", "", "write the survey as uncompressed LAS (survey.las) instead of LAZ (survey.laz)"},
+       {"--point-format", "N", "LAS point format of the survey: 0-3 or 6-8 (default 1)"},
+       {"--survey-only", "", "write the survey and stop (benchmark inputs)"},
        {"--progress", "MODE", "auto (default), lines, json or none"}},
       runDemo};
 }

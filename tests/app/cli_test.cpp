@@ -1,6 +1,8 @@
 // The command-line contract: exit codes, error format, help, `info` text and JSON, stdin.
 #include <gtest/gtest.h>
+
 #include <sys/wait.h>
+#include <regex>
 
 #include <algorithm>
 #include <cmath>
@@ -541,6 +543,72 @@ TEST(Cli, LocalAppliesToPlyAndObjOnly) {
   EXPECT_EQ(r.code, 2) << r.err;
   EXPECT_NE(r.err.find("--local applies to --mesh FILE.ply or FILE.obj"), std::string::npos) << r.err;
   EXPECT_FALSE(std::filesystem::exists(dir / "tin.smb"));
+}
+
+}  // namespace
+}  // namespace tinbuild
+
+namespace tinbuild {
+namespace {
+
+std::string fileBytes(const std::filesystem::path& p) {
+  std::ifstream in(p, std::ios::binary);
+  return {std::istreambuf_iterator<char>(in), {}};
+}
+
+// The main job from a LAZ gives the very bytes it gives from the LAS twin (same points, same stream:
+// the LAZ is decoded once, spooled, and read in the same order), on one thread and on two.
+TEST(CliLaz, BuildFromLazEqualsBuildFromItsLasTwin) {
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  for (const char* name : {"autzen_trim", "autzen_trim_7", "sample_lareunion_epsg2975"}) {
+    for (const char* threads : {"1", "2"}) {
+      const std::string tag = std::string(name) + "-" + threads;
+      auto las = tinbuild("build " + test::dataPath(std::string("las/") + name + ".las") + " --mesh " +
+                          (dir / (tag + "-las.smb")).string() + " -q --threads " + threads);
+      auto laz = tinbuild("build " + test::dataPath(std::string("laz/") + name + ".laz") + " --mesh " +
+                          (dir / (tag + "-laz.smb")).string() + " -q --threads " + threads + " --report " +
+                          (dir / (tag + ".json")).string());
+      ASSERT_EQ(las.code, 0) << las.err;
+      ASSERT_EQ(laz.code, 0) << laz.err;
+      EXPECT_TRUE(fileBytes(dir / (tag + "-las.smb")) == fileBytes(dir / (tag + "-laz.smb"))) << tag;
+      // Each point decoded once: pass 1 spooled the LAZ, passes 2 and 3 read the copy.
+      EXPECT_TRUE(std::regex_search(fileBytes(dir / (tag + ".json")), std::regex("\"spooled_bytes\": [1-9]")))
+          << tag;
+    }
+  }
+  auto verify = tinbuild("verify " + (dir / "autzen_trim_7-2-laz.smb").string() + " --points " +
+                         test::dataPath("laz/autzen_trim_7.laz"));
+  EXPECT_EQ(verify.code, 0) << verify.out << verify.err;
+}
+
+TEST(CliLaz, InfoReportsTheCompressor) {
+  TINBUILD_REQUIRE_DATA();
+  auto r = tinbuild("info " + test::dataPath("laz/autzen_trim_7.laz") + " --json");
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const char* key : {"\"format\": \"LAZ\"", "\"compression\"", "\"compressor\": \"layered\"",
+                          "\"chunk_size\": 50000", "\"chunks\": 3", "\"ratio\""})
+    EXPECT_NE(r.out.find(key), std::string::npos) << key << "\n" << r.out;
+  auto copc = tinbuild("info " + test::dataPath("laz/simple.copc.laz"));
+  ASSERT_EQ(copc.code, 0) << copc.err;
+  EXPECT_NE(copc.out.find("COPC 1.4"), std::string::npos) << copc.out;
+  EXPECT_NE(copc.out.find("variable size"), std::string::npos) << copc.out;
+}
+
+TEST(CliLaz, ADamagedLazFailsAndLeavesNoOutput) {
+  TINBUILD_REQUIRE_DATA();
+  const auto dir = test::scratchDir();
+  std::string b = fileBytes(test::dataPath("laz/autzen_trim.laz"));
+  for (std::size_t i = b.size() / 2; i < b.size() / 2 + 4000; ++i) b[i] = static_cast<char>(i * 7919);
+  std::ofstream(dir / "damaged.laz", std::ios::binary) << b;
+  auto r = tinbuild("build " + (dir / "damaged.laz").string() + " --mesh " + (dir / "tin.smb").string() +
+                    " --dem " + (dir / "dem").string() + " -q");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("tinbuild: error: " + (dir / "damaged.laz").string() + ": LAZ chunk 1 (at byte "),
+            std::string::npos)
+      << r.err;
+  EXPECT_FALSE(std::filesystem::exists(dir / "tin.smb"));
+  EXPECT_FALSE(std::filesystem::exists(dir / "dem"));
 }
 
 }  // namespace
