@@ -177,6 +177,11 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
       in.streams.push_back(in.transformed.back().get());
     }
   }
+  // --clip on inputs read in their own CRS: a COPC reader leaves out the octree nodes outside the window
+  // without decoding them (the filter still clips each point of the nodes it reads).
+  if (fo.filter.clip)
+    for (std::size_t i = 0; i < in.readers.size(); ++i)
+      if (in.streams[i] == in.readers[i].get()) in.readers[i]->restrictTo(*fo.filter.clip);
   auto zUnit = [](const CrsInfo& c) {
     if (c.empty()) return 1.0;
     if (!c.verticalUnit.empty() && c.verticalUnitToMetre > 0) return c.verticalUnitToMetre;
@@ -211,6 +216,17 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
 }
 
 // After the run: what the transformation dropped, as a counted warning.
+// Points the readers left out whole (COPC nodes outside --clip) are read and clipped, as far as the
+// report goes: nothing is lost without being counted.
+void countSkipped(const OpenedInputs& in, RunReport& report) {
+  for (const auto& r : in.readers) {
+    const std::uint64_t n = r->skippedOutside();
+    report.finalizer.filter.read += n;
+    report.finalizer.filter.clipped += n;
+    report.clipUndecoded += n;
+  }
+}
+
 void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
   r.crsReason = in.crsReason;
   r.crsNotes = in.crsNotes;
@@ -375,6 +391,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
   r.finalizer = finalizePoints(in.streams, fo, writer, diag);
+  countSkipped(in, r);
   r.haveFinalizer = true;
   r.outputs = {o.finalizedOutput};
   r.outputBytes = writer.bytesWritten();
@@ -496,6 +513,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   } else {
     r.finalizer = finalizePoints(in.streams, fo, delaunay, diag);
   }
+  countSkipped(in, r);
   r.threads = threads;
   r.haveFinalizer = true;
   r.delaunay = delaunay.stats();
@@ -673,7 +691,10 @@ std::string formatRunSummary(const RunReport& r) {
         d += ");";
       }
       if (f.byReturn) d += " " + withCommas(f.byReturn) + " by return;";
-      if (f.clipped) d += " " + withCommas(f.clipped) + " outside --clip;";
+      if (f.clipped)
+        d += " " + withCommas(f.clipped) + " outside --clip" +
+             (r.clipUndecoded ? " (" + withCommas(r.clipUndecoded) + " in COPC nodes left undecoded)" : "") +
+             ";";
       d.pop_back();
       line("filter", d);
     }
@@ -779,6 +800,7 @@ std::string formatRunJson(const RunReport& r) {
     j.key("class").value(s.filter.byClass);
     j.key("return").value(s.filter.byReturn);
     j.key("clip").value(s.filter.clipped);
+    j.key("clip_undecoded").value(r.clipUndecoded);
     j.key("by_class").beginObject();
     for (int c = 0; c < 256; ++c)
       if (s.filter.droppedByClass[c]) j.key(std::to_string(c)).value(s.filter.droppedByClass[c]);

@@ -85,6 +85,7 @@ struct RunReport {
   std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
   std::uint64_t transformFailed = 0;  // points PROJ could not transform (dropped, counted)
   std::uint64_t transformations = 0;  // distinct transformations prepared (one per source CRS)
+  std::uint64_t clipUndecoded = 0;    // of the points outside --clip: those in COPC nodes never decoded
   std::string filter;                 // what the filter drops, in words
   bool haveFinalizer = false;
   FinalizerStats finalizer;

@@ -271,6 +271,15 @@ std::string formatInfoJson(const InfoReport& r) {
         j.key("ratio").value(compressionRatio(src));
         j.endObject();
       }
+      if (!src.copcOctree.empty()) {
+        j.key("copc").beginObject();
+        j.key("depth").value(static_cast<std::uint64_t>(src.copcPointsPerLevel.size()));
+        j.key("nodes").value(src.copcNodes);
+        j.key("points_per_level").beginArray();
+        for (std::uint64_t n : src.copcPointsPerLevel) j.value(n);
+        j.endArray();
+        j.endObject();
+      }
       j.key("header_bounds");
       writeBoundsJson(j, src.headerBounds);
       j.key("scale").beginArray().value(src.scale[0]).value(src.scale[1]).value(src.scale[2]).endArray();
@@ -332,6 +341,7 @@ std::string formatInfoText(const InfoReport& r) {
                 " bytes for " +
                 withCommas(src.headerPointCount * static_cast<std::uint64_t>(src.recordLength)) +
                 " bytes of records)");
+      if (!src.copcOctree.empty()) line("octree", src.copcOctree);
       if (!src.generatingSoftware.empty() || !src.systemIdentifier.empty())
         line("software",
              src.generatingSoftware + (src.systemIdentifier.empty() ? "" : " / " + src.systemIdentifier));

@@ -5,17 +5,20 @@
 #include <sys/stat.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <cmath>
 #include <cstring>
 #include <deque>
+#include <future>
 #include <mutex>
 #include <optional>
 #include <sstream>
 
 #include "formats/crs/crs.h"
 #include "formats/io/stdin_source.h"
+#include "formats/pointcloud/copc_hierarchy.h"
 #include "formats/pointcloud/laz/chunk_codec.h"
 #include "formats/pointcloud/laz/laz_error.h"
 #include "formats/pointcloud/laz/laz_format.h"
@@ -642,9 +645,10 @@ std::size_t LasReader::decode(const std::uint8_t* src, std::size_t n, PointRecor
 }
 
 std::size_t LasReader::decodeParts(std::size_t n, PointRecord* out,
-                                   const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill) {
+                                   const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill,
+                                   bool useCrew) {
   // One part per crew thread, each with its own bounds and outside count, merged in part order.
-  const int parts = crew_ && n >= 16384 ? crew_->threads() : 1;
+  const int parts = useCrew && crew_ && n >= 16384 ? crew_->threads() : 1;
   struct Part {
     Bounds3 bounds;
     std::uint64_t outside = 0;
@@ -714,16 +718,34 @@ struct LasReader::Laz {
   std::vector<std::uint8_t> raw;            // decoded LAS records of the chunks in hand
   std::size_t rawPos = 0, rawCount = 0;
   std::uint32_t layers = laz::kAllLayers;
+  // Decoding ahead: while the caller converts and consumes `raw`, the next group of chunks decodes into
+  // `ahead` on another thread (with the decode crew), so decoding overlaps everything after it.
+  std::vector<std::uint8_t> ahead;
+  std::size_t aheadCount = 0, aheadChunks = 0;
+  std::future<void> pending;
+  void wait() noexcept {
+    if (pending.valid()) try {
+        pending.get();
+      } catch (...) {  // the pass is being abandoned; its error was or will be reported by the caller
+      }
+  }
   void restart() {
+    wait();
     nextChunk = 0;
     rawPos = rawCount = 0;
     if (sequential && complete) sequential = false;
   }
 };
 
+LasReader::LazDeleter::~LazDeleter() = default;
+void LasReader::LazDeleter::operator()(Laz* z) const {
+  if (z) z->wait();
+  delete z;
+}
+
 void LasReader::setupLaz(const LasVlr& vlr) {
   const std::string& file = info_.path;
-  auto z = std::make_unique<Laz>();
+  std::unique_ptr<Laz, LazDeleter> z(new Laz);
   try {
     z->info = laz::LazInfo::parse(vlr.data.data(), vlr.data.size());
   } catch (const laz::LazError& e) {
@@ -743,7 +765,24 @@ void LasReader::setupLaz(const LasVlr& vlr) {
     throw DataError(file, e.what());
   }
   info_.format = "LAZ";
-  if (!vlrs_.empty() && vlrs_.front().userId == "copc" && vlrs_.front().recordId == 1) info_.format = "COPC";
+  if (!vlrs_.empty() && vlrs_.front().userId == kCopcUserId && vlrs_.front().recordId == kCopcInfoRecordId) {
+    // COPC: the octree's hierarchy (an EVLR) says which chunk holds which node's points.
+    info_.format = "COPC";
+    const LasVlr& v = vlrs_.front();
+    const std::uint8_t* base = base_;
+    const std::size_t size = size_;
+    auto hierarchy = std::make_shared<CopcHierarchy>(readCopcHierarchy(
+        file,
+        [base, size](std::uint64_t offset, std::uint8_t* dst, std::size_t n) {
+          if (offset <= size && n <= size - offset) std::memcpy(dst, base + offset, n);
+        },
+        size_, v.data.data(), v.data.size()));
+    info_.copcOctree = describeCopcOctree(*hierarchy);
+    info_.copcPointsPerLevel = hierarchy->pointsPerLevel();
+    info_.copcNodes = 0;
+    for (std::uint64_t n : hierarchy->nodesPerLevel()) info_.copcNodes += n;
+    copc_ = std::move(hierarchy);
+  }
   info_.lazCompressor = li.compressor == 3 ? "layered" : "pointwise";
   info_.lazChunkSize = li.variableChunks() ? 0 : li.chunkSize;
 
@@ -800,8 +839,32 @@ void LasReader::setupLaz(const LasVlr& vlr) {
     z->sequential = true;
   }
   info_.lazChunks = z->sequential ? 0 : z->chunks.size();
+  lazPoints_ = total;
   info_.compressedBytes = z->dataEnd > pointOffset_ ? z->dataEnd - pointOffset_ : 0;
   laz_ = std::move(z);
+}
+
+void LasReader::restrictTo(const ClipRect& window) {
+  if (!copc_ || !laz_ || laz_->sequential) return;
+  Laz& z = *laz_;
+  z.wait();
+  std::vector<std::uint64_t> wanted;
+  for (const CopcNode* n : nodesIntersecting(*copc_, window.minX, window.minY, window.maxX, window.maxY))
+    wanted.push_back(n->offset);
+  std::sort(wanted.begin(), wanted.end());
+  std::vector<Laz::Chunk> kept;
+  std::uint64_t first = 0;
+  for (const Laz::Chunk& c : z.chunks) {
+    if (!std::binary_search(wanted.begin(), wanted.end(), c.offset)) {
+      skippedOutside_ += c.count;
+      continue;
+    }
+    kept.push_back({first, c.count, c.offset, c.bytes});
+    first += c.count;
+  }
+  z.chunks = std::move(kept);
+  lazPoints_ = first;
+  z.restart();
 }
 
 void LasReader::setLazLayers(std::uint32_t layers) {
@@ -828,7 +891,7 @@ void LasReader::fillLazChunks() {
       std::uint64_t n =
           z.info.variableChunks() ? 0 : std::min<std::uint64_t>(z.info.chunkSize, total - first);
       std::uint64_t window = z.dataEnd - pos;
-      std::vector<std::uint8_t>& bytes = z.raw;  // reuse: the compressed bytes first, then decode elsewhere
+      std::vector<std::uint8_t>& records = z.raw;
       std::vector<std::uint8_t> chunk(static_cast<std::size_t>(std::min<std::uint64_t>(window, 4)));
       readLazBytes(chunk.data(), chunk.size(), pos);
       if (n == 0) {  // layered chunks start with their point count
@@ -844,11 +907,11 @@ void LasReader::fillLazChunks() {
       window = std::min<std::uint64_t>(window, n * stride * 2 + (64u << 10));
       chunk.resize(static_cast<std::size_t>(window));
       readLazBytes(chunk.data(), chunk.size(), pos);
-      bytes.assign(static_cast<std::size_t>(n) * stride, 0);
+      records.assign(static_cast<std::size_t>(n) * stride, 0);
       std::size_t used = 0;
       try {
         const std::uint64_t got =
-            z.decoders[0].decode(chunk.data(), chunk.size(), n, bytes.data(), z.layers, used);
+            z.decoders[0].decode(chunk.data(), chunk.size(), n, records.data(), z.layers, used);
         if (got != n) throw laz::LazError("it holds " + fmtCount(got) + " points, not " + fmtCount(n));
       } catch (const laz::LazError& e) {
         throw DataError(file, "LAZ chunk " + std::to_string(z.chunks.size()) + " (at byte " + fmtCount(pos) +
@@ -862,17 +925,46 @@ void LasReader::fillLazChunks() {
       return;
     }
   }
-  const int threads = z.sequential ? 1 : (crew_ ? crew_->threads() : 1);
-  const std::size_t k =
-      std::min<std::size_t>(static_cast<std::size_t>(threads), z.chunks.size() - z.nextChunk);
-  if (k == 0) throw DataError(file, "the chunks hold fewer points than the header's " + fmtCount(total));
+  if (z.sequential) {
+    // An index built by an earlier, unfinished pass: decode from it, one chunk at a time.
+    z.rawCount = decodeLazGroup(z.nextChunk, 1, z.raw);
+    ++z.nextChunk;
+    z.rawPos = 0;
+    return;
+  }
+  const std::size_t threads = static_cast<std::size_t>(crew_ ? crew_->threads() : 1);
+  if (z.pending.valid()) {
+    z.pending.get();  // rethrows the group's error (a damaged chunk)
+    std::swap(z.raw, z.ahead);
+    z.rawCount = z.aheadCount;
+    z.nextChunk += z.aheadChunks;
+  } else {
+    const std::size_t k = std::min(threads, z.chunks.size() - z.nextChunk);
+    if (k == 0) throw DataError(file, "the chunks hold fewer points than the header's " + fmtCount(total));
+    z.rawCount = decodeLazGroup(z.nextChunk, k, z.raw);
+    z.nextChunk += k;
+  }
+  z.rawPos = 0;
+  const std::size_t k = std::min(threads, z.chunks.size() - z.nextChunk);
+  if (k > 0) {
+    z.aheadChunks = k;
+    const std::size_t first = z.nextChunk;
+    z.pending = std::async(std::launch::async,
+                           [this, first, k] { laz_->aheadCount = decodeLazGroup(first, k, laz_->ahead); });
+  }
+}
+
+std::size_t LasReader::decodeLazGroup(std::size_t first, std::size_t k, std::vector<std::uint8_t>& out) {
+  Laz& z = *laz_;
+  const std::string& file = info_.path;
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
   std::size_t offsets[kMaxDecodeThreads + 1] = {};
   for (std::size_t i = 0; i < k; ++i)
-    offsets[i + 1] = offsets[i] + static_cast<std::size_t>(z.chunks[z.nextChunk + i].count);
-  if (z.raw.size() < offsets[k] * stride) z.raw.resize(offsets[k] * stride);
+    offsets[i + 1] = offsets[i] + static_cast<std::size_t>(z.chunks[first + i].count);
+  if (out.size() < offsets[k] * stride) out.resize(offsets[k] * stride);
   while (z.decoders.size() < k) z.decoders.emplace_back(z.info);
   auto work = [&](int part) {
-    const std::size_t index = z.nextChunk + static_cast<std::size_t>(part);
+    const std::size_t index = first + static_cast<std::size_t>(part);
     const Laz::Chunk& c = z.chunks[index];
     thread_local std::vector<std::uint8_t> bytes;
     if (bytes.size() < c.bytes) bytes.resize(static_cast<std::size_t>(c.bytes));
@@ -880,7 +972,7 @@ void LasReader::fillLazChunks() {
     std::size_t used = 0;
     try {
       const std::uint64_t got = z.decoders[static_cast<std::size_t>(part)].decode(
-          bytes.data(), static_cast<std::size_t>(c.bytes), c.count, z.raw.data() + offsets[part] * stride,
+          bytes.data(), static_cast<std::size_t>(c.bytes), c.count, out.data() + offsets[part] * stride,
           z.layers, used);
       if (got != c.count)
         throw laz::LazError("it holds " + fmtCount(got) + " points, the chunk table says " +
@@ -894,9 +986,7 @@ void LasReader::fillLazChunks() {
     crew_->run(static_cast<int>(k), work);
   else
     work(0);
-  z.nextChunk += k;
-  z.rawPos = 0;
-  z.rawCount = offsets[k];
+  return offsets[k];
 }
 
 void LasReader::readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {
@@ -919,15 +1009,20 @@ std::size_t LasReader::readLaz(PointRecord* out, std::size_t n) {
     const std::size_t m = std::min(n - done, z.rawCount - z.rawPos);
     const std::uint8_t* src = z.raw.data() + z.rawPos * stride;
     PointRecord* dst = out + done;
-    decodeParts(m, dst, [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
-      decodeInto(src + lo * stride, hi - lo, dst + lo, bounds);
-    });
+    // On this thread: the crew is decoding the next chunks meanwhile (and converting is cheap).
+    decodeParts(
+        m, dst,
+        [&](std::size_t lo, std::size_t hi, Bounds3& bounds) {
+          decodeInto(src + lo * stride, hi - lo, dst + lo, bounds);
+        },
+        /*useCrew=*/false);
     z.rawPos += m;
     done += m;
   }
   nextPoint_ += n;
   passDecoded_ += n;
-  if (passDecoded_ >= info_.pointCount) {
+  if (passDecoded_ >= lazPoints_) {
+    z.wait();
     finishPass();
     if (lazyFile_) closeFile();
   }
@@ -992,7 +1087,8 @@ void LasReader::finishPass() {
 }
 
 std::size_t LasReader::read(PointRecord* out, std::size_t max) {
-  const std::uint64_t remaining = nextPoint_ < info_.pointCount ? info_.pointCount - nextPoint_ : 0;
+  const std::uint64_t total = laz_ ? lazPoints_ : info_.pointCount;
+  const std::uint64_t remaining = nextPoint_ < total ? total - nextPoint_ : 0;
   std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(max, remaining));
   const auto stride = static_cast<std::size_t>(info_.recordLength);
   if (n == 0) {

@@ -35,6 +35,7 @@
 namespace tinbuild {
 
 class WorkCrew;
+struct CopcHierarchy;
 
 struct LasVlr {
   std::string userId;
@@ -88,6 +89,10 @@ class LasReader : public PointReader {
   // LAZ: which layers of layered (LAS 1.4, point formats 6-10) chunks to decode (laz::kLayer* bits);
   // the bytes of the others stay zero.  All by default.
   void setLazLayers(std::uint32_t layers);
+  // COPC: the chunks of octree nodes whose cube misses `window` are not read (their points are counted
+  // by skippedOutside()).  Other files: nothing (the filter clips).
+  void restrictTo(const ClipRect& window) override;
+  std::uint64_t skippedOutside() const override { return skippedOutside_; }
 
   const std::vector<LasVlr>& vlrs() const { return vlrs_; }
   // Bounds of the points decoded so far in this pass (complete after a full pass).
@@ -105,13 +110,20 @@ class LasReader : public PointReader {
   std::size_t decodeFile(std::uint64_t first, std::size_t n, PointRecord* out);  // pread, then decode
   // Splits n records over the decode crew; fill(lo, hi, bounds) decodes [lo, hi) into out + lo.
   std::size_t decodeParts(std::size_t n, PointRecord* out,
-                          const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill);
+                          const std::function<void(std::size_t, std::size_t, Bounds3&)>& fill,
+                          bool useCrew = true);
   void decodeInto(const std::uint8_t* src, std::size_t n, PointRecord* out, Bounds3& bounds) const;
   void readFully(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
   // LAZ (formats/pointcloud/laz): the chunk index, and decoding chunks on the decode crew.
   struct Laz;
+  struct LazDeleter {  // waits for a group of chunks still decoding ahead
+    ~LazDeleter();
+    void operator()(Laz* z) const;
+  };
   void setupLaz(const LasVlr& vlr);
   void fillLazChunks();
+  // Decodes chunks [first, first + k) on the crew into out (records back to back); returns the points.
+  std::size_t decodeLazGroup(std::size_t first, std::size_t k, std::vector<std::uint8_t>& out);
   std::size_t readLaz(PointRecord* out, std::size_t n);
   void readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
   std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available
@@ -149,8 +161,12 @@ class LasReader : public PointReader {
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};
   bool passReported_ = false;
-  std::unique_ptr<Laz> laz_;
-  std::uint64_t lazDataEnd_ = 0;  // where the compressed points must end (EVLRs, waveform data or EOF)
+  std::unique_ptr<Laz, LazDeleter> laz_;
+  std::shared_ptr<const CopcHierarchy> copc_;  // COPC: the octree (which chunk holds which node)
+  std::uint64_t lazDataEnd_ = 0;
+  std::uint64_t lazPoints_ = 0;       // LAZ: the points the chunk index covers (fewer after restrictTo)
+  std::uint64_t skippedOutside_ = 0;  // COPC: points of the nodes restrictTo left out  // where the
+                                      // compressed points must end (EVLRs, waveform data or EOF)
 };
 
 }  // namespace tinbuild

@@ -17,6 +17,7 @@
 
 #include "formats/crs/crs.h"
 #include "libterrain/core/point.h"
+#include "libterrain/finalizer/point_filter.h"
 #include "libterrain/finalizer/point_stream.h"
 
 namespace tinbuild {
@@ -51,6 +52,10 @@ struct SourceInfo {
   std::uint32_t lazChunkSize = 0;
   std::uint64_t lazChunks = 0;
   std::uint64_t compressedBytes = 0;
+  // COPC: the octree in one line, its nodes holding points, and the points of each level.
+  std::string copcOctree;
+  std::uint64_t copcNodes = 0;
+  std::vector<std::uint64_t> copcPointsPerLevel;
   CrsInfo crs;
   std::vector<std::string> notes;  // human notes on repairs made while opening
 };
@@ -59,6 +64,11 @@ struct SourceInfo {
 class PointReader : public PointStream {
  public:
   virtual const SourceInfo& info() const = 0;
+  // A reader that can leave out whole blocks of points lying outside `window` (in its own CRS) without
+  // decoding them does so from the next pass on (COPC: octree nodes whose cube misses the window); the
+  // points it leaves out are counted by skippedOutside().  The others ignore it: the filter clips.
+  virtual void restrictTo(const ClipRect& window) { (void)window; }
+  virtual std::uint64_t skippedOutside() const { return 0; }
 };
 
 // Options the readers understand (the CLI fills them).

@@ -33,6 +33,8 @@ class CrsOverride : public PointReader {
   std::size_t read(PointRecord* out, std::size_t max) override { return inner_->read(out, max); }
   bool rewindable() const override { return inner_->rewindable(); }
   bool cheapToReread() const override { return inner_->cheapToReread(); }
+  void restrictTo(const ClipRect& window) override { inner_->restrictTo(window); }
+  std::uint64_t skippedOutside() const override { return inner_->skippedOutside(); }
   void rewind() override { inner_->rewind(); }
 
  private:

@@ -74,7 +74,6 @@ thread_local PredicateStats tStats;
 // iccerrboundA is 10u + 96u^2 for his slightly different accounting).
 // (The constants are kOrientErrorBound and kIncircleErrorBound in predicates.h; incircleFilter there
 // evaluates det and the bound in exactly this order.)
-constexpr double kU = kPredicateUnit;
 constexpr double kOrientBound = kOrientErrorBound;
 
 // ---------------------------------------------------------------------------------------------------------
