@@ -9,6 +9,7 @@ packages=(
   libgeographiclib-dev          # GeographicLib: UTM/UPS zones, geodesic areas
   libgtest-dev libgmock-dev     # GoogleTest (tests only)
   libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
+  clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)
 )
 missing=()
 for p in "${packages[@]}"; do
