@@ -43,6 +43,7 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--cold", "", "finalize: the raw read and every pass read from storage (finalize --drop-cache)"},
       {"--tiles", "K", "finalize: the survey as K x K tile files named in a shuffled order"},
       {"--columns", "SPEC", "read: XYZ input column mapping"},
+      {"--tin-layers", "", "read: LAZ point formats 6-10 decode only what a TIN needs (as build does)"},
       {"--cell-points", "M", "stream: points per cell (default 4000)"},
       {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
       {"--within", "ORDER", "stream: point order within a cell, brio (default) or random"},
@@ -96,7 +97,7 @@ int runBench(const cli::ParsedArgs& args) {
   const std::string what = args.positional.empty() ? "suite" : args.positional[0];
   if (what != "read") forwardToBench(what, args);
   // The option table is shared by all benchmarks; say so when read is given one of the others'.
-  static const std::set<std::string> readOptions{"--repeat", "--threads", "--columns"};
+  static const std::set<std::string> readOptions{"--repeat", "--threads", "--columns", "--tin-layers"};
   for (const auto& [name, values] : args.values_)
     if (!readOptions.count(name))
       throw UsageError("bench read: " + name +
@@ -104,6 +105,7 @@ int runBench(const cli::ParsedArgs& args) {
   if (args.positional.size() < 2) throw UsageError("bench read: give one or more input files");
   ReaderOptions ro;
   ro.columns = args.get("--columns");
+  ro.intensity = !args.has("--tin-layers");
   const int repeats = args.getInt("--repeat", 5, 1, 1000);
   const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   const int threads = args.getInt("--threads", cores, 1, 16);
