@@ -33,36 +33,35 @@ void checkPointwiseItem(const LazItem& item) {
                    ")");
 }
 
-// Builds the per-item codecs of either direction; Slot/codec members are structurally identical in the
-// decoder and the encoder, hence the template.
-template <typename Owner, typename SlotT>
-void buildItems(const LazInfo& info, std::vector<SlotT>& slots, Owner& o) {
+}  // namespace
+
+PointwiseItems::PointwiseItems(const LazInfo& info) {
   if (info.compressor != 1 && info.compressor != 2)
     throw LazError("LAZ: compressor " + std::to_string(info.compressor) + " is not pointwise");
   std::uint32_t offset = 0;
   for (const LazItem& item : info.items) {
     checkPointwiseItem(item);
-    SlotT slot{item.type, offset, 0};
+    Slot slot{item.type, offset, 0};
     auto once = [&](auto& ptr) {
       if (ptr) throw LazError(std::string("LAZ: item ") + itemTypeName(item.type) + " listed twice");
       ptr = std::make_unique<typename std::remove_reference_t<decltype(ptr)>::element_type>();
     };
     switch (item.type) {
       case ItemType::Point10:
-        once(o.point10_);
+        once(point10);
         break;
       case ItemType::GpsTime11:
-        once(o.gps_);
+        once(gps);
         break;
       case ItemType::Rgb12:
-        once(o.rgb_);
+        once(rgb);
         break;
       case ItemType::WavePacket13:
-        once(o.wave_);
+        once(wave);
         break;
       default:
-        slot.index = static_cast<std::uint32_t>(o.bytes_.size());
-        o.bytes_.emplace_back(item.size);
+        slot.index = static_cast<std::uint32_t>(bytes.size());
+        bytes.emplace_back(item.size);
         break;
     }
     slots.push_back(slot);
@@ -70,52 +69,19 @@ void buildItems(const LazInfo& info, std::vector<SlotT>& slots, Owner& o) {
   }
 }
 
-}  // namespace
-
 // ---------------------------------------------------------------------------------------------------------
 
-PointwiseChunkDecoder::PointwiseChunkDecoder(const LazInfo& info) : recordLength_(info.recordLength()) {
-  struct Access {
-    std::unique_ptr<pointwise::Point10Codec>& point10_;
-    std::unique_ptr<pointwise::GpsTime11Codec>& gps_;
-    std::unique_ptr<pointwise::Rgb12Codec>& rgb_;
-    std::unique_ptr<pointwise::WavePacket13Codec>& wave_;
-    std::vector<pointwise::ByteCodec>& bytes_;
-  } access{point10_, gps_, rgb_, wave_, bytes_};
-  buildItems(info, slots_, access);
+PointwiseChunkDecoder::PointwiseChunkDecoder(const LazInfo& info)
+    : recordLength_(info.recordLength()), items_(info) {
   // The common layouts (point formats 0-3 without extra bytes) get a specialised loop.
   const auto& it = info.items;
-  if (!it.empty() && it[0].type == ItemType::Point10 && !wave_ && bytes_.empty()) {
+  if (!it.empty() && it[0].type == ItemType::Point10 && !items_.wave && items_.bytes.empty()) {
     std::size_t i = 1;
     int layout = 0;
     if (i < it.size() && it[i].type == ItemType::GpsTime11) layout |= 1, ++i;
     if (i < it.size() && it[i].type == ItemType::Rgb12) layout |= 2, ++i;
     if (i == it.size()) fastLayout_ = layout;
   }
-}
-
-void PointwiseChunkDecoder::initItems(const std::uint8_t* first) {
-  for (const Slot& s : slots_) {
-    const std::uint8_t* p = first + s.offset;
-    switch (s.type) {
-      case ItemType::Point10:
-        point10_->init(p, modelsUsed_);
-        break;
-      case ItemType::GpsTime11:
-        gps_->init(p, modelsUsed_);
-        break;
-      case ItemType::Rgb12:
-        rgb_->init(p, modelsUsed_);
-        break;
-      case ItemType::WavePacket13:
-        wave_->init(p, modelsUsed_);
-        break;
-      default:
-        bytes_[s.index].init(p, modelsUsed_);
-        break;
-    }
-  }
-  modelsUsed_ = false;
 }
 
 namespace {
@@ -138,7 +104,8 @@ std::uint64_t PointwiseChunkDecoder::decode(const std::uint8_t* data, std::size_
     throw LazError("LAZ chunk truncated: " + std::to_string(size) + " bytes, shorter than one raw record (" +
                    std::to_string(recordLength_) + " bytes)");
   std::memcpy(out, data, recordLength_);
-  initItems(out);
+  items_.init(out, modelsUsed_);
+  modelsUsed_ = false;
   ArithmeticDecoder dec;
   dec.init(data + recordLength_, data + size);
   std::uint8_t* rec = out + recordLength_;
@@ -146,39 +113,22 @@ std::uint64_t PointwiseChunkDecoder::decode(const std::uint8_t* data, std::size_
   modelsUsed_ = rest > 0;  // set before decoding: a throw below leaves the models dirty
   switch (fastLayout_) {
     case 0:
-      decodeFast<false, false>(dec, *point10_, nullptr, nullptr, rec, rest, recordLength_);
+      decodeFast<false, false>(dec, *items_.point10, nullptr, nullptr, rec, rest, recordLength_);
       break;
     case 1:
-      decodeFast<true, false>(dec, *point10_, gps_.get(), nullptr, rec, rest, recordLength_);
+      decodeFast<true, false>(dec, *items_.point10, items_.gps.get(), nullptr, rec, rest, recordLength_);
       break;
     case 2:
-      decodeFast<false, true>(dec, *point10_, nullptr, rgb_.get(), rec, rest, recordLength_);
+      decodeFast<false, true>(dec, *items_.point10, nullptr, items_.rgb.get(), rec, rest, recordLength_);
       break;
     case 3:
-      decodeFast<true, true>(dec, *point10_, gps_.get(), rgb_.get(), rec, rest, recordLength_);
+      decodeFast<true, true>(dec, *items_.point10, items_.gps.get(), items_.rgb.get(), rec, rest,
+                             recordLength_);
       break;
     default:
       for (std::uint64_t i = 0; i < rest; ++i, rec += recordLength_) {
-        for (const Slot& s : slots_) {
-          std::uint8_t* p = rec + s.offset;
-          switch (s.type) {
-            case ItemType::Point10:
-              point10_->decode(dec, p);
-              break;
-            case ItemType::GpsTime11:
-              gps_->decode(dec, p);
-              break;
-            case ItemType::Rgb12:
-              rgb_->decode(dec, p);
-              break;
-            case ItemType::WavePacket13:
-              wave_->decode(dec, p);
-              break;
-            default:
-              bytes_[s.index].decode(dec, p);
-              break;
-          }
-        }
+        for (const PointwiseItems::Slot& s : items_.slots)
+          items_.with(s, [&](auto& codec) { codec.decode(dec, rec + s.offset); });
         // Garbage input could otherwise keep "decoding" zeros for billions of points.
         if ((i & 0xFFF) == 0 && dec.overrun()) break;
       }
@@ -194,66 +144,20 @@ std::uint64_t PointwiseChunkDecoder::decode(const std::uint8_t* data, std::size_
 
 // ---------------------------------------------------------------------------------------------------------
 
-PointwiseChunkEncoder::PointwiseChunkEncoder(const LazInfo& info) : recordLength_(info.recordLength()) {
-  struct Access {
-    std::unique_ptr<pointwise::Point10Codec>& point10_;
-    std::unique_ptr<pointwise::GpsTime11Codec>& gps_;
-    std::unique_ptr<pointwise::Rgb12Codec>& rgb_;
-    std::unique_ptr<pointwise::WavePacket13Codec>& wave_;
-    std::vector<pointwise::ByteCodec>& bytes_;
-  } access{point10_, gps_, rgb_, wave_, bytes_};
-  buildItems(info, slots_, access);
-}
+PointwiseChunkEncoder::PointwiseChunkEncoder(const LazInfo& info)
+    : recordLength_(info.recordLength()), items_(info) {}
 
 void PointwiseChunkEncoder::encode(const std::uint8_t* records, std::uint64_t count,
                                    std::vector<std::uint8_t>& out) {
   if (count == 0) return;
   out.insert(out.end(), records, records + recordLength_);
-  for (const Slot& s : slots_) {
-    const std::uint8_t* p = records + s.offset;
-    switch (s.type) {
-      case ItemType::Point10:
-        point10_->init(p, modelsUsed_);
-        break;
-      case ItemType::GpsTime11:
-        gps_->init(p, modelsUsed_);
-        break;
-      case ItemType::Rgb12:
-        rgb_->init(p, modelsUsed_);
-        break;
-      case ItemType::WavePacket13:
-        wave_->init(p, modelsUsed_);
-        break;
-      default:
-        bytes_[s.index].init(p, modelsUsed_);
-        break;
-    }
-  }
+  items_.init(records, modelsUsed_);
   modelsUsed_ = count > 1;
   ArithmeticEncoder enc(out);
   const std::uint8_t* rec = records + recordLength_;
-  for (std::uint64_t i = 1; i < count; ++i, rec += recordLength_) {
-    for (const Slot& s : slots_) {
-      const std::uint8_t* p = rec + s.offset;
-      switch (s.type) {
-        case ItemType::Point10:
-          point10_->encode(enc, p);
-          break;
-        case ItemType::GpsTime11:
-          gps_->encode(enc, p);
-          break;
-        case ItemType::Rgb12:
-          rgb_->encode(enc, p);
-          break;
-        case ItemType::WavePacket13:
-          wave_->encode(enc, p);
-          break;
-        default:
-          bytes_[s.index].encode(enc, p);
-          break;
-      }
-    }
-  }
+  for (std::uint64_t i = 1; i < count; ++i, rec += recordLength_)
+    for (const PointwiseItems::Slot& s : items_.slots)
+      items_.with(s, [&](auto& codec) { codec.encode(enc, rec + s.offset); });
   enc.done();
 }
 

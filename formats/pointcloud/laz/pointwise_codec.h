@@ -22,6 +22,51 @@
 
 namespace tinbuild::laz {
 
+// The items of one record layout and their codecs (one per item; BYTE items one each), shared by the
+// decoder and the encoder.  with(slot, f) calls f with that slot's codec, so every per-item loop is one
+// generic lambda over one switch.
+struct PointwiseItems {
+  struct Slot {
+    ItemType type;
+    std::uint32_t offset;  // byte offset of the item in the record
+    std::uint32_t index;   // BYTE items: index into `bytes`
+  };
+  // Throws LazError for compressors, items or item versions that are not implemented.
+  explicit PointwiseItems(const LazInfo& info);
+
+  template <typename F>
+  void with(const Slot& s, F&& f) {
+    switch (s.type) {
+      case ItemType::Point10:
+        f(*point10);
+        break;
+      case ItemType::GpsTime11:
+        f(*gps);
+        break;
+      case ItemType::Rgb12:
+        f(*rgb);
+        break;
+      case ItemType::WavePacket13:
+        f(*wave);
+        break;
+      default:
+        f(bytes[s.index]);
+        break;
+    }
+  }
+  // Every item's first value from the raw first record of a chunk (resets the models when `used`).
+  void init(const std::uint8_t* first, bool used) {
+    for (const Slot& s : slots) with(s, [&](auto& codec) { codec.init(first + s.offset, used); });
+  }
+
+  std::vector<Slot> slots;
+  std::unique_ptr<pointwise::Point10Codec> point10;
+  std::unique_ptr<pointwise::GpsTime11Codec> gps;
+  std::unique_ptr<pointwise::Rgb12Codec> rgb;
+  std::unique_ptr<pointwise::WavePacket13Codec> wave;
+  std::vector<pointwise::ByteCodec> bytes;
+};
+
 class PointwiseChunkDecoder {
  public:
   explicit PointwiseChunkDecoder(const LazInfo& info);
@@ -32,21 +77,9 @@ class PointwiseChunkDecoder {
                        std::size_t& bytesUsed);
 
  private:
-  struct Slot {
-    ItemType type;
-    std::uint32_t offset;  // byte offset of the item in the record
-    std::uint32_t index;   // index into the codec vector of its type
-  };
-  void initItems(const std::uint8_t* first);
   bool modelsUsed_ = false;  // a symbol was coded since the models were last reset
-
   std::uint32_t recordLength_;
-  std::vector<Slot> slots_;
-  std::unique_ptr<pointwise::Point10Codec> point10_;
-  std::unique_ptr<pointwise::GpsTime11Codec> gps_;
-  std::unique_ptr<pointwise::Rgb12Codec> rgb_;
-  std::unique_ptr<pointwise::WavePacket13Codec> wave_;
-  std::vector<pointwise::ByteCodec> bytes_;
+  PointwiseItems items_;
   // Layout fast path: POINT10 [+ GPSTIME11] [+ RGB12] in the standard order, nothing else.
   int fastLayout_ = -1;  // -1 none, else bit 0 = gps, bit 1 = rgb
 };
@@ -58,19 +91,9 @@ class PointwiseChunkEncoder {
   void encode(const std::uint8_t* records, std::uint64_t count, std::vector<std::uint8_t>& out);
 
  private:
-  struct Slot {
-    ItemType type;
-    std::uint32_t offset;
-    std::uint32_t index;
-  };
   std::uint32_t recordLength_;
   bool modelsUsed_ = false;
-  std::vector<Slot> slots_;
-  std::unique_ptr<pointwise::Point10Codec> point10_;
-  std::unique_ptr<pointwise::GpsTime11Codec> gps_;
-  std::unique_ptr<pointwise::Rgb12Codec> rgb_;
-  std::unique_ptr<pointwise::WavePacket13Codec> wave_;
-  std::vector<pointwise::ByteCodec> bytes_;
+  PointwiseItems items_;
 };
 
 }  // namespace tinbuild::laz
