@@ -215,7 +215,6 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   return in;
 }
 
-// After the run: what the transformation dropped, as a counted warning.
 // Points the readers left out whole (COPC nodes outside --clip) are read and clipped, as far as the
 // report goes: nothing is lost without being counted.
 void countSkipped(const OpenedInputs& in, RunReport& report) {
@@ -227,6 +226,7 @@ void countSkipped(const OpenedInputs& in, RunReport& report) {
   }
 }
 
+// After the run: what the transformation dropped, as a counted warning.
 void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
   r.crsReason = in.crsReason;
   r.crsNotes = in.crsNotes;
@@ -243,13 +243,6 @@ void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
               "points PROJ could not transform to the working CRS were dropped (first: " + first + ")",
               r.transformFailed);
   }
-}
-
-std::uint64_t fileSize(const std::string& path) {
-  std::error_code ec;
-  if (path == "-") return 0;
-  const auto n = std::filesystem::file_size(path, ec);
-  return ec ? 0 : static_cast<std::uint64_t>(n);
 }
 
 void finish(RunReport& r, const Diagnostics& diag, Clock::time_point t0) {
@@ -437,7 +430,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   r.outputs = {o.meshOutput};
-  r.outputBytes = fileSize(o.meshOutput);
+  r.outputBytes = opened->bytes();
   finish(r, diag, t0);
   return r;
 }

@@ -141,4 +141,11 @@ void refuseExistingFile(const std::string& path) {
     throw DataError(path, "exists; pass --overwrite to replace it");
 }
 
+std::uint64_t fileSizeOrZero(const std::string& path) {
+  if (path == "-") return 0;
+  std::error_code ec;
+  const auto n = std::filesystem::file_size(path, ec);
+  return ec ? 0 : static_cast<std::uint64_t>(n);
+}
+
 }  // namespace tinbuild

@@ -24,6 +24,9 @@ int createTemporaryBeside(const std::string& path, std::string& tempPath);
 // pipes and "-" are always writable).  Every output is checked before any work unless --overwrite.
 void refuseExistingFile(const std::string& path);
 
+// The size of the file at PATH; 0 for "-", a missing file or one that cannot be asked.
+std::uint64_t fileSizeOrZero(const std::string& path);
+
 class OutputFile {
  public:
   explicit OutputFile(std::string path, std::size_t bufferSize = std::size_t{1} << 20);

@@ -874,60 +874,11 @@ void LasReader::setLazLayers(std::uint32_t layers) {
 void LasReader::fillLazChunks() {
   Laz& z = *laz_;
   const std::string& file = info_.path;
-  const auto stride = static_cast<std::size_t>(info_.recordLength);
   const std::uint64_t total = info_.pointCount;
   if (z.sequential) {
-    // Find the next chunk where the last one ended; decode it alone.
-    const std::uint64_t first = z.chunks.empty() ? 0 : z.chunks.back().first + z.chunks.back().count;
-    const std::uint64_t pos = z.chunks.empty() ? z.dataStart : z.chunks.back().offset + z.chunks.back().bytes;
-    if (z.nextChunk < z.chunks.size()) {
-      // Found in an earlier, unfinished pass: decode it again from the index.
-    } else {
-      if (first >= total) throw Error(file + ": LAZ read past the last point");
-      if (pos >= z.dataEnd)
-        throw DataError(file, "the file ends after " + fmtCount(first) + " of the header's " +
-                                  fmtCount(total) + " points (chunk " + std::to_string(z.chunks.size()) +
-                                  " would start at byte " + fmtCount(pos) + ")");
-      std::uint64_t n =
-          z.info.variableChunks() ? 0 : std::min<std::uint64_t>(z.info.chunkSize, total - first);
-      std::uint64_t window = z.dataEnd - pos;
-      std::vector<std::uint8_t>& records = z.raw;
-      std::vector<std::uint8_t> chunk(static_cast<std::size_t>(std::min<std::uint64_t>(window, 4)));
-      readLazBytes(chunk.data(), chunk.size(), pos);
-      if (n == 0) {  // layered chunks start with their point count
-        if (chunk.size() < 4)
-          throw DataError(file, "the file ends inside chunk " + std::to_string(z.chunks.size()));
-        n = le<std::uint32_t>(chunk.data());
-        if (n == 0 || n > total - first)
-          throw DataError(file, "LAZ chunk " + std::to_string(z.chunks.size()) + " (at byte " +
-                                    fmtCount(pos) + ") is damaged: it says it holds " + fmtCount(n) +
-                                    " points");
-      }
-      // A chunk is smaller than its records but for pathological data: twice as much and some slack.
-      window = std::min<std::uint64_t>(window, n * stride * 2 + (64u << 10));
-      chunk.resize(static_cast<std::size_t>(window));
-      readLazBytes(chunk.data(), chunk.size(), pos);
-      records.assign(static_cast<std::size_t>(n) * stride, 0);
-      std::size_t used = 0;
-      try {
-        const std::uint64_t got =
-            z.decoders[0].decode(chunk.data(), chunk.size(), n, records.data(), z.layers, used);
-        if (got != n) throw laz::LazError("it holds " + fmtCount(got) + " points, not " + fmtCount(n));
-      } catch (const laz::LazError& e) {
-        throw DataError(file, "LAZ chunk " + std::to_string(z.chunks.size()) + " (at byte " + fmtCount(pos) +
-                                  ") is damaged: " + e.what());
-      }
-      z.chunks.push_back({first, n, pos, used});
-      if (first + n == total) z.complete = true;
-      ++z.nextChunk;
-      z.rawPos = 0;
-      z.rawCount = static_cast<std::size_t>(n);
-      return;
-    }
-  }
-  if (z.sequential) {
-    // An index built by an earlier, unfinished pass: decode from it, one chunk at a time.
-    z.rawCount = decodeLazGroup(z.nextChunk, 1, z.raw);
+    // No chunk table: a chunk found by an earlier, unfinished pass is decoded again from the index; the
+    // next one is found where the last ended.  One chunk at a time.
+    z.rawCount = z.nextChunk < z.chunks.size() ? decodeLazGroup(z.nextChunk, 1, z.raw) : findNextLazChunk();
     ++z.nextChunk;
     z.rawPos = 0;
     return;
@@ -954,9 +905,58 @@ void LasReader::fillLazChunks() {
   }
 }
 
-std::size_t LasReader::decodeLazGroup(std::size_t first, std::size_t k, std::vector<std::uint8_t>& out) {
+std::size_t LasReader::findNextLazChunk() {
   Laz& z = *laz_;
   const std::string& file = info_.path;
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  const std::uint64_t total = info_.pointCount;
+  const std::size_t index = z.chunks.size();
+  const std::uint64_t first = z.chunks.empty() ? 0 : z.chunks.back().first + z.chunks.back().count;
+  const std::uint64_t pos = z.chunks.empty() ? z.dataStart : z.chunks.back().offset + z.chunks.back().bytes;
+  if (first >= total) throw Error(file + ": LAZ read past the last point");
+  if (pos >= z.dataEnd)
+    throw DataError(file, "the file ends after " + fmtCount(first) + " of the header's " + fmtCount(total) +
+                              " points (chunk " + std::to_string(index) + " would start at byte " +
+                              fmtCount(pos) + ")");
+  std::uint64_t n = z.info.variableChunks() ? 0 : std::min<std::uint64_t>(z.info.chunkSize, total - first);
+  std::uint64_t window = z.dataEnd - pos;
+  std::vector<std::uint8_t> chunk(static_cast<std::size_t>(std::min<std::uint64_t>(window, 4)));
+  readLazBytes(chunk.data(), chunk.size(), pos);
+  if (n == 0) {  // layered chunks start with their point count
+    if (chunk.size() < 4) throw DataError(file, "the file ends inside chunk " + std::to_string(index));
+    n = le<std::uint32_t>(chunk.data());
+    if (n == 0 || n > total - first)
+      throw DataError(file, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(pos) +
+                                ") is damaged: it says it holds " + fmtCount(n) + " points");
+  }
+  // A chunk is smaller than its records but for pathological data: twice as much and some slack.
+  window = std::min<std::uint64_t>(window, n * stride * 2 + (64u << 10));
+  chunk.resize(static_cast<std::size_t>(window));
+  readLazBytes(chunk.data(), chunk.size(), pos);
+  z.raw.assign(static_cast<std::size_t>(n) * stride, 0);
+  const std::size_t used =
+      decodeLazChunk(z.decoders[0], index, pos, chunk.data(), chunk.size(), n, z.raw.data());
+  z.chunks.push_back({first, n, pos, used});
+  if (first + n == total) z.complete = true;
+  return static_cast<std::size_t>(n);
+}
+
+std::size_t LasReader::decodeLazChunk(laz::ChunkDecoder& decoder, std::size_t index, std::uint64_t offset,
+                                      const std::uint8_t* bytes, std::size_t size, std::uint64_t count,
+                                      std::uint8_t* out) const {
+  std::size_t used = 0;
+  try {
+    const std::uint64_t got = decoder.decode(bytes, size, count, out, laz_->layers, used);
+    if (got != count) throw laz::LazError("it holds " + fmtCount(got) + " points, not " + fmtCount(count));
+  } catch (const laz::LazError& e) {
+    throw DataError(info_.path, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(offset) +
+                                    ") is damaged: " + e.what());
+  }
+  return used;
+}
+
+std::size_t LasReader::decodeLazGroup(std::size_t first, std::size_t k, std::vector<std::uint8_t>& out) {
+  Laz& z = *laz_;
   const auto stride = static_cast<std::size_t>(info_.recordLength);
   std::size_t offsets[kMaxDecodeThreads + 1] = {};
   for (std::size_t i = 0; i < k; ++i)
@@ -969,18 +969,8 @@ std::size_t LasReader::decodeLazGroup(std::size_t first, std::size_t k, std::vec
     thread_local std::vector<std::uint8_t> bytes;
     if (bytes.size() < c.bytes) bytes.resize(static_cast<std::size_t>(c.bytes));
     readLazBytes(bytes.data(), static_cast<std::size_t>(c.bytes), c.offset);
-    std::size_t used = 0;
-    try {
-      const std::uint64_t got = z.decoders[static_cast<std::size_t>(part)].decode(
-          bytes.data(), static_cast<std::size_t>(c.bytes), c.count, out.data() + offsets[part] * stride,
-          z.layers, used);
-      if (got != c.count)
-        throw laz::LazError("it holds " + fmtCount(got) + " points, the chunk table says " +
-                            fmtCount(c.count));
-    } catch (const laz::LazError& e) {
-      throw DataError(file, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(c.offset) +
-                                ") is damaged: " + e.what());
-    }
+    decodeLazChunk(z.decoders[static_cast<std::size_t>(part)], index, c.offset, bytes.data(),
+                   static_cast<std::size_t>(c.bytes), c.count, out.data() + offsets[part] * stride);
   };
   if (k > 1)
     crew_->run(static_cast<int>(k), work);

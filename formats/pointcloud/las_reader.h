@@ -36,6 +36,9 @@ namespace tinbuild {
 
 class WorkCrew;
 struct CopcHierarchy;
+namespace laz {
+class ChunkDecoder;
+}
 
 struct LasVlr {
   std::string userId;
@@ -124,6 +127,13 @@ class LasReader : public PointReader {
   void fillLazChunks();
   // Decodes chunks [first, first + k) on the crew into out (records back to back); returns the points.
   std::size_t decodeLazGroup(std::size_t first, std::size_t k, std::vector<std::uint8_t>& out);
+  // No chunk table: finds the chunk after the last one found, decodes it into laz_->raw, returns its points.
+  std::size_t findNextLazChunk();
+  // One chunk of `count` points into out; a LazError becomes a DataError naming the chunk and its offset.
+  // Returns the chunk's length in bytes.
+  std::size_t decodeLazChunk(laz::ChunkDecoder& decoder, std::size_t index, std::uint64_t offset,
+                             const std::uint8_t* bytes, std::size_t size, std::uint64_t count,
+                             std::uint8_t* out) const;
   std::size_t readLaz(PointRecord* out, std::size_t n);
   void readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const;
   std::size_t fillStream(std::size_t want);  // stdin: ensure `want` bytes buffered, returns available

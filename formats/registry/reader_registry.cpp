@@ -42,37 +42,35 @@ class CrsOverride : public PointReader {
   mutable SourceInfo info_;
 };
 
-bool hasSignature(const std::uint8_t* head, std::size_t size) {
-  return looksLikeLas(head, size);
-}
-
 // LAS 1.4's header is 375 bytes; a COPC file's first VLR follows it at once: user id "copc", record 1.
 bool recognisesCopc(const std::uint8_t* head, std::size_t size) {
   constexpr std::size_t kVlr = 375;
-  if (!hasSignature(head, size) || size < kVlr + 20) return false;
+  if (!looksLikeLas(head, size) || size < kVlr + 20) return false;
   static const char kUser[16] = {'c', 'o', 'p', 'c'};
   return std::memcmp(head + kVlr + 2, kUser, 16) == 0 && head[kVlr + 18] == 1 && head[kVlr + 19] == 0;
 }
 bool recognisesLaz(const std::uint8_t* head, std::size_t size) {
-  return hasSignature(head, size) && size > 104 && (head[104] & 0xC0) != 0;
+  return looksLikeLas(head, size) && size > 104 && (head[104] & 0xC0) != 0;
 }
 bool recognisesAnything(const std::uint8_t*, std::size_t) {
   return true;
 }
 
-std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOptions& options,
+std::unique_ptr<LasReader> lasReader(const std::string& path, const ReaderOptions& options,
                                      Diagnostics& diag) {
   auto las = std::make_unique<LasReader>(path, diag);
   las->setDecodeThreads(options.decodeThreads);
   las->setDropCache(options.dropCache);
   return las;
 }
+std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOptions& options,
+                                     Diagnostics& diag) {
+  return lasReader(path, options, diag);
+}
 // LAZ and COPC are read by the LAS reader, which decodes their chunks (formats/pointcloud/laz).
 std::unique_ptr<PointReader> openLaz(const std::string& path, const ReaderOptions& options,
                                      Diagnostics& diag) {
-  auto las = std::make_unique<LasReader>(path, diag);
-  las->setDecodeThreads(options.decodeThreads);
-  las->setDropCache(options.dropCache);
+  auto las = lasReader(path, options, diag);
   std::uint32_t layers = laz::kLayerXY | laz::kLayerZ | laz::kLayerClass | laz::kLayerFlags;
   if (options.intensity) layers |= laz::kLayerIntensity;
   las->setLazLayers(layers);
@@ -119,7 +117,7 @@ const std::vector<ReaderRow>& readerTable() {
   static const std::vector<ReaderRow> table = {
       {"COPC", recognisesCopc, openLaz},
       {"LAZ", recognisesLaz, openLaz},
-      {"LAS", hasSignature, openLas},
+      {"LAS", looksLikeLas, openLas},
       {"XYZ", recognisesAnything, openXyz},
   };
   return table;

@@ -15,12 +15,6 @@ namespace tinbuild {
 
 namespace {
 
-std::uint64_t sizeOf(const std::string& path) {
-  std::error_code ec;
-  const auto n = std::filesystem::file_size(path, ec);
-  return ec ? 0 : static_cast<std::uint64_t>(n);
-}
-
 // ---- meshes: streaming (SMB, SMA), conventional (PLY, OBJ) ----
 
 class MeshOutput : public OpenedOutput {
@@ -30,7 +24,7 @@ class MeshOutput : public OpenedOutput {
   void attach(MeshTee& tee) override { tee.add(*sink_); }
   MeshSink* meshSink() override { return sink_.get(); }
   std::vector<std::string> files() const override { return {path_}; }
-  std::uint64_t bytes() const override { return sizeOf(path_); }
+  std::uint64_t bytes() const override { return fileSizeOrZero(path_); }
 
  private:
   std::string path_;
@@ -87,7 +81,7 @@ class TriangleOutput : public OpenedOutput {
       : path_(std::move(path)), sink_(std::move(sink)) {}
   void attach(MeshTee& tee) override { tee.add(*sink_); }
   std::vector<std::string> files() const override { return {path_}; }
-  std::uint64_t bytes() const override { return sizeOf(path_); }
+  std::uint64_t bytes() const override { return fileSizeOrZero(path_); }
 
  private:
   std::string path_;
