@@ -1,3 +1,4 @@
+#include <chrono>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -7,6 +8,7 @@
 #include "app/jobs/survey_info.h"
 #include "app/progress.h"
 #include "formats/crs/crs.h"
+#include "formats/pointcloud/copc_writer.h"
 #include "formats/pointcloud/las_writer.h"
 #include "formats/raster/quicklook.h"
 #include "libterrain/core/error.h"
@@ -35,7 +37,13 @@ int runDemo(const cli::ParsedArgs& args) {
   spec.homeStrip = args.has("--home-strip");
   // Real surveys are delivered as LAZ, so the demo's is too (--las writes it uncompressed).
   const bool writeLaz = !args.has("--las");
-  const std::string las = (dir / (writeLaz ? "survey.laz" : "survey.las")).string();
+  // --copc: the survey as a COPC file (an octree of LAZ chunks), point format 6 unless told otherwise.
+  const bool writeCopcFile = args.has("--copc");
+  if (writeCopcFile && !writeLaz) throw UsageError("demo: --copc and --las exclude each other");
+  const std::string las = (dir / (writeCopcFile ? "survey.copc.laz"
+                                  : writeLaz    ? "survey.laz"
+                                                : "survey.las"))
+                              .string();
   ProgressDisplay progress(parseProgressMode(args.get("--progress"), false));
   installCancelHandlers();
   std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << std::endl;
@@ -45,11 +53,37 @@ int runDemo(const cli::ParsedArgs& args) {
   lo.horizontalEpsg = 32610;
   lo.verticalEpsg = 5703;
   lo.laz = writeLaz;
-  lo.pointFormat = args.getInt("--point-format", 1, 0, 8);
+  lo.pointFormat = args.getInt("--point-format", writeCopcFile ? 6 : 1, 0, 8);
   if (lo.pointFormat >= 4 && lo.pointFormat <= 5)
     throw UsageError("demo: --point-format takes 0-3 or 6-8 (formats with waveforms are not synthesized)");
+  if (writeCopcFile && lo.pointFormat < 6) throw UsageError("demo: COPC holds point formats 6-8 only");
   if (lo.pointFormat >= 6) lo.wkt = crsFromUser("EPSG:32610+5703").wkt;  // formats 6-10 carry WKT only
-  writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
+  if (writeCopcFile) {
+    // COPC: the octree is built in memory (32 bytes a point), then written node by node.
+    const auto start = std::chrono::steady_clock::now();
+    SurveyGenerator generator(spec);
+    std::vector<PointRecord> points(static_cast<std::size_t>(generator.total()));
+    for (std::size_t at = 0, n;
+         at < points.size() && (n = generator.next(points.data() + at, points.size() - at)) > 0;)
+      at += n;
+    const auto synthesized = std::chrono::steady_clock::now();
+    CopcWriterOptions co;
+    co.pointFormat = lo.pointFormat;
+    co.scale[0] = co.scale[1] = co.scale[2] = spec.quantum;
+    co.offset[0] = spec.originX;
+    co.offset[1] = spec.originY;
+    co.offset[2] = spec.originZ;
+    co.wkt = lo.wkt;
+    co.systemIdentifier = "tinbuild synthetic survey";
+    const CopcWriteStats st = writeCopc(las, points, co);
+    std::cout << "tinbuild demo: COPC octree of " << st.levels << " levels, " << st.nodes << " nodes, "
+              << st.pages << (st.pages == 1 ? " page" : " pages") << "; synthesized in "
+              << std::chrono::duration<double>(synthesized - start).count() << " s, written in "
+              << std::chrono::duration<double>(std::chrono::steady_clock::now() - synthesized).count() << " s"
+              << std::endl;
+  } else {
+    writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
+  }
   progress.finish();
   if (args.has("--survey-only")) {
     std::cout << "tinbuild demo: wrote " << las << " (--survey-only: nothing else)" << std::endl;
@@ -97,8 +131,9 @@ int runDemo(const cli::ParsedArgs& args) {
 
   std::cout
       << "\nwritten in " << dir.string() << ":\n"
-      << (writeLaz ? "  survey.laz          the survey (LAZ: LAS 1.4, point format 1, compressed)\n"
-                   : "  survey.las          the survey (LAS 1.4, point format 1)\n")
+      << (writeCopcFile ? "  survey.copc.laz     the survey (COPC: LAZ 1.4 chunks of an octree)\n"
+          : writeLaz    ? "  survey.laz          the survey (LAZ: LAS 1.4, point format 1, compressed)\n"
+                        : "  survey.las          the survey (LAS 1.4, point format 1)\n")
       << "  survey-info.json    `tinbuild info --json` of it\n"
       << "  tin.smb             the bare-earth TIN (ground and water points) as a binary streaming mesh\n"
       << "  tin.gpkg            the TIN as a GeoPackage layer of triangles (open it in QGIS)\n"
@@ -125,7 +160,8 @@ Command demoCommand() {
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
        {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},
        {"--las", "", "write the survey as uncompressed LAS (survey.las) instead of LAZ (survey.laz)"},
-       {"--point-format", "N", "LAS point format of the survey: 0-3 or 6-8 (default 1)"},
+       {"--point-format", "N", "LAS point format of the survey: 0-3 or 6-8 (default 1; 6 with --copc)"},
+       {"--copc", "", "write the survey as COPC (survey.copc.laz: an octree of LAZ chunks) instead of LAZ"},
        {"--survey-only", "", "write the survey and stop (benchmark inputs)"},
        {"--progress", "MODE", "auto (default), lines, json or none"}},
       runDemo};

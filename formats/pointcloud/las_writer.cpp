@@ -24,6 +24,7 @@ namespace {
 constexpr std::uint16_t kHeaderSize12 = 227;
 constexpr std::uint16_t kHeaderSize14 = 375;
 constexpr std::size_t kVlrHeaderSize = 54;
+constexpr std::size_t kEvlrHeaderSize = 60;
 
 // Little-endian stores, independent of the host's byte order.
 inline void putU16(std::uint8_t* p, std::uint16_t v) {
@@ -177,8 +178,16 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
                      " stores the CRS as WKT only: give the WKT of EPSG:" + std::to_string(o.horizontalEpsg));
   }
 
-  // VLRs: GeoTIFF keys (formats 0-5), then WKT.
+  // VLRs: the reserved one (COPC info), GeoTIFF keys (formats 0-5), then WKT.
   std::vector<std::uint8_t> vlrs;
+  const LasWriterOptions::ReservedVlr& reserved = o.reservedVlr;
+  if (reserved.payloadSize > 0) {
+    if (reserved.userId.empty()) throw UsageError("LAS: the reserved VLR needs a user id");
+    if (reserved.payloadSize > 65535) throw UsageError("LAS: a VLR payload is limited to 65535 bytes");
+    appendVlr(vlrs, reserved.recordId, reserved.description, std::vector<std::uint8_t>(reserved.payloadSize),
+              reserved.userId.c_str());
+    ++vlrCount_;
+  }
   if (!extended && (o.horizontalEpsg > 0 || o.verticalEpsg > 0)) {
     appendVlr(vlrs, 34735, "GeoTiff GeoKeyDirectoryTag", geoKeyDirectory(o));
     ++vlrCount_;
@@ -191,10 +200,11 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
   }
   if (o.laz) {
     // LAZ: the LASzip VLR says how the points are compressed (formats/pointcloud/laz/laz_format.h).
-    if (o.lazChunkSize == 0) throw UsageError("LAZ: the chunk size must be at least 1 point");
+    // Chunk size 0 (or LASzip's 0xFFFFFFFF): variable-size chunks, ended by endChunk().
+    variableChunks_ = o.lazChunkSize == 0 || o.lazChunkSize == 0xFFFFFFFFu;
     try {
       lazInfo_ = laz::LazInfo::forPointFormat(o.pointFormat, static_cast<std::uint16_t>(recordLength_),
-                                              o.lazChunkSize);
+                                              variableChunks_ ? 0xFFFFFFFFu : o.lazChunkSize);
       encoder_ = std::make_unique<laz::ChunkEncoder>(lazInfo_);
     } catch (const laz::LazError& e) {
       throw UsageError(std::string("LAZ: ") + e.what());
@@ -206,6 +216,7 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
   if (o.versionMinor == 4 && (extended || !o.wkt.empty())) globalEncoding_ |= 1u << 4;
   headerSize_ = o.versionMinor == 4 ? kHeaderSize14 : kHeaderSize12;
   pointOffset_ = static_cast<std::uint32_t>(headerSize_ + vlrs.size());
+  if (reserved.payloadSize > 0) reservedVlrAt_ = headerSize_ + kVlrHeaderSize;
 
   if (options_.creationDay < 0 || options_.creationYear < 0) {
     int day = 0, year = 0;
@@ -214,9 +225,10 @@ LasWriter::LasWriter(const std::string& path, const LasWriterOptions& options)
     if (options_.creationYear < 0) options_.creationYear = year;
   }
 
-  // LAZ: the buffer holds one chunk; each flush compresses it.
-  const std::size_t records = o.laz ? static_cast<std::size_t>(o.lazChunkSize)
-                                    : std::max<std::size_t>(1, options_.bufferBytes / recordLength_);
+  // LAZ: the buffer holds one chunk; each flush compresses it.  Variable chunks: it grows as needed.
+  const std::size_t records = o.laz && !variableChunks_
+                                  ? static_cast<std::size_t>(o.lazChunkSize)
+                                  : std::max<std::size_t>(1, options_.bufferBytes / recordLength_);
   buffer_.resize(records * recordLength_);
 
   fd_ = createTemporaryBeside(path_, tempPath_);
@@ -280,6 +292,7 @@ void LasWriter::flush() {
     compressed_.clear();
     encoder_->encode(buffer_.data(), n, compressed_);
     writeAt(fileOffset_, compressed_.data(), compressed_.size());
+    chunkOffsets_.push_back(fileOffset_);
     fileOffset_ += compressed_.size();
     chunks_.push_back({n, compressed_.size()});
     used_ = 0;
@@ -293,6 +306,7 @@ void LasWriter::flush() {
 void LasWriter::write(const PointRecord* points, std::size_t n) {
   if (closed_) throw DataError(path_, "write after close");
   if (failed_) throw DataError(path_, "write after an earlier failure");
+  if (pointsEnded_) throw UsageError("LAS: no point can be written after the EVLRs");
   try {
     const int format = options_.pointFormat;
     const bool extended = format >= 6;
@@ -328,7 +342,12 @@ void LasWriter::write(const PointRecord* points, std::size_t n) {
                                    std::to_string(pt.numberOfReturns) + " exceeds 15");
       }
 
-      if (used_ + len > buffer_.size()) flush();
+      if (used_ + len > buffer_.size()) {
+        if (variableChunks_)
+          buffer_.resize(std::max(buffer_.size() * 2, used_ + len));  // the chunk ends at endChunk()
+        else
+          flush();
+      }
       std::uint8_t* p = buffer_.data() + used_;
       std::memset(p, 0, len);
       putI32(p, xyz[0]);
@@ -415,7 +434,9 @@ std::vector<std::uint8_t> LasWriter::header() const {
     putF64(p + 219, b.minZ);
   }
   if (o.versionMinor == 4) {
-    // 227: start of waveform data (none), 235: start of first EVLR (none), 243: EVLR count (0)
+    // 227: start of waveform data (none), 235: start of first EVLR, 243: EVLR count
+    putU64(p + 235, evlrStart_);
+    putU32(p + 243, evlrCount_);
     putU64(p + 247, count_);
     for (int r = 0; r < 15; ++r) putU64(p + 255 + 8 * r, byReturn_[r]);
   }
@@ -426,17 +447,7 @@ void LasWriter::close() {
   if (closed_) return;
   if (failed_) throw DataError(path_, "cannot complete the file after an earlier failure");
   try {
-    flush();
-    if (encoder_) {
-      // The chunk table follows the last chunk; its offset goes into the 8 bytes before the first.
-      const std::vector<std::uint8_t> table = laz::encodeChunkTable(chunks_, lazInfo_.variableChunks());
-      const std::uint64_t at = fileOffset_;
-      writeAt(at, table.data(), table.size());
-      fileOffset_ += table.size();
-      std::uint8_t offset[8];
-      std::memcpy(offset, &at, 8);
-      writeAt(pointOffset_, offset, 8);
-    }
+    endPoints();
     const auto head = header();
     writeAt(0, head.data(), head.size());
     if (options_.syncOnClose && ::fsync(fd_) != 0) throw DataError(path_, "fsync failed: " + errnoText());
@@ -446,6 +457,92 @@ void LasWriter::close() {
     if (std::rename(tempPath_.c_str(), path_.c_str()) != 0)
       throw DataError(path_, "cannot rename " + tempPath_ + " onto it: " + errnoText());
     closed_ = true;
+  } catch (...) {
+    fail();
+    throw;
+  }
+}
+
+void LasWriter::endPoints() {
+  if (pointsEnded_) return;
+  flush();
+  if (encoder_) {
+    // The chunk table follows the last chunk; its offset goes into the 8 bytes before the first.
+    const std::vector<std::uint8_t> table = laz::encodeChunkTable(chunks_, lazInfo_.variableChunks());
+    const std::uint64_t at = fileOffset_;
+    writeAt(at, table.data(), table.size());
+    fileOffset_ += table.size();
+    std::uint8_t offset[8];
+    putU64(offset, at);
+    writeAt(pointOffset_, offset, 8);
+  }
+  pointsEnded_ = true;
+}
+
+void LasWriter::endChunk() {
+  if (!encoder_ || !variableChunks_)
+    throw UsageError("LAS: endChunk() needs LAZ with variable-size chunks (lazChunkSize 0)");
+  if (closed_) throw DataError(path_, "endChunk after close");
+  if (failed_) throw DataError(path_, "endChunk after an earlier failure");
+  if (pointsEnded_) throw UsageError("LAS: no chunk can end after the EVLRs");
+  try {
+    flush();
+  } catch (...) {
+    fail();
+    throw;
+  }
+}
+
+std::vector<LasWrittenChunk> LasWriter::chunks() const {
+  std::vector<LasWrittenChunk> out(chunks_.size());
+  for (std::size_t i = 0; i < chunks_.size(); ++i)
+    out[i] = {chunkOffsets_[i], chunks_[i].byteCount, chunks_[i].pointCount};
+  return out;
+}
+
+void LasWriter::setReservedVlr(const std::vector<std::uint8_t>& payload) {
+  if (reservedVlrAt_ == 0) throw UsageError("LAS: no VLR was reserved (options.reservedVlr)");
+  if (payload.size() != options_.reservedVlr.payloadSize)
+    throw UsageError("LAS: the reserved VLR holds " + std::to_string(options_.reservedVlr.payloadSize) +
+                     " bytes, not " + std::to_string(payload.size()));
+  if (closed_) throw DataError(path_, "setReservedVlr after close");
+  if (failed_) throw DataError(path_, "setReservedVlr after an earlier failure");
+  try {
+    writeAt(reservedVlrAt_, payload.data(), payload.size());
+  } catch (...) {
+    fail();
+    throw;
+  }
+}
+
+std::uint64_t LasWriter::nextEvlrPayloadOffset() {
+  if (options_.versionMinor != 4) throw UsageError("LAS: EVLRs need LAS 1.4");
+  if (closed_) throw DataError(path_, "EVLR after close");
+  if (failed_) throw DataError(path_, "EVLR after an earlier failure");
+  try {
+    endPoints();
+  } catch (...) {
+    fail();
+    throw;
+  }
+  return fileOffset_ + kEvlrHeaderSize;
+}
+
+void LasWriter::appendEvlr(const std::string& userId, std::uint16_t recordId, const std::string& description,
+                           const std::vector<std::uint8_t>& payload) {
+  const std::uint64_t at = nextEvlrPayloadOffset() - kEvlrHeaderSize;
+  try {
+    std::uint8_t h[kEvlrHeaderSize];
+    putU16(h, 0);  // reserved
+    putChars(h + 2, userId, 16);
+    putU16(h + 18, recordId);
+    putU64(h + 20, payload.size());
+    putChars(h + 28, description, 32);
+    writeAt(at, h, sizeof h);
+    if (!payload.empty()) writeAt(at + kEvlrHeaderSize, payload.data(), payload.size());
+    fileOffset_ = at + kEvlrHeaderSize + payload.size();
+    if (evlrCount_ == 0) evlrStart_ = at;
+    ++evlrCount_;
   } catch (...) {
     fail();
     throw;

@@ -41,6 +41,18 @@
 // point data offset hold the chunk table's offset, chunks of options.lazChunkSize points follow, and the
 // chunk table ends the file.  Every LAZ reader reads it; tinbuild writes LAZ for its demo, tests and
 // benchmarks (surveys arrive as LAZ), not as a product output.
+//   Variable-size chunks (lazChunkSize = 0, what COPC needs): the LASzip VLR's chunk size is 0xFFFFFFFF,
+// a chunk is every point written since the previous endChunk() (held in memory until it ends; an empty
+// chunk is never written), and the chunk table stores each chunk's point count besides its byte count.
+// chunks() tells where each chunk went.
+//
+// Records for containers built on LAS (COPC; copc_writer.h):
+//   - options.reservedVlr: a VLR of a fixed payload size placed FIRST in the VLR list (at byte 375 of a
+//     1.4 file), zero-filled until setReservedVlrPayload() writes its payload (any time before close()).
+//   - EVLRs (LAS 1.4 only): appendEvlr() ends the point data (the last chunk, the chunk table) and writes
+//     an EVLR after it; nextEvlrPayloadOffset() says where the next one's payload will start, so that a
+//     payload may hold absolute offsets into itself.  close() sets the header's start of the first EVLR
+//     and the EVLR count.  No point may be written once the point data has ended.
 //
 // Errors: options that cannot be written throw UsageError from the constructor; I/O failures and
 // unrepresentable points throw DataError naming the target path.  After any exception from write() or
@@ -85,7 +97,22 @@ struct LasWriterOptions {
   // LAZ: compress the points (formats/pointcloud/laz) in chunks of this many points, with a chunk table
   // at the end, as LASzip writes them: pointwise v2 items for formats 0-5, layered v3 for 6-10.
   bool laz = false;
-  std::uint32_t lazChunkSize = 50000;
+  std::uint32_t lazChunkSize = 50000;  // 0: variable-size chunks, ended by endChunk()
+
+  // A VLR reserved first in the VLR list (payloadSize 0: none); see the header essay.
+  struct ReservedVlr {
+    std::string userId;  // at most 16 characters are kept
+    std::uint16_t recordId = 0;
+    std::string description;
+    std::size_t payloadSize = 0;  // at most 65535
+  } reservedVlr;
+};
+
+// One LAZ chunk as written: its file offset, compressed size and point count.
+struct LasWrittenChunk {
+  std::uint64_t offset = 0;
+  std::uint64_t bytes = 0;
+  std::uint64_t points = 0;
 };
 
 class LasWriter {
@@ -102,6 +129,20 @@ class LasWriter {
   // file onto the target path (replacing an existing file).
   void close();
 
+  // LAZ with variable chunks: ends the current chunk (compresses and writes it).  Nothing happens when
+  // no point was written since the last chunk ended.  Throws UsageError for other files.
+  void endChunk();
+  // The chunks written so far, in file order (LAZ; empty for LAS).
+  std::vector<LasWrittenChunk> chunks() const;
+  // Writes the payload of options.reservedVlr (exactly its payloadSize bytes; UsageError otherwise).
+  void setReservedVlr(const std::vector<std::uint8_t>& payload);
+  // LAS 1.4: ends the point data if it has not ended, then tells where the payload of the next EVLR
+  // appended will start (absolute file offset).
+  std::uint64_t nextEvlrPayloadOffset();
+  // LAS 1.4: ends the point data if it has not ended and writes one EVLR (60-byte header, then payload).
+  void appendEvlr(const std::string& userId, std::uint16_t recordId, const std::string& description,
+                  const std::vector<std::uint8_t>& payload);
+
   std::uint64_t pointCount() const { return count_; }
   // Bounds of the points written so far, as a reader will decode them (empty before the first point).
   Bounds3 bounds() const;
@@ -114,6 +155,7 @@ class LasWriter {
 
  private:
   void flush();
+  void endPoints();  // flushes the last points and writes the chunk table (LAZ); idempotent
   void writeAt(std::uint64_t offset, const std::uint8_t* data, std::size_t size);
   std::vector<std::uint8_t> header() const;
   void fail() noexcept;
@@ -136,10 +178,16 @@ class LasWriter {
   std::int32_t maxInt_[3] = {};
   bool closed_ = false;
   bool failed_ = false;
+  bool pointsEnded_ = false;         // the point data is complete (EVLRs may follow)
+  std::uint64_t reservedVlrAt_ = 0;  // payload offset of options.reservedVlr (0: none)
+  std::uint64_t evlrStart_ = 0;      // start of the first EVLR (0: none)
+  std::uint32_t evlrCount_ = 0;
   // LAZ
   laz::LazInfo lazInfo_;
   std::unique_ptr<laz::ChunkEncoder> encoder_;
+  bool variableChunks_ = false;
   std::vector<laz::ChunkEntry> chunks_;
+  std::vector<std::uint64_t> chunkOffsets_;
   std::vector<std::uint8_t> compressed_;
 };
 
