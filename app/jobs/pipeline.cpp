@@ -375,6 +375,9 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
   refuseExistingOutputs(o, {});
   FinalizerOptions fo = o.finalizer;
+  // The stream's header states its exact point count before the first point: COPC nodes are not
+  // counted from the hierarchy here (they are spooled in pass 1 like other LAZ).
+  fo.countBlocks = false;
   OpenedInputs in = openInputs(o, fo, diag);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
@@ -521,6 +524,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
     if (resolved[i].row->option == OutputOption::Gpkg) {
       r.gpkgOutput = resolved[i].path;
       r.gpkgTriangles = r.delaunay.trianglesEmitted;
+      r.gpkgBytes = out.bytes();
     }
     if (const DemRasterizer* dem = out.rasterizer()) {
       r.dem.layout = dem->layout();
@@ -708,12 +712,19 @@ std::string formatRunSummary(const RunReport& r) {
       line("order", "pass 3 read the survey's " + withCommas(s.readSegments) + " batches in " + s.readOrder +
                         " order (estimated width " + withCommas(s.readOrderWidthEstimate) + " points, " +
                         withCommas(s.storedOrderWidthEstimate) + " in the stored order)");
+    if (s.blockMode)
+      line("COPC", withCommas(s.blocks) + " octree nodes (" + withCommas(s.blockPoints) +
+                       " points) counted from the hierarchy: no point decoded before the stream, each node "
+                       "decoded once, depth first in grid order" +
+                       (s.blockStrays ? "; " + withCommas(s.blockStrays) + " points on node edges" : std::string()));
     line("passes", (s.pass1Run ? "1: " + formatDouble("%.3f s", s.pass1Seconds) + " (" +
                                      rate(f.read, s.pass1Seconds) + " M/s), "
                                : std::string("1: skipped (LAS header bounds), ")) +
-                       "2: " + formatDouble("%.3f s", s.pass2Seconds) + " (" +
-                       rate(f.read * s.pass2Runs, s.pass2Seconds) +
-                       " M/s), 3: " + formatDouble("%.3f s", s.pass3Seconds) + " (" +
+                       (s.blockMode ? "2: the COPC hierarchy, " + formatDouble("%.3f s", s.pass2Seconds) +
+                                          ", 3: "
+                                    : "2: " + formatDouble("%.3f s", s.pass2Seconds) + " (" +
+                                          rate(f.read * s.pass2Runs, s.pass2Seconds) + " M/s), 3: ") +
+                       formatDouble("%.3f s", s.pass3Seconds) + " (" +
                        rate(f.read, s.pass3Seconds) + " M/s)");
   }
   if (r.haveDelaunay) {
@@ -836,6 +847,14 @@ std::string formatRunJson(const RunReport& r) {
     j.key("sprinkled").value(s.sprinkled);
     j.key("tags").value(s.tags);
     j.key("empty_tags").value(s.emptyTags);
+    if (s.blockMode) {
+      j.key("copc_blocks").beginObject();
+      j.key("nodes").value(s.blocks);
+      j.key("points").value(s.blockPoints);
+      j.key("decoded_before_stream").value(std::uint64_t{0});
+      j.key("edge_points").value(s.blockStrays);
+      j.endObject();
+    }
     j.key("passes").beginObject();
     j.key("pass1");
     writePass(j, s.pass1Run, s.pass1Seconds, s.filter.read);
@@ -894,6 +913,11 @@ std::string formatRunJson(const RunReport& r) {
     j.key("gpkg").beginObject();
     j.key("path").value(r.gpkgOutput);
     j.key("triangles").value(r.gpkgTriangles);
+    j.key("bytes").value(r.gpkgBytes);
+    if (r.gpkgTriangles)
+      j.key("bytes_per_triangle").value(static_cast<double>(r.gpkgBytes) / static_cast<double>(r.gpkgTriangles));
+    else
+      j.key("bytes_per_triangle").null();
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -96,6 +96,7 @@ struct RunReport {
   DemReport dem;
   std::string gpkgOutput;
   std::uint64_t gpkgTriangles = 0;
+  std::uint64_t gpkgBytes = 0;  // the GeoPackage's file size
   std::vector<Diagnostics::Entry> warnings;
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;

@@ -217,6 +217,9 @@ void FinalizedStreamWriter::need(std::size_t bytes) {
 }
 
 void FinalizedStreamWriter::begin(const StreamInfo& info) {
+  if (info.pointsAtMost)
+    throw Error("finalized stream writer: the stream's exact point count is not known before its points "
+                "(a finalizer counting COPC nodes from their hierarchy); finalize with countBlocks off");
   if (failed_ || begun_) throw Error("finalized stream writer: begin() called twice or after a failure");
   if (info.grid.depth < 0 || info.grid.depth > kMaxDepth)
     throw Error("finalized stream writer: grid depth " + std::to_string(info.grid.depth) + " out of range");

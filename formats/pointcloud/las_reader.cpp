@@ -413,11 +413,12 @@ void LasReader::parse() {
     }
     if (stream_) streamBegin_ = pointOffset_;
   }
-  const LasVlr* lazVlr = nullptr;
-  for (const auto& v : vlrs_)
-    if (v.userId == laz::kLaszipVlrUserId && v.recordId == laz::kLaszipVlrRecordId) lazVlr = &v;
-  const bool compressed = compressedBits || lazVlr;
-  if (compressed && !lazVlr)
+  // (An index, not a pointer: the EVLRs are appended to vlrs_ below, which may move it.)
+  std::size_t lazVlrIndex = SIZE_MAX;
+  for (std::size_t i = 0; i < vlrs_.size(); ++i)
+    if (vlrs_[i].userId == laz::kLaszipVlrUserId && vlrs_[i].recordId == laz::kLaszipVlrRecordId) lazVlrIndex = i;
+  const bool compressed = compressedBits || lazVlrIndex != SIZE_MAX;
+  if (compressed && lazVlrIndex == SIZE_MAX)
     throw DataError(file,
                     "the point format byte says the points are compressed (LAZ), but the file has no LASzip "
                     "VLR (\"laszip encoded\", 22204) to say how");
@@ -485,7 +486,7 @@ void LasReader::parse() {
     info_.pointCountKnown = false;  // confirmed only when the stream ends
   }
 
-  if (compressed) setupLaz(*lazVlr);
+  if (compressed) setupLaz(vlrs_[lazVlrIndex]);
   if (info_.pointFormat >= 4 && info_.pointFormat != 6 && info_.pointFormat != 7 && info_.pointFormat != 8 &&
       info_.waveformBytes > 0)
     info_.notes.push_back("internal waveform data (" + fmtCount(info_.waveformBytes) + " bytes) skipped");
@@ -714,6 +715,10 @@ struct LasReader::Laz {
   bool complete = false;      // sequential: every chunk has been found (later passes may run in parallel)
   std::uint64_t dataStart = 0, dataEnd = 0;
   std::size_t nextChunk = 0;
+  // A seeking pass decodes chunks [nextChunk, stopChunk) (the announced range) and no further ahead; the
+  // first chunk after a seek starts `skip` records in.
+  std::size_t stopChunk = 0;
+  std::uint64_t skip = 0;
   std::vector<laz::ChunkDecoder> decoders;  // one per decode thread
   std::vector<std::uint8_t> raw;            // decoded LAS records of the chunks in hand
   std::size_t rawPos = 0, rawCount = 0;
@@ -732,6 +737,8 @@ struct LasReader::Laz {
   void restart() {
     wait();
     nextChunk = 0;
+    stopChunk = chunks.size();
+    skip = 0;
     rawPos = rawCount = 0;
     if (sequential && complete) sequential = false;
   }
@@ -884,19 +891,22 @@ void LasReader::fillLazChunks() {
     return;
   }
   const std::size_t threads = static_cast<std::size_t>(crew_ ? crew_->threads() : 1);
+  // A seeking pass decodes the announced range only; reading on past it extends it to the end.
+  if (!seeking_ || z.nextChunk >= z.stopChunk) z.stopChunk = z.chunks.size();
   if (z.pending.valid()) {
     z.pending.get();  // rethrows the group's error (a damaged chunk)
     std::swap(z.raw, z.ahead);
     z.rawCount = z.aheadCount;
     z.nextChunk += z.aheadChunks;
   } else {
-    const std::size_t k = std::min(threads, z.chunks.size() - z.nextChunk);
+    const std::size_t k = std::min(threads, z.stopChunk - z.nextChunk);
     if (k == 0) throw DataError(file, "the chunks hold fewer points than the header's " + fmtCount(total));
     z.rawCount = decodeLazGroup(z.nextChunk, k, z.raw);
     z.nextChunk += k;
   }
-  z.rawPos = 0;
-  const std::size_t k = std::min(threads, z.chunks.size() - z.nextChunk);
+  z.rawPos = static_cast<std::size_t>(std::min<std::uint64_t>(z.skip, z.rawCount));
+  z.skip = 0;
+  const std::size_t k = std::min(threads, z.stopChunk - z.nextChunk);
   if (k > 0) {
     z.aheadChunks = k;
     const std::size_t first = z.nextChunk;
@@ -1136,8 +1146,41 @@ void LasReader::readAhead(std::uint64_t upTo) {
   }
 }
 
+bool LasReader::seekable() const {
+  return !stream_ && (!laz_ || !laz_->sequential);
+}
+
 void LasReader::seek(std::uint64_t record, std::uint64_t count) {
   if (stream_) throw Error(info_.path + ": standard input cannot be read out of order");
+  if (laz_) {
+    Laz& z = *laz_;
+    if (z.sequential) throw Error(info_.path + ": a LAZ file without a chunk table cannot be read out of order");
+    if (record > lazPoints_)
+      throw Error(info_.path + ": seek to point " + fmtCount(record) + " of " + fmtCount(lazPoints_));
+    auto after = [&](std::uint64_t r) {
+      return static_cast<std::size_t>(
+          std::upper_bound(z.chunks.begin(), z.chunks.end(), r,
+                           [](std::uint64_t v, const Laz::Chunk& c) { return v < c.first; }) -
+          z.chunks.begin());
+    };
+    if (seeking_ && record == nextPoint_ && fd_ >= 0) {
+      // Reading on where the last read stopped (a block read in several pieces): keep what is decoded.
+      z.stopChunk = std::max(z.stopChunk, std::min(z.chunks.size(), after(record + std::max<std::uint64_t>(count, 1) - 1)));
+      return;
+    }
+    z.wait();
+    // The chunk holding `record`, and the first chunk past the range.
+    const std::size_t first = std::max<std::size_t>(after(record), 1) - 1;
+    z.nextChunk = std::min(first, z.chunks.size());
+    z.stopChunk = std::max(z.nextChunk + 1, after(record + std::max<std::uint64_t>(count, 1) - 1));
+    z.stopChunk = std::min(z.stopChunk, z.chunks.size());
+    z.skip = z.nextChunk < z.chunks.size() ? record - z.chunks[z.nextChunk].first : 0;
+    z.rawPos = z.rawCount = 0;
+    nextPoint_ = record;
+    seeking_ = true;
+    openFile();
+    return;
+  }
   if (record > info_.pointCount)
     throw Error(info_.path + ": seek to point " + fmtCount(record) + " of " + fmtCount(info_.pointCount));
   nextPoint_ = record;
@@ -1146,7 +1189,34 @@ void LasReader::seek(std::uint64_t record, std::uint64_t count) {
   willRead(record, count);  // the whole range now: a cold survey is then read in large requests
 }
 
+bool LasReader::describeBlocks(std::vector<Block>& blocks, BlockFrame& frame) const {
+  if (!copc_ || !laz_ || laz_->sequential || stream_) return false;
+  std::vector<std::pair<std::uint64_t, const CopcNode*>> byOffset;
+  for (const CopcNode& n : copc_->nodes)
+    if (n.points > 0) byOffset.push_back({n.offset, &n});
+  std::sort(byOffset.begin(), byOffset.end());
+  blocks.clear();
+  for (const Laz::Chunk& c : laz_->chunks) {
+    auto it = std::lower_bound(byOffset.begin(), byOffset.end(), std::make_pair(c.offset, (const CopcNode*)nullptr));
+    if (it == byOffset.end() || it->first != c.offset || it->second->points != c.count) return false;
+    Block b;
+    b.record = c.first;
+    b.count = c.count;
+    b.minX = it->second->cube.minX;
+    b.minY = it->second->cube.minY;
+    b.maxX = it->second->cube.maxX;
+    b.maxY = it->second->cube.maxY;
+    blocks.push_back(b);
+  }
+  const CopcInfo& ci = copc_->info;
+  frame.originX = ci.centerX - ci.halfsize;
+  frame.originY = ci.centerY - ci.halfsize;
+  frame.size = 2 * ci.halfsize;
+  return true;
+}
+
 void LasReader::willRead(std::uint64_t record, std::uint64_t count) {
+  if (laz_) return;  // (chunks are read whole when decoded)
   if (fd_ < 0 || record >= info_.pointCount) return;
   const auto stride = static_cast<std::uint64_t>(info_.recordLength);
   const std::uint64_t from = pointOffset_ + record * stride;

@@ -75,7 +75,9 @@ class LasReader : public PointReader {
   void rewind() override;
   // A file (not stdin) can be read in any order of record ranges: the range is asked for from storage
   // (POSIX_FADV_WILLNEED) at the seek, and the window ahead of sequential reading is not used.
-  bool seekable() const override { return !stream_ && !laz_; }
+  // LAZ with a chunk table too: a seek decodes from the chunk holding the record, and only the chunks of
+  // the announced range are decoded ahead.
+  bool seekable() const override;
   void seek(std::uint64_t record, std::uint64_t count) override;
   void willRead(std::uint64_t record, std::uint64_t count) override;
   void suspend() override;
@@ -96,6 +98,9 @@ class LasReader : public PointReader {
   // by skippedOutside()).  Other files: nothing (the filter clips).
   void restrictTo(const ClipRect& window) override;
   std::uint64_t skippedOutside() const override { return skippedOutside_; }
+  // COPC: every node's chunk is a block (its records, its cube's xy square); the frame is the root
+  // cube's square.  Other files (and COPC without a usable chunk table): none.
+  bool describeBlocks(std::vector<Block>& blocks, BlockFrame& frame) const override;
 
   const std::vector<LasVlr>& vlrs() const { return vlrs_; }
   // Bounds of the points decoded so far in this pass (complete after a full pass).

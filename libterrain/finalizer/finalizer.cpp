@@ -19,6 +19,9 @@
 #include <limits>
 #include <memory>
 #include <numeric>
+#include <optional>
+#include <tuple>
+#include <unordered_map>
 #include <utility>
 
 #include "libterrain/core/diagnostics.h"
@@ -33,6 +36,7 @@ constexpr std::uint64_t kSpoolCheck = std::uint64_t{64} << 20;  // how often an 
 constexpr std::uint32_t kNone = 0xffffffffu;
 constexpr int kMaxDepth = 15;
 constexpr int kMaxAutoDepth = 12;
+constexpr std::uint64_t kNoCandidate = ~std::uint64_t{0};  // a fine cell or leaf without a sprinkle point
 constexpr double kTargetPerCell = 2000;  // default depth: occupied cells hold at least this many on average
 
 std::uint64_t mix64(std::uint64_t z) {
@@ -346,8 +350,12 @@ class Sources {
   // filtered sequence.  Pass 2 records the pieces (recordSegments); pass 3 may read them in any order
   // (setSchedule) when every input can be read out of order.
   struct Segment {
+    // kStored: records of the input (or of its spool); kUnread: records of the input whose kept count
+    // is not known in advance (block mode: a block counted from its description).
+    enum Kind : std::uint8_t { kStored, kUnread };
     std::uint64_t start = 0, raw = 0, ordinal = 0;
     std::uint32_t input = 0, kept = 0;
+    Kind kind = kStored;
   };
   void recordSegments(bool on) { recording_ = on; }
   void setDecodeThreads(int threads) {
@@ -361,6 +369,12 @@ class Sources {
   }
   // The next pass reads segments()[order[0]], segments()[order[1]], ... (empty: in stored order).
   void setSchedule(std::vector<std::uint32_t> order) { schedule_ = std::move(order); }
+  // Block mode: the segments are made by the finalizer, not recorded.
+  void setSegments(std::vector<Segment> segments) { segments_ = std::move(segments); }
+  // The index in segments() of the batch next() returned last (with a schedule).
+  std::uint32_t batchSegment() const { return batchSegment_; }
+  // With a schedule: the steps taken so far (segments read, empty ones included).
+  std::size_t step() const { return step_; }
   // The filtered ordinal of the first point of the batch next() returned last.
   std::uint64_t batchOrdinal() const { return batchOrdinal_; }
   std::uint64_t spooledBytes() const { return spooledBytes_; }
@@ -463,11 +477,12 @@ class Sources {
   // next() when a schedule is set: the segments in its order, each exactly as pass 2 saw it.
   std::size_t nextScheduled(PointRecord* out, FilterCounts& counts) {
     while (step_ < schedule_.size()) {
+      batchSegment_ = schedule_[step_];
       const Segment& seg = segments_[schedule_[step_++]];
+      std::size_t kept = 0;
       if (seg.input != current_) suspendCurrent();
       current_ = seg.input;
       Spool& spool = spools_[current_];
-      std::size_t kept = 0;
       if (spool.active) {
         spoolFile_->readAt(spool.start + seg.start * sizeof(PointRecord), out, seg.raw * sizeof(PointRecord));
         counts.read += seg.raw;
@@ -492,8 +507,9 @@ class Sources {
           kept += options_.filter.apply(out + kept, got, counts);
         }
       }
-      if (kept != seg.kept) throw changed(seg);
+      if (kept != seg.kept && seg.kind != Segment::kUnread) throw changed(seg);
       batchOrdinal_ = seg.ordinal;
+      if (kept == 0) continue;  // (an unread block whose points the filter all dropped)
       return kept;
     }
     suspendCurrent();
@@ -571,6 +587,7 @@ class Sources {
   std::vector<std::uint64_t> rawPos_;  // raw records read from each input in this pass
   std::uint64_t ordinal_ = 0;          // filtered points produced in this pass (stored order)
   std::uint64_t batchOrdinal_ = 0;
+  std::uint32_t batchSegment_ = 0;
   bool ended_ = false;  // the current input's last read returned nothing
   bool recording_ = false;
   std::vector<Segment> segments_;
@@ -688,6 +705,8 @@ class Prefetcher {
     std::uint64_t read = 0;     // points offered to the filter so far in this pass
     std::size_t input = 0;      // the input the batch came from
     std::uint64_t ordinal = 0;  // of its first point in the filtered sequence (stored order)
+    std::uint32_t segment = 0;  // with a schedule: the segment it came from
+    std::size_t step = 0;       // with a schedule: steps taken once it was read (0 .. step: done)
   };
 
   // background = false reads each batch on the caller's thread when it is asked for (no thread).
@@ -729,7 +748,7 @@ class Prefetcher {
     Slot& slot = slots_[tail_ % kSlots];
     if (slot.n == 0) {
       if (error_) std::rethrow_exception(error_);
-      return {nullptr, nullptr, 0, slot.read, slot.input, slot.ordinal};
+      return {nullptr, nullptr, 0, slot.read, slot.input, slot.ordinal, slot.segment, slot.step};
     }
     holding_ = true;
     return batchOf(slot);
@@ -746,9 +765,12 @@ class Prefetcher {
     std::uint64_t read = 0;
     std::size_t input = 0;
     std::uint64_t ordinal = 0;
+    std::uint32_t segment = 0;
+    std::size_t step = 0;
   };
   static Batch batchOf(const Slot& s) {
-    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input, s.ordinal};
+    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input, s.ordinal,
+            s.segment, s.step};
   }
 
   // Reads the next batch into `slot` (and maps it), with where the pass stands.
@@ -758,6 +780,8 @@ class Prefetcher {
     slot.read = counts_.read;
     slot.input = sources_.current();
     slot.ordinal = sources_.batchOrdinal();
+    slot.segment = sources_.batchSegment();
+    slot.step = sources_.step();
   }
 
   void run() {
@@ -885,7 +909,8 @@ class Finalizer {
  public:
   Finalizer(const std::vector<PointStream*>& inputs, const FinalizerOptions& options, PointSink& out,
             Diagnostics& diag)
-      : options_(options),
+      : inputs_(inputs),
+        options_(options),
         out_(out),
         diag_(diag),
         sources_(inputs, options),
@@ -905,7 +930,10 @@ class Finalizer {
     // Pass 1 also runs when the header bounds are known but an input is costly to read again: it is
     // then the one pass that decodes that input (LAZ: each point decoded once per run), spooling it for
     // passes 2 and 3, and it checks the header bounds on the way.
-    stats_.pass1Run = !haveHeader || !rewindable || sources_.anyCostly();
+    blockMode_ = options_.countBlocks && haveHeader && rewindable && collectBlocks();
+    // (Block mode reads each block once, in pass 3, by seeking: every input must allow it.)
+    stats_.blockMode = blockMode_;
+    stats_.pass1Run = !blockMode_ && (!haveHeader || !rewindable || sources_.anyCostly());
     const double units = stats_.pass1Run ? 3 : 2;
     double unit = 0;
 
@@ -946,6 +974,12 @@ class Finalizer {
         gridBounds.maxY = std::min(gridBounds.maxY, c.maxY);
       }
       stats_.boundsFromHeader = true;
+    }
+
+    if (blockMode_) {
+      runBlockMode(gridBounds);
+      progress_.finish();
+      return stats_;
     }
 
     // Pass 2 (again over the real bounds when the header's turn out wrong).
@@ -1182,8 +1216,8 @@ class Finalizer {
     }
     std::sort(order.begin(), order.end());
 
-    int depth = std::min(fine, options_.depth);
-    if (options_.depth < 0) {
+    int depth = forcedDepth_ >= 0 ? forcedDepth_ : std::min(fine, options_.depth);
+    if (forcedDepth_ < 0 && options_.depth < 0) {
       // The largest depth whose occupied cells hold kTargetPerCell points on average.
       depth = 0;
       for (int l = fine; l > 0; --l) {
@@ -1202,6 +1236,10 @@ class Finalizer {
     }
     depth_ = depth;
     grid_ = makeGrid(gridBounds, depth);
+    if (frameGrid_) {
+      grid_ = *frameGrid_;
+      grid_.depth = depth;
+    }
     stats_.grid = grid_;
 
     // Leaves: runs of fine cells sharing the leaf's Morton prefix.
@@ -1220,6 +1258,7 @@ class Finalizer {
       for (; i < order.size() && (order[i].first >> shift) == m; ++i) {
         const FineCell& f = cells[order[i].second];
         leaf.total += f.count;
+        if (f.candOrdinal == kNoCandidate) continue;  // (block mode: counted, not decoded)
         const double dx = f.cand.x - cx, dy = f.cand.y - cy, d = dx * dx + dy * dy;
         if (d < bestDist || (d == bestDist && f.candOrdinal < bestOrdinal)) {
           bestDist = d;
@@ -1229,6 +1268,7 @@ class Finalizer {
       }
       leaf.remaining = leaf.total;
       leaf.sprinkleOrdinal = bestOrdinal;
+      leaf.sprinkleEmitted = bestOrdinal == kNoCandidate;  // no point to sprinkle
       Node node;
       node.morton = m;
       node.sprinkle = static_cast<std::uint32_t>(leaves_.size());
@@ -1259,8 +1299,12 @@ class Finalizer {
           below[i].parent = static_cast<std::uint32_t>(here.size());
           ++node.childCount;
           const std::uint32_t s = below[i].sprinkle;
+          if (leaves_[s].sprinkleOrdinal == kNoCandidate) {  // a leaf without a sprinkle point
+            if (node.sprinkle == kNone) node.sprinkle = s;
+            continue;
+          }
           const double dx = sprinkles_[s].x - cx, dy = sprinkles_[s].y - cy, d = dx * dx + dy * dy;
-          if (d < bestDist ||
+          if (d < bestDist || node.sprinkle == kNone ||
               (d == bestDist && leaves_[s].sprinkleOrdinal < leaves_[node.sprinkle].sprinkleOrdinal)) {
             bestDist = d;
             node.sprinkle = s;
@@ -1394,6 +1438,262 @@ class Finalizer {
     schedule_ = chosen->order;
   }
 
+  // ---- block mode ---------------------------------------------------------------------------------
+  //
+  // When every input describes its records as blocks lying in known boxes (COPC: the octree's nodes,
+  // PointStream::describeBlocks), no point is read before pass 3 and none is spooled: the hierarchy is
+  // the counting pass.
+  //   - Depth: the occupancy rule above, over the leaves the boxes meet (a block's count spread evenly
+  //     over its box stands in for the points per cell).  When the inputs share one frame (a COPC file's
+  //     root cube), the grid is laid on it, so the octree's squares are cells of the grid.
+  //   - Completion by blocks, not by points: a leaf's `remaining` counts the blocks whose box meets the
+  //     leaf and that have not been read to their end.  When the last segment of a block has been read,
+  //     every leaf it meets gives one back, and a leaf at zero is released as usual (chunk in BRIO order,
+  //     tag).  No count of points is needed, so filters change nothing, and a block may span many
+  //     leaves: its points wait in their leaves' chunks until each leaf is complete.
+  //   - Order: the blocks in quadtree pre-order of the smallest grid cell holding each box (a cell's
+  //     blocks before those of its children, children in Morton order; ties in stored order).  For an
+  //     octree that is a depth-first walk: the shallow nodes covering a leaf are read before the deep
+  //     nodes inside it, so a leaf completes right after its own nodes, and what waits is about one node
+  //     per level (the width), not the shallow levels of the whole survey.
+  //   - A point on a block's edge that GridSpec puts in a leaf already released (its writer rounded the
+  //     other way) goes to the leaf of the block it lies on (within kCellTolerance of its square, which
+  //     the stream contract allows, point_sink.h); a point farther out of its block's box is an error
+  //     naming the input.
+  //   - The stream's point count is an upper bound (StreamInfo::pointsAtMost: the filters see the points
+  //     in pass 3) and its bounds are the header's.  No sprinkle points (nothing is read early).
+  struct BlockInfo {
+    std::uint32_t input = 0;
+    PointStream::Block box;
+    std::uint32_t c0 = 0, r0 = 0, c1 = 0, r1 = 0;  // the leaves its box meets (inclusive)
+    std::uint64_t kept = 0;                        // points read in pass 3 that passed the filters
+  };
+
+  // Collects every input's blocks; false when an input has none.
+  bool collectBlocks() {
+    std::vector<PointStream::Block> found;
+    std::optional<PointStream::BlockFrame> common;
+    bool oneFrame = true;
+    for (std::size_t i = 0; i < inputs_.size(); ++i) {
+      PointStream::BlockFrame frame;
+      found.clear();
+      if (!inputs_[i]->describeBlocks(found, frame)) {
+        blocks_.clear();
+        return false;
+      }
+      for (const PointStream::Block& b : found) {
+        if (b.count == 0) continue;
+        if (!(b.minX <= b.maxX && b.minY <= b.maxY && std::isfinite(b.minX) && std::isfinite(b.maxX) &&
+              std::isfinite(b.minY) && std::isfinite(b.maxY))) {
+          blocks_.clear();
+          return false;
+        }
+        BlockInfo info;
+        info.input = static_cast<std::uint32_t>(i);
+        info.box = b;
+        blocks_.push_back(info);
+      }
+      if (!(frame.size > 0 && std::isfinite(frame.size) && std::isfinite(frame.originX) &&
+            std::isfinite(frame.originY)))
+        oneFrame = false;
+      else if (!common)
+        common = frame;
+      else if (common->originX != frame.originX || common->originY != frame.originY || common->size != frame.size)
+        oneFrame = false;
+    }
+    if (blocks_.empty()) return false;
+    if (oneFrame && common) {
+      GridSpec g;
+      g.originX = common->originX;
+      g.originY = common->originY;
+      g.size = common->size;
+      frameGrid_ = g;
+    }
+    return true;
+  }
+
+  // The cells of g a box meets (shrunk by the tolerance, so that a square of the frame meets only its
+  // own cells).
+  static void boxCells(const GridSpec& g, const PointStream::Block& b, std::uint32_t& c0, std::uint32_t& r0,
+                       std::uint32_t& c1, std::uint32_t& r1) {
+    const double e = kCellTolerance * g.size;
+    const double x0 = b.minX + e, x1 = std::max(x0, b.maxX - e);
+    const double y0 = b.minY + e, y1 = std::max(y0, b.maxY - e);
+    c0 = g.column(x0);
+    c1 = g.column(x1);
+    r0 = g.row(y0);
+    r1 = g.row(y1);
+  }
+
+  // The leaf depth: the occupancy rule over the cells the boxes meet.
+  int chooseBlockDepth(const GridSpec& base, std::uint64_t total) const {
+    if (options_.depth >= 0) return options_.depth;
+    std::vector<std::uint64_t> bits;
+    for (int k = std::min(kMaxAutoDepth, chooseDepth(total) + 2); k > 0; --k) {
+      GridSpec g = base;
+      g.depth = k;
+      const std::uint64_t side = g.side();
+      bits.assign((side * side + 63) / 64, 0);
+      std::uint64_t occupied = 0;
+      for (const BlockInfo& b : blocks_) {
+        std::uint32_t c0, r0, c1, r1;
+        boxCells(g, b.box, c0, r0, c1, r1);
+        for (std::uint64_t r = r0; r <= r1; ++r)
+          for (std::uint64_t c = c0; c <= c1; ++c) {
+            const std::uint64_t i = r * side + c;
+            if (!(bits[i >> 6] >> (i & 63) & 1)) {
+              bits[i >> 6] |= std::uint64_t{1} << (i & 63);
+              ++occupied;
+            }
+          }
+      }
+      if (static_cast<double>(total) / static_cast<double>(occupied) >= kTargetPerCell) return k;
+    }
+    return 0;
+  }
+
+  void runBlockMode(const Bounds3& gridBounds) {
+    using Clock = std::chrono::steady_clock;
+    const auto t2 = Clock::now();
+    std::uint64_t total = 0;
+    for (const BlockInfo& b : blocks_) total += b.box.count;
+    stats_.blocks = blocks_.size();
+    stats_.blockPoints = total;
+    const GridSpec base = frameGrid_ ? *frameGrid_ : makeGrid(gridBounds, 0);
+    const int depth = chooseBlockDepth(base, total);
+    GridSpec g = base;
+    g.depth = depth;
+    stats_.fineDepth = depth;
+    // The leaves: every cell a box meets, with the block's points spread over its cells (for the
+    // statistics only; completion counts blocks).
+    std::vector<FineCell> cells;
+    CellIndex index(1024);
+    for (BlockInfo& b : blocks_) {
+      boxCells(g, b.box, b.c0, b.r0, b.c1, b.r1);
+      const std::uint64_t area = std::uint64_t{b.c1 - b.c0 + 1} * (b.r1 - b.r0 + 1);
+      for (std::uint64_t r = b.r0; r <= b.r1; ++r)
+        for (std::uint64_t c = b.c0; c <= b.c1; ++c) {
+          bool inserted = false;
+          const std::uint64_t key = (r << depth) | c;
+          const std::uint32_t i = index.findOrInsert(key, static_cast<std::uint32_t>(cells.size()), inserted);
+          if (inserted) {
+            FineCell& f = cells.emplace_back();
+            f.key = key;
+            f.candOrdinal = kNoCandidate;
+          }
+          cells[i].count += b.box.count / area + (r == b.r0 && c == b.c0 ? b.box.count % area : 0);
+        }
+    }
+    stats_.fineTableBytes = cells.capacity() * sizeof(FineCell) + index.bytes();
+    stats_.points = total;  // an upper bound until pass 3
+    stats_.bounds = gridBounds;
+    stats_.boundsFromHeader = true;
+    forcedDepth_ = depth;
+    buildTree(cells, gridBounds, depth);
+    scheduleBlocks();
+    stats_.pass2Seconds = std::chrono::duration<double>(Clock::now() - t2).count();
+    const auto t3 = Clock::now();
+    progress_.stage(0, 1.0, stats_.points, "streaming the octree's nodes");
+    stream();
+    stats_.pass3Seconds = std::chrono::duration<double>(Clock::now() - t3).count();
+  }
+
+  // The leaf of cell (c, r), or kNone.
+  std::uint32_t leafAt(std::uint64_t c, std::uint64_t r) const {
+    const std::uint64_t key = (r << depth_) | c;
+    return denseLeaves_ ? leafDense_[key] : leafIndex_.find(key);
+  }
+
+  // After buildTree: every leaf's count of blocks, and pass 3's segments in pre-order.
+  void scheduleBlocks() {
+    for (Leaf& l : leaves_) l.remaining = 0;
+    struct Item {
+      std::uint64_t start;  // Morton code (at the leaf depth) of the first leaf of the block's cell
+      int level;            // the cell's level
+      std::uint32_t index;
+    };
+    std::vector<Item> items;
+    items.reserve(blocks_.size());
+    for (std::uint32_t i = 0; i < blocks_.size(); ++i) {
+      const BlockInfo& b = blocks_[i];
+      for (std::uint64_t r = b.r0; r <= b.r1; ++r)
+        for (std::uint64_t c = b.c0; c <= b.c1; ++c) ++leaves_[leafAt(c, r)].remaining;
+      int up = 0;
+      while ((b.c0 >> up) != (b.c1 >> up) || (b.r0 >> up) != (b.r1 >> up)) ++up;
+      items.push_back({morton(b.c0 >> up, b.r0 >> up) << (2 * up), depth_ - up, i});
+    }
+    std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) {
+      return std::tie(a.start, a.level, a.index) < std::tie(b.start, b.level, b.index);
+    });
+    std::vector<Sources::Segment> segments;
+    const std::size_t batch = sources_.batch();
+    std::uint64_t ordinal = std::uint64_t{1} << 63;  // (no sprinkle point to tell apart)
+    for (const Item& it : items) {
+      const BlockInfo& b = blocks_[it.index];
+      for (std::uint64_t off = 0; off < b.box.count; off += batch) {
+        Sources::Segment seg;
+        seg.kind = Sources::Segment::kUnread;
+        seg.input = b.input;
+        seg.start = b.box.record + off;
+        seg.raw = std::min<std::uint64_t>(batch, b.box.count - off);
+        seg.ordinal = ordinal;
+        ordinal += seg.raw;
+        segments.push_back(seg);
+        segBlock_.push_back(it.index);
+        segLast_.push_back(off + seg.raw == b.box.count);
+      }
+    }
+    schedule_.resize(segments.size());
+    std::iota(schedule_.begin(), schedule_.end(), 0u);
+    sources_.setSegments(std::move(segments));
+  }
+
+  // Pass 3: a batch of a block.  A point goes to its leaf; one on the block's edge whose leaf was
+  // released goes to the leaf of the block it lies on (see above).
+  void streamBlock(BlockInfo& b, const Prefetcher::Batch& batch) {
+    const double t = kCellTolerance * grid_.size;
+    const double x0 = b.box.minX - t, x1 = b.box.maxX + t, y0 = b.box.minY - t, y1 = b.box.maxY + t;
+    for (std::size_t i = 0; i < batch.n; ++i) {
+      const PointRecord& p = batch.points[i];
+      // (Every point is checked: a file whose nodes hold points outside their cubes is refused.)
+      if (!(p.x >= x0 && p.x <= x1 && p.y >= y0 && p.y <= y1)) throw outsideBlock(b, p);
+      std::uint32_t leaf = batch.cells[i];
+      if (leaf == kNone || leaves_[leaf].remaining == 0) {
+        const std::uint32_t c = std::clamp(grid_.column(p.x), b.c0, b.c1);
+        const std::uint32_t r = std::clamp(grid_.row(p.y), b.r0, b.r1);
+        leaf = leafAt(c, r);
+        if (leaf == kNone || leaves_[leaf].remaining == 0)
+          throw Error("finalizer: internal error: a block's leaf was released before the block was read");
+        ++stats_.blockStrays;
+      }
+      append(leaf, p);
+    }
+    b.kept += batch.n;
+  }
+
+  // Pass 3: the last segment of a block has been read: the leaves it meets give it back.
+  void finishBlock(std::size_t index) {
+    const BlockInfo& b = blocks_[index];
+    completed_.clear();
+    for (std::uint64_t r = b.r0; r <= b.r1; ++r)
+      for (std::uint64_t c = b.c0; c <= b.c1; ++c) {
+        const std::uint32_t l = leafAt(c, r);
+        if (leaves_[l].remaining == 0) throw Error("finalizer: internal error: a leaf completed twice");
+        if (--leaves_[l].remaining == 0) completed_.push_back({morton(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)), l});
+      }
+    std::sort(completed_.begin(), completed_.end());
+    for (const auto& [m, l] : completed_) release(l);
+  }
+
+  DataError outsideBlock(const BlockInfo& b, const PointRecord& p) const {
+    return DataError(sources_.name(b.input),
+                     "the point (" + num(p.x) + ", " + num(p.y) + ") of records " + withCommas(b.box.record) +
+                         " .. " + withCommas(b.box.record + b.box.count) +
+                         " lies outside the box the file gives them (x " + num(b.box.minX) + " .. " +
+                         num(b.box.maxX) + ", y " + num(b.box.minY) + " .. " + num(b.box.maxY) +
+                         "; a COPC node holding a point outside its cube)");
+  }
+
   // ---- pass 3 -----------------------------------------------------------------------------------
 
   void stream() {
@@ -1403,6 +1703,7 @@ class Finalizer {
     info.points = stats_.points;
     info.crsWkt = options_.crsWkt;
     for (int i = 0; i < 3; ++i) info.scale[i] = options_.scale[i];
+    info.pointsAtMost = blockMode_;
     out_.begin(info);
     emitEmptyTags();
 
@@ -1413,22 +1714,51 @@ class Finalizer {
     const CellMap cellMap(grid_, denseLeaves_ ? &leafDense_ : nullptr, &leafIndex_);
     Prefetcher reader(sources_, options_.readAhead, &cellMap);
     std::size_t input = 0;
-    for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-      input = batch.input;
-      // Ordinals are those of pass 2 (the stored order), whatever order the batches come in.
-      std::uint64_t ordinal = batch.ordinal;
-      for (std::size_t i = 0; i < batch.n; ++i) {
-        const PointRecord& p = batch.points[i];
-        const std::uint32_t memo = batch.cells[i];
-        if (memo == kNone) throw changedInput(input);
-        Leaf& leaf = leaves_[memo];
-        if (leaf.remaining == 0) throw changedInput(input);
-        if (ordinal != leaf.sprinkleOrdinal) append(memo, p);
-        ++ordinal;
-        if (--leaf.remaining == 0) release(memo);
+    std::size_t stepsDone = 0;
+    for (;;) {
+      const Prefetcher::Batch batch = reader.next();
+      if (batch.n > 0) {
+        input = batch.input;
+        if (blockMode_) {
+          streamBlock(blocks_[segBlock_[batch.segment]], batch);
+        } else {
+          // Ordinals are those of pass 2 (the stored order), whatever order the batches come in.
+          std::uint64_t ordinal = batch.ordinal;
+          for (std::size_t i = 0; i < batch.n; ++i) {
+            const PointRecord& p = batch.points[i];
+            const std::uint32_t memo = batch.cells[i];
+            if (memo == kNone) throw changedInput(input);
+            Leaf& leaf = leaves_[memo];
+            if (leaf.remaining == 0) throw changedInput(input);
+            if (ordinal != leaf.sprinkleOrdinal) append(memo, p);
+            ++ordinal;
+            if (--leaf.remaining == 0) release(memo);
+          }
+        }
+        done += batch.n;
+        progress_.update(done);
       }
-      done += batch.n;
-      progress_.update(done);
+      // Block mode: a counted block whose last segment has been read gives back what it held.
+      if (blockMode_)
+        for (; stepsDone < batch.step; ++stepsDone)
+          if (segLast_[stepsDone]) finishBlock(segBlock_[stepsDone]);
+      if (batch.n == 0) break;
+    }
+    if (blockMode_) {
+      // The filters saw the counted blocks' points only now.
+      const FilterCounts& c3 = reader.counts();
+      FilterCounts& f = stats_.filter;
+      f.read += c3.read;
+      f.kept += c3.kept;
+      f.withheld += c3.withheld;
+      f.byClass += c3.byClass;
+      f.byReturn += c3.byReturn;
+      f.clipped += c3.clipped;
+      for (int i = 0; i < 256; ++i) f.droppedByClass[i] += c3.droppedByClass[i];
+      firstCounts_ = f;
+      if (released_ != leaves_.size()) throw changedInput(input);
+      if (done == 0) throw Error(noPointsMessage());
+      stats_.points = done;
     }
     if (done != stats_.points || released_ != leaves_.size()) throw changedInput(input);
     progress_.update(done);  // the last chance to cancel before the outputs are committed
@@ -1701,6 +2031,7 @@ class Finalizer {
     return s;
   }
 
+  const std::vector<PointStream*>& inputs_;
   const FinalizerOptions& options_;
   PointSink& out_;
   Diagnostics& diag_;
@@ -1709,6 +2040,15 @@ class Finalizer {
   FinalizerStats stats_;
   FilterCounts firstCounts_;
   bool firstCountsTaken_ = false;
+
+  // Block mode (see "block mode" above).
+  bool blockMode_ = false;
+  std::optional<GridSpec> frameGrid_;  // the grid's square when laid on the inputs' frame
+  std::vector<BlockInfo> blocks_;
+  int forcedDepth_ = -1;                // the leaf depth, chosen before buildTree
+  std::vector<std::uint32_t> segBlock_;  // pass 3: per segment, its block
+  std::vector<bool> segLast_;            // pass 3: the segment is its block's last
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> completed_;  // finishBlock: (Morton, leaf)
 
   bool reorder_ = false;  // pass 2 records its batches for chooseReadOrder
   struct CellBox {

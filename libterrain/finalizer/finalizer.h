@@ -173,6 +173,9 @@ struct FinalizerOptions {
   // Points per batch between the reading thread and the finalizer, and the unit pass 3 reorders
   // (32768 points: about 1 MiB of LAS, few hand-overs, and the batches in flight stay in L3).
   std::size_t batchPoints = std::size_t{1} << 15;
+  // Count blocks from their description (see "Blocks" above) when every input describes its blocks (and
+  // the header bounds are known): no pass reads points before the stream.
+  bool countBlocks = true;
 };
 
 struct FinalizerStats {
@@ -205,6 +208,10 @@ struct FinalizerStats {
   std::uint64_t readSegments = 0;              // batches of pass 2 that could be reordered
   std::uint64_t storedOrderWidthEstimate = 0;  // the stored order's simulated width
   std::uint64_t readOrderWidthEstimate = 0;    // the chosen order's simulated width
+  // Block mode (COPC: the hierarchy is the counting pass): the blocks the inputs described, their points
+  // (before filtering), and the points on a block's edge that went to the leaf of their block.
+  bool blockMode = false;
+  std::uint64_t blocks = 0, blockPoints = 0, blockStrays = 0;
   bool pass1Run = false;
   double pass1Seconds = 0, pass2Seconds = 0, pass3Seconds = 0;  // pass 2 includes any re-runs
   std::uint64_t pass2Runs = 0;

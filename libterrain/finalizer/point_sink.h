@@ -9,6 +9,9 @@
 //
 // Geometry of cells: leaf membership is decided by GridSpec::column/row (floating-point), so a point may
 // lie up to a few ulps outside the nominal square [origin + c * cellSize, origin + (c+1) * cellSize).
+// A producer may also give a leaf a point that lies outside its square by at most kCellTolerance *
+// grid.size, GridSpec putting it next door (the finalizer does so for a point on the edge of a COPC node
+// it counted from the hierarchy); such a point arrives with its leaf's chunk, before that leaf's tag.
 // Consumers that reason about regions (the triangulator's certification) must treat finalized regions
 // conservatively: shrink them (or grow unfinalized ones) by kCellTolerance * grid.size.
 //
@@ -36,7 +39,11 @@ struct CellTag {
 struct StreamInfo {
   GridSpec grid;
   Bounds3 bounds;               // of the points that will be streamed (after filters)
-  std::uint64_t points = 0;     // how many will be streamed
+  std::uint64_t points = 0;     // how many will be streamed (at most that many with pointsAtMost)
+  // The finalizer counted some points from block descriptions before its filters saw them (COPC): the
+  // filters may still drop some, so `points` is an upper bound and `bounds` those of the unfiltered
+  // points.  end() follows the last point as always.
+  bool pointsAtMost = false;
   std::string crsWkt;           // working CRS ("" = none)
   double scale[3] = {0, 0, 0};  // common quantum of the inputs when known (0 = unknown), informative
 };

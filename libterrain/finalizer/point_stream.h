@@ -47,6 +47,27 @@ class PointStream {
     (void)record;
     (void)count;
   }
+  // Blocks: runs of records whose points are known to lie in a box, described without decoding them
+  // (COPC: the octree nodes from the hierarchy).  A finalizer may count such a block from its
+  // description and read it only once, in pass 3, when the box lies inside one of its cells.
+  //   - record/count: raw records [record, record + count) in read()'s numbering; the blocks of a stream
+  //     are disjoint and cover all its records.  seek(record, n) must work at every block start.
+  //   - the box: every point of the block lies in [minX, maxX] x [minY, maxY] (up to rounding).
+  // `frame`, when the blocks are cells of a quadtree (COPC: the octree's xy squares), is the square of
+  // its root: a grid laid on it has cells whose edges are the blocks' edges.
+  struct Block {
+    std::uint64_t record = 0, count = 0;
+    double minX = 0, minY = 0, maxX = 0, maxY = 0;
+  };
+  struct BlockFrame {
+    double originX = 0, originY = 0, size = 0;  // size 0: none
+  };
+  // False (the default): the stream has no such description.
+  virtual bool describeBlocks(std::vector<Block>& blocks, BlockFrame& frame) const {
+    (void)blocks;
+    (void)frame;
+    return false;
+  }
   // The caller will not read this stream for a while (it reads other inputs): release what a read holds
   // open (a descriptor, a mapping).  The next read() reopens it.
   virtual void suspend() {}
