@@ -258,7 +258,7 @@ int runBuildCommand(const cli::ParsedArgs& args) {
   o.gpkgPoints = args.has("--gpkg-points");
   if (o.meshOutput.empty() && o.gpkgOutput.empty() && !args.has("--dem"))
     throw UsageError(
-        "build: name an output: --mesh FILE.smb|.sma|.ply|.obj, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
+        "build: name an output: --mesh FILE.smb|.sma|.ply|.obj|.nc, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
         "FILE.gpkg");
   if (!o.meshOutput.empty()) refuseBinaryToTerminal(o.meshOutput, "build");
   if (o.gpkgPoints && o.gpkgOutput.empty()) throw UsageError("--gpkg-points needs --gpkg FILE.gpkg");
@@ -379,7 +379,7 @@ Command triangulateCommand() {
 Command buildCommand() {
   return Command{
       "build",
-      "tinbuild build INPUT... [--mesh FILE.smb|.sma|.ply|.obj] [--dem DIR|FILE.tif|FILE.gpkg --step R] "
+      "tinbuild build INPUT... [--mesh FILE.smb|.sma|.ply|.obj|.nc] [--dem DIR|FILE.tif|FILE.gpkg --step R] "
       "[--gpkg FILE.gpkg] [OPTIONS]",
       "the main job: LIDAR to TIN and DEM in one streaming pass",
       "Finalizes the inputs and triangulates them in one process (reader, finalizer, triangulator and\n"
@@ -393,7 +393,8 @@ Command buildCommand() {
       "Example: tinbuild build tiles/ --dem dem/ --step 1 --hillshade --gpkg tin.gpkg --mesh tin.ply",
       join(
           {{"--mesh", "FILE",
-            "TIN as a streaming mesh (.smb binary, .sma ASCII) or a mesh (.ply binary, .obj)"},
+            "TIN as a streaming mesh (.smb binary, .sma ASCII), a mesh (.ply binary, .obj) or a UGRID "
+            "NetCDF mesh with its CRS (.nc)"},
            {"--local", "",
             "PLY/OBJ: subtract a round origin and write float32 (for viewers); origin in the header"},
            {"--gpkg", "FILE.gpkg", "TIN as a GeoPackage layer `tin` of triangles (POLYGON Z)"},

@@ -7,6 +7,7 @@ packages=(
   libgdal-dev gdal-bin          # GDAL: GeoTIFF, GeoPackage, OGR; gdalinfo/ogrinfo for tests
   libproj-dev proj-bin          # PROJ: CRS and transformations; projinfo/cs2cs for tests
   libgeographiclib-dev          # GeographicLib: UTM/UPS zones, geodesic areas
+  libnetcdf-dev pkg-config      # NetCDF-4: the UGRID mesh writer (--mesh FILE.nc)
   libgtest-dev libgmock-dev     # GoogleTest (tests only)
   libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
   clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)

@@ -7,6 +7,7 @@
 #include "formats/mesh/conventional_mesh.h"
 #include "formats/mesh/gpkg_tin_writer.h"
 #include "formats/mesh/streaming_mesh.h"
+#include "formats/mesh/ugrid_writer.h"
 #include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
 #include "libterrain/mesh/mesh_tee.h"
@@ -15,7 +16,7 @@ namespace tinbuild {
 
 namespace {
 
-// ---- meshes: streaming (SMB, SMA), conventional (PLY, OBJ) ----
+// ---- meshes: streaming (SMB, SMA), conventional (PLY, OBJ), UGRID (NetCDF) ----
 
 class MeshOutput : public OpenedOutput {
  public:
@@ -71,6 +72,19 @@ std::unique_ptr<OpenedOutput> openConventionalMesh(const std::string& path, cons
   mo.local = c.meshLocal;
   mo.commandLine = c.commandLine;
   return std::make_unique<MeshOutput>(path, openConventionalMeshWriter(path, F, mo));
+}
+
+// ---- UGRID mesh on NetCDF: the CRS travels in the file (a `crs` grid-mapping variable) ----
+
+bool matchesUgrid(const std::string& path) {
+  return isUgridPath(path);
+}
+
+std::unique_ptr<OpenedOutput> openUgrid(const std::string& path, const WriterContext& c) {
+  UgridWriterOptions uo;
+  uo.crs = c.crs;
+  uo.commandLine = c.commandLine;
+  return std::make_unique<MeshOutput>(path, openUgridWriter(path, uo));
 }
 
 // ---- GeoPackage TIN ----
@@ -176,6 +190,7 @@ const std::vector<WriterRow>& writerTable() {
        openConventionalMesh<ConventionalMeshFormat::Ply>},
       {WriterKind::Obj, OutputOption::Mesh, "OBJ", matchesObj, false, fileAndPrj,
        openConventionalMesh<ConventionalMeshFormat::Obj>},
+      {WriterKind::UgridNetcdf, OutputOption::Mesh, "UGRID NetCDF", matchesUgrid, false, oneFile, openUgrid},
       {WriterKind::StreamingMeshAscii, OutputOption::Mesh, "SMA", matchesSma, false, oneFile,
        openStreamingMesh<MeshFileFormat::Sma>},
       {WriterKind::StreamingMeshBinary, OutputOption::Mesh, "SMB", matchesSmb, true, oneFile,
@@ -197,7 +212,7 @@ ResolvedOutput resolveOutput(OutputOption option, const std::string& path) {
   for (const WriterRow& row : writerTable())
     if (row.option == option && row.matches(path)) return {&row, path};
   if (option == OutputOption::Mesh)
-    throw UsageError("cannot tell the mesh format of '" + path + "' (use .smb, .sma, .ply or .obj)");
+    throw UsageError("cannot tell the mesh format of '" + path + "' (use .smb, .sma, .ply, .obj or .nc)");
   throw UsageError("no writer for '" + path + "'");
 }
 

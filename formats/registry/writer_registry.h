@@ -37,6 +37,7 @@ enum class WriterKind {
   StreamingMeshAscii,   // .sma
   Ply,
   Obj,
+  UgridNetcdf,      // --mesh FILE.nc: UGRID-1.0 mesh on NetCDF-4 (QGIS mesh layer)
   GpkgTin,           // --gpkg FILE.gpkg: the TIN as a layer of triangles
   DemTileDirectory,  // --dem DIR: GeoTIFF tiles and VRT mosaics
   DemGeoTiff,        // --dem FILE.tif
@@ -60,7 +61,7 @@ class OpenedOutput {
  public:
   virtual ~OpenedOutput() = default;
   virtual void attach(MeshTee& tee) = 0;
-  // The output as a MeshSink, when it is one (a streaming, PLY or OBJ mesh): the only output of a
+  // The output as a MeshSink, when it is one (a streaming, PLY, OBJ or UGRID mesh): the only output of a
   // single-threaded run is fed directly, without the tee.  nullptr otherwise.
   virtual MeshSink* meshSink() { return nullptr; }
   virtual std::vector<std::string> files() const = 0;
