@@ -8,6 +8,7 @@ packages=(
   libproj-dev proj-bin          # PROJ: CRS and transformations; projinfo/cs2cs for tests
   libgeographiclib-dev          # GeographicLib: UTM/UPS zones, geodesic areas
   libnetcdf-dev pkg-config      # NetCDF-4: the UGRID mesh writer (--mesh FILE.nc)
+  libsqlite3-dev                # SQLite with R*Tree: the GeoPackage TIN writer writes its file directly
   libgtest-dev libgmock-dev     # GoogleTest (tests only)
   libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
   clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)
