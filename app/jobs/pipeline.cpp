@@ -34,7 +34,7 @@ bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Boun
   points = 0;
   for (const auto& r : readers) {
     const SourceInfo& s = r->info();
-    if (!isLasFamily(s.format) || !s.hasHeaderBounds || s.path == "-") return false;
+    if (!isLasFamily(s.format) || !s.hasHeaderBounds || !r->rewindable()) return false;  // (stdin: read once)
     const Bounds3& b = s.headerBounds;
     for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
       if (!std::isfinite(v) || std::fabs(v) > 1e15) return false;

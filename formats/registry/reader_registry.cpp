@@ -4,7 +4,9 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <cstdlib>
 #include <cstring>
+#include <vector>
 
 #include "formats/io/stdin_source.h"
 #include "formats/pointcloud/las_reader.h"
@@ -17,11 +19,35 @@ namespace tinbuild {
 
 namespace {
 
+// A reader that hands everything to another one (the decorators below change one thing each).
+class ForwardingReader : public PointReader {
+ public:
+  explicit ForwardingReader(std::unique_ptr<PointReader> inner) : inner_(std::move(inner)) {}
+  const SourceInfo& info() const override { return inner_->info(); }
+  std::size_t read(PointRecord* out, std::size_t max) override { return inner_->read(out, max); }
+  bool rewindable() const override { return inner_->rewindable(); }
+  void rewind() override { inner_->rewind(); }
+  bool cheapToReread() const override { return inner_->cheapToReread(); }
+  bool seekable() const override { return inner_->seekable(); }
+  void seek(std::uint64_t record, std::uint64_t count) override { inner_->seek(record, count); }
+  void setDecodeThreads(int threads) override { inner_->setDecodeThreads(threads); }
+  void willRead(std::uint64_t record, std::uint64_t count) override { inner_->willRead(record, count); }
+  void suspend() override { inner_->suspend(); }
+  bool describeBlocks(std::vector<Block>& blocks, BlockFrame& frame) const override {
+    return inner_->describeBlocks(blocks, frame);
+  }
+  void restrictTo(const ClipRect& window) override { inner_->restrictTo(window); }
+  std::uint64_t skippedOutside() const override { return inner_->skippedOutside(); }
+
+ protected:
+  std::unique_ptr<PointReader> inner_;
+};
+
 // Presents another reader with the CRS replaced (--a_srs), so readers need not know about overrides.
-class CrsOverride : public PointReader {
+class CrsOverride : public ForwardingReader {
  public:
   CrsOverride(std::unique_ptr<PointReader> inner, CrsInfo crs)
-      : inner_(std::move(inner)), info_(inner_->info()) {
+      : ForwardingReader(std::move(inner)), info_(inner_->info()) {
     info_.crs = std::move(crs);
   }
   const SourceInfo& info() const override {
@@ -30,17 +56,60 @@ class CrsOverride : public PointReader {
     info_.pointCountKnown = inner_->info().pointCountKnown;
     return info_;
   }
-  std::size_t read(PointRecord* out, std::size_t max) override { return inner_->read(out, max); }
-  bool rewindable() const override { return inner_->rewindable(); }
-  bool cheapToReread() const override { return inner_->cheapToReread(); }
-  void restrictTo(const ClipRect& window) override { inner_->restrictTo(window); }
-  std::uint64_t skippedOutside() const override { return inner_->skippedOutside(); }
-  void rewind() override { inner_->rewind(); }
 
  private:
-  std::unique_ptr<PointReader> inner_;
   mutable SourceInfo info_;
 };
+
+// LAZ on standard input: its chunk table lies at the end, so the compressed bytes (about a seventh of
+// the LAS) are first copied to a temporary file beside the others ($TMPDIR, else /tmp), which is then
+// read like any LAZ file (in parallel, seekable) and removed with the reader.  info().path says "-".
+class StdinLazCopy : public ForwardingReader {
+ public:
+  StdinLazCopy(std::unique_ptr<PointReader> inner, std::string temp)
+      : ForwardingReader(std::move(inner)), temp_(std::move(temp)), info_(inner_->info()) {
+    info_.path = "-";
+  }
+  ~StdinLazCopy() override {
+    inner_.reset();
+    ::unlink(temp_.c_str());
+  }
+  const SourceInfo& info() const override { return info_; }
+
+ private:
+  std::string temp_;
+  SourceInfo info_;
+};
+
+// Copies standard input to a new temporary file; returns its path.
+std::string copyStdinToTemporary() {
+  const char* env = std::getenv("TMPDIR");
+  std::string templ = std::string(env && *env ? env : "/tmp") + "/tinbuild-stdin-XXXXXX.laz";
+  std::vector<char> name(templ.begin(), templ.end());
+  name.push_back('\0');
+  const int fd = ::mkstemps(name.data(), 4);
+  if (fd < 0)
+    throw DataError("-", "cannot create a temporary file for LAZ from standard input in " + templ + ": " +
+                             std::strerror(errno));
+  const std::string path = name.data();
+  try {
+    std::vector<std::uint8_t> buffer(std::size_t{1} << 20);
+    for (std::size_t n; (n = readStdin(buffer.data(), buffer.size())) > 0;) {
+      for (std::size_t done = 0; done < n;) {
+        const ssize_t w = ::write(fd, buffer.data() + done, n - done);
+        if (w < 0 && errno == EINTR) continue;
+        if (w < 0) throw DataError(path, std::string("cannot write standard input's copy: ") + std::strerror(errno));
+        done += static_cast<std::size_t>(w);
+      }
+    }
+  } catch (...) {
+    ::close(fd);
+    ::unlink(path.c_str());
+    throw;
+  }
+  ::close(fd);
+  return path;
+}
 
 // LAS 1.4's header is 375 bytes; a COPC file's first VLR follows it at once: user id "copc", record 1.
 bool recognisesCopc(const std::uint8_t* head, std::size_t size) {
@@ -70,6 +139,15 @@ std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOption
 // LAZ and COPC are read by the LAS reader, which decodes their chunks (formats/pointcloud/laz).
 std::unique_ptr<PointReader> openLaz(const std::string& path, const ReaderOptions& options,
                                      Diagnostics& diag) {
+  if (path == "-") {  // (see StdinLazCopy)
+    const std::string temp = copyStdinToTemporary();
+    try {
+      return std::make_unique<StdinLazCopy>(openLaz(temp, options, diag), temp);
+    } catch (...) {
+      ::unlink(temp.c_str());
+      throw;
+    }
+  }
   auto las = lasReader(path, options, diag);
   std::uint32_t layers = laz::kLayerXY | laz::kLayerZ | laz::kLayerClass | laz::kLayerFlags;
   if (options.intensity) layers |= laz::kLayerIntensity;

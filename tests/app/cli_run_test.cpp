@@ -359,6 +359,31 @@ TEST(CliRun, DirectoriesAndPatternsAsInputs) {
 // A batch job must not clobber an earlier result by accident: existing outputs are refused (exit 1,
 // naming the file, before any work) unless --overwrite; with it, a DEM directory ends up holding exactly
 // the new DEM (an earlier run's tiles go, unrelated files stay).
+// LAZ and COPC on standard input: copied to a temporary file (removed afterwards), then read as the file:
+// the same mesh bytes as from the file itself.
+TEST(CliRun, LazFromStandardInput) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string tmp = (out / "tmp").string();
+  std::filesystem::create_directories(tmp);
+  for (const char* rel : {"laz/autzen_trim.laz", "edge/lone-star.copc.laz"}) {
+    const std::string laz = test::dataPath(rel);
+    auto r = tinbuild("build " + laz + " -q --mesh " + (out / "file.smb").string() + " --overwrite");
+    ASSERT_EQ(r.code, 0) << r.err;
+    r = tinbuild("build - -q --mesh " + (out / "stdin.smb").string() + " --overwrite",
+                 "cat " + laz + " | TMPDIR=" + tmp + " ");
+    ASSERT_EQ(r.code, 0) << rel << "\n" << r.err;
+    EXPECT_TRUE(slurp(out / "file.smb") == slurp(out / "stdin.smb")) << rel << ": the meshes differ";
+    EXPECT_EQ(listDir(tmp), std::vector<std::string>{}) << rel << ": the copy of stdin was left behind";
+  }
+  // A truncated LAZ on stdin: a clear error, and no copy left.
+  auto r = tinbuild("build - -q --mesh " + (out / "bad.smb").string(),
+                    "head -c 300000 " + test::dataPath("laz/autzen_trim.laz") + " | TMPDIR=" + tmp + " ");
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_EQ(listDir(tmp), std::vector<std::string>{});
+  EXPECT_FALSE(std::filesystem::exists(out / "bad.smb"));
+}
+
 TEST(CliRun, RefusesToClobberUnlessOverwrite) {
   TINBUILD_REQUIRE_DATA();
   const auto out = test::scratchDir();
