@@ -234,7 +234,7 @@ TEST(LazWriter, RoundTripsEveryFormatAndChunkSize) {
     Diagnostics d0;
     LasReader plain(las.string(), d0);
     const auto expected = readAll(plain);
-    for (std::uint32_t chunk : {1u, 1000u, 50000u}) {
+    for (std::uint32_t chunk : {0u, 1u, 1000u, 50000u}) {  // 0: variable-size chunks (one here)
       if (chunk == 1 && format != 1 && format != 6) continue;  // one point per chunk: slow, two formats do
       lo.laz = true;
       lo.lazChunkSize = chunk;
@@ -243,7 +243,8 @@ TEST(LazWriter, RoundTripsEveryFormatAndChunkSize) {
       Diagnostics diag;
       LasReader r(laz.string(), diag);
       EXPECT_EQ(r.info().format, "LAZ");
-      EXPECT_EQ(r.info().lazChunks, (spec.points + chunk - 1) / chunk);
+      EXPECT_EQ(r.info().lazChunks, chunk == 0 ? 1u : (spec.points + chunk - 1) / chunk);
+      EXPECT_EQ(r.info().lazChunkSize, chunk);
       EXPECT_EQ(diag.count("laz.chunk_table_repaired"), 0u);
       r.setDecodeThreads(2);
       expectSamePoints(readAll(r), expected, laz.string());

@@ -1,0 +1,129 @@
+#!/usr/bin/python3
+"""Opens tinbuild's outputs in QGIS, headless, the way a GIS analyst would: the DEM (GeoTIFF tiles
+under a VRT, and the GeoTIFF), the GeoPackage TIN (a vector layer with its spatial index) and the UGRID
+NetCDF mesh (a mesh layer through MDAL).  Each must be valid, carry the survey's CRS and hold what the
+run report says (features, faces, vertices).
+
+    QT_QPA_PLATFORM=offscreen /usr/bin/python3 tests/qgis/check_outputs.py --tinbuild build/tinbuild
+
+It makes its own survey (`tinbuild demo --survey-only`, 1M points, EPSG:32610) in a scratch folder
+and builds every output from it.  Exit 0: all checks hold; 1: a check failed (each failure printed);
+77: QGIS's Python bindings are not installed (Debian: python3-qgis), which CTest reports as skipped.
+"""
+import argparse
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+
+SKIP = 77
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--tinbuild", required=True, help="the tinbuild executable")
+    ap.add_argument("--workdir", help="scratch folder (default: a new temporary one, removed afterwards)")
+    ap.add_argument("--points", default="1", help="survey size in millions of points")
+    args = ap.parse_args()
+
+    os.environ.setdefault("QT_QPA_PLATFORM", "offscreen")
+    try:
+        from qgis.core import (QgsApplication, QgsCoordinateReferenceSystem, QgsFeatureSource,
+                               QgsMeshLayer, QgsRasterLayer, QgsRectangle, QgsVectorLayer,
+                               QgsFeatureRequest)
+    except ImportError as e:
+        print(f"skipped: QGIS's Python bindings are not installed ({e}); apt-get install python3-qgis")
+        return SKIP
+
+    work = args.workdir or tempfile.mkdtemp(prefix="tinbuild-qgis-")
+    os.makedirs(work, exist_ok=True)
+    failures = []
+
+    def check(ok, what):
+        print(("ok    " if ok else "FAIL  ") + what)
+        if not ok:
+            failures.append(what)
+
+    def run(cmd):
+        r = subprocess.run(cmd, capture_output=True, text=True)
+        if r.returncode != 0:
+            print(" ".join(cmd), "\n", r.stdout, r.stderr)
+            raise SystemExit(1)
+
+    try:
+        demo = os.path.join(work, "demo")
+        shutil.rmtree(demo, ignore_errors=True)
+        run([args.tinbuild, "demo", demo, "--points", args.points, "--survey-only", "--progress", "none"])
+        survey = os.path.join(demo, "survey.laz")
+        out = os.path.join(work, "out")
+        shutil.rmtree(out, ignore_errors=True)
+        os.makedirs(out)
+        report = os.path.join(out, "report.json")
+        run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
+             "--mesh", os.path.join(out, "tin.nc"), "--gpkg", os.path.join(out, "tin.gpkg"),
+             "--dem", os.path.join(out, "dem"), "--step", "1", "--report", report])
+        run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
+             "--dem", os.path.join(out, "dem.tif"), "--step", "2"])
+        rep = json.load(open(report))
+        triangles = rep["triangulation"]["triangles"]
+        vertices = rep["triangulation"]["vertices"]
+        want = QgsCoordinateReferenceSystem("EPSG:32610")
+
+        QgsApplication.setPrefixPath("/usr", True)
+        app = QgsApplication([], False)
+        app.initQgis()
+        try:
+            # The DEM: the VRT over the tiles, and a single GeoTIFF.
+            for name in ("dem/mosaic.vrt", "dem.tif"):
+                layer = QgsRasterLayer(os.path.join(out, name), name, "gdal")
+                check(layer.isValid(), f"DEM {name} opens as a raster layer")
+                if layer.isValid():
+                    check(layer.crs() == want, f"DEM {name} CRS {layer.crs().authid()} is EPSG:32610")
+                    stats = layer.dataProvider().bandStatistics(1)
+                    check(stats.maximumValue > stats.minimumValue,
+                          f"DEM {name} has elevations ({stats.minimumValue:.2f} .. {stats.maximumValue:.2f})")
+
+            # The GeoPackage TIN.
+            tin = QgsVectorLayer(os.path.join(out, "tin.gpkg") + "|layername=tin", "tin", "ogr")
+            check(tin.isValid(), "tin.gpkg layer tin opens as a vector layer")
+            if tin.isValid():
+                check(tin.crs() == want, f"tin.gpkg CRS {tin.crs().authid()} is EPSG:32610")
+                check(tin.featureCount() == triangles,
+                      f"tin.gpkg holds {tin.featureCount()} triangles, the report {triangles}")
+                check(tin.dataProvider().hasSpatialIndex() == QgsFeatureSource.SpatialIndexPresent,
+                      "tin.gpkg has its spatial index")
+                e = tin.extent()
+                window = QgsRectangle(e.xMinimum() + 0.4 * e.width(), e.yMinimum() + 0.4 * e.height(),
+                                      e.xMinimum() + 0.45 * e.width(), e.yMinimum() + 0.45 * e.height())
+                hits = sum(1 for _ in tin.getFeatures(QgsFeatureRequest().setFilterRect(window)))
+                check(hits > 0, f"a spatial query finds {hits} triangles in a small window")
+                f = next(tin.getFeatures())
+                g = f.geometry()
+                check(g.constGet().is3D() and g.constGet().vertexCount() == 4,
+                      f"a feature is a 3D triangle ring ({g.asWkt(3)[:60]}...)")
+
+            # The UGRID mesh.
+            mesh = QgsMeshLayer(os.path.join(out, "tin.nc"), "tin", "mdal")
+            check(mesh.isValid(), "tin.nc opens as a mesh layer")
+            if mesh.isValid():
+                dp = mesh.dataProvider()
+                check(mesh.crs() == want, f"tin.nc CRS {mesh.crs().authid()} is EPSG:32610")
+                check(dp.faceCount() == triangles, f"tin.nc has {dp.faceCount()} faces, the report {triangles}")
+                check(dp.vertexCount() == vertices,
+                      f"tin.nc has {dp.vertexCount()} vertices, the report {vertices}")
+                groups = [dp.datasetGroupMetadata(i).name() for i in range(dp.datasetGroupCount())]
+                check(len(groups) > 0, f"tin.nc has elevations on its vertices (dataset groups {groups})")
+        finally:
+            app.exitQgis()
+    finally:
+        if not args.workdir:
+            shutil.rmtree(work, ignore_errors=True)
+
+    print(f"{len(failures)} failed" if failures else "all QGIS checks passed")
+    return 1 if failures else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
