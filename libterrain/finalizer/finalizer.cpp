@@ -830,9 +830,9 @@ class Prefetcher {
 
 class BlockPool {
  public:
-  static constexpr std::size_t kRecords = 128;  // 4096 bytes
+  static constexpr std::size_t kRecords = 32;  // 1024 bytes
   static constexpr std::size_t kBlockBytes = kRecords * sizeof(PointRecord);
-  static constexpr std::uint32_t kSlabShift = 6;  // 64 blocks (256 KiB) per slab
+  static constexpr std::uint32_t kSlabShift = 6;  // 64 blocks (64 KiB) per slab
 
   PointRecord* at(std::uint32_t id) {
     return slabs_[id >> kSlabShift].get() + std::size_t{id & ((1u << kSlabShift) - 1)} * kRecords;

@@ -95,7 +95,8 @@
 //   calling thread then waits for the decoding, and the other way round.)
 //
 // Memory
-//   Chunk points live in 4 KiB blocks (128 records) from a pool.  The pool's budget is
+//   Chunk points live in 1 KiB blocks (32 records) from a pool (small, because in COPC block mode a
+//   shallow node leaves a few points in each of thousands of leaves).  The pool's budget is
 //   options.memoryBudget: when a new block would exceed it, the largest waiting chunks are written to an
 //   unlinked temporary spill file until the pool is at 3/4 of the budget, and read back when their cell
 //   completes (spilled bytes are counted).  A chunk being released is ordered straight out of its blocks
