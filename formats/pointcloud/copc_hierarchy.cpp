@@ -10,18 +10,13 @@
 #include <tuple>
 #include <utility>
 
+#include "formats/io/little_endian.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
 
 namespace {
 
-template <typename T>
-T le(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);  // LAS is little-endian, and so are the hosts tinbuild builds for
-  return v;
-}
 
 bool keyLess(const CopcNode& a, const CopcNode& b) {
   return std::tie(a.d, a.x, a.y, a.z) < std::tie(b.d, b.x, b.y, b.z);
@@ -42,15 +37,15 @@ CopcInfo CopcInfo::parse(const std::string& file, const std::uint8_t* payload, s
     throw DataError(file, "the COPC info VLR holds " + std::to_string(size) + " bytes, not " +
                               std::to_string(kCopcInfoSize));
   CopcInfo info;
-  info.centerX = le<double>(payload);
-  info.centerY = le<double>(payload + 8);
-  info.centerZ = le<double>(payload + 16);
-  info.halfsize = le<double>(payload + 24);
-  info.spacing = le<double>(payload + 32);
-  info.rootOffset = le<std::uint64_t>(payload + 40);
-  info.rootSize = le<std::uint64_t>(payload + 48);
-  info.gpsMin = le<double>(payload + 56);
-  info.gpsMax = le<double>(payload + 64);
+  info.centerX = le::get<double>(payload);
+  info.centerY = le::get<double>(payload + 8);
+  info.centerZ = le::get<double>(payload + 16);
+  info.halfsize = le::get<double>(payload + 24);
+  info.spacing = le::get<double>(payload + 32);
+  info.rootOffset = le::get<std::uint64_t>(payload + 40);
+  info.rootSize = le::get<std::uint64_t>(payload + 48);
+  info.gpsMin = le::get<double>(payload + 56);
+  info.gpsMax = le::get<double>(payload + 64);
   // The reserved bytes (72..159) must be zero, but a reader loses nothing by ignoring them.
   if (!std::isfinite(info.centerX) || !std::isfinite(info.centerY) || !std::isfinite(info.centerZ) ||
       !std::isfinite(info.halfsize) || !(info.halfsize > 0))
@@ -149,11 +144,11 @@ CopcHierarchy readCopcHierarchy(const std::string& file, const CopcReadAt& readA
     readAt(p.offset, page.data(), page.size());
     for (std::size_t at = 0; at < page.size(); at += kCopcEntrySize) {
       const std::uint8_t* e = page.data() + at;
-      const auto d = le<std::int32_t>(e), x = le<std::int32_t>(e + 4), y = le<std::int32_t>(e + 8),
-                 z = le<std::int32_t>(e + 12);
-      const auto offset = le<std::uint64_t>(e + 16);
-      const auto bytes = le<std::int32_t>(e + 24);
-      const auto count = le<std::int32_t>(e + 28);
+      const auto d = le::get<std::int32_t>(e), x = le::get<std::int32_t>(e + 4), y = le::get<std::int32_t>(e + 8),
+                 z = le::get<std::int32_t>(e + 12);
+      const auto offset = le::get<std::uint64_t>(e + 16);
+      const auto bytes = le::get<std::int32_t>(e + 24);
+      const auto count = le::get<std::int32_t>(e + 28);
       const std::string entry = "entry " + std::to_string(at / kCopcEntrySize) + " of " + what;
       if (d < 0 || d > kCopcMaxLevel || x < 0 || y < 0 || z < 0 || (x >> d) != 0 || (y >> d) != 0 ||
           (z >> d) != 0)

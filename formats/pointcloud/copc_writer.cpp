@@ -9,6 +9,7 @@
 #include <map>
 #include <tuple>
 
+#include "formats/io/little_endian.h"
 #include "formats/pointcloud/copc_hierarchy.h"
 #include "formats/pointcloud/las_writer.h"
 #include "libterrain/core/error.h"
@@ -23,20 +24,10 @@ struct Key {
   Key parent() const { return {d - 1, x / 2, y / 2, z / 2}; }
 };
 
-inline void putU32(std::uint8_t* p, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-inline void putU64(std::uint8_t* p, std::uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-inline void putI32(std::uint8_t* p, std::int32_t v) {
-  putU32(p, static_cast<std::uint32_t>(v));
-}
-inline void putF64(std::uint8_t* p, double v) {
-  std::uint64_t bits = 0;
-  std::memcpy(&bits, &v, sizeof bits);
-  putU64(p, bits);
-}
+using le::putF64;
+using le::putI32;
+using le::putU32;
+using le::putU64;
 
 std::uint64_t mix(std::uint64_t v) {  // splitmix64's finaliser: a fixed pseudo-random order
   v += 0x9e3779b97f4a7c15ull;

@@ -16,6 +16,7 @@
 #include <optional>
 #include <sstream>
 
+#include "formats/io/little_endian.h"
 #include "formats/crs/crs.h"
 #include "formats/io/stdin_source.h"
 #include "formats/pointcloud/copc_hierarchy.h"
@@ -32,12 +33,6 @@ static_assert(std::endian::native == std::endian::little, "the LAS decoder assum
 
 namespace {
 
-template <class T>
-T le(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 
 std::string fixedString(const std::uint8_t* p, std::size_t n) {
   std::size_t len = 0;
@@ -80,7 +75,7 @@ void decodeRecords(const std::uint8_t* src, std::size_t n, std::size_t stride, c
   for (std::size_t i = 0; i < n; ++i) {
     const std::uint8_t* r = src + i * stride;
     PointRecord& p = out[i];
-    const std::int32_t X = le<std::int32_t>(r), Y = le<std::int32_t>(r + 4), Z = le<std::int32_t>(r + 8);
+    const std::int32_t X = le::get<std::int32_t>(r), Y = le::get<std::int32_t>(r + 4), Z = le::get<std::int32_t>(r + 8);
     lo[0] = std::min(lo[0], X);
     hi[0] = std::max(hi[0], X);
     lo[1] = std::min(lo[1], Y);
@@ -94,7 +89,7 @@ void decodeRecords(const std::uint8_t* src, std::size_t n, std::size_t stride, c
     p.x = px + ox;
     p.y = py + oy;
     p.z = pz + oz;
-    p.intensity = le<std::uint16_t>(r + 12);
+    p.intensity = le::get<std::uint16_t>(r + 12);
     const std::uint8_t b14 = r[14], b15 = r[15];
     if constexpr (kExtended) {
       p.returnNumber = b14 & 0x0F;
@@ -278,7 +273,7 @@ void LasReader::parse() {
                               " bytes, a LAS header needs at least 227");
   info_.format = "LAS";
   const std::uint8_t rawFormat = h[104];
-  const std::uint16_t headerSize = le<std::uint16_t>(h + 94);
+  const std::uint16_t headerSize = le::get<std::uint16_t>(h + 94);
   const bool compressedBits = (rawFormat & 0xC0) != 0;
   info_.versionMajor = h[24];
   info_.versionMinor = h[25];
@@ -303,29 +298,29 @@ void LasReader::parse() {
     throw DataError(file, "truncated LAS header: header size is " + std::to_string(headerSize) +
                               " bytes but the file has only " + fmtCount(avail));
 
-  info_.globalEncoding = minor >= 2 ? le<std::uint16_t>(h + 6) : 0;
+  info_.globalEncoding = minor >= 2 ? le::get<std::uint16_t>(h + 6) : 0;
   info_.systemIdentifier = fixedString(h + 26, 32);
   info_.generatingSoftware = fixedString(h + 58, 32);
-  info_.creationDay = le<std::uint16_t>(h + 90);
-  info_.creationYear = le<std::uint16_t>(h + 92);
-  pointOffset_ = le<std::uint32_t>(h + 96);
-  info_.vlrCount = le<std::uint32_t>(h + 100);
+  info_.creationDay = le::get<std::uint16_t>(h + 90);
+  info_.creationYear = le::get<std::uint16_t>(h + 92);
+  pointOffset_ = le::get<std::uint32_t>(h + 96);
+  info_.vlrCount = le::get<std::uint32_t>(h + 100);
   info_.pointFormat = rawFormat & 0x3F;
-  info_.recordLength = le<std::uint16_t>(h + 105);
-  const std::uint64_t legacyCount = le<std::uint32_t>(h + 107);
-  for (int i = 0; i < 5; ++i) info_.headerPointsByReturn[i] = le<std::uint32_t>(h + 111 + 4 * i);
+  info_.recordLength = le::get<std::uint16_t>(h + 105);
+  const std::uint64_t legacyCount = le::get<std::uint32_t>(h + 107);
+  for (int i = 0; i < 5; ++i) info_.headerPointsByReturn[i] = le::get<std::uint32_t>(h + 111 + 4 * i);
   for (int i = 0; i < 3; ++i) {
-    info_.scale[i] = le<double>(h + 131 + 8 * i);
-    info_.offset[i] = le<double>(h + 155 + 8 * i);
+    info_.scale[i] = le::get<double>(h + 131 + 8 * i);
+    info_.offset[i] = le::get<double>(h + 155 + 8 * i);
   }
   info_.hasScale = true;
   Bounds3& hb = info_.headerBounds;
-  hb.maxX = le<double>(h + 179);
-  hb.minX = le<double>(h + 187);
-  hb.maxY = le<double>(h + 195);
-  hb.minY = le<double>(h + 203);
-  hb.maxZ = le<double>(h + 211);
-  hb.minZ = le<double>(h + 219);
+  hb.maxX = le::get<double>(h + 179);
+  hb.minX = le::get<double>(h + 187);
+  hb.maxY = le::get<double>(h + 195);
+  hb.minY = le::get<double>(h + 203);
+  hb.maxZ = le::get<double>(h + 211);
+  hb.minZ = le::get<double>(h + 219);
   info_.hasHeaderBounds = std::isfinite(hb.minX) && std::isfinite(hb.maxX) && std::isfinite(hb.minY) &&
                           std::isfinite(hb.maxY) && std::isfinite(hb.minZ) && std::isfinite(hb.maxZ);
 
@@ -351,13 +346,13 @@ void LasReader::parse() {
   }
 
   std::uint64_t waveformStart = 0, evlrStart = 0;
-  if (minor >= 3) waveformStart = le<std::uint64_t>(h + 227);
+  if (minor >= 3) waveformStart = le::get<std::uint64_t>(h + 227);
   std::uint64_t count = legacyCount;
   if (minor >= 4) {
-    evlrStart = le<std::uint64_t>(h + 235);
-    info_.evlrCount = le<std::uint32_t>(h + 243);
-    const std::uint64_t count64 = le<std::uint64_t>(h + 247);
-    for (int i = 0; i < 15; ++i) info_.headerPointsByReturn[i] = le<std::uint64_t>(h + 255 + 8 * i);
+    evlrStart = le::get<std::uint64_t>(h + 235);
+    info_.evlrCount = le::get<std::uint32_t>(h + 243);
+    const std::uint64_t count64 = le::get<std::uint64_t>(h + 247);
+    for (int i = 0; i < 15; ++i) info_.headerPointsByReturn[i] = le::get<std::uint64_t>(h + 255 + 8 * i);
     if (count64 == 0 && legacyCount != 0) {
       diag_.warn("las.count64_zero", file,
                  "the 64-bit point count is 0 but the legacy count says " + fmtCount(legacyCount) +
@@ -396,8 +391,8 @@ void LasReader::parse() {
       const std::uint8_t* v = h + pos;
       LasVlr vlr;
       vlr.userId = fixedString(v + 2, 16);
-      vlr.recordId = le<std::uint16_t>(v + 18);
-      vlr.dataLength = le<std::uint16_t>(v + 20);
+      vlr.recordId = le::get<std::uint16_t>(v + 18);
+      vlr.dataLength = le::get<std::uint16_t>(v + 20);
       vlr.description = fixedString(v + 22, 32);
       vlr.dataOffset = pos + kVlrHeader;
       if (vlr.dataOffset + vlr.dataLength > pointOffset_) break;
@@ -463,8 +458,8 @@ void LasReader::parse() {
         LasVlr vlr;
         vlr.extended = true;
         vlr.userId = fixedString(v + 2, 16);
-        vlr.recordId = le<std::uint16_t>(v + 18);
-        vlr.dataLength = le<std::uint64_t>(v + 20);
+        vlr.recordId = le::get<std::uint16_t>(v + 18);
+        vlr.dataLength = le::get<std::uint64_t>(v + 20);
         vlr.description = fixedString(v + 28, 32);
         vlr.dataOffset = pos + kEvlrHeader;
         if (vlr.dataLength > size_ - vlr.dataOffset) break;
@@ -545,11 +540,11 @@ void LasReader::readCrs() {
       if (v.recordId == 34735) {
         keys.directory.resize(v.data.size() / 2);
         for (std::size_t i = 0; i < keys.directory.size(); ++i)
-          keys.directory[i] = le<std::uint16_t>(v.data.data() + 2 * i);
+          keys.directory[i] = le::get<std::uint16_t>(v.data.data() + 2 * i);
       } else if (v.recordId == 34736) {
         keys.doubles.resize(v.data.size() / 8);
         for (std::size_t i = 0; i < keys.doubles.size(); ++i)
-          keys.doubles[i] = le<double>(v.data.data() + 8 * i);
+          keys.doubles[i] = le::get<double>(v.data.data() + 8 * i);
       } else if (v.recordId == 34737) {
         keys.ascii.assign(v.data.begin(), v.data.end());
       } else if (v.recordId == 2112) {
@@ -798,9 +793,9 @@ void LasReader::setupLaz(const LasVlr& vlr) {
   z->dataEnd = lazDataEnd_;
   std::string problem;
   std::int64_t tableOffset = -2;
-  if (pointOffset_ + 8 <= size_) tableOffset = le<std::int64_t>(base_ + pointOffset_);
+  if (pointOffset_ + 8 <= size_) tableOffset = le::get<std::int64_t>(base_ + pointOffset_);
   // A writer that could not seek back leaves -1 there and the offset in the file's last 8 bytes.
-  if (tableOffset == -1 && size_ >= 8) tableOffset = le<std::int64_t>(base_ + size_ - 8);
+  if (tableOffset == -1 && size_ >= 8) tableOffset = le::get<std::int64_t>(base_ + size_ - 8);
   if (total > 0) {
     if (pointOffset_ + 8 > size_) {
       problem = "the file ends before the chunk table's offset";
@@ -934,7 +929,7 @@ std::size_t LasReader::findNextLazChunk() {
   readLazBytes(chunk.data(), chunk.size(), pos);
   if (n == 0) {  // layered chunks start with their point count
     if (chunk.size() < 4) throw DataError(file, "the file ends inside chunk " + std::to_string(index));
-    n = le<std::uint32_t>(chunk.data());
+    n = le::get<std::uint32_t>(chunk.data());
     if (n == 0 || n > total - first)
       throw DataError(file, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(pos) +
                                 ") is damaged: it says it holds " + fmtCount(n) + " points");

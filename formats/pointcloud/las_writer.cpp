@@ -1,4 +1,5 @@
 #include "formats/pointcloud/las_writer.h"
+#include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 
 #include <fcntl.h>
@@ -27,24 +28,12 @@ constexpr std::size_t kVlrHeaderSize = 54;
 constexpr std::size_t kEvlrHeaderSize = 60;
 
 // Little-endian stores, independent of the host's byte order.
-inline void putU16(std::uint8_t* p, std::uint16_t v) {
-  p[0] = static_cast<std::uint8_t>(v);
-  p[1] = static_cast<std::uint8_t>(v >> 8);
-}
-inline void putU32(std::uint8_t* p, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-inline void putU64(std::uint8_t* p, std::uint64_t v) {
-  for (int i = 0; i < 8; ++i) p[i] = static_cast<std::uint8_t>(v >> (8 * i));
-}
-inline void putI32(std::uint8_t* p, std::int32_t v) {
-  putU32(p, static_cast<std::uint32_t>(v));
-}
-inline void putF64(std::uint8_t* p, double v) {
-  std::uint64_t bits = 0;
-  std::memcpy(&bits, &v, sizeof bits);
-  putU64(p, bits);
-}
+using le::putF64;
+using le::putI32;
+using le::putU16;
+using le::putU32;
+using le::putU64;
+
 // A fixed-size, NUL-padded character field (a full field carries no terminator, as LAS allows).
 void putChars(std::uint8_t* p, const std::string& s, std::size_t size) {
   std::memset(p, 0, size);

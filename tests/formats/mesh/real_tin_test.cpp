@@ -14,6 +14,7 @@
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "test_support.h"
+#include "triangle_sets.h"
 
 #if __has_include(<CGAL/Delaunay_triangulation_2.h>)
 #include <CGAL/Delaunay_triangulation_2.h>
@@ -24,39 +25,9 @@
 namespace tinbuild {
 namespace {
 
-using Tri = std::array<double, 6>;
-
-// A triangle as its three (x, y) corners, rotated so the lexicographically smallest comes first
-// (orientation kept), so equal triangles compare equal whatever vertex they start at.
-Tri canonical(double ax, double ay, double bx, double by, double cx, double cy) {
-  std::array<std::array<double, 2>, 3> v{{{ax, ay}, {bx, by}, {cx, cy}}};
-  const auto first = std::min_element(v.begin(), v.end()) - v.begin();
-  Tri t;
-  for (int k = 0; k < 3; ++k) {
-    const auto& p = v[static_cast<std::size_t>((first + k) % 3)];
-    t[static_cast<std::size_t>(2 * k)] = p[0];
-    t[static_cast<std::size_t>(2 * k + 1)] = p[1];
-  }
-  return t;
-}
-
-class TriangleCollector : public MeshSink {
- public:
-  std::vector<Tri> triangles;
-  void begin(const MeshInfo&) override {}
-  void vertex(std::uint64_t id, double x, double y, double) override {
-    if (id >= xy_.size()) xy_.resize(id + 1);
-    xy_[id] = {x, y};
-  }
-  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
-    triangles.push_back(canonical(xy_[a][0], xy_[a][1], xy_[b][0], xy_[b][1], xy_[c][0], xy_[c][1]));
-  }
-  void finalizeVertex(std::uint64_t) override {}
-  void end() override {}
-
- private:
-  std::vector<std::array<double, 2>> xy_;
-};
+using test::canonical;
+using test::Tri;
+using test::TriangleCollector;
 
 class RealSurveys : public ::testing::TestWithParam<const char*> {};
 

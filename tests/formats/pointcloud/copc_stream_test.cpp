@@ -20,42 +20,13 @@
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "test_support.h"
+#include "triangle_sets.h"
 
 namespace tinbuild {
 namespace {
 
-using Tri = std::array<double, 6>;
-
-Tri canonical(const double (&v)[3][2]) {
-  int first = 0;
-  for (int k = 1; k < 3; ++k)
-    if (v[k][0] < v[first][0] || (v[k][0] == v[first][0] && v[k][1] < v[first][1])) first = k;
-  Tri t;
-  for (int k = 0; k < 3; ++k) {
-    t[static_cast<std::size_t>(2 * k)] = v[(first + k) % 3][0];
-    t[static_cast<std::size_t>(2 * k + 1)] = v[(first + k) % 3][1];
-  }
-  return t;
-}
-
-class Collector : public MeshSink {
- public:
-  std::vector<Tri> triangles;
-  void begin(const MeshInfo&) override {}
-  void vertex(std::uint64_t id, double x, double y, double) override {
-    if (id >= xy_.size()) xy_.resize(id + 1);
-    xy_[id] = {x, y};
-  }
-  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
-    const double v[3][2] = {{xy_[a][0], xy_[a][1]}, {xy_[b][0], xy_[b][1]}, {xy_[c][0], xy_[c][1]}};
-    triangles.push_back(canonical(v));
-  }
-  void finalizeVertex(std::uint64_t) override {}
-  void end() override { std::sort(triangles.begin(), triangles.end()); }
-
- private:
-  std::vector<std::array<double, 2>> xy_;
-};
+using test::Tri;
+using Collector = test::TriangleCollector;
 
 // Forwards the stream and checks its contract on the way.
 class ContractCheck : public PointSink {
