@@ -752,6 +752,13 @@ std::string formatRunSummary(const RunReport& r) {
                                          " blanked " + withCommas(d.stats.pixelsMaxEdge) + " pixels"
                                    : std::string()));
   }
+  if (!r.gpkgOutput.empty())
+    line("GPKG", "the TIN, " + withCommas(r.gpkgTriangles) + " triangles in " + bytesText(r.gpkgBytes) +
+                           (r.gpkgTriangles ? " (" +
+                                                  formatDouble("%.1f", static_cast<double>(r.gpkgBytes) /
+                                                                           static_cast<double>(r.gpkgTriangles)) +
+                                                  " bytes per triangle, spatial index included)"
+                                            : std::string()));
   return o;
 }
 
