@@ -103,6 +103,9 @@ int runDemo(const cli::ParsedArgs& args) {
   build.inputs = {las};
   build.meshOutput = (dir / "tin.smb").string();
   build.gpkgOutput = (dir / "tin.gpkg").string();
+  build.contoursOutput = (dir / "contours.gpkg").string();  // 1 m contours, every 5th an index contour
+  build.contours.interval = 1;
+  build.contours.indexEvery = 5;
   build.dem.path = (dir / "dem").string();
   build.dem.step = "1";
   build.dem.tileSize = 512;
@@ -116,14 +119,16 @@ int runDemo(const cli::ParsedArgs& args) {
   build.finalizer.filter.dropClasses.reset(2);
   build.finalizer.filter.dropClasses.reset(9);
   build.commandLine = "tinbuild build " + las + " --keep-class 2,9 --mesh " + build.meshOutput + " --gpkg " +
-                      build.gpkgOutput + " --dem " + build.dem.path + " --step 1 --tile-size 512 --hillshade";
+                      build.gpkgOutput + " --dem " + build.dem.path + " --step 1 --tile-size 512 --hillshade" +
+                      " --contours " + build.contoursOutput + " --interval 1 --index-every 5";
   std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")" << std::endl;
   const RunReport run = runBuild(build, diag);
   progress.finish();
   std::cout << formatRunSummary(run);
   std::ofstream((dir / "build-report.json").string()) << formatRunJson(run);
   const std::string png = (dir / "dem.png").string();
-  writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png);
+  writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png, 1024,
+                    build.contoursOutput);
   std::cout << "\ntinbuild demo: verifying the TIN (tinbuild verify " << build.meshOutput << " --points "
             << las << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
@@ -137,9 +142,10 @@ int runDemo(const cli::ParsedArgs& args) {
       << "  survey-info.json    `tinbuild info --json` of it\n"
       << "  tin.smb             the bare-earth TIN (ground and water points) as a binary streaming mesh\n"
       << "  tin.gpkg            the TIN as a GeoPackage layer of triangles (open it in QGIS)\n"
+      << "  contours.gpkg       1 m contour lines cut from the TIN (every 5th an index contour)\n"
       << "  dem/mosaic.vrt      the 1 m DEM: GeoTIFF tiles dem/dem_*.tif under one mosaic\n"
       << "  dem/hillshade.vrt   its hillshade (tiles dem/hillshade_*.tif)\n"
-      << "  dem.png             a quick-look of the DEM: colours by height, shaded\n"
+      << "  dem.png             a quick-look of the DEM: colours by height, shaded, with the contours\n"
       << "  build-report.json   the run report (counts, width, memory, timings)\n";
   if (!check.ok()) throw Error("demo: the TIN did not verify");
   return 0;
@@ -155,7 +161,7 @@ Command demoCommand() {
       "Synthesizes a realistic airborne survey (flight strips with overlap over a river valley, ground,\n"
       "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAZ in\n"
       "DIR (default ./tinbuild-demo), reports on it with `info`, runs `build` to a TIN (streaming mesh\n"
-      "and GeoPackage) and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
+      "and GeoPackage), 1 m contours and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
       {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
        {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
        {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},

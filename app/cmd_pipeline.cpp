@@ -256,10 +256,28 @@ int runBuildCommand(const cli::ParsedArgs& args) {
   o.meshLocal = args.has("--local");
   o.gpkgOutput = args.get("--gpkg");
   o.gpkgPoints = args.has("--gpkg-points");
-  if (o.meshOutput.empty() && o.gpkgOutput.empty() && !args.has("--dem"))
+  o.contoursOutput = args.get("--contours");
+  if (o.meshOutput.empty() && o.gpkgOutput.empty() && !args.has("--dem") && o.contoursOutput.empty())
     throw UsageError(
         "build: name an output: --mesh FILE.smb|.sma|.ply|.obj|.nc, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
-        "FILE.gpkg");
+        "FILE.gpkg, --contours FILE.gpkg|.geojson|.fgb|.shp");
+  if (o.contoursOutput.empty()) {
+    for (const char* opt : {"--interval", "--base", "--index-every", "--min-length"})
+      if (args.has(opt)) throw UsageError(std::string(opt) + " applies to contours: add --contours FILE");
+  } else {
+    if (!args.has("--interval"))
+      throw UsageError("--contours needs --interval X (the contour spacing in z units)");
+    ContourOptions& c = o.contours;
+    c.interval = args.getDouble("--interval", 1);
+    if (!(c.interval > 0) || !std::isfinite(c.interval))
+      throw UsageError("--interval must be positive, got '" + args.get("--interval") + "'");
+    c.base = args.getDouble("--base", 0);
+    if (!std::isfinite(c.base)) throw UsageError("--base must be finite, got '" + args.get("--base") + "'");
+    c.indexEvery = args.getInt("--index-every", 0, 0, 1000000);
+    c.minLength = args.getDouble("--min-length", 0);
+    if (!(c.minLength >= 0) || !std::isfinite(c.minLength))
+      throw UsageError("--min-length must be 0 or more, got '" + args.get("--min-length") + "'");
+  }
   if (!o.meshOutput.empty()) refuseBinaryToTerminal(o.meshOutput, "build");
   if (o.gpkgPoints && o.gpkgOutput.empty()) throw UsageError("--gpkg-points needs --gpkg FILE.gpkg");
   const char* demOnly[] = {"--step",        "--max-edge",    "--tile-size", "--tile-size-m", "--cog",
@@ -399,6 +417,13 @@ Command buildCommand() {
             "PLY/OBJ: subtract a round origin and write float32 (for viewers); origin in the header"},
            {"--gpkg", "FILE.gpkg", "TIN as a GeoPackage layer `tin` of triangles (POLYGON Z)"},
            {"--gpkg-points", "", "also a layer `points` of the TIN's vertices"},
+           {"--contours", "FILE",
+            "contour lines of the TIN (LINESTRING Z, fields elev and index): .gpkg, .geojson, .fgb, .shp"},
+           {"--interval", "X", "contours: the spacing of the levels in z units (required with --contours)"},
+           {"--base", "B", "contours: levels are B + k * interval (default 0)"},
+           {"--index-every", "N",
+            "contours: every N-th level (k % N == 0) is an index contour (default 0: none)"},
+           {"--min-length", "L", "contours: drop closed loops shorter than L in CRS units (default 0)"},
            {"--dem", "DIR|FILE.tif|FILE.gpkg",
             "DEM: GeoTIFF tiles + mosaic.vrt in DIR, one GeoTIFF, or a GeoPackage raster"},
            {"--step", "R", "DEM pixel size (metres; or with a unit: 3ft, 1ftUS, 2u = CRS units) (default 1)"},

@@ -309,12 +309,12 @@ class ProgressPointSink : public PointSink {
 };
 
 // The outputs of a run, each resolved once to its row of the writer table (formats/registry), in the
-// order the tee feeds them: mesh, GeoPackage TIN, DEM.
+// order the tee feeds them: mesh, GeoPackage TIN, DEM, contours.
 struct RunOutputs {
-  ResolvedOutput mesh, gpkg, dem;
+  ResolvedOutput mesh, gpkg, dem, contours;
   std::vector<ResolvedOutput> all() const {
     std::vector<ResolvedOutput> v;
-    for (const ResolvedOutput* r : {&mesh, &gpkg, &dem})
+    for (const ResolvedOutput* r : {&mesh, &gpkg, &dem, &contours})
       if (*r) v.push_back(*r);
     return v;
   }
@@ -325,6 +325,7 @@ RunOutputs resolveOutputs(const PipelineOptions& o) {
   out.mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
   out.gpkg = resolveOutput(OutputOption::Gpkg, o.gpkgOutput);
   out.dem = resolveOutput(OutputOption::Dem, o.dem.path);
+  out.contours = resolveOutput(OutputOption::Contours, o.contoursOutput);
   if (o.meshLocal && !(out.mesh.is(WriterKind::Ply) || out.mesh.is(WriterKind::Obj)))
     throw UsageError("--local applies to --mesh FILE.ply or FILE.obj");
   return out;
@@ -339,6 +340,7 @@ WriterContext writerContext(const PipelineOptions& o) {
   c.gpkgPoints = o.gpkgPoints;
   c.dem = o.dem.bands;
   c.cog = o.dem.cog;
+  c.contours = o.contours;
   return c;
 }
 
@@ -443,9 +445,10 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   RunReport r;
   r.command = "build";
   r.inputs = o.inputs;
-  if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty())
+  if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty() && o.contoursOutput.empty())
     throw UsageError(
-        "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE");
+        "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, --contours "
+        "FILE");
   const RunOutputs outputs = resolveOutputs(o);
   refuseExistingOutputs(o, outputs.all());
   FinalizerOptions fo = o.finalizer;
@@ -525,6 +528,11 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
       r.gpkgOutput = resolved[i].path;
       r.gpkgTriangles = r.delaunay.trianglesEmitted;
       r.gpkgBytes = out.bytes();
+    }
+    if (const ContourStats* cs = out.contourStats()) {
+      r.contoursOutput = resolved[i].path;
+      r.contours = o.contours;
+      r.contourStats = *cs;
     }
     if (const DemRasterizer* dem = out.rasterizer()) {
       r.dem.layout = dem->layout();
@@ -759,6 +767,17 @@ std::string formatRunSummary(const RunReport& r) {
                                                                            static_cast<double>(r.gpkgTriangles)) +
                                                   " bytes per triangle, spatial index included)"
                                             : std::string()));
+  if (!r.contoursOutput.empty()) {
+    const ContourStats& c = r.contourStats;
+    line("contours",
+         withCommas(c.lines) + " lines (" + withCommas(c.closedLines) + " closed), " +
+             withCommas(c.vertices) + " vertices, every " + formatDouble("%.6g", r.contours.interval) +
+             " from " + formatDouble("%.6g", r.contours.base) +
+             (c.droppedShort ? "; " + withCommas(c.droppedShort) +
+                                   " loops dropped (shorter than --min-length, or a summit exactly at a level)"
+                             : std::string()) +
+             "; at most " + withCommas(c.peakOpenEnds) + " open line ends");
+  }
   return o;
 }
 
@@ -925,6 +944,21 @@ std::string formatRunJson(const RunReport& r) {
       j.key("bytes_per_triangle").value(static_cast<double>(r.gpkgBytes) / static_cast<double>(r.gpkgTriangles));
     else
       j.key("bytes_per_triangle").null();
+    j.endObject();
+  }
+  if (!r.contoursOutput.empty()) {
+    const ContourStats& c = r.contourStats;
+    j.key("contours").beginObject();
+    j.key("path").value(r.contoursOutput);
+    j.key("interval").value(r.contours.interval);
+    j.key("base").value(r.contours.base);
+    j.key("index_every").value(static_cast<std::int64_t>(r.contours.indexEvery));
+    j.key("min_length").value(r.contours.minLength);
+    j.key("lines").value(c.lines);
+    j.key("closed_lines").value(c.closedLines);
+    j.key("dropped_short").value(c.droppedShort);
+    j.key("vertices").value(c.vertices);
+    j.key("peak_open_ends").value(c.peakOpenEnds);
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -22,6 +22,7 @@
 
 #include "formats/crs/crs.h"
 #include "formats/pointcloud/point_reader.h"
+#include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/delaunay/mesh_verifier.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
@@ -54,6 +55,8 @@ struct PipelineOptions {
   std::string gpkgOutput;       // runBuild: GeoPackage TIN
   bool gpkgPoints = false;      // ... with a layer of the vertices
   DemRequest dem;               // runBuild: DEM rasters
+  std::string contoursOutput;   // runBuild: contour lines (.gpkg, .geojson, .json, .fgb, .shp)
+  ContourOptions contours;      // ... their levels (--interval, --base, --index-every, --min-length)
   std::string commandLine;      // recorded in the outputs' metadata
   std::string tSrs;             // --t_srs: the working CRS (points are transformed in the reader stage)
   bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings
@@ -97,6 +100,9 @@ struct RunReport {
   std::string gpkgOutput;
   std::uint64_t gpkgTriangles = 0;
   std::uint64_t gpkgBytes = 0;  // the GeoPackage's file size
+  std::string contoursOutput;   // "" = no contours
+  ContourOptions contours;
+  ContourStats contourStats;
   std::vector<Diagnostics::Entry> warnings;
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;

@@ -2,6 +2,7 @@
 
 #include <cpl_error.h>
 #include <gdal.h>
+#include <ogr_api.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -23,10 +24,14 @@ struct Band {
   std::vector<float> values;
 };
 
-Band readReduced(const std::string& path, int& outW, int& outH, int maxSize) {
+Band readReduced(const std::string& path, int& outW, int& outH, int maxSize, double* geo = nullptr) {
   GDALDatasetH ds = GDALOpen(path.c_str(), GA_ReadOnly);
   if (!ds) throw DataError(path, std::string("cannot open the raster: ") + CPLGetLastErrorMsg());
   const int w = GDALGetRasterXSize(ds), h = GDALGetRasterYSize(ds);
+  if (geo && GDALGetGeoTransform(ds, geo) != CE_None) {
+    GDALClose(ds);
+    throw DataError(path, "the raster has no georeferencing");
+  }
   if (outW == 0) {
     const double f = std::min(1.0, static_cast<double>(maxSize) / std::max(w, h));
     outW = std::max(1, static_cast<int>(std::lround(w * f)));
@@ -46,6 +51,52 @@ Band readReduced(const std::string& path, int& outW, int& outH, int maxSize) {
   return b;
 }
 
+// Draws the contour lines of `path` into the RGBA planes (w x h pixels over the reduced DEM whose
+// pixel (0, 0) corner and pixel size are those of `geo` scaled by sx, sy): a darkening along each
+// segment, stronger for index contours.
+void drawContours(const std::string& path, const double* geo, double sx, double sy, int w, int h,
+                  std::vector<std::uint8_t> (&planes)[4]) {
+  if (!GDALGetDriverByName("GPKG") || !GDALGetDriverByName("GeoJSON")) GDALAllRegister();
+  GDALDatasetH ds = GDALOpenEx(path.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY, nullptr, nullptr, nullptr);
+  if (!ds) throw DataError(path, std::string("cannot open the contours: ") + CPLGetLastErrorMsg());
+  OGRLayerH layer = GDALDatasetGetLayer(ds, 0);
+  if (!layer) {
+    GDALClose(ds);
+    throw DataError(path, "the contour file has no layer");
+  }
+  const int indexField = OGR_FD_GetFieldIndex(OGR_L_GetLayerDefn(layer), "index");
+  auto plot = [&](int x, int y, double strength) {
+    if (x < 0 || y < 0 || x >= w || y >= h) return;
+    const std::size_t k = static_cast<std::size_t>(y) * w + x;
+    if (planes[3][k] == 0) return;  // nodata stays transparent
+    for (int c = 0; c < 3; ++c) planes[c][k] = static_cast<std::uint8_t>(planes[c][k] * (1 - strength));
+  };
+  OGR_L_ResetReading(layer);
+  for (OGRFeatureH f; (f = OGR_L_GetNextFeature(layer)) != nullptr; OGR_F_Destroy(f)) {
+    OGRGeometryH g = OGR_F_GetGeometryRef(f);
+    if (!g) continue;
+    const bool index = indexField >= 0 && OGR_F_GetFieldAsInteger(f, indexField) != 0;
+    const double strength = index ? 0.5 : 0.18;
+    const int n = OGR_G_GetPointCount(g);
+    auto px = [&](int i, double& x, double& y) {
+      x = (OGR_G_GetX(g, i) - geo[0]) / (geo[1] * sx);
+      y = (OGR_G_GetY(g, i) - geo[3]) / (geo[5] * sy);
+    };
+    for (int i = 0; i + 1 < n; ++i) {
+      double x0, y0, x1, y1;
+      px(i, x0, y0);
+      px(i + 1, x1, y1);
+      const int steps = static_cast<int>(std::ceil(std::max(std::fabs(x1 - x0), std::fabs(y1 - y0)))) + 1;
+      for (int t = 0; t <= steps; ++t) {
+        const double u = static_cast<double>(t) / steps;
+        plot(static_cast<int>(std::floor(x0 + u * (x1 - x0))), static_cast<int>(std::floor(y0 + u * (y1 - y0))),
+             strength);
+      }
+    }
+  }
+  GDALClose(ds);
+}
+
 // Low green, olive, tan, brown, light grey: a classic hypsometric ramp.
 void ramp(double t, double rgb[3]) {
   static const double stops[5][3] = {
@@ -59,14 +110,24 @@ void ramp(double t, double rgb[3]) {
 }  // namespace
 
 void writeQuicklookPng(const std::string& dem, const std::string& hillshade, const std::string& png,
-                       int maxSize) {
+                       int maxSize, const std::string& contours) {
   registerGdalWriters();
   CPLPushErrorHandler(CPLQuietErrorHandler);
   struct Pop {
     ~Pop() { CPLPopErrorHandler(); }
   } pop;
   int w = 0, h = 0;
-  const Band z = readReduced(dem, w, h, maxSize);
+  double geo[6] = {0, 1, 0, 0, 0, -1};
+  int fullW = 0, fullH = 0;
+  {
+    GDALDatasetH ds = GDALOpen(dem.c_str(), GA_ReadOnly);
+    if (ds) {
+      fullW = GDALGetRasterXSize(ds);
+      fullH = GDALGetRasterYSize(ds);
+      GDALClose(ds);
+    }
+  }
+  const Band z = readReduced(dem, w, h, maxSize, geo);
   const Band s = readReduced(hillshade, w, h, maxSize);
   // Robust colour range: 2nd to 98th percentile of the valid heights.
   std::vector<float> valid;
@@ -76,10 +137,10 @@ void writeQuicklookPng(const std::string& dem, const std::string& hillshade, con
   std::sort(valid.begin(), valid.end());
   const double lo = valid[valid.size() * 2 / 100], hi = valid[valid.size() * 98 / 100];
   const double span = hi > lo ? hi - lo : 1;
-  GDALDatasetH mem = GDALCreate(GDALGetDriverByName("MEM"), "", w, h, 4, GDT_Byte, nullptr);
-  if (!mem) throw DataError(png, "cannot create the image in memory");
-  std::vector<std::uint8_t> px(static_cast<std::size_t>(w) * h);
+  std::vector<std::uint8_t> planes[4];
   for (int c = 0; c < 4; ++c) {
+    std::vector<std::uint8_t>& px = planes[c];
+    px.resize(static_cast<std::size_t>(w) * h);
     for (std::size_t k = 0; k < px.size(); ++k) {
       const float v = z.values[k];
       const bool ok = !(z.hasNodata && v == z.nodata) && std::isfinite(v);
@@ -96,8 +157,14 @@ void writeQuicklookPng(const std::string& dem, const std::string& hillshade, con
       const double shade = s.values[k] > 0 ? s.values[k] / 255.0 : 0.7;
       px[k] = static_cast<std::uint8_t>(std::clamp(rgb[c] * (0.35 + 0.8 * shade), 0.0, 255.0));
     }
-    if (GDALRasterIO(GDALGetRasterBand(mem, c + 1), GF_Write, 0, 0, w, h, px.data(), w, h, GDT_Byte, 0, 0) !=
-        CE_None) {
+  }
+  if (!contours.empty() && fullW > 0 && fullH > 0)
+    drawContours(contours, geo, static_cast<double>(fullW) / w, static_cast<double>(fullH) / h, w, h, planes);
+  GDALDatasetH mem = GDALCreate(GDALGetDriverByName("MEM"), "", w, h, 4, GDT_Byte, nullptr);
+  if (!mem) throw DataError(png, "cannot create the image in memory");
+  for (int c = 0; c < 4; ++c) {
+    if (GDALRasterIO(GDALGetRasterBand(mem, c + 1), GF_Write, 0, 0, w, h, planes[c].data(), w, h, GDT_Byte, 0,
+                     0) != CE_None) {
       GDALClose(mem);
       throw DataError(png, "cannot draw the image in memory");
     }

@@ -9,6 +9,7 @@
 #include "formats/mesh/streaming_mesh.h"
 #include "formats/mesh/ugrid_writer.h"
 #include "formats/raster/dem_writer.h"
+#include "formats/vector/contour_writer.h"
 #include "libterrain/core/error.h"
 #include "libterrain/mesh/mesh_tee.h"
 
@@ -181,6 +182,49 @@ std::unique_ptr<OpenedOutput> openDem(const std::string& path, const WriterConte
   return std::make_unique<DemOutput>(demWriterOptions(path, T, c), d);
 }
 
+// ---- contour lines: the tracer (libterrain) feeding the OGR vector writer ----
+
+class ContourOutput : public OpenedOutput {
+ public:
+  ContourOutput(std::string path, std::unique_ptr<ContourLineSink> writer, const ContourOptions& o)
+      : path_(std::move(path)),
+        writer_(std::move(writer)),
+        tracer_(std::make_unique<ContourTracer>(o, *writer_)) {}
+  void attach(MeshTee& tee) override { tee.add(*tracer_); }
+  std::vector<std::string> files() const override {
+    std::vector<std::string> out;
+    for (const std::string& f : contourOutputPaths(path_))
+      if (std::filesystem::exists(f)) out.push_back(f);
+    return out;
+  }
+  std::uint64_t bytes() const override {
+    std::uint64_t n = 0;
+    for (const std::string& f : files()) n += fileSizeOrZero(f);
+    return n;
+  }
+  const ContourStats* contourStats() const override { return &tracer_->stats(); }
+
+ private:
+  std::string path_;
+  std::unique_ptr<ContourLineSink> writer_;  // declared first: the tracer writes into it until destroyed
+  std::unique_ptr<ContourTracer> tracer_;
+};
+
+bool matchesContours(const std::string& path) {
+  return isContourPath(path);
+}
+
+std::vector<std::string> contourTargets(const std::string& path, const WriterContext&) {
+  return contourOutputPaths(path);
+}
+
+std::unique_ptr<OpenedOutput> openContours(const std::string& path, const WriterContext& c) {
+  ContourWriterOptions wo;
+  wo.crs = c.crs;
+  wo.commandLine = c.commandLine;
+  return std::make_unique<ContourOutput>(path, openContourWriter(path, wo), c.contours);
+}
+
 }  // namespace
 
 const std::vector<WriterRow>& writerTable() {
@@ -203,6 +247,8 @@ const std::vector<WriterRow>& writerTable() {
        demFileTargets<DemTarget::GeoPackage>, openDem<DemTarget::GeoPackage>},
       {WriterKind::DemTileDirectory, OutputOption::Dem, "GeoTIFF tiles + VRT", matchesDemDirectory, false,
        demDirectoryTargets, openDem<DemTarget::TileDirectory>},
+      {WriterKind::Contours, OutputOption::Contours, "contour lines", matchesContours, false, contourTargets,
+       openContours},
   };
   return table;
 }
@@ -213,6 +259,9 @@ ResolvedOutput resolveOutput(OutputOption option, const std::string& path) {
     if (row.option == option && row.matches(path)) return {&row, path};
   if (option == OutputOption::Mesh)
     throw UsageError("cannot tell the mesh format of '" + path + "' (use .smb, .sma, .ply, .obj or .nc)");
+  if (option == OutputOption::Contours)
+    throw UsageError("cannot tell the vector format of '" + path +
+                     "' for --contours (use .gpkg, .geojson, .json, .fgb or .shp)");
   throw UsageError("no writer for '" + path + "'");
 }
 

@@ -13,6 +13,9 @@
 // coordinates with each triangle) and, after the run, the files it wrote.  Adding a writer is one row in
 // writer_registry.cpp and one file for the writer itself.
 //
+// Contour lines (--contours) are a row like the others: the output is a ContourTracer (a MeshSink on the
+// tee) feeding a vector file writer (formats/vector/contour_writer.h).
+//
 // The finalized point stream (`finalize -o`) has one format only and is not in this table.
 #pragma once
 
@@ -22,6 +25,7 @@
 #include <vector>
 
 #include "formats/crs/crs.h"
+#include "libterrain/contour/contour_tracer.h"
 #include "libterrain/raster/dem_rasterizer.h"
 
 namespace tinbuild {
@@ -30,7 +34,7 @@ class MeshSink;
 class MeshTee;
 
 // The option that names an output.
-enum class OutputOption { Mesh, Gpkg, Dem };
+enum class OutputOption { Mesh, Gpkg, Dem, Contours };
 
 enum class WriterKind {
   StreamingMeshBinary,  // .smb (and "-", pipes, devices)
@@ -42,6 +46,7 @@ enum class WriterKind {
   DemTileDirectory,  // --dem DIR: GeoTIFF tiles and VRT mosaics
   DemGeoTiff,        // --dem FILE.tif
   DemGeoPackage,     // --dem FILE.gpkg
+  Contours,          // --contours FILE.gpkg|.geojson|.json|.fgb|.shp: contour lines (LINESTRING Z)
 };
 
 // What writers may need besides their path; the job fills it once the run's CRS is known.
@@ -53,6 +58,7 @@ struct WriterContext {
   bool gpkgPoints = false;  // --gpkg-points
   DemOptions dem;           // --dem: the rasterizer's options, lengths in CRS units
   bool cog = false;         // --cog
+  ContourOptions contours;  // --contours: --interval, --base, --index-every, --min-length
 };
 
 // One opened output.  attach() adds its sink to the tee; after the run (the tee's end()), files() and
@@ -68,6 +74,8 @@ class OpenedOutput {
   virtual std::uint64_t bytes() const = 0;
   // DEM outputs: the rasterizer (layout and statistics for the report); nullptr otherwise.
   virtual const DemRasterizer* rasterizer() const { return nullptr; }
+  // Contour outputs: the tracer's statistics (complete after the run); nullptr otherwise.
+  virtual const ContourStats* contourStats() const { return nullptr; }
 };
 
 struct WriterRow {

@@ -1,13 +1,16 @@
 // The run around the pipeline, as a batch engineer meets it: threads, progress, Ctrl-C/SIGTERM, a full
 // disk, directories and patterns as inputs, refusal to clobber, and help that matches docs/usage.md.
 #include <fcntl.h>
+#include <gdal_priv.h>
 #include <gtest/gtest.h>
+#include <ogrsf_frmts.h>
 #include <signal.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
@@ -537,6 +540,76 @@ TEST(CliRun, HelpMatchesTheDocs) {
                               << ", docs/usage.md does not";
     }
     EXPECT_GT(rows, 0) << cmd;
+  }
+}
+
+// Contours from a real survey: --contours FILE.gpkg with --interval/--index-every gives LINESTRING Z
+// features whose elev is a multiple of the interval (z == elev at every vertex), index = 1 exactly on
+// every 5th level, the run report's `contours` object, and the usage errors of the contour options.
+TEST(CliRun, ContoursFromBuild) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/autzen_trim.las");
+  const std::string gpkg = (out / "c.gpkg").string(), report = (out / "r.json").string();
+  auto r = tinbuild("build " + las + " --contours " + gpkg + " --interval 1 --index-every 5 -q --report " +
+                    report);
+  ASSERT_EQ(r.code, 0) << r.err;
+  const std::string json = slurp(report);
+  EXPECT_NE(json.find("\"contours\": {"), std::string::npos) << json;
+  EXPECT_NE(json.find("\"peak_open_ends\": "), std::string::npos) << json;
+
+  GDALAllRegister();
+  GDALDatasetUniquePtr ds(GDALDataset::Open(gpkg.c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY));
+  ASSERT_TRUE(ds);
+  OGRLayer* layer = ds->GetLayerByName("contours");
+  ASSERT_TRUE(layer);
+  EXPECT_EQ(layer->GetGeomType(), wkbLineString25D);
+  EXPECT_GT(layer->GetFeatureCount(), 0);
+  const int elev = layer->GetLayerDefn()->GetFieldIndex("elev");
+  const int index = layer->GetLayerDefn()->GetFieldIndex("index");
+  ASSERT_GE(elev, 0);
+  ASSERT_GE(index, 0);
+  std::uint64_t features = 0, indexed = 0;
+  for (auto& f : *layer) {
+    ++features;
+    const double level = f->GetFieldAsDouble(elev);
+    ASSERT_EQ(level, std::round(level)) << level;
+    const bool isIndex = std::fmod(std::fabs(level), 5.0) == 0;
+    EXPECT_EQ(f->GetFieldAsInteger(index), isIndex ? 1 : 0) << level;
+    indexed += isIndex;
+    const OGRGeometry* g = f->GetGeometryRef();
+    ASSERT_TRUE(g);
+    ASSERT_EQ(g->getGeometryType(), wkbLineString25D);
+    const auto* ls = g->toLineString();
+    ASSERT_GE(ls->getNumPoints(), 2);
+    for (int i = 0; i < ls->getNumPoints(); ++i) ASSERT_EQ(ls->getZ(i), level);
+  }
+  EXPECT_GT(indexed, 0u);
+  EXPECT_NE(json.find("\"lines\": " + std::to_string(features)), std::string::npos) << json;
+
+  auto noInterval = tinbuild("build " + las + " --contours " + (out / "d.gpkg").string() + " -q");
+  EXPECT_EQ(noInterval.code, 2) << noInterval.err;
+  EXPECT_NE(noInterval.err.find("--interval"), std::string::npos) << noInterval.err;
+  auto zero = tinbuild("build " + las + " --contours " + (out / "d.gpkg").string() + " --interval 0 -q");
+  EXPECT_EQ(zero.code, 2) << zero.err;
+  auto badExt = tinbuild("build " + las + " --contours " + (out / "d.txt").string() + " --interval 1 -q");
+  EXPECT_EQ(badExt.code, 2) << badExt.err;
+  auto orphan = tinbuild("build " + las + " --mesh " + (out / "m.smb").string() + " --interval 1 -q");
+  EXPECT_EQ(orphan.code, 2) << orphan.err;
+  EXPECT_FALSE(fs::exists(out / "d.gpkg"));
+
+  // A full disk (as in FullDiskFailsCleanlyForEveryOutput): exit 1 naming the file, nothing left, in
+  // every format (GDAL's GeoJSON writer does not check its writes: the writer checks the file's end).
+  if (std::system("command -v prlimit >/dev/null 2>&1") != 0) GTEST_SKIP() << "prlimit (util-linux) missing";
+  const fs::path full = out / "full";
+  fs::create_directories(full);
+  for (const char* ext : {".gpkg", ".geojson", ".fgb", ".shp"}) {
+    const std::string path = (full / (std::string("c") + ext)).string();
+    auto f = tinbuild("build " + las + " --contours " + path + " --interval 1 -q",
+                      "trap '' XFSZ; exec prlimit --fsize=1000000 ");
+    EXPECT_EQ(f.code, 1) << ext << "\n" << f.err;
+    EXPECT_NE(f.err.find("tinbuild: error: " + path), std::string::npos) << f.err;
+    EXPECT_EQ(listDir(full), std::vector<std::string>{}) << ext;
   }
 }
 

@@ -1,0 +1,321 @@
+#include "formats/vector/contour_writer.h"
+
+#include <cpl_conv.h>
+#include <cpl_error.h>
+#include <cpl_string.h>
+#include <gdal_priv.h>
+#include <ogr_geometry.h>
+#include <ogr_spatialref.h>
+#include <ogrsf_frmts.h>
+#include <stdlib.h>
+
+#include <algorithm>
+#include <cctype>
+#include <cerrno>
+#include <cstdio>
+#include <cstring>
+#include <filesystem>
+#include <system_error>
+
+#include "formats/io/output_file.h"
+#include "formats/raster/dem_writer.h"
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string lower(std::string s) {
+  std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });
+  return s;
+}
+
+// GDAL reports errors through a handler (stderr by default); within our calls they are collected and
+// turned into exceptions naming the file.
+struct QuietGdal {
+  QuietGdal() {
+    CPLPushErrorHandler(CPLQuietErrorHandler);
+    CPLErrorReset();
+  }
+  ~QuietGdal() { CPLPopErrorHandler(); }
+  QuietGdal(const QuietGdal&) = delete;
+  QuietGdal& operator=(const QuietGdal&) = delete;
+};
+
+[[noreturn]] void gdalFailure(const std::string& path, const std::string& what) {
+  const char* msg = CPLGetLastErrorMsg();
+  throw DataError(path, what + (msg && *msg ? std::string(": ") + msg : std::string()));
+}
+
+const char* driverName(ContourFormat f) {
+  switch (f) {
+    case ContourFormat::GeoPackage:
+      return "GPKG";
+    case ContourFormat::GeoJson:
+      return "GeoJSON";
+    case ContourFormat::FlatGeobuf:
+      return "FlatGeobuf";
+    case ContourFormat::Shapefile:
+      return "ESRI Shapefile";
+  }
+  return "";
+}
+
+class ContourWriter final : public ContourLineSink {
+ public:
+  ContourWriter(std::string path, ContourFormat format, const ContourWriterOptions& options)
+      : path_(std::move(path)), format_(format), o_(options) {
+    std::string pattern = path_ + ".tmp-XXXXXX";
+    if (!::mkdtemp(pattern.data()))
+      throw DataError(path_,
+                      std::string("cannot create a temporary directory beside it: ") + std::strerror(errno));
+    tempDir_ = pattern;
+    tempPath_ = (fs::path(tempDir_) / fs::path(path_).filename()).string();
+  }
+
+  ~ContourWriter() override {
+    if (committed_) return;
+    try {
+      close();
+    } catch (...) {
+    }
+    std::error_code ec;
+    fs::remove_all(tempDir_, ec);
+  }
+  ContourWriter(const ContourWriter&) = delete;
+  ContourWriter& operator=(const ContourWriter&) = delete;
+
+  void begin(const MeshInfo& info) override {
+    registerGdalWriters();
+    QuietGdal quiet;
+    GDALDriver* driver = GetGDALDriverManager()->GetDriverByName(driverName(format_));
+    if (!driver) throw DataError(path_, std::string("GDAL has no ") + driverName(format_) + " driver");
+    ds_ = driver->Create(tempPath_.c_str(), 0, 0, 0, GDT_Unknown, nullptr);
+    if (!ds_) gdalFailure(path_, std::string("cannot create the ") + driverName(format_) + " file");
+
+    OGRSpatialReference* srs = nullptr;
+    const std::string wkt = o_.crs.empty() ? info.crsWkt : o_.crs.wkt;
+    if (!wkt.empty()) {
+      srs = new OGRSpatialReference();
+      if (srs->SetFromUserInput(wkt.c_str()) != OGRERR_NONE) {
+        srs->Release();
+        gdalFailure(path_, "cannot interpret the CRS for the contours");
+      }
+      srs->SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);  // x = easting (longitude), y = northing
+    }
+    CPLStringList lco;
+    switch (format_) {
+      case ContourFormat::GeoPackage:
+        lco.SetNameValue("SPATIAL_INDEX", "YES");
+        lco.SetNameValue("GEOMETRY_NAME", "geom");
+        lco.SetNameValue("DESCRIPTION", "contour lines (tinbuild)");
+        break;
+      case ContourFormat::FlatGeobuf:
+        lco.SetNameValue("SPATIAL_INDEX", "YES");
+        break;
+      case ContourFormat::Shapefile:
+        lco.SetNameValue("ENCODING", "UTF-8");
+        break;
+      case ContourFormat::GeoJson:
+        // Coordinates that read back as the same doubles (the default, 15 significant digits, does not).
+        lco.SetNameValue("SIGNIFICANT_FIGURES", "17");
+        break;
+    }
+    layer_ = ds_->CreateLayer(o_.layerName.c_str(), srs, wkbLineString25D, lco.List());
+    if (srs) srs->Release();
+    if (!layer_) gdalFailure(path_, "cannot create the contour layer");
+
+    OGRFieldDefn elev("elev", OFTReal);
+    OGRFieldDefn index("index", OFTInteger);
+    if (layer_->CreateField(&elev) != OGRERR_NONE || layer_->CreateField(&index) != OGRERR_NONE)
+      gdalFailure(path_, "cannot create the contour fields");
+    OGRFeatureDefn* defn = layer_->GetLayerDefn();
+    elevField_ = defn->GetFieldIndex("elev");
+    indexField_ = defn->GetFieldIndex("index");
+    if (!o_.commandLine.empty()) layer_->SetMetadataItem("TINBUILD_COMMAND", o_.commandLine.c_str());
+    feature_ = new OGRFeature(defn);
+    startTransaction();
+  }
+
+  void line(const ContourLine& line) override {
+    if (!layer_) throw DataError(path_, "contour line before begin()");
+    if (line.points.size() < 2) return;  // not a line
+    auto* ls = new OGRLineString();
+    ls->setNumPoints(static_cast<int>(line.points.size()), FALSE);
+    for (std::size_t i = 0; i < line.points.size(); ++i) {
+      const auto& p = line.points[i];
+      ls->setPoint(static_cast<int>(i), p[0], p[1], p[2]);
+    }
+    feature_->SetGeometryDirectly(ls);
+    feature_->SetField(elevField_, line.level);
+    feature_->SetField(indexField_, line.index ? 1 : 0);
+    feature_->SetFID(OGRNullFID);
+    QuietGdal quiet;
+    if (layer_->CreateFeature(feature_) != OGRERR_NONE) gdalFailure(path_, "cannot write a contour line");
+    if (inTransaction_ && ++pending_ >= std::max<std::size_t>(1, o_.transactionSize)) {
+      commitTransaction();
+      startTransaction();
+    }
+  }
+
+  void end() override {
+    if (committed_) return;
+    if (!ds_) begin(MeshInfo{});  // no begin(): still an (empty) file
+    close();
+    commitFiles();
+    committed_ = true;
+    std::error_code ec;
+    fs::remove_all(tempDir_, ec);
+  }
+
+ private:
+  void startTransaction() {
+    QuietGdal quiet;
+    inTransaction_ = ds_->StartTransaction(FALSE) == OGRERR_NONE;
+    pending_ = 0;
+  }
+  void commitTransaction() {
+    if (!inTransaction_) return;
+    QuietGdal quiet;
+    inTransaction_ = false;
+    if (ds_->CommitTransaction() != OGRERR_NONE) gdalFailure(path_, "cannot write the contour lines");
+  }
+
+  // Closes the dataset (after committing the open transaction): the driver writes what it buffered (the
+  // GeoPackage's R*Tree, the FlatGeobuf index, the Shapefile headers).
+  void close() {
+    if (!ds_) return;
+    QuietGdal quiet;
+    if (feature_) {
+      OGRFeature::DestroyFeature(feature_);
+      feature_ = nullptr;
+    }
+    bool ok = true;
+    std::string what;
+    if (inTransaction_) {
+      inTransaction_ = false;
+      if (ds_->CommitTransaction() != OGRERR_NONE) ok = false, what = "cannot write the contour lines";
+    }
+    GDALDataset* ds = ds_;
+    ds_ = nullptr;
+    layer_ = nullptr;
+    if (ok) CPLErrorReset();
+    GDALClose(ds);  // writes what the driver buffered (void before GDAL 3.8: errors come through CPL)
+    if (ok && CPLGetLastErrorType() >= CE_Failure) ok = false, what = "cannot write the contour file";
+    if (!ok) gdalFailure(path_, what);
+    if (format_ == ContourFormat::GeoJson && !geoJsonComplete())
+      throw DataError(path_, "cannot write the contour file: the GeoJSON is incomplete (disk full?)");
+  }
+
+  // GDAL's GeoJSON writer does not check its writes (a full disk goes unnoticed), so the file is checked
+  // for its closing "]" and "}": once a write fails (EFBIG, ENOSPC), the closing brackets are lost too.
+  bool geoJsonComplete() const {
+    std::FILE* f = std::fopen(tempPath_.c_str(), "rb");
+    if (!f) return false;
+    char tail[64] = {};
+    std::size_t n = 0;
+    if (std::fseek(f, 0, SEEK_END) == 0) {
+      const long size = std::ftell(f);
+      const long from = std::max(0L, size - static_cast<long>(sizeof tail));
+      if (size >= 0 && std::fseek(f, from, SEEK_SET) == 0) n = std::fread(tail, 1, sizeof tail, f);
+    }
+    std::fclose(f);
+    std::string t(tail, n);
+    while (!t.empty() && std::isspace(static_cast<unsigned char>(t.back()))) t.pop_back();
+    if (t.empty() || t.back() != '}') return false;
+    t.pop_back();
+    while (!t.empty() && std::isspace(static_cast<unsigned char>(t.back()))) t.pop_back();
+    return !t.empty() && t.back() == ']';
+  }
+
+  // Moves every file the driver made for the target from the temporary directory onto its place.
+  void commitFiles() {
+    const fs::path dir = fs::path(path_).parent_path();
+    const std::string name = fs::path(path_).filename().string();
+    const std::string stem = fs::path(path_).stem().string();
+    std::vector<fs::path> made;
+    std::error_code ec;
+    for (const auto& e : fs::directory_iterator(tempDir_, ec)) {
+      if (!e.is_regular_file()) continue;
+      const std::string f = e.path().filename().string();
+      const bool ours = format_ == ContourFormat::Shapefile
+                            ? f.size() > stem.size() && f.compare(0, stem.size(), stem) == 0 &&
+                                  f[stem.size()] == '.' && f.find('.', stem.size() + 1) == std::string::npos
+                            : f == name;
+      if (ours) made.push_back(e.path());
+    }
+    if (ec) throw DataError(path_, "cannot list the temporary directory: " + ec.message());
+    // The main file last, so a reader that finds it finds its sidecars too.
+    std::sort(made.begin(), made.end(), [&](const fs::path& a, const fs::path& b) {
+      return (a.filename() == name) < (b.filename() == name);
+    });
+    std::vector<std::string> placed;
+    for (const fs::path& p : made) {
+      const fs::path target = dir / p.filename();
+      if (std::rename(p.c_str(), target.c_str()) != 0)
+        throw DataError(target.string(),
+                        std::string("cannot move the contour file into place: ") + std::strerror(errno));
+      placed.push_back(lower(target.filename().string()));
+    }
+    // A stale sidecar of an overwritten Shapefile (a .prj when the new one has no CRS) would describe
+    // the new file wrongly.
+    for (const std::string& old : contourOutputPaths(path_)) {
+      const std::string f = lower(fs::path(old).filename().string());
+      if (std::find(placed.begin(), placed.end(), f) == placed.end()) {
+        std::error_code rc;
+        if (fs::is_regular_file(old, rc)) fs::remove(old, rc);
+      }
+    }
+  }
+
+  std::string path_;
+  ContourFormat format_;
+  ContourWriterOptions o_;
+  std::string tempDir_, tempPath_;
+  GDALDataset* ds_ = nullptr;
+  OGRLayer* layer_ = nullptr;
+  OGRFeature* feature_ = nullptr;
+  int elevField_ = -1, indexField_ = -1;
+  bool inTransaction_ = false;
+  std::size_t pending_ = 0;
+  bool committed_ = false;
+};
+
+}  // namespace
+
+bool contourFormatForPath(const std::string& path, ContourFormat& format) {
+  const std::string ext = lower(fs::path(path).extension().string());
+  if (ext == ".gpkg")
+    format = ContourFormat::GeoPackage;
+  else if (ext == ".geojson" || ext == ".json")
+    format = ContourFormat::GeoJson;
+  else if (ext == ".fgb")
+    format = ContourFormat::FlatGeobuf;
+  else if (ext == ".shp")
+    format = ContourFormat::Shapefile;
+  else
+    return false;
+  return true;
+}
+
+std::vector<std::string> contourOutputPaths(const std::string& path) {
+  ContourFormat f;
+  if (!contourFormatForPath(path, f) || f != ContourFormat::Shapefile) return {path};
+  std::vector<std::string> out{path};
+  for (const char* ext : {".shx", ".dbf", ".prj", ".cpg"})
+    out.push_back(fs::path(path).replace_extension(ext).string());
+  return out;
+}
+
+std::unique_ptr<ContourLineSink> openContourWriter(const std::string& path,
+                                                   const ContourWriterOptions& options) {
+  ContourFormat f;
+  if (!contourFormatForPath(path, f))
+    throw UsageError("cannot tell the vector format of '" + path +
+                     "' (use .gpkg, .geojson, .json, .fgb or .shp)");
+  return std::make_unique<ContourWriter>(path, f, options);
+}
+
+}  // namespace tinbuild
