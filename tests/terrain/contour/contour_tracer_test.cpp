@@ -16,12 +16,14 @@
 #include <unordered_map>
 #include <vector>
 
+#include "formats/pointcloud/las_reader.h"
 #include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/delaunay/predicates.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "libterrain/synthetic/synthetic_survey.h"
+#include "test_support.h"
 
 namespace tinbuild {
 namespace {
@@ -423,6 +425,29 @@ TEST(ContourTracer, RandomTerrainMatchesReference) {
   // Deterministic.
   const TraceRun again = trace(rec, opt);
   EXPECT_TRUE(sameLines(run.out.lines, again.out.lines));
+}
+
+// Real surveys of ../shared/data (default filters, as `build`): the contours of the product's TIN equal
+// the per-triangle reference's, lines are closed or end on the hull, and no two lines cross.
+TEST(ContourTracer, RealSurveysMatchReference) {
+  TINBUILD_REQUIRE_DATA();
+  const std::pair<const char*, double> cases[] = {
+      {"las/autzen_trim.las", 2.0}, {"las/Topography.las", 1.0}, {"las/hexbin-crop.las", 0.5}};
+  for (const auto& [rel, interval] : cases) {
+    Diagnostics diag;
+    LasReader reader(test::dataPath(rel), diag);
+    std::vector<PointRecord> pts, batch(std::size_t{1} << 14);
+    for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+      pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+    const Recorder rec = triangulate(pts);
+    ContourOptions opt;
+    opt.interval = interval;
+    opt.indexEvery = 5;
+    const TraceRun run = trace(rec, opt);
+    SCOPED_TRACE(rel);
+    checkAll(rec, opt, run, false);  // (quantized heights: vertices sit on levels)
+    EXPECT_GT(run.stats.lines, 10u);
+  }
 }
 
 // z quantized to the interval's half: many equal z, many vertices on levels.
