@@ -17,6 +17,7 @@
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "test_support.h"
+#include "vector_stream.h"
 
 namespace tinbuild {
 namespace {
@@ -385,22 +386,7 @@ TEST(Reprojection, EachThreadWithItsOwnTransformAgrees) {
     }
 }
 
-class VectorStream : public PointStream {
- public:
-  VectorStream(std::vector<PointRecord> pts, std::size_t batch) : pts_(std::move(pts)), batch_(batch) {}
-  std::size_t read(PointRecord* out, std::size_t max) override {
-    const std::size_t n = std::min({max, batch_, pts_.size() - pos_});
-    std::copy_n(pts_.begin() + static_cast<std::ptrdiff_t>(pos_), n, out);
-    pos_ += n;
-    return n;
-  }
-  bool rewindable() const override { return true; }
-  void rewind() override { pos_ = 0; }
-
- private:
-  std::vector<PointRecord> pts_;
-  std::size_t batch_, pos_ = 0;
-};
+using test::VectorStream;
 
 TEST(Reprojection, TransformingStreamDropsCountsPerPassAndRewinds) {
   PointTransform t(crsFromUser("EPSG:4326"), crsFromUser("EPSG:32615"));

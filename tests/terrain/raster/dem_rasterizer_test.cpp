@@ -19,27 +19,12 @@
 #include "libterrain/mesh/mesh_tee.h"
 #include "libterrain/raster/dem_rasterizer.h"
 #include "libterrain/synthetic/synthetic_survey.h"
+#include "vector_stream.h"
 
 namespace tinbuild {
 namespace {
 
-class VectorStream : public PointStream {
- public:
-  explicit VectorStream(std::vector<PointRecord> pts) : pts_(std::move(pts)) {}
-  std::size_t read(PointRecord* out, std::size_t max) override {
-    const std::size_t n = std::min(max, pts_.size() - pos_);
-    std::copy(pts_.begin() + static_cast<std::ptrdiff_t>(pos_),
-              pts_.begin() + static_cast<std::ptrdiff_t>(pos_ + n), out);
-    pos_ += n;
-    return n;
-  }
-  bool rewindable() const override { return true; }
-  void rewind() override { pos_ = 0; }
-
- private:
-  std::vector<PointRecord> pts_;
-  std::size_t pos_ = 0;
-};
+using test::VectorStream;
 
 // Assembles the whole raster from the tiles it is handed; checks no tile comes twice.
 struct Assembler : DemTileSink {
