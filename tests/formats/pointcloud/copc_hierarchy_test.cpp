@@ -15,6 +15,7 @@
 #include <tuple>
 #include <vector>
 
+#include "formats/io/little_endian.h"
 #include "formats/pointcloud/copc_hierarchy.h"
 #include "formats/pointcloud/las_reader.h"
 #include "formats/pointcloud/laz/chunk_codec.h"
@@ -25,13 +26,6 @@
 
 namespace tinbuild {
 namespace {
-
-template <typename T>
-T le(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 
 std::vector<std::uint8_t> slurp(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -97,8 +91,8 @@ TEST_P(RealCopcFiles, HierarchyAgreesWithHeaderChunkTableAndPoints) {
 
   // Chunks: inside the point data (after the chunk table offset, before the table), disjoint, and the
   // very chunks (offset, bytes, points) of the LAZ chunk table.
-  const std::uint64_t pointOffset = le<std::uint32_t>(bytes.data() + 96);
-  const auto tableAt = static_cast<std::uint64_t>(le<std::int64_t>(bytes.data() + pointOffset));
+  const std::uint64_t pointOffset = le::get<std::uint32_t>(bytes.data() + 96);
+  const auto tableAt = static_cast<std::uint64_t>(le::get<std::int64_t>(bytes.data() + pointOffset));
   ASSERT_LT(tableAt, bytes.size());
   std::vector<std::tuple<std::uint64_t, std::uint64_t, std::uint64_t>> fromHierarchy, fromTable;
   for (const CopcNode& n : h.nodes) {
@@ -159,9 +153,9 @@ TEST_P(RealCopcFiles, HierarchyAgreesWithHeaderChunkTableAndPoints) {
               n.points);
     for (std::uint64_t i = 0; i < n.points; ++i) {
       const std::uint8_t* r = records.data() + i * stride;
-      const double p[3] = {le<std::int32_t>(r) * info.scale[0] + info.offset[0],
-                           le<std::int32_t>(r + 4) * info.scale[1] + info.offset[1],
-                           le<std::int32_t>(r + 8) * info.scale[2] + info.offset[2]};
+      const double p[3] = {le::get<std::int32_t>(r) * info.scale[0] + info.offset[0],
+                           le::get<std::int32_t>(r + 4) * info.scale[1] + info.offset[1],
+                           le::get<std::int32_t>(r + 8) * info.scale[2] + info.offset[2]};
       if (!grown(n.cube).contains(p[0], p[1], p[2])) ++outside;
     }
   }

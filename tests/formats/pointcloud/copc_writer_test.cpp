@@ -19,6 +19,7 @@
 #include <tuple>
 #include <vector>
 
+#include "formats/io/little_endian.h"
 #include "formats/pointcloud/copc_hierarchy.h"
 #include "formats/pointcloud/copc_writer.h"
 #include "formats/pointcloud/las_reader.h"
@@ -33,13 +34,6 @@
 
 namespace tinbuild {
 namespace {
-
-template <typename T>
-T le(const std::uint8_t* p) {
-  T v;
-  std::memcpy(&v, p, sizeof v);
-  return v;
-}
 
 std::vector<std::uint8_t> slurp(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
@@ -190,8 +184,8 @@ Checked writeAndCheck(const std::string& path, const std::vector<PointRecord>& p
   EXPECT_EQ(empty, stats.emptyNodes);
 
   // The nodes' chunks are the LAZ chunk table's, in the level-major order of the writer.
-  const std::uint64_t pointOffset = le<std::uint32_t>(bytes.data() + 96);
-  const auto tableAt = static_cast<std::uint64_t>(le<std::int64_t>(bytes.data() + pointOffset));
+  const std::uint64_t pointOffset = le::get<std::uint32_t>(bytes.data() + 96);
+  const auto tableAt = static_cast<std::uint64_t>(le::get<std::int64_t>(bytes.data() + pointOffset));
   EXPECT_LT(tableAt, bytes.size());
   if (tableAt >= bytes.size()) return result;
   const LasVlr* lazVlr = nullptr;
@@ -245,10 +239,10 @@ Checked writeAndCheck(const std::string& path, const std::vector<PointRecord>& p
     for (std::uint64_t i = 0; i < n.points; ++i) {
       const std::uint8_t* r = records.data() + i * stride;
       PointRecord p;
-      p.x = le<std::int32_t>(r) * info.scale[0] + info.offset[0];
-      p.y = le<std::int32_t>(r + 4) * info.scale[1] + info.offset[1];
-      p.z = le<std::int32_t>(r + 8) * info.scale[2] + info.offset[2];
-      p.intensity = le<std::uint16_t>(r + 12);
+      p.x = le::get<std::int32_t>(r) * info.scale[0] + info.offset[0];
+      p.y = le::get<std::int32_t>(r + 4) * info.scale[1] + info.offset[1];
+      p.z = le::get<std::int32_t>(r + 8) * info.scale[2] + info.offset[2];
+      p.intensity = le::get<std::uint16_t>(r + 12);
       p.returnNumber = r[14] & 15;
       p.numberOfReturns = r[14] >> 4;
       p.flags = r[15] & 15;
@@ -464,8 +458,8 @@ TEST(LasWriterForCopc, VariableChunksReservedVlrAndEvlrs) {
   w.close();
 
   const std::vector<std::uint8_t> bytes = slurp(path);
-  EXPECT_EQ(le<std::uint64_t>(bytes.data() + 235), first - 60);  // start of the first EVLR
-  EXPECT_EQ(le<std::uint32_t>(bytes.data() + 243), 2u);          // EVLR count
+  EXPECT_EQ(le::get<std::uint64_t>(bytes.data() + 235), first - 60);  // start of the first EVLR
+  EXPECT_EQ(le::get<std::uint32_t>(bytes.data() + 243), 2u);          // EVLR count
   EXPECT_EQ(bytes.size(), first + 3 + 60 + 100);
   Diagnostics diag;
   LasReader reader(path, diag);
