@@ -15,6 +15,7 @@
 #include <limits>
 #include <vector>
 
+#include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
 
@@ -37,17 +38,9 @@ U byteSwap(U v) {
 }
 
 template <typename U>
-inline void putLE(std::uint8_t* p, U v) {
-  if constexpr (std::endian::native == std::endian::big) v = byteSwap(v);
-  std::memcpy(p, &v, sizeof v);
-}
-template <typename U>
 inline void putBE(std::uint8_t* p, U v) {
   if constexpr (std::endian::native == std::endian::little) v = byteSwap(v);
   std::memcpy(p, &v, sizeof v);
-}
-inline void putF64LE(std::uint8_t* p, double d) {
-  putLE(p, std::bit_cast<std::uint64_t>(d));
 }
 inline void putF32BE(std::uint8_t* p, float f) {
   putBE(p, std::bit_cast<std::uint32_t>(f));
@@ -61,7 +54,7 @@ inline void putGpHeader(std::uint8_t* p, std::int32_t srsId) {
   p[1] = 'P';
   p[2] = 0;
   p[3] = 0x01;
-  putLE(p + 4, static_cast<std::uint32_t>(srsId));
+  le::putU32(p + 4, static_cast<std::uint32_t>(srsId));
 }
 // ISO WKB Polygon Z (1003), one ring of 4 points: 1 + 4 + 4 + 4 + 4 * 24 bytes.
 constexpr std::size_t kTriangleBlobBytes = kGpHeaderBytes + 13 + 4 * 24;
@@ -705,10 +698,10 @@ class GpkgTinWriter final : public TriangleSink {
     std::uint8_t* p = l.insert.blob();
     putGpHeader(p, srs_.id);
     p[8] = 1;
-    putLE(p + 9, std::uint32_t{1001});
-    putF64LE(p + 13, v.x);
-    putF64LE(p + 21, v.y);
-    putF64LE(p + 29, v.z);
+    le::putU32(p + 9, std::uint32_t{1001});
+    le::putF64(p + 13, v.x);
+    le::putF64(p + 21, v.y);
+    le::putF64(p + 29, v.z);
     l.insert.ints()[0] = static_cast<std::int64_t>(v.id);
     l.insert.rowDone(kPointBlobBytes);
     l.extent.add(v.x, v.y);
@@ -722,14 +715,14 @@ class GpkgTinWriter final : public TriangleSink {
     std::uint8_t* p = l.insert.blob();
     putGpHeader(p, srs_.id);
     p[8] = 1;
-    putLE(p + 9, std::uint32_t{1003});
-    putLE(p + 13, std::uint32_t{1});
-    putLE(p + 17, std::uint32_t{4});
+    le::putU32(p + 9, std::uint32_t{1003});
+    le::putU32(p + 13, std::uint32_t{1});
+    le::putU32(p + 17, std::uint32_t{4});
     std::uint8_t* q = p + 21;
     for (const MeshVertex* v : {&a, &b, &c, &a}) {
-      putF64LE(q, v->x);
-      putF64LE(q + 8, v->y);
-      putF64LE(q + 16, v->z);
+      le::putF64(q, v->x);
+      le::putF64(q + 8, v->y);
+      le::putF64(q + 16, v->z);
       q += 24;
     }
     if (o_.vertexIds) {
