@@ -3,16 +3,19 @@
 // The folders, by role (docs/design.md, "The tree"):
 //   registry/    the two tables.  readerTable(): an input is recognised once, by its first bytes (COPC,
 //                LAZ, LAS, XYZ text), never by its name, and opened by its row.  writerTable(): an output
-//                (--mesh, --gpkg, --dem and a path) is resolved once, at start, to a row that names the
+//                (--mesh, --gpkg, --dem, --contours and a path) is resolved once, at start, to a row that names the
 //                files it will write and opens it.  A new format is one row and one file.
 //   pointcloud/  everything that yields points: LAS 1.0-1.4 reader and writer, XYZ text, the finalized
 //                point stream (our own format), directory and pattern input lists; laz/ the LAZ codec.
-//   mesh/        triangle outputs: SMB/SMA streaming meshes (and reading them back), PLY/OBJ, GeoPackage TIN.
+//   mesh/        triangle outputs: SMB/SMA streaming meshes (and reading them back), PLY/OBJ, GeoPackage TIN
+//                (written with SQLite), UGRID mesh on NetCDF-4.
 //   raster/      DEM outputs through GDAL: GeoTIFF tiles + VRT mosaics, one GeoTIFF or COG, GeoPackage
-//                raster; the PNG quick-look.
+//                raster; the PNG quick-look (with contour lines drawn over it).
+//   vector/      vector outputs through OGR: contour lines (GeoPackage, GeoJSON, FlatGeobuf, Shapefile).
 //   crs/         CRSs from GeoTIFF keys, WKT, EPSG codes and user strings; comparison; reprojection of
 //                points; UTM zone choice; lengths with units.
-//   io/          files that are complete or absent (temporary name, rename on success), stdin with push-back.
+//   io/          files that are complete or absent (temporary name, rename on success), stdin with push-back,
+//                little-endian fields.
 //
 // Invariants every writer keeps: output goes to a temporary name beside the target and is renamed only
 // when the run succeeds; a writer destroyed before end() removes what it wrote; I/O errors are DataErrors

@@ -17,11 +17,13 @@
 //   mesh/       MeshSink / TriangleSink and the MeshTee that fans a mesh out to many outputs, on a writer
 //               thread when asked, with checkpoint agents for "is this area complete?".
 //   raster/     the DEM rasterizer: TIN interpolation at pixel centres, tiles released when complete.
+//   contour/    the streaming contour tracer: isolines cut from the mesh as it streams, chained into lines.
 //   synthetic/  realistic synthetic surveys (terrain, classes, returns, flight strips) for the demo,
 //               tests and benchmarks.
 // Nothing here includes formats/ or app/.
 #pragma once
 
+#include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"

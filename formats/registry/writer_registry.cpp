@@ -77,10 +77,6 @@ std::unique_ptr<OpenedOutput> openConventionalMesh(const std::string& path, cons
 
 // ---- UGRID mesh on NetCDF: the CRS travels in the file (a `crs` grid-mapping variable) ----
 
-bool matchesUgrid(const std::string& path) {
-  return isUgridPath(path);
-}
-
 std::unique_ptr<OpenedOutput> openUgrid(const std::string& path, const WriterContext& c) {
   UgridWriterOptions uo;
   uo.crs = c.crs;
@@ -210,10 +206,6 @@ class ContourOutput : public OpenedOutput {
   std::unique_ptr<ContourTracer> tracer_;
 };
 
-bool matchesContours(const std::string& path) {
-  return isContourPath(path);
-}
-
 std::vector<std::string> contourTargets(const std::string& path, const WriterContext&) {
   return contourOutputPaths(path);
 }
@@ -234,7 +226,7 @@ const std::vector<WriterRow>& writerTable() {
        openConventionalMesh<ConventionalMeshFormat::Ply>},
       {WriterKind::Obj, OutputOption::Mesh, "OBJ", matchesObj, false, fileAndPrj,
        openConventionalMesh<ConventionalMeshFormat::Obj>},
-      {WriterKind::UgridNetcdf, OutputOption::Mesh, "UGRID NetCDF", matchesUgrid, false, oneFile, openUgrid},
+      {WriterKind::UgridNetcdf, OutputOption::Mesh, "UGRID NetCDF", isUgridPath, false, oneFile, openUgrid},
       {WriterKind::StreamingMeshAscii, OutputOption::Mesh, "SMA", matchesSma, false, oneFile,
        openStreamingMesh<MeshFileFormat::Sma>},
       {WriterKind::StreamingMeshBinary, OutputOption::Mesh, "SMB", matchesSmb, true, oneFile,
@@ -247,7 +239,7 @@ const std::vector<WriterRow>& writerTable() {
        demFileTargets<DemTarget::GeoPackage>, openDem<DemTarget::GeoPackage>},
       {WriterKind::DemTileDirectory, OutputOption::Dem, "GeoTIFF tiles + VRT", matchesDemDirectory, false,
        demDirectoryTargets, openDem<DemTarget::TileDirectory>},
-      {WriterKind::Contours, OutputOption::Contours, "contour lines", matchesContours, false, contourTargets,
+      {WriterKind::Contours, OutputOption::Contours, "contour lines", isContourPath, false, contourTargets,
        openContours},
   };
   return table;
