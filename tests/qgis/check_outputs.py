@@ -1,6 +1,7 @@
 #!/usr/bin/python3
 """Opens tinbuild's outputs in QGIS, headless, the way a GIS analyst would: the DEM (GeoTIFF tiles
-under a VRT, and the GeoTIFF), the GeoPackage TIN (a vector layer with its spatial index) and the UGRID
+under a VRT, and the GeoTIFF), the GeoPackage TIN and the contour lines (vector layers with their
+spatial index) and the UGRID
 NetCDF mesh (a mesh layer through MDAL).  Each must be valid, carry the survey's CRS and hold what the
 run report says (features, faces, vertices).
 
@@ -63,12 +64,14 @@ def main():
         report = os.path.join(out, "report.json")
         run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
              "--mesh", os.path.join(out, "tin.nc"), "--gpkg", os.path.join(out, "tin.gpkg"),
-             "--dem", os.path.join(out, "dem"), "--step", "1", "--report", report])
+             "--dem", os.path.join(out, "dem"), "--step", "1", "--report", report,
+             "--contours", os.path.join(out, "contours.gpkg"), "--interval", "1", "--index-every", "5"])
         run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
              "--dem", os.path.join(out, "dem.tif"), "--step", "2"])
         rep = json.load(open(report))
         triangles = rep["triangulation"]["triangles"]
         vertices = rep["triangulation"]["vertices"]
+        contourLines = rep["contours"]["lines"]
         want = QgsCoordinateReferenceSystem("EPSG:32610")
 
         QgsApplication.setPrefixPath("/usr", True)
@@ -105,6 +108,16 @@ def main():
                 g = f.geometry()
                 check(g.constGet().is3D() and g.constGet().vertexCount() == 4,
                       f"a feature is a 3D triangle ring ({g.asWkt(3)[:60]}...)")
+
+            # The contour lines.
+            iso = QgsVectorLayer(os.path.join(out, "contours.gpkg") + "|layername=contours", "contours", "ogr")
+            check(iso.isValid(), "contours.gpkg opens as a vector layer")
+            if iso.isValid():
+                check(iso.crs() == want, f"contours.gpkg CRS {iso.crs().authid()} is EPSG:32610")
+                check(iso.featureCount() == contourLines,
+                      f"contours.gpkg holds {iso.featureCount()} lines, the report {contourLines}")
+                check(iso.dataProvider().hasSpatialIndex() == QgsFeatureSource.SpatialIndexPresent,
+                      "contours.gpkg has its spatial index")
 
             # The UGRID mesh.
             mesh = QgsMeshLayer(os.path.join(out, "tin.nc"), "tin", "mdal")
