@@ -26,6 +26,7 @@
 
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/temp_file.h"
 
 namespace tinbuild {
 
@@ -175,106 +176,6 @@ std::string withCommas(std::uint64_t n) {
   for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
   return s;
 }
-
-// ---------------------------------------------------------------------------------------------------
-// Temporary files: created with mkstemp and unlinked at once, so no exit path leaves one behind.
-
-class TempFile {
- public:
-  TempFile(const std::string& dir, const char* stem) {
-    std::string base = dir;
-    if (base.empty()) {
-      const char* env = std::getenv("TMPDIR");
-      base = env && *env ? env : "/tmp";
-    }
-    std::string templ = base + "/tinbuild-" + stem + "-XXXXXX";
-    std::vector<char> name(templ.begin(), templ.end());
-    name.push_back('\0');
-    fd_ = ::mkstemp(name.data());
-    if (fd_ < 0)
-      throw DataError(base,
-                      std::string("cannot create a temporary ") + stem + " file: " + std::strerror(errno));
-    path_ = name.data();
-    ::unlink(path_.c_str());
-  }
-  ~TempFile() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  TempFile(const TempFile&) = delete;
-  TempFile& operator=(const TempFile&) = delete;
-
-  const std::string& path() const { return path_; }
-
-  void writeAt(std::uint64_t offset, const void* data, std::size_t size) {
-    const char* p = static_cast<const char*>(data);
-    while (size > 0) {
-      const ssize_t w = ::pwrite(fd_, p, size, static_cast<off_t>(offset));
-      if (w < 0) {
-        if (errno == EINTR) continue;
-        fail("cannot write");
-      }
-      p += w;
-      size -= static_cast<std::size_t>(w);
-      offset += static_cast<std::uint64_t>(w);
-    }
-  }
-  // Writes the buffers back to back at `offset`.
-  void writeAt(std::uint64_t offset, std::vector<iovec>& iov) {
-    std::size_t first = 0;
-    while (first < iov.size()) {
-      const int count = static_cast<int>(std::min<std::size_t>(iov.size() - first, IOV_MAX));
-      const ssize_t w = ::pwritev(fd_, iov.data() + first, count, static_cast<off_t>(offset));
-      if (w < 0) {
-        if (errno == EINTR) continue;
-        fail("cannot write");
-      }
-      offset += static_cast<std::uint64_t>(w);
-      std::size_t done = static_cast<std::size_t>(w);
-      while (first < iov.size() && done >= iov[first].iov_len) done -= iov[first++].iov_len;
-      if (done > 0) {  // partial write inside a buffer
-        iov[first].iov_base = static_cast<char*>(iov[first].iov_base) + done;
-        iov[first].iov_len -= done;
-      }
-    }
-  }
-  // Bytes still free for an unprivileged writer on the file's file system (max when it cannot tell).
-  std::uint64_t freeBytes() const {
-    struct statvfs v {};
-    if (::fstatvfs(fd_, &v) != 0) return UINT64_MAX;
-    return static_cast<std::uint64_t>(v.f_bavail) * static_cast<std::uint64_t>(v.f_frsize);
-  }
-  void readAt(std::uint64_t offset, void* data, std::size_t size) {
-    char* p = static_cast<char*>(data);
-    while (size > 0) {
-      const ssize_t r = ::pread(fd_, p, size, static_cast<off_t>(offset));
-      if (r < 0) {
-        if (errno == EINTR) continue;
-        fail("cannot read");
-      }
-      if (r == 0) throw DataError(path_, "temporary file shorter than written (was it truncated?)");
-      p += r;
-      size -= static_cast<std::size_t>(r);
-      offset += static_cast<std::uint64_t>(r);
-    }
-  }
-  // Gives disk space back once a range has been read for the last time (best effort).
-  void discard(std::uint64_t offset, std::uint64_t size) {
-#if defined(FALLOC_FL_PUNCH_HOLE) && defined(FALLOC_FL_KEEP_SIZE)
-    (void)::fallocate(fd_, FALLOC_FL_PUNCH_HOLE | FALLOC_FL_KEEP_SIZE, static_cast<off_t>(offset),
-                      static_cast<off_t>(size));
-#else
-    (void)offset;
-    (void)size;
-#endif
-  }
-
- private:
-  [[noreturn]] void fail(const char* what) {
-    throw DataError(path_, std::string(what) + " temporary file: " + std::strerror(errno));
-  }
-  int fd_ = -1;
-  std::string path_;
-};
 
 // ---------------------------------------------------------------------------------------------------
 // Progress in GDAL's convention, scaled to a sub-range per pass, never going backwards.
