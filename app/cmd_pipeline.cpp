@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <bitset>
 #include <charconv>
 #include <cmath>
 #include <cstdio>
@@ -262,7 +263,8 @@ int runBuildCommand(const cli::ParsedArgs& args) {
         "build: name an output: --mesh FILE.smb|.sma|.ply|.obj|.nc, --dem DIR|FILE.tif|FILE.gpkg, --gpkg "
         "FILE.gpkg, --contours FILE.gpkg|.geojson|.fgb|.shp");
   if (o.contoursOutput.empty()) {
-    for (const char* opt : {"--interval", "--base", "--index-every", "--min-length"})
+    for (const char* opt : {"--interval", "--base", "--index-every", "--min-length", "--simplify", "--max-vertices",
+                            "--contour-class"})
       if (args.has(opt)) throw UsageError(std::string(opt) + " applies to contours: add --contours FILE");
   } else {
     if (!args.has("--interval"))
@@ -277,6 +279,33 @@ int runBuildCommand(const cli::ParsedArgs& args) {
     c.minLength = args.getDouble("--min-length", 0);
     if (!(c.minLength >= 0) || !std::isfinite(c.minLength))
       throw UsageError("--min-length must be 0 or more, got '" + args.get("--min-length") + "'");
+    c.simplify = args.getDouble("--simplify", 0);
+    if (!(c.simplify >= 0) || !std::isfinite(c.simplify))
+      throw UsageError("--simplify must be 0 or more, got '" + args.get("--simplify") + "'");
+    c.maxVertices = static_cast<std::size_t>(args.getInt("--max-vertices", 0, 0, 1 << 30));
+    if (c.maxVertices == 1) throw UsageError("--max-vertices must be 0 (no limit) or at least 2");
+    c.tempDir = o.finalizer.tempDir;
+    if (args.has("--contour-class")) {
+      // Contours are cut from the run's one TIN: the classes must be the TIN's.  Alone, the option sets
+      // them; with other outputs it must agree with --keep-class/--drop-class.
+      std::bitset<256> drop;
+      drop.set();
+      for (int k : parseClassList("--contour-class", args.get("--contour-class")))
+        drop.reset(static_cast<std::size_t>(k));
+      const bool otherOutputs = !o.meshOutput.empty() || !o.gpkgOutput.empty() || args.has("--dem");
+      std::bitset<256>& runDrop = o.finalizer.filter.dropClasses;
+      if (!otherOutputs && !args.has("--keep-class") && !args.has("--drop-class")) {
+        runDrop = drop;
+      } else if (runDrop != drop) {
+        throw UsageError("--contour-class " + args.get("--contour-class") +
+                         " differs from the classes of the run's TIN (" +
+                         (args.has("--keep-class")   ? "--keep-class " + args.get("--keep-class")
+                          : args.has("--drop-class") ? "--drop-class " + args.get("--drop-class")
+                                                     : std::string("by default all but classes 7 and 18")) +
+                         "), which the other outputs use: contours are cut from that one TIN. Give the same "
+                         "classes with --keep-class, or make the contours in a build of their own");
+      }
+    }
   }
   if (!o.meshOutput.empty()) refuseBinaryToTerminal(o.meshOutput, "build");
   if (o.gpkgPoints && o.gpkgOutput.empty()) throw UsageError("--gpkg-points needs --gpkg FILE.gpkg");
@@ -424,6 +453,13 @@ Command buildCommand() {
            {"--index-every", "N",
             "contours: every N-th level (k % N == 0) is an index contour (default 0: none)"},
            {"--min-length", "L", "contours: drop closed loops shorter than L in CRS units (default 0)"},
+           {"--simplify", "T",
+            "contours: drop vertices within T (CRS units) of the simplified line, never letting lines cross "
+            "or loops change what they enclose (default 0: exact)"},
+           {"--max-vertices", "N", "contours: split lines into features of at most N vertices (default 0: never)"},
+           {"--contour-class", "LIST",
+            "contours: the TIN's classes, e.g. 2 (alone: sets them; with other outputs: must equal "
+            "--keep-class)"},
            {"--dem", "DIR|FILE.tif|FILE.gpkg",
             "DEM: GeoTIFF tiles + mosaic.vrt in DIR, one GeoTIFF, or a GeoPackage raster"},
            {"--step", "R", "DEM pixel size (metres; or with a unit: 3ft, 1ftUS, 2u = CRS units) (default 1)"},

@@ -776,7 +776,12 @@ std::string formatRunSummary(const RunReport& r) {
              (c.droppedShort ? "; " + withCommas(c.droppedShort) +
                                    " loops dropped (shorter than --min-length, or a summit exactly at a level)"
                              : std::string()) +
-             "; at most " + withCommas(c.peakOpenEnds) + " open line ends");
+             (c.simplifiedAway ? "; " + withCommas(c.simplifiedAway) + " vertices removed by --simplify"
+                               : std::string()) +
+             "; at most " + withCommas(c.peakOpenEnds) + " open line ends and " + withCommas(c.peakOpenPoints) +
+             " of their points in memory" +
+             (c.spilledPoints ? " (" + withCommas(c.spilledPoints) + " points of long lines spilled to disk)"
+                              : std::string()));
   }
   return o;
 }
@@ -959,6 +964,11 @@ std::string formatRunJson(const RunReport& r) {
     j.key("dropped_short").value(c.droppedShort);
     j.key("vertices").value(c.vertices);
     j.key("peak_open_ends").value(c.peakOpenEnds);
+    j.key("peak_open_points").value(c.peakOpenPoints);
+    j.key("spilled_points").value(c.spilledPoints);
+    j.key("simplify").value(r.contours.simplify);
+    j.key("simplified_away").value(c.simplifiedAway);
+    j.key("max_vertices").value(static_cast<std::uint64_t>(r.contours.maxVertices));
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -3,9 +3,12 @@
 
 #include <algorithm>
 #include <cmath>
+#include <memory>
 #include <utility>
 
 #include "libterrain/core/error.h"
+#include "libterrain/core/temp_file.h"
+#include "libterrain/delaunay/predicates.h"
 
 namespace tinbuild {
 
@@ -38,16 +41,52 @@ struct IdHash {
   }
 };
 
-// An unfinished line: its points are reverse(front) followed by back (prepending is front.push_back).
+// Where a line point was cut: the TIN edge it lies on (both endpoints, with z) and whether it is a vertex
+// exactly on the level (such points are never simplified away).  Kept only with --simplify.
+struct Portal {
+  double ax, ay, az, bx, by, bz;
+  bool pinned;
+};
+
+// A run of line points held in memory (with their portals when simplifying).
+struct Run {
+  std::vector<Pt> pts;
+  std::vector<Portal> portals;
+  std::size_t size() const { return pts.size(); }
+  bool empty() const { return pts.empty(); }
+  void clear() {
+    pts.clear();
+    portals.clear();
+  }
+  void release() {  // drops a large buffer, keeps a small one for reuse
+    clear();
+    if (pts.capacity() > 64) std::vector<Pt>().swap(pts);
+    if (portals.capacity() > 64) std::vector<Portal>().swap(portals);
+  }
+};
+
+// A run of points written to the spill file: `count` points from byte `offset`, stored in reverse line
+// order when `reversed`.
+struct Chunk {
+  std::uint64_t offset;
+  std::uint32_t count;
+  bool reversed;
+};
+
+// An unfinished line: its points are reverse(front), then the spilled chunks reverse(midFront) and
+// midBack, then back.  Prepending is front.push_back, appending back.push_back; a run that reaches
+// ContourOptions::spillRun points goes to the spill file (simplified first, when simplifying) as a chunk
+// pushed on midFront or midBack, so memory per open end is bounded.
 struct Poly {
-  std::vector<Pt> front, back;
+  Run front, back;
+  std::vector<Chunk> midFront, midBack;
+  std::uint64_t midCount = 0;
+  bool midEmpty() const { return midFront.empty() && midBack.empty(); }
   Key startKey{}, endKey{};
   std::int64_t k = 0;
   bool startFinal = false, endFinal = false;
   bool live = false;
-  std::size_t size() const { return front.size() + back.size(); }
-  const Pt& first() const { return front.empty() ? back.front() : front.back(); }
-  const Pt& last() const { return back.empty() ? front.front() : back.back(); }
+  std::uint64_t size() const { return front.size() + back.size() + midCount; }
 };
 
 struct Vert {
@@ -142,6 +181,8 @@ struct ContourTracer::Impl {
   ContourOptions opt;
   ContourLineSink& out;
   ContourStats stats;
+  bool simplifying = false;
+  std::size_t spillRun = 256;
 
   FlatMap<std::uint64_t, std::uint32_t, IdHash> vertexSlot;
   std::vector<Vert> verts;
@@ -150,11 +191,21 @@ struct ContourTracer::Impl {
   FlatMap<Key, EndRef, KeyHash> ends;
   std::vector<Poly> polys;
   std::vector<std::uint32_t> freePolys;
-  std::uint64_t openPoints = 0;
+  std::uint64_t openPoints = 0;  // points of unfinished lines held in memory
+
+  std::unique_ptr<TempFile> spill;  // created by the first spilled run
+  std::uint64_t spillEnd = 0;
 
   ContourLine scratch;
+  Run joined;                         // emit(): a line held in memory, as one run
+  std::vector<Pt> chunkBuf;           // emit(): a spilled chunk read back
+  std::vector<std::uint8_t> keep;     // simplifyRun()
+  std::vector<std::pair<std::size_t, std::size_t>> spans;
 
-  Impl(const ContourOptions& o, ContourLineSink& s) : opt(o), out(s) {}
+  Impl(const ContourOptions& o, ContourLineSink& s) : opt(o), out(s) {
+    simplifying = opt.simplify > 0;
+    spillRun = std::max<std::size_t>(opt.spillRun, 2);
+  }
 
   double level(std::int64_t k) const { return opt.base + static_cast<double>(k) * opt.interval; }
 
@@ -167,6 +218,8 @@ struct ContourTracer::Impl {
     polys.clear();
     freePolys.clear();
     openPoints = 0;
+    spill.reset();
+    spillEnd = 0;
   }
 
   Vert& vert(std::uint64_t id) {
@@ -206,15 +259,13 @@ struct ContourTracer::Impl {
     Poly& p = polys[id];
     p.front.clear();
     p.back.clear();
+    p.midFront.clear();
+    p.midBack.clear();
+    p.midCount = 0;
     p.k = k;
     p.startFinal = p.endFinal = false;
     p.live = true;
     return id;
-  }
-
-  void pushPoint(std::vector<Pt>& v, const Pt& p) {
-    v.push_back(p);
-    ++openPoints;
   }
 
   // The vertices of a key's edge (either order).
@@ -222,6 +273,73 @@ struct ContourTracer::Impl {
     Vert* u;
     Vert* v;
   };
+
+  static Portal portalOf(EdgeVerts ev, double L) {
+    return Portal{ev.u->x, ev.u->y, ev.u->z, ev.v->x, ev.v->y, ev.v->z, ev.u->z == L || ev.v->z == L};
+  }
+
+  // Appends a point to a run (front: prepends it to the line); a full run goes to the spill file.
+  void pushPoint(std::uint32_t id, bool toFront, const Pt& p, EdgeVerts ev, double L) {
+    Poly& poly = polys[id];
+    Run& r = toFront ? poly.front : poly.back;
+    r.pts.push_back(p);
+    if (simplifying) r.portals.push_back(portalOf(ev, L));
+    ++openPoints;
+    notePeak();
+    if (r.size() >= spillRun) spillRunOf(poly, toFront);
+  }
+
+  // Writes the front or back run of a line to the spill file (after simplifying it, when asked) as one
+  // chunk of its middle, and empties the run.
+  void spillRunOf(Poly& p, bool isFront) {
+    Run& r = isFront ? p.front : p.back;
+    if (r.empty()) return;
+    openPoints -= r.size();
+    if (simplifying) simplifyRun(r, level(p.k));
+    if (!spill) spill = std::make_unique<TempFile>(opt.tempDir, "contours");
+    const std::size_t n = r.size();
+    spill->writeAt(spillEnd, r.pts.data(), n * sizeof(Pt));
+    const Chunk c{spillEnd, static_cast<std::uint32_t>(n), isFront};
+    if (isFront) p.midFront.push_back(c);
+    else p.midBack.push_back(c);
+    p.midCount += n;
+    spillEnd += n * sizeof(Pt);
+    stats.spilledPoints += n;
+    r.release();  // a long line's runs refill slowly: do not keep 2 full buffers per open line
+  }
+
+  // Removes the first point of line b (it repeats the last point of the line joined before it).
+  void dropFirstPoint(Poly& b) {
+    if (!b.front.empty()) {
+      b.front.pts.pop_back();
+      if (simplifying) b.front.portals.pop_back();
+      --openPoints;
+    } else if (!b.midEmpty()) {  // the first chunk: midFront's last, else midBack's first
+      Chunk& c = b.midFront.empty() ? b.midBack.front() : b.midFront.back();
+      if (!c.reversed) c.offset += sizeof(Pt);  // (a reversed chunk's first point is its last stored)
+      --c.count;
+      --b.midCount;
+      if (c.count == 0) {
+        if (!b.midFront.empty()) b.midFront.pop_back();
+        else b.midBack.erase(b.midBack.begin());
+      }
+    } else if (!b.back.empty()) {
+      b.back.pts.erase(b.back.pts.begin());
+      if (simplifying) b.back.portals.erase(b.back.portals.begin());
+      --openPoints;
+    }
+  }
+
+  // Appends run `from` to run `to`, in storage order (reversed: in reverse storage order).
+  void appendRun(Run& to, const Run& from, bool reversed) {
+    if (reversed) {
+      to.pts.insert(to.pts.end(), from.pts.rbegin(), from.pts.rend());
+      if (simplifying) to.portals.insert(to.portals.end(), from.portals.rbegin(), from.portals.rend());
+    } else {
+      to.pts.insert(to.pts.end(), from.pts.begin(), from.pts.end());
+      if (simplifying) to.portals.insert(to.portals.end(), from.portals.begin(), from.portals.end());
+    }
+  }
 
   void addEnd(const Key& kk, std::uint32_t poly, bool isStart, EdgeVerts ev) {
     ends.insert(kk, EndRef{poly, isStart});
@@ -231,14 +349,67 @@ struct ContourTracer::Impl {
   }
 
   void notePeak() {
-    if (openPoints > stats.peakOpenPoints) {
-      stats.peakOpenPoints = openPoints;
+    if (openPoints > stats.peakOpenPoints) stats.peakOpenPoints = openPoints;
+  }
+
+  // Line a (ending at the joint) followed by line b (starting at it; its first point is dropped when it
+  // repeats a's last): the result lives in a or b, which is returned; the other is freed and the open end
+  // it brings is re-pointed.
+  std::uint32_t join(std::uint32_t a, std::uint32_t b, bool skipFirstOfB) {
+    Poly& A = polys[a];
+    Poly& B = polys[b];
+    if (skipFirstOfB) dropFirstPoint(B);
+    if (A.midEmpty() && B.midEmpty() && A.size() + B.size() < spillRun) {
+      // Small lines: copy the shorter one into the longer one's runs.
+      if (A.size() >= B.size()) {
+        appendRun(A.back, B.front, true);
+        appendRun(A.back, B.back, false);
+        A.endKey = B.endKey;
+        A.endFinal = B.endFinal;
+        if (!B.endFinal) ends.find(B.endKey)->poly = a;
+        freePoly(b);
+        return a;
+      }
+      // front' = B.front + reverse(A.back) + A.front (the front run is stored reversed)
+      appendRun(B.front, A.back, true);
+      appendRun(B.front, A.front, false);
+      B.startKey = A.startKey;
+      B.startFinal = A.startFinal;
+      if (!A.startFinal) ends.find(A.startKey)->poly = b;
+      freePoly(a);
+      return b;
     }
+    // Large lines: the runs that end up inside the joined line go to the spill file, and the chunk lists
+    // are spliced, the longer line's staying in place.  The middle of the result is
+    // reverse(A.midFront) + A.midBack + reverse(B.midFront) + B.midBack.
+    spillRunOf(A, false);
+    spillRunOf(B, true);
+    if (A.midFront.size() + A.midBack.size() >= B.midFront.size() + B.midBack.size()) {
+      A.midBack.insert(A.midBack.end(), B.midFront.rbegin(), B.midFront.rend());
+      A.midBack.insert(A.midBack.end(), B.midBack.begin(), B.midBack.end());
+      A.midCount += B.midCount;
+      std::swap(A.back, B.back);
+      A.endKey = B.endKey;
+      A.endFinal = B.endFinal;
+      if (!B.endFinal) ends.find(B.endKey)->poly = a;
+      freePoly(b);
+      return a;
+    }
+    // B's midFront (stored reversed) gains reverse(A.midBack) and then A.midFront.
+    B.midFront.insert(B.midFront.end(), A.midBack.rbegin(), A.midBack.rend());
+    B.midFront.insert(B.midFront.end(), A.midFront.begin(), A.midFront.end());
+    B.midCount += A.midCount;
+    std::swap(B.front, A.front);
+    B.startKey = A.startKey;
+    B.startFinal = A.startFinal;
+    if (!A.startFinal) ends.find(A.startKey)->poly = b;
+    freePoly(a);
+    return b;
   }
 
   // One oriented segment (higher ground on its left) from the crossing at s to the crossing at e.
   void segment(const Key& s, const Pt& P, EdgeVerts sv, const Key& e, const Pt& Q, EdgeVerts evs,
-               std::int64_t k) {
+               std::int64_t k, double L) {
     ++stats.segments;
     const EndRef* fa = ends.find(s);
     const EndRef* fb = ends.find(e);
@@ -248,91 +419,131 @@ struct ContourTracer::Impl {
     if ((fa && fa->isStart) || (fb && !fb->isStart))
       throw Error("contour tracer: inconsistent mesh (an edge used twice in the same direction, or more than twice)");
     const std::uint32_t pa = hasA ? fa->poly : 0, pb = hasB ? fb->poly : 0;
+    const bool same = samePt(P, Q);
     if (!hasA && !hasB) {
       const std::uint32_t id = newPoly(k);
-      Poly& p = polys[id];
-      pushPoint(p.back, P);
-      if (!samePt(P, Q)) pushPoint(p.back, Q);
-      p.startKey = s;
-      p.endKey = e;
+      polys[id].startKey = s;
+      polys[id].endKey = e;
       addEnd(s, id, true, sv);
       addEnd(e, id, false, evs);
+      pushPoint(id, false, P, sv, L);
+      if (!same) pushPoint(id, false, Q, evs, L);
     } else if (hasA && !hasB) {
-      const std::uint32_t id = pa;
       ends.erase(s);
-      Poly& p = polys[id];
-      if (!samePt(P, Q)) pushPoint(p.back, Q);
-      p.endKey = e;
-      addEnd(e, id, false, evs);
+      polys[pa].endKey = e;
+      addEnd(e, pa, false, evs);
+      if (!same) pushPoint(pa, false, Q, evs, L);
     } else if (!hasA && hasB) {
-      const std::uint32_t id = pb;
       ends.erase(e);
-      Poly& p = polys[id];
-      if (!samePt(P, Q)) pushPoint(p.front, P);
-      p.startKey = s;
-      addEnd(s, id, true, sv);
+      polys[pb].startKey = s;
+      addEnd(s, pb, true, sv);
+      if (!same) pushPoint(pb, true, P, sv, L);
     } else {
-      const std::uint32_t a = pa;
-      const std::uint32_t b = pb;
       ends.erase(s);
       ends.erase(e);
-      if (a == b) {
-        Poly& p = polys[a];
-        if (!samePt(P, Q)) pushPoint(p.back, Q);  // Q is the first point: the loop closes
-        notePeak();
-        emit(a, true);
+      if (pa == pb) {
+        if (!same) pushPoint(pa, false, Q, evs, L);  // Q is the first point: the loop closes
+        emit(pa, true);
         return;
       }
-      Poly& A = polys[a];
-      Poly& B = polys[b];
       // A ends at P, B starts at Q: the line is A then B (Q kept once when P == Q).
-      const bool skipQ = samePt(P, Q);
-      if (A.size() >= B.size()) {
-        // append B to A
-        bool skip = skipQ;
-        for (auto it = B.front.rbegin(); it != B.front.rend(); ++it) {
-          if (skip) { skip = false; --openPoints; continue; }
-          A.back.push_back(*it);
-        }
-        for (const Pt& q : B.back) {
-          if (skip) { skip = false; --openPoints; continue; }
-          A.back.push_back(q);
-        }
-        A.endKey = B.endKey;
-        A.endFinal = B.endFinal;
-        if (!B.endFinal) ends.find(B.endKey)->poly = a;
-        freePoly(b);
-        if (A.startFinal && A.endFinal) emit(a, false);
-      } else {
-        // prepend A to B: front' = B.front + reverse(A.back) + A.front
-        bool skip = skipQ;
-        for (auto it = A.back.rbegin(); it != A.back.rend(); ++it) {
-          if (skip) { skip = false; --openPoints; continue; }
-          B.front.push_back(*it);
-        }
-        for (const Pt& q : A.front) {
-          if (skip) { skip = false; --openPoints; continue; }
-          B.front.push_back(q);
-        }
-        B.startKey = A.startKey;
-        B.startFinal = A.startFinal;
-        if (!A.startFinal) ends.find(A.startKey)->poly = b;
-        freePoly(a);
-        if (B.startFinal && B.endFinal) emit(b, false);
-      }
+      const std::uint32_t id = join(pa, pb, same);
+      if (polys[id].startFinal && polys[id].endFinal) emit(id, false);
     }
-    notePeak();
   }
 
   void freePoly(std::uint32_t id) {
     Poly& p = polys[id];
     p.live = false;
-    p.front.clear();
-    p.back.clear();
-    if (p.front.capacity() > 64) std::vector<Pt>().swap(p.front);
-    if (p.back.capacity() > 64) std::vector<Pt>().swap(p.back);
+    p.front.release();
+    p.back.release();
+    p.midFront.clear();
+    p.midBack.clear();
+    if (p.midFront.capacity() > 16) std::vector<Chunk>().swap(p.midFront);
+    if (p.midBack.capacity() > 16) std::vector<Chunk>().swap(p.midBack);
+    p.midCount = 0;
     freePolys.push_back(id);
   }
+
+  // ---- simplification ------------------------------------------------------------------------------
+  //
+  // Douglas-Peucker with the tolerance, plus a shortcut rule that keeps the lines' topology: a chord
+  // from kept point i to kept point j may replace the points between them only if, for every dropped
+  // point m (cut on TIN edge e_m), the chord crosses the open edge e_m (exact orientation signs) at a
+  // height within half an interval of the level.  Consecutive points i, i+1 of a run are cut on two
+  // edges of one triangle (points on vertices are pinned, so chords never pass them), so such a chord is
+  // a chain of pieces each inside one triangle of the line's own strip; a level cuts a triangle at most
+  // once, so pieces of one level (one line, or two) never share a triangle's interior and cannot cross;
+  // and every piece of level L lies where |z - L| < interval / 2, a band disjoint from every other
+  // level's, so lines of different levels cannot cross either.  Closed loops keep enclosing the same
+  // vertices (the strip is a ring).  Runs are simplified with their two end points kept.
+  bool chordFits(const Run& r, std::size_t i, std::size_t j, double L, double band) const {
+    const Point2 a{r.pts[i].x, r.pts[i].y}, b{r.pts[j].x, r.pts[j].y};
+    if (a.x == b.x && a.y == b.y) return false;
+    for (std::size_t m = i + 1; m < j; ++m) {
+      const Portal& e = r.portals[m];
+      const double oa = orient2d(a, b, Point2{e.ax, e.ay});
+      const double ob = orient2d(a, b, Point2{e.bx, e.by});
+      if (!((oa > 0 && ob < 0) || (oa < 0 && ob > 0))) return false;
+      const double s = oa / (oa - ob);
+      const double z = e.az + s * (e.bz - e.az);
+      if (!(std::fabs(z - L) < band)) return false;
+    }
+    return true;
+  }
+
+  static double distToSegment(const Pt& p, const Pt& a, const Pt& b) {
+    const double dx = b.x - a.x, dy = b.y - a.y;
+    const double len2 = dx * dx + dy * dy;
+    double t = len2 > 0 ? ((p.x - a.x) * dx + (p.y - a.y) * dy) / len2 : 0;
+    t = std::clamp(t, 0.0, 1.0);
+    return std::hypot(p.x - (a.x + t * dx), p.y - (a.y + t * dy));
+  }
+
+  void simplifyRun(Run& r, double L) {
+    const std::size_t n = r.size();
+    if (n <= 2) return;
+    const double band = 0.5 * opt.interval * (1 - 1e-6);
+    keep.assign(n, 0);
+    keep[0] = keep[n - 1] = 1;
+    for (std::size_t i = 1; i + 1 < n; ++i)
+      if (r.portals[i].pinned) keep[i] = 1;
+    spans.clear();
+    for (std::size_t i = 0, j = 1; j < n; ++j)
+      if (keep[j]) {
+        if (j > i + 1) spans.push_back({i, j});
+        i = j;
+      }
+    while (!spans.empty()) {
+      const auto [i, j] = spans.back();
+      spans.pop_back();
+      std::size_t far = i + 1;
+      double dmax = -1;
+      for (std::size_t m = i + 1; m < j; ++m) {
+        const double d = distToSegment(r.pts[m], r.pts[i], r.pts[j]);
+        if (d > dmax) {
+          dmax = d;
+          far = m;
+        }
+      }
+      if (dmax <= opt.simplify && chordFits(r, i, j, L, band)) continue;
+      keep[far] = 1;
+      if (far > i + 1) spans.push_back({i, far});
+      if (j > far + 1) spans.push_back({far, j});
+    }
+    std::size_t w = 0;
+    for (std::size_t i = 0; i < n; ++i)
+      if (keep[i]) {
+        r.pts[w] = r.pts[i];
+        r.portals[w] = r.portals[i];
+        ++w;
+      }
+    stats.simplifiedAway += n - w;
+    r.pts.resize(w);
+    r.portals.resize(w);
+  }
+
+  // ---- handing lines on ----------------------------------------------------------------------------
 
   void emitPiece(ContourLine& line) {
     ++stats.lines;
@@ -341,19 +552,54 @@ struct ContourTracer::Impl {
     out.line(line);
   }
 
+  void putRun(ContourLine& line, const Run& r, bool reversed) {
+    if (reversed) {
+      for (auto it = r.pts.rbegin(); it != r.pts.rend(); ++it) line.points.push_back({it->x, it->y, line.level});
+    } else {
+      for (const Pt& q : r.pts) line.points.push_back({q.x, q.y, line.level});
+    }
+  }
+
+  void putChunk(ContourLine& line, const Chunk& c) {
+    chunkBuf.resize(c.count);
+    spill->readAt(c.offset, chunkBuf.data(), c.count * sizeof(Pt));
+    if (c.reversed) std::reverse(chunkBuf.begin(), chunkBuf.end());
+    for (const Pt& q : chunkBuf) line.points.push_back({q.x, q.y, line.level});
+  }
+
   // Hands a finished line on (its ends are closed together, or both final) and frees it.
   void emit(std::uint32_t id, bool closed) {
     Poly& p = polys[id];
-    openPoints -= p.size();
+    openPoints -= p.front.size() + p.back.size();
     ContourLine& line = scratch;
     line.k = p.k;
     line.level = level(p.k);
     line.index = opt.indexEvery > 0 && ((p.k % opt.indexEvery) + opt.indexEvery) % opt.indexEvery == 0;
     line.closed = closed;
     line.points.clear();
-    line.points.reserve(p.size());
-    for (auto it = p.front.rbegin(); it != p.front.rend(); ++it) line.points.push_back({it->x, it->y, line.level});
-    for (const Pt& q : p.back) line.points.push_back({q.x, q.y, line.level});
+    if (p.midEmpty()) {
+      if (simplifying) {
+        joined.clear();
+        appendRun(joined, p.front, true);
+        appendRun(joined, p.back, false);
+        simplifyRun(joined, line.level);
+        putRun(line, joined, false);
+      } else {
+        line.points.reserve(p.size());
+        putRun(line, p.front, true);
+        putRun(line, p.back, false);
+      }
+    } else {
+      if (simplifying) {
+        simplifyRun(p.front, line.level);
+        simplifyRun(p.back, line.level);
+      }
+      line.points.reserve(p.size());
+      putRun(line, p.front, true);
+      for (auto it = p.midFront.rbegin(); it != p.midFront.rend(); ++it) putChunk(line, *it);
+      for (const Chunk& c : p.midBack) putChunk(line, c);
+      putRun(line, p.back, false);
+    }
     freePoly(id);
     const std::size_t n = line.points.size();
     // A line collapsed to one point (a vertex exactly on the level with no neighbour on its side): nothing
@@ -417,8 +663,8 @@ struct ContourTracer::Impl {
       const Pt pn = crossing(id[lone], *v[lone], id[nx], *v[nx], L);
       const Pt pp = crossing(id[pv], *v[pv], id[lone], *v[lone], L);
       const EdgeVerts en{v[lone], v[nx]}, ep{v[pv], v[lone]};
-      if (up[lone]) segment(kn, pn, en, kp, pp, ep, k);
-      else segment(kp, pp, ep, kn, pn, en, k);
+      if (up[lone]) segment(kn, pn, en, kp, pp, ep, k, L);
+      else segment(kp, pp, ep, kn, pn, en, k, L);
     }
   }
 
@@ -426,9 +672,7 @@ struct ContourTracer::Impl {
     const std::uint32_t* found = vertexSlot.find(vid);
     if (!found) return;
     const std::uint32_t slot = *found;
-    std::vector<Key> keys = std::move(verts[slot].keys);
-    verts[slot].keys = {};
-    for (const Key& kk : keys) {
+    for (const Key& kk : verts[slot].keys) {
       const EndRef* e = ends.find(kk);
       if (!e) continue;  // already joined, or already made final by the other endpoint
       const EndRef ref = *e;
@@ -438,6 +682,9 @@ struct ContourTracer::Impl {
       else p.endFinal = true;
       if (p.startFinal && p.endFinal) emit(ref.poly, false);
     }
+    Vert& v = verts[slot];
+    v.keys.clear();
+    if (v.keys.capacity() > 16) std::vector<Key>().swap(v.keys);
     vertexSlot.erase(vid);
     freeVerts.push_back(slot);
   }
@@ -455,6 +702,7 @@ struct ContourTracer::Impl {
     vertexSlot.clear();
     verts.clear();
     freeVerts.clear();
+    spill.reset();
   }
 };
 
@@ -464,6 +712,8 @@ ContourTracer::ContourTracer(const ContourOptions& options, ContourLineSink& out
     throw UsageError("contour interval must be a positive finite number");
   if (!(options.minLength >= 0)) throw UsageError("contour minimum length must be >= 0");
   if (options.indexEvery < 0) throw UsageError("contour index interval must be >= 0");
+  if (!(options.simplify >= 0) || !std::isfinite(options.simplify))
+    throw UsageError("contour simplification tolerance must be a finite number >= 0");
   impl_ = new Impl(options, out);
 }
 

@@ -31,10 +31,22 @@
 // final (hull) end and leaves the map; a line whose two ends are final is handed on.  Each live vertex
 // keeps its coordinates and the keys of the ends created on its incident edges (stale keys are skipped),
 // all dropped at its finalization.  end() hands on whatever is still unfinished (nothing, for a stream
-// that finalizes every vertex).  Memory: the open ends held (peakOpenEnds) follow the stream's width; the
-// points held (peakOpenPoints) do only when lines are short compared with the survey: a line is held
-// until both its ends are final, so a line as long as the survey (or one ending on a hull edge whose
-// vertices the triangulator keeps live to the end) is held for most of the stream.
+// that finalizes every vertex).
+//
+// Memory.  The open ends held (peakOpenEnds) follow the stream's width.  A line is held until both its
+// ends are final, and a line as long as the survey (or one ending on a hull edge whose vertices the
+// triangulator keeps live to the end) is held for most of the stream; so only the ends of a line stay in
+// memory: its points are kept in a run at each end, and a run that reaches spillRun points is written
+// to a temporary file (tempDir) as one chunk of the line's middle.  Joining two long lines splices their
+// chunk lists.  The points held in memory (peakOpenPoints) are thus at most about 2 * spillRun per open
+// line; the line is read back, whole, when it is handed on.
+//
+// Simplification (simplify > 0).  Douglas-Peucker with the tolerance in xy, restricted so that it never
+// changes the lines' topology: a shortcut must stay inside the strip of triangles the line passed through
+// (crossing each dropped point's TIN edge inside it) and within half an interval of the level in height
+// there (see simplifyRun in the .cpp for the argument).  Points exactly on a TIN vertex are kept.  Runs
+// are simplified as they are spilled and at the end, with their end points kept, so the result depends
+// on spillRun (deterministically).  stats.simplifiedAway counts the points removed.
 // A mesh that breaks the contract (an edge used twice in the same direction) throws Error.
 //
 // Filters.  minLength drops closed loops whose xy length is below it (droppedShort).  maxVertices (>= 2;
@@ -65,6 +77,9 @@ struct ContourOptions {
   int indexEvery = 0;         // every n-th level (k % n == 0) is an index contour; 0: none
   double minLength = 0;       // closed loops shorter than this (xy length) are dropped (counted)
   std::size_t maxVertices = 0;  // split a line into features of at most this many vertices (0: never)
+  double simplify = 0;          // Douglas-Peucker tolerance in xy, topology-preserving (0: off)
+  std::size_t spillRun = 256;   // points per in-memory run of an unfinished line before it is spilled
+  std::string tempDir;          // the spill file's directory ("" = $TMPDIR or /tmp)
 };
 
 struct ContourLine {
@@ -91,7 +106,9 @@ struct ContourStats {
   std::uint64_t droppedShort = 0;    // loops shorter than minLength
   std::uint64_t vertices = 0;        // points in the lines handed on
   std::uint64_t peakOpenEnds = 0;    // most open polyline ends held at once (follows the stream's width)
-  std::uint64_t peakOpenPoints = 0;  // most points held in unfinished lines at once
+  std::uint64_t peakOpenPoints = 0;  // most points of unfinished lines held in memory at once
+  std::uint64_t spilledPoints = 0;   // points written to the spill file
+  std::uint64_t simplifiedAway = 0;  // points removed by --simplify
 };
 
 // A MeshSink: attach it to the mesh tee (or feed it a streaming mesh) and it hands complete lines to

@@ -555,8 +555,23 @@ TEST(ContourTracer, OpenEndsFollowTheStreamWidth) {
                 static_cast<unsigned long long>(run.stats.peakOpenPoints),
                 static_cast<unsigned long long>(run.stats.vertices));
     EXPECT_LT(run.stats.peakOpenEnds * 10, run.stats.segments);
-    if (lattice) {
-      EXPECT_LT(run.stats.peakOpenPoints * 5, run.stats.vertices);
+    // Long lines keep only their ends in memory (the middle is spilled): at most about two runs of
+    // spillRun points per open end, so the points held follow the width too.  Without spilling the strip
+    // held most of its points.
+    ContourOptions shortRuns = opt;
+    shortRuns.spillRun = 8;
+    const TraceRun spilled = trace(rec, shortRuns);
+    EXPECT_TRUE(sameLines(run.out.lines, spilled.out.lines));
+    EXPECT_LE(spilled.stats.peakOpenPoints, 2 * 8 * spilled.stats.peakOpenEnds);
+    EXPECT_LT(spilled.stats.peakOpenPoints * 5, spilled.stats.vertices);
+    if (!lattice) {
+      ContourOptions noSpill = opt;
+      noSpill.spillRun = std::size_t{1} << 40;
+      const TraceRun held = trace(rec, noSpill);
+      EXPECT_TRUE(sameLines(run.out.lines, held.out.lines));
+      EXPECT_EQ(held.stats.spilledPoints, 0u);
+      EXPECT_GT(spilled.stats.spilledPoints, 0u);
+      EXPECT_GT(held.stats.peakOpenPoints, 2 * spilled.stats.peakOpenPoints);
     }
   }
 }
@@ -674,6 +689,156 @@ TEST(ContourTracer, SaddleAndPeakExactlyOnALevel) {
     ASSERT_EQ(p.size(), 3u);
     EXPECT_EQ(p.front()[0], -1);
     EXPECT_EQ(p.back()[0], 1);
+  }
+}
+
+// Spilling the middles of long lines changes nothing in the output, whatever the run length.
+TEST(ContourTracer, SpillingChangesNothing) {
+  auto pts = randomPoints(30000, 12, 1000, [](double x, double y) { return std::round(terrain(x, y) * 4) / 4; });
+  const Recorder rec = triangulate(pts);
+  ContourOptions opt;
+  opt.interval = 0.5;
+  opt.spillRun = std::size_t{1} << 40;
+  const TraceRun held = trace(rec, opt);
+  EXPECT_EQ(held.stats.spilledPoints, 0u);
+  for (std::size_t run : {2u, 3u, 7u, 64u}) {
+    opt.spillRun = run;
+    const TraceRun spilled = trace(rec, opt);
+    SCOPED_TRACE(run);
+    EXPECT_GT(spilled.stats.spilledPoints, 0u);
+    EXPECT_TRUE(sameLines(held.out.lines, spilled.out.lines));
+    EXPECT_EQ(held.stats.vertices, spilled.stats.vertices);
+  }
+}
+
+// Winding number of (x, y) about a closed polyline.
+int winding(const std::vector<std::array<double, 3>>& poly, double x, double y) {
+  int w = 0;
+  for (std::size_t i = 1; i < poly.size(); ++i) {
+    const Point2 a{poly[i - 1][0], poly[i - 1][1]}, b{poly[i][0], poly[i][1]}, p{x, y};
+    if (a.y <= y) {
+      if (b.y > y && orient2d(a, b, p) > 0) ++w;
+    } else if (b.y <= y && orient2d(a, b, p) < 0) {
+      --w;
+    }
+  }
+  return w;
+}
+
+// --simplify: each line is a subsequence of the exact line with the same ends, every dropped point lies
+// within the tolerance of the chord that replaced it, no two lines (of any levels) cross and no line
+// crosses itself, loops stay loops around the same TIN vertices, and the points removed are counted.
+void checkSimplified(const Recorder& rec, const ContourOptions& opt, double minReduction) {
+  ContourOptions exactOpt = opt;
+  exactOpt.simplify = 0;
+  const TraceRun exact = trace(rec, exactOpt);
+  const TraceRun simp = trace(rec, opt);
+  ASSERT_EQ(exact.out.lines.size(), simp.out.lines.size());
+  EXPECT_EQ(countCrossings(simp.out.lines), 0u);
+  std::uint64_t removed = 0, nestingChecks = 0;
+  for (std::size_t li = 0; li < exact.out.lines.size(); ++li) {
+    const ContourLine& e = exact.out.lines[li];
+    const ContourLine& s = simp.out.lines[li];
+    ASSERT_EQ(e.k, s.k);
+    ASSERT_EQ(e.closed, s.closed);
+    ASSERT_EQ(e.points.front(), s.points.front());
+    ASSERT_EQ(e.points.back(), s.points.back());
+    if (s.closed) EXPECT_GE(s.points.size(), std::min<std::size_t>(4, e.points.size()));
+    // Subsequence, and the tolerance.
+    std::size_t j = 0;
+    for (std::size_t i = 0; i < e.points.size(); ++i) {
+      if (j < s.points.size() && e.points[i] == s.points[j]) {
+        ++j;
+        continue;
+      }
+      ASSERT_GT(j, 0u);
+      ASSERT_LT(j, s.points.size()) << "not a subsequence";
+      const auto& a = s.points[j - 1];
+      const auto& b = s.points[j];
+      const double dx = b[0] - a[0], dy = b[1] - a[1];
+      const double len2 = dx * dx + dy * dy;
+      double t = len2 > 0 ? ((e.points[i][0] - a[0]) * dx + (e.points[i][1] - a[1]) * dy) / len2 : 0;
+      t = std::clamp(t, 0.0, 1.0);
+      EXPECT_LE(std::hypot(e.points[i][0] - (a[0] + t * dx), e.points[i][1] - (a[1] + t * dy)),
+                opt.simplify * (1 + 1e-9));
+      ++removed;
+    }
+    ASSERT_EQ(j, s.points.size()) << "not a subsequence";
+    // Nesting: the vertices inside a loop are the same before and after.
+    if (e.closed) {
+      double x0 = 1e300, y0 = 1e300, x1 = -1e300, y1 = -1e300;
+      for (const auto& p : e.points) {
+        x0 = std::min(x0, p[0]);
+        x1 = std::max(x1, p[0]);
+        y0 = std::min(y0, p[1]);
+        y1 = std::max(y1, p[1]);
+      }
+      for (const auto& c : rec.coords) {
+        if (c[0] < x0 || c[0] > x1 || c[1] < y0 || c[1] > y1) continue;
+        if (c[2] == e.level) continue;  // may lie on the line itself
+        EXPECT_EQ(winding(e.points, c[0], c[1]), winding(s.points, c[0], c[1]));
+        ++nestingChecks;
+      }
+    }
+  }
+  EXPECT_EQ(simp.stats.simplifiedAway, removed);
+  EXPECT_EQ(simp.stats.vertices + removed, exact.stats.vertices);
+  EXPECT_LE(static_cast<double>(simp.stats.vertices), (1 - minReduction) * static_cast<double>(exact.stats.vertices));
+  std::printf("simplify %g: %llu -> %llu vertices, %llu nesting checks\n", opt.simplify,
+              static_cast<unsigned long long>(exact.stats.vertices),
+              static_cast<unsigned long long>(simp.stats.vertices), static_cast<unsigned long long>(nestingChecks));
+}
+
+TEST(ContourTracer, SimplifyKeepsTopology) {
+  auto pts = randomPoints(30000, 8, 1000, terrain);
+  const Recorder rec = triangulate(pts);
+  for (double tol : {0.5, 3.0, 1e9}) {
+    for (std::size_t run : {256u, 5u}) {
+      ContourOptions opt;
+      opt.interval = 1;
+      opt.simplify = tol;
+      opt.spillRun = run;
+      SCOPED_TRACE(testing::Message() << "tolerance " << tol << ", run " << run);
+      checkSimplified(rec, opt, run < 256 ? 0.1 : tol >= 3 ? 0.5 : 0.3);
+    }
+  }
+}
+
+// Vertices on levels and flat ground (a lattice with integer heights) and real surveys.
+TEST(ContourTracer, SimplifyKeepsTopologyOnLatticeAndRealSurveys) {
+  {
+    std::vector<PointRecord> pts;
+    std::mt19937 rng(5);
+    for (int j = 0; j <= 80; ++j)
+      for (int i = 0; i <= 80; ++i) {
+        PointRecord p;
+        p.x = 100 + i;
+        p.y = 200 + j;
+        p.z = std::round(6 * std::sin(i * 0.11) * std::cos(j * 0.07)) + static_cast<double>(rng() % 2);
+        pts.push_back(p);
+      }
+    const Recorder rec = triangulate(pts);
+    ContourOptions opt;
+    opt.interval = 1;
+    opt.simplify = 2;
+    SCOPED_TRACE("lattice");
+    checkSimplified(rec, opt, 0.0);
+  }
+  TINBUILD_REQUIRE_DATA();
+  for (const auto& [rel, interval] : {std::pair<const char*, double>{"las/autzen_trim.las", 2.0},
+                                      std::pair<const char*, double>{"las/Topography.las", 1.0}}) {
+    Diagnostics diag;
+    LasReader reader(test::dataPath(rel), diag);
+    std::vector<PointRecord> pts, batch(std::size_t{1} << 14);
+    for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+      pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+    const Recorder rec = triangulate(pts);
+    ContourOptions opt;
+    opt.interval = interval;
+    opt.simplify = 1;
+    opt.spillRun = 16;
+    SCOPED_TRACE(rel);
+    checkSimplified(rec, opt, 0.1);
   }
 }
 
