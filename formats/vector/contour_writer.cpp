@@ -138,6 +138,11 @@ class ContourWriter final : public ContourLineSink {
         lco.SetNameValue("SIGNIFICANT_FIGURES", "17");
         break;
     }
+    if (format_ == ContourFormat::GeoPackage) {
+      // SQLite's page cache: 1 MB is enough for appending rows (the default is 2 MB, and pages of a
+      // large transaction spill to the journal anyway).
+      if (OGRLayer* r = ds_->ExecuteSQL("PRAGMA cache_size = -1024", nullptr, nullptr)) ds_->ReleaseResultSet(r);
+    }
     layer_ = ds_->CreateLayer(o_.layerName.c_str(), srs, wkbLineString25D, lco.List());
     if (srs) srs->Release();
     if (!layer_) gdalFailure(path_, "cannot create the contour layer");

@@ -34,10 +34,15 @@ struct KeyHash {
     return static_cast<std::size_t>(h);
   }
 };
+// Vertex ids of a streaming mesh are numbered in stream order, so the live ones are mostly a sliding
+// window of consecutive ids.  Runs of 16 consecutive ids go to 16 consecutive slots (a triangle's
+// vertices and successive lookups share cache lines, where a fully scattering hash costs a miss per
+// lookup), and the runs themselves are scattered, so no cluster grows long (an identity hash would make
+// the whole window one cluster, and each backward-shift erase would scan it).
 struct IdHash {
   std::size_t operator()(std::uint64_t id) const {
-    std::uint64_t h = id * 0x9E3779B97F4A7C15ull;
-    return static_cast<std::size_t>(h ^ (h >> 32));
+    const std::uint64_t run = (id >> 4) * 0x9E3779B97F4A7C15ull;
+    return static_cast<std::size_t>(((run ^ (run >> 29)) << 4) | (id & 15));
   }
 };
 
@@ -89,9 +94,19 @@ struct Poly {
   std::uint64_t size() const { return front.size() + back.size() + midCount; }
 };
 
+constexpr std::uint32_t kNoNode = 0xFFFFFFFFu;
+
+// A live vertex: its coordinates and the head of the list of open ends created on its incident edges
+// (the map's slots are plain data, so a lookup touches one cache line).
 struct Vert {
   double x = 0, y = 0, z = 0;
-  std::vector<Key> keys;  // open ends created on incident edges (may hold stale keys, checked on use)
+  std::uint32_t keys = kNoNode;
+};
+
+// One entry of a vertex's list of open-end keys (may be stale, checked on use), in a node pool.
+struct KeyNode {
+  Key key;
+  std::uint32_t next;
 };
 
 // A linear-probing hash map (backward-shift deletion, no tombstones).  find() pointers are valid until
@@ -184,9 +199,9 @@ struct ContourTracer::Impl {
   bool simplifying = false;
   std::size_t spillRun = 256;
 
-  FlatMap<std::uint64_t, std::uint32_t, IdHash> vertexSlot;
-  std::vector<Vert> verts;
-  std::vector<std::uint32_t> freeVerts;
+  FlatMap<std::uint64_t, Vert, IdHash> verts;  // live vertices
+  std::vector<KeyNode> keyNodes;
+  std::uint32_t freeKeyNode = kNoNode;
 
   FlatMap<Key, EndRef, KeyHash> ends;
   std::vector<Poly> polys;
@@ -211,9 +226,9 @@ struct ContourTracer::Impl {
 
   void reset() {
     stats = {};
-    vertexSlot.clear();
     verts.clear();
-    freeVerts.clear();
+    keyNodes.clear();
+    freeKeyNode = kNoNode;
     ends.clear();
     polys.clear();
     freePolys.clear();
@@ -222,10 +237,24 @@ struct ContourTracer::Impl {
     spillEnd = 0;
   }
 
+  // Valid until the next vertex() or finalizeVertex().
   Vert& vert(std::uint64_t id) {
-    const std::uint32_t* slot = vertexSlot.find(id);
-    if (!slot) throw Error("contour tracer: triangle uses unknown or finalized vertex " + std::to_string(id));
-    return verts[*slot];
+    Vert* v = verts.find(id);
+    if (!v) throw Error("contour tracer: triangle uses unknown or finalized vertex " + std::to_string(id));
+    return *v;
+  }
+
+  void addKey(Vert& v, const Key& kk) {
+    std::uint32_t node;
+    if (freeKeyNode != kNoNode) {
+      node = freeKeyNode;
+      freeKeyNode = keyNodes[node].next;
+    } else {
+      node = static_cast<std::uint32_t>(keyNodes.size());
+      keyNodes.push_back({});
+    }
+    keyNodes[node] = KeyNode{kk, v.keys};
+    v.keys = node;
   }
 
   // The crossing of level L on edge (a, b): computed from the endpoints ordered by id so both triangles
@@ -343,8 +372,8 @@ struct ContourTracer::Impl {
 
   void addEnd(const Key& kk, std::uint32_t poly, bool isStart, EdgeVerts ev) {
     ends.insert(kk, EndRef{poly, isStart});
-    ev.u->keys.push_back(kk);
-    ev.v->keys.push_back(kk);
+    addKey(*ev.u, kk);
+    addKey(*ev.v, kk);
     if (ends.size() > stats.peakOpenEnds) stats.peakOpenEnds = ends.size();
   }
 
@@ -669,24 +698,30 @@ struct ContourTracer::Impl {
   }
 
   void finalize(std::uint64_t vid) {
-    const std::uint32_t* found = vertexSlot.find(vid);
-    if (!found) return;
-    const std::uint32_t slot = *found;
-    for (const Key& kk : verts[slot].keys) {
-      const EndRef* e = ends.find(kk);
-      if (!e) continue;  // already joined, or already made final by the other endpoint
-      const EndRef ref = *e;
-      ends.erase(kk);
-      Poly& p = polys[ref.poly];
-      if (ref.isStart) p.startFinal = true;
-      else p.endFinal = true;
-      if (p.startFinal && p.endFinal) emit(ref.poly, false);
+    if (Vert* v = verts.find(vid)) {
+      std::uint32_t node = v->keys;
+      while (node != kNoNode) {
+        const Key kk = keyNodes[node].key;
+        const std::uint32_t next = keyNodes[node].next;
+        keyNodes[node].next = freeKeyNode;
+        freeKeyNode = node;
+        node = next;
+        finalEnd(kk);
+      }
     }
-    Vert& v = verts[slot];
-    v.keys.clear();
-    if (v.keys.capacity() > 16) std::vector<Key>().swap(v.keys);
-    vertexSlot.erase(vid);
-    freeVerts.push_back(slot);
+    verts.erase(vid);
+  }
+
+  // The edge of open end kk has a finalized vertex: no later triangle reaches it, so the end is final.
+  void finalEnd(const Key& kk) {
+    const EndRef* e = ends.find(kk);
+    if (!e) return;  // already joined, or already made final by the other endpoint
+    const EndRef ref = *e;
+    ends.erase(kk);
+    Poly& p = polys[ref.poly];
+    if (ref.isStart) p.startFinal = true;
+    else p.endFinal = true;
+    if (p.startFinal && p.endFinal) emit(ref.poly, false);
   }
 
   void finish() {
@@ -699,9 +734,9 @@ struct ContourTracer::Impl {
       if (!p.endFinal) ends.erase(p.endKey);
       emit(i, false);
     }
-    vertexSlot.clear();
     verts.clear();
-    freeVerts.clear();
+    keyNodes.clear();
+    freeKeyNode = kNoNode;
     spill.reset();
   }
 };
@@ -725,21 +760,7 @@ void ContourTracer::begin(const MeshInfo& info) {
 }
 
 void ContourTracer::vertex(std::uint64_t id, double x, double y, double z) {
-  Impl& m = *impl_;
-  std::uint32_t slot;
-  if (!m.freeVerts.empty()) {
-    slot = m.freeVerts.back();
-    m.freeVerts.pop_back();
-  } else {
-    slot = static_cast<std::uint32_t>(m.verts.size());
-    m.verts.emplace_back();
-  }
-  Vert& v = m.verts[slot];
-  v.x = x;
-  v.y = y;
-  v.z = z;
-  v.keys.clear();
-  m.vertexSlot.insert(id, slot);
+  impl_->verts.insert(id, Vert{x, y, z});
 }
 
 void ContourTracer::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) { impl_->triangle(a, b, c); }

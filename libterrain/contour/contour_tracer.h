@@ -29,9 +29,9 @@
 // copied onto the longer) or close a loop, which is handed on at once.  Once u or v is finalized no later
 // triangle uses edge (u, v), so at finalizeVertex(u) every open end on an edge incident to u becomes a
 // final (hull) end and leaves the map; a line whose two ends are final is handed on.  Each live vertex
-// keeps its coordinates and the keys of the ends created on its incident edges (stale keys are skipped),
-// all dropped at its finalization.  end() hands on whatever is still unfinished (nothing, for a stream
-// that finalizes every vertex).
+// keeps its coordinates (a flat map of plain slots), and a vertex with ends on its incident edges a list
+// of their keys (stale keys are skipped), all dropped at its finalization.  end() hands on whatever is
+// still unfinished (nothing, for a stream that finalizes every vertex).
 //
 // Memory.  The open ends held (peakOpenEnds) follow the stream's width.  A line is held until both its
 // ends are final, and a line as long as the survey (or one ending on a hull edge whose vertices the
@@ -55,7 +55,7 @@
 // ends at the first piece's first point).  stats.lines / vertices count what is handed on.
 //
 // Determinism.  A loop is handed on at the triangle that closes it; an open line at the finalizeVertex
-// that makes its second end final (in the order its ends were created on that vertex's edges); at end()
+// that makes its second end final (the ends on that vertex's edges latest first); at end()
 // whatever is left, in pool order.  The output is a pure function of the event sequence (no hash-map
 // iteration decides anything).  index = indexEvery > 0 and k mod indexEvery == 0 (a true modulo, so
 // negative k works).

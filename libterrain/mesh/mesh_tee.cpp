@@ -135,7 +135,11 @@ class MeshTee::Writer {
   // A used batch for the producer to fill again (saves reallocating the vectors).
   std::unique_ptr<Batch> recycled() {
     std::lock_guard lock(mutex_);
-    if (spare_.empty()) return std::make_unique<Batch>();
+    if (spare_.empty()) {
+      auto b = std::make_unique<Batch>();
+      b->events.reserve(kBatchEvents);
+      return b;
+    }
     auto b = std::move(spare_.back());
     spare_.pop_back();
     return b;

@@ -743,7 +743,9 @@ void checkSimplified(const Recorder& rec, const ContourOptions& opt, double minR
     ASSERT_EQ(e.closed, s.closed);
     ASSERT_EQ(e.points.front(), s.points.front());
     ASSERT_EQ(e.points.back(), s.points.back());
-    if (s.closed) EXPECT_GE(s.points.size(), std::min<std::size_t>(4, e.points.size()));
+    if (s.closed) {
+      EXPECT_GE(s.points.size(), std::min<std::size_t>(4, e.points.size()));
+    }
     // Subsequence, and the tolerance.
     std::size_t j = 0;
     for (std::size_t i = 0; i < e.points.size(); ++i) {
