@@ -4,6 +4,7 @@
 #include <cstring>
 #include <deque>
 #include <exception>
+#include <initializer_list>
 #include <mutex>
 #include <string>
 #include <thread>
@@ -80,13 +81,16 @@ void VertexTable::erase(std::uint64_t id) {
 
 // 40 bytes: the ids, or a vertex's id and coordinates bit for bit.  Triangles travel as ids; the writer
 // side resolves them in its own VertexTable, so the triangulator's thread copies as little as possible.
-struct MeshTee::Event {
-  enum Kind : std::uint32_t { kVertex, kTriangle, kFinalize, kComplete };
-  Kind kind = kVertex;
-  std::uint32_t sink = 0;   // kComplete: the triangle sink the keys are for
-  std::uint64_t w[4] = {};  // kVertex: id, x, y, z (bits); kTriangle: a, b, c; kFinalize: id;
-                            // kComplete: keys [w[0], w[1]) of the batch's key list
-};
+// Threaded mode queues the events as 64-bit words, each event one tagged first word (kind in the top
+// two bits) and its operands: vertex = tag|id, x, y, z (bits); triangle = tag|a, b, c; finalization =
+// tag|id; complete = tag|sink, first key, end key (in the batch's key list).  That is 22 bytes per event
+// on average (40 as a fixed struct): the triangulator's thread writes them, the writer thread reads
+// them, and the cache lines between the two cores are the cost.
+namespace {
+enum : std::uint64_t { kVertex = 0, kTriangle = 1, kFinalize = 2, kComplete = 3 };
+constexpr int kTagShift = 62;
+constexpr std::uint64_t kPayload = (std::uint64_t{1} << kTagShift) - 1;
+}  // namespace
 
 namespace {
 inline std::uint64_t bitsOf(double v) {
@@ -102,13 +106,13 @@ inline double doubleOf(std::uint64_t b) {
 }  // namespace
 
 struct MeshTee::Batch {
-  std::vector<Event> events;
+  std::vector<std::uint64_t> words;
   std::vector<std::int64_t> keys;
 };
 
 class MeshTee::Writer {
  public:
-  static constexpr std::size_t kBatchEvents = 4096, kMaxQueued = 8;
+  static constexpr std::size_t kBatchWords = 16384, kMaxQueued = 8;  // 128 KB batches
   explicit Writer(MeshTee& tee) : tee_(tee), thread_([this] { run(); }) {}
   ~Writer() {
     {
@@ -137,7 +141,7 @@ class MeshTee::Writer {
     std::lock_guard lock(mutex_);
     if (spare_.empty()) {
       auto b = std::make_unique<Batch>();
-      b->events.reserve(kBatchEvents);
+      b->words.reserve(kBatchWords + 4);
       return b;
     }
     auto b = std::move(spare_.back());
@@ -160,11 +164,11 @@ class MeshTee::Writer {
       changed_.notify_all();
       std::exception_ptr error;
       try {
-        for (const Event& e : batch->events) tee_.apply(e, batch->keys);
+        tee_.apply(*batch);
       } catch (...) {
         error = std::current_exception();
       }
-      batch->events.clear();
+      batch->words.clear();
       batch->keys.clear();
       {
         std::lock_guard lock(mutex_);
@@ -217,30 +221,40 @@ void MeshTee::applyFinalize(std::uint64_t id) {
   if (!triangleSinks_.empty()) vertices_.erase(id);
 }
 
-void MeshTee::apply(const Event& e, const std::vector<std::int64_t>& keys) {
-  switch (e.kind) {
-    case Event::kVertex:
-      applyVertex(MeshVertex{e.w[0], doubleOf(e.w[1]), doubleOf(e.w[2]), doubleOf(e.w[3])});
-      break;
-    case Event::kTriangle:
-      applyTriangle(e.w[0], e.w[1], e.w[2]);
-      break;
-    case Event::kFinalize:
-      applyFinalize(e.w[0]);
-      break;
-    case Event::kComplete:
-      triangleSinks_[e.sink]->areasComplete(keys.data() + e.w[0], static_cast<std::size_t>(e.w[1] - e.w[0]));
-      break;
+void MeshTee::apply(const Batch& batch) {
+  const std::uint64_t* w = batch.words.data();
+  const std::uint64_t* const end = w + batch.words.size();
+  while (w < end) {
+    const std::uint64_t head = *w;
+    const std::uint64_t payload = head & kPayload;
+    switch (head >> kTagShift) {
+      case kVertex:
+        applyVertex(MeshVertex{payload, doubleOf(w[1]), doubleOf(w[2]), doubleOf(w[3])});
+        w += 4;
+        break;
+      case kTriangle:
+        applyTriangle(payload, w[1], w[2]);
+        w += 3;
+        break;
+      case kFinalize:
+        applyFinalize(payload);
+        w += 1;
+        break;
+      default:  // kComplete
+        triangleSinks_[payload]->areasComplete(batch.keys.data() + w[1], static_cast<std::size_t>(w[2] - w[1]));
+        w += 3;
+        break;
+    }
   }
 }
 
-void MeshTee::emit(const Event& e) {
-  if (!writer_) {
-    apply(e, batch_->keys);
-    return;
-  }
-  batch_->events.push_back(e);
-  if (batch_->events.size() >= Writer::kBatchEvents) {
+// Appends one event's words to the batch being filled and hands the batch on when it is full.
+void MeshTee::put(std::uint64_t tag, std::uint64_t first, std::initializer_list<std::uint64_t> rest) {
+  if (first > kPayload) throw Error("mesh tee: vertex id " + std::to_string(first) + " too large");
+  std::vector<std::uint64_t>& words = batch_->words;
+  words.push_back((tag << kTagShift) | first);
+  words.insert(words.end(), rest.begin(), rest.end());
+  if (words.size() >= Writer::kBatchWords) {
     writer_->push(std::move(batch_));
     batch_ = writer_->recycled();
   }
@@ -274,13 +288,7 @@ void MeshTee::vertex(std::uint64_t id, double x, double y, double z) {
     agentVertices_.insert(v);
     for (auto* a : agents_) a->vertex(v);
   }
-  Event e;
-  e.kind = Event::kVertex;
-  e.w[0] = id;
-  e.w[1] = bitsOf(x);
-  e.w[2] = bitsOf(y);
-  e.w[3] = bitsOf(z);
-  emit(e);
+  put(kVertex, id, {bitsOf(x), bitsOf(y), bitsOf(z)});
 }
 
 void MeshTee::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
@@ -291,21 +299,13 @@ void MeshTee::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
     const MeshVertex& vc = agentVertices_.at(c);
     for (auto* ag : agents_) ag->triangle(va, vb, vc);
   }
-  Event e;
-  e.kind = Event::kTriangle;
-  e.w[0] = a;
-  e.w[1] = b;
-  e.w[2] = c;
-  emit(e);
+  put(kTriangle, a, {b, c});
 }
 
 void MeshTee::finalizeVertex(std::uint64_t id) {
   if (!writer_) return applyFinalize(id);
   if (!agents_.empty()) agentVertices_.erase(id);
-  Event e;
-  e.kind = Event::kFinalize;
-  e.w[0] = id;
-  emit(e);
+  put(kFinalize, id, {});
 }
 
 void MeshTee::checkpoint(const ActiveRegion& region) {
@@ -313,20 +313,19 @@ void MeshTee::checkpoint(const ActiveRegion& region) {
     keys_.clear();
     agents_[k]->checkpoint(region, keys_);
     if (keys_.empty()) continue;
-    Event e;
-    e.kind = Event::kComplete;
-    e.sink = agentSink_[k];
-    e.w[0] = batch_->keys.size();
+    if (!writer_) {
+      triangleSinks_[agentSink_[k]]->areasComplete(keys_.data(), keys_.size());
+      continue;
+    }
+    const std::uint64_t from = batch_->keys.size();
     batch_->keys.insert(batch_->keys.end(), keys_.begin(), keys_.end());
-    e.w[1] = batch_->keys.size();
-    emit(e);
-    if (!writer_) batch_->keys.clear();
+    put(kComplete, agentSink_[k], {from, static_cast<std::uint64_t>(batch_->keys.size())});
   }
 }
 
 void MeshTee::end() {
   if (writer_) {
-    if (!batch_->events.empty()) writer_->push(std::move(batch_));
+    if (!batch_->words.empty()) writer_->push(std::move(batch_));
     batch_ = std::make_unique<Batch>();
     writer_->finish();
     writer_.reset();

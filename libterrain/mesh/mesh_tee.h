@@ -19,6 +19,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <initializer_list>
 #include <memory>
 #include <vector>
 
@@ -137,11 +138,10 @@ class MeshTee : public MeshSink {
   void end() override;
 
  private:
-  struct Event;
   struct Batch;
   class Writer;
-  void emit(const Event& e);
-  void apply(const Event& e, const std::vector<std::int64_t>& keys);
+  void put(std::uint64_t tag, std::uint64_t first, std::initializer_list<std::uint64_t> rest);
+  void apply(const Batch& batch);
   void applyVertex(const MeshVertex& v);
   void applyTriangle(std::uint64_t a, std::uint64_t b, std::uint64_t c);
   void applyFinalize(std::uint64_t id);
