@@ -286,6 +286,32 @@ bool sameLines(const std::vector<ContourLine>& a, const std::vector<ContourLine>
   return true;
 }
 
+// Every record of a LAS file of ../shared/data, as the reader gives them (no filters).
+std::vector<PointRecord> readSurvey(const char* rel) {
+  Diagnostics diag;
+  LasReader reader(test::dataPath(rel), diag);
+  std::vector<PointRecord> pts, batch(std::size_t{1} << 14);
+  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  return pts;
+}
+
+// A (side + 1)^2 lattice at (100 + i, 200 + j) with heights z(i, j, rng).
+template <class Z>
+std::vector<PointRecord> lattice(int side, Z z) {
+  std::vector<PointRecord> pts;
+  std::mt19937 rng(5);
+  for (int j = 0; j <= side; ++j)
+    for (int i = 0; i <= side; ++i) {
+      PointRecord p;
+      p.x = 100 + i;
+      p.y = 200 + j;
+      p.z = z(i, j, rng);
+      pts.push_back(p);
+    }
+  return pts;
+}
+
 // ---- tests ---------------------------------------------------------------------------------------------
 
 TEST(ContourTracer, ConeGivesOneClosedLoopPerInnerLevel) {
@@ -338,17 +364,9 @@ TEST(ContourTracer, PlaneGivesOneOpenLinePerLevel) {
 
 // A lattice with integer z: every vertex lies exactly on a level.
 TEST(ContourTracer, LatticeWithVerticesOnLevels) {
-  std::vector<PointRecord> pts;
-  std::mt19937 rng(5);
-  for (int j = 0; j <= 60; ++j)
-    for (int i = 0; i <= 60; ++i) {
-      PointRecord p;
-      p.x = 100 + i;
-      p.y = 200 + j;
-      p.z = static_cast<double>(rng() % 6);  // many equal z as well
-      pts.push_back(p);
-    }
-  const Recorder rec = triangulate(pts);
+  // Many equal z as well.
+  const Recorder rec =
+      triangulate(lattice(60, [](int, int, std::mt19937& rng) { return static_cast<double>(rng() % 6); }));
   for (double base : {0.0, 0.5}) {
     ContourOptions opt;
     opt.interval = 1;
@@ -419,12 +437,7 @@ TEST(ContourTracer, RealSurveysMatchReference) {
   const std::pair<const char*, double> cases[] = {
       {"las/autzen_trim.las", 2.0}, {"las/Topography.las", 1.0}, {"las/hexbin-crop.las", 0.5}};
   for (const auto& [rel, interval] : cases) {
-    Diagnostics diag;
-    LasReader reader(test::dataPath(rel), diag);
-    std::vector<PointRecord> pts, batch(std::size_t{1} << 14);
-    for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
-      pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
-    const Recorder rec = triangulate(pts);
+    const Recorder rec = triangulate(readSurvey(rel));
     ContourOptions opt;
     opt.interval = interval;
     opt.indexEvery = 5;
@@ -809,17 +822,9 @@ TEST(ContourTracer, SimplifyKeepsTopology) {
 // Vertices on levels and flat ground (a lattice with integer heights) and real surveys.
 TEST(ContourTracer, SimplifyKeepsTopologyOnLatticeAndRealSurveys) {
   {
-    std::vector<PointRecord> pts;
-    std::mt19937 rng(5);
-    for (int j = 0; j <= 80; ++j)
-      for (int i = 0; i <= 80; ++i) {
-        PointRecord p;
-        p.x = 100 + i;
-        p.y = 200 + j;
-        p.z = std::round(6 * std::sin(i * 0.11) * std::cos(j * 0.07)) + static_cast<double>(rng() % 2);
-        pts.push_back(p);
-      }
-    const Recorder rec = triangulate(pts);
+    const Recorder rec = triangulate(lattice(80, [](int i, int j, std::mt19937& rng) {
+      return std::round(6 * std::sin(i * 0.11) * std::cos(j * 0.07)) + static_cast<double>(rng() % 2);
+    }));
     ContourOptions opt;
     opt.interval = 1;
     opt.simplify = 2;
@@ -829,12 +834,7 @@ TEST(ContourTracer, SimplifyKeepsTopologyOnLatticeAndRealSurveys) {
   TINBUILD_REQUIRE_DATA();
   for (const auto& [rel, interval] : {std::pair<const char*, double>{"las/autzen_trim.las", 2.0},
                                       std::pair<const char*, double>{"las/Topography.las", 1.0}}) {
-    Diagnostics diag;
-    LasReader reader(test::dataPath(rel), diag);
-    std::vector<PointRecord> pts, batch(std::size_t{1} << 14);
-    for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
-      pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
-    const Recorder rec = triangulate(pts);
+    const Recorder rec = triangulate(readSurvey(rel));
     ContourOptions opt;
     opt.interval = interval;
     opt.simplify = 1;
