@@ -286,7 +286,7 @@ void File::commit(const std::string& metadataLayer,
     if (l->rtree) l->rtree->finish();
     finishLayer(*l);
   }
-  writeMetadata(metadataLayer, metadata);
+  if (!metadata.empty()) writeMetadata(metadataLayer, metadata);
   db.exec("COMMIT");
   layers_.clear();
   db.close();

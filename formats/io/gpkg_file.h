@@ -543,8 +543,9 @@ class File {
   void countRow();
   Db& db() { return *db_; }
   std::int32_t srsId() const { return srs_.id; }
-  // Finishes every layer (pending rows, R*-tree, extent, counts, triggers), records `metadata` items on
-  // layer `metadataLayer` (GDAL reads them with GetMetadataItem), commits and renames onto the path.
+  // Finishes every layer (pending rows, R*-tree, extent, counts, triggers), records `metadata` items (if
+  // any) on layer `metadataLayer` (GDAL reads them with GetMetadataItem), commits and renames onto the
+  // path.
   void commit(const std::string& metadataLayer, const std::vector<std::pair<std::string, std::string>>& metadata);
 
  private:

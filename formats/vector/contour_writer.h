@@ -1,5 +1,6 @@
-// Contour lines to a vector file through GDAL/OGR: the ContourLineSink that `tinbuild build --contours`
-// feeds from the ContourTracer.
+// Contour lines to a vector file: the ContourLineSink that `tinbuild build --contours` feeds from the
+// ContourTracer.  GeoPackage is written directly with SQLite (formats/io/gpkg_file.h, as the TIN is: less
+// memory and CPU than OGR's driver); the other formats through GDAL/OGR.
 //
 // The format follows the extension: .gpkg (GeoPackage, with its R*Tree spatial index), .geojson / .json
 // (GeoJSON), .fgb (FlatGeobuf, with its packed Hilbert R-tree) and .shp (ESRI Shapefile, with .shx, .dbf,
@@ -9,10 +10,10 @@
 //
 // Complete or absent: the dataset is written into a temporary directory beside PATH (PATH.tmp-XXXXXX) and
 // end() closes it and renames each file it made onto its place beside PATH (a Shapefile's sidecars one by
-// one; an old sidecar the new output does not have, such as a stale .prj, is removed).  Destroying the
-// writer before end() removes the temporary directory and everything in it.  Features are inserted in
-// transactions of `transactionSize` where the driver has them (GeoPackage).  GDAL failures throw a
-// DataError naming PATH.
+// one; an old sidecar the new output does not have, such as a stale .prj, is removed); a GeoPackage is
+// one temporary file beside PATH.  Destroying the writer before end() removes what it made.  GeoPackage
+// rows are committed every `transactionSize` lines.  Failures (GDAL's, SQLite's) throw a DataError
+// naming PATH.
 #pragma once
 
 #include <cstddef>

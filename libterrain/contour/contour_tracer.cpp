@@ -197,7 +197,7 @@ struct ContourTracer::Impl {
   ContourLineSink& out;
   ContourStats stats;
   bool simplifying = false;
-  std::size_t spillRun = 256;
+  std::size_t spillRun = 128;
 
   FlatMap<std::uint64_t, Vert, IdHash> verts;  // live vertices
   std::vector<KeyNode> keyNodes;

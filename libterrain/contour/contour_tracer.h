@@ -78,7 +78,7 @@ struct ContourOptions {
   double minLength = 0;       // closed loops shorter than this (xy length) are dropped (counted)
   std::size_t maxVertices = 0;  // split a line into features of at most this many vertices (0: never)
   double simplify = 0;          // Douglas-Peucker tolerance in xy, topology-preserving (0: off)
-  std::size_t spillRun = 256;   // points per in-memory run of an unfinished line before it is spilled
+  std::size_t spillRun = 128;   // points per in-memory run of an unfinished line before it is spilled
   std::string tempDir;          // the spill file's directory ("" = $TMPDIR or /tmp)
 };
 

@@ -90,6 +90,7 @@ namespace {
 enum : std::uint64_t { kVertex = 0, kTriangle = 1, kFinalize = 2, kComplete = 3 };
 constexpr int kTagShift = 62;
 constexpr std::uint64_t kPayload = (std::uint64_t{1} << kTagShift) - 1;
+constexpr std::size_t kBatchWords = 16384;  // 128 KB batches
 }  // namespace
 
 namespace {
@@ -106,13 +107,15 @@ inline double doubleOf(std::uint64_t b) {
 }  // namespace
 
 struct MeshTee::Batch {
-  std::vector<std::uint64_t> words;
+  // A fixed buffer of kBatchWords + 4 words (one event past the threshold fits), `used` of them filled.
+  std::unique_ptr<std::uint64_t[]> words = std::make_unique_for_overwrite<std::uint64_t[]>(kBatchWords + 4);
+  std::size_t used = 0;
   std::vector<std::int64_t> keys;
 };
 
 class MeshTee::Writer {
  public:
-  static constexpr std::size_t kBatchWords = 16384, kMaxQueued = 8;  // 128 KB batches
+  static constexpr std::size_t kMaxQueued = 8;
   explicit Writer(MeshTee& tee) : tee_(tee), thread_([this] { run(); }) {}
   ~Writer() {
     {
@@ -140,9 +143,7 @@ class MeshTee::Writer {
   std::unique_ptr<Batch> recycled() {
     std::lock_guard lock(mutex_);
     if (spare_.empty()) {
-      auto b = std::make_unique<Batch>();
-      b->words.reserve(kBatchWords + 4);
-      return b;
+      return std::make_unique<Batch>();
     }
     auto b = std::move(spare_.back());
     spare_.pop_back();
@@ -168,7 +169,7 @@ class MeshTee::Writer {
       } catch (...) {
         error = std::current_exception();
       }
-      batch->words.clear();
+      batch->used = 0;
       batch->keys.clear();
       {
         std::lock_guard lock(mutex_);
@@ -222,8 +223,8 @@ void MeshTee::applyFinalize(std::uint64_t id) {
 }
 
 void MeshTee::apply(const Batch& batch) {
-  const std::uint64_t* w = batch.words.data();
-  const std::uint64_t* const end = w + batch.words.size();
+  const std::uint64_t* w = batch.words.get();
+  const std::uint64_t* const end = w + batch.used;
   while (w < end) {
     const std::uint64_t head = *w;
     const std::uint64_t payload = head & kPayload;
@@ -251,10 +252,11 @@ void MeshTee::apply(const Batch& batch) {
 // Appends one event's words to the batch being filled and hands the batch on when it is full.
 void MeshTee::put(std::uint64_t tag, std::uint64_t first, std::initializer_list<std::uint64_t> rest) {
   if (first > kPayload) throw Error("mesh tee: vertex id " + std::to_string(first) + " too large");
-  std::vector<std::uint64_t>& words = batch_->words;
-  words.push_back((tag << kTagShift) | first);
-  words.insert(words.end(), rest.begin(), rest.end());
-  if (words.size() >= Writer::kBatchWords) {
+  std::uint64_t* w = batch_->words.get() + batch_->used;
+  *w++ = (tag << kTagShift) | first;
+  for (const std::uint64_t v : rest) *w++ = v;
+  batch_->used = static_cast<std::size_t>(w - batch_->words.get());
+  if (batch_->used >= kBatchWords) {
     writer_->push(std::move(batch_));
     batch_ = writer_->recycled();
   }
@@ -325,7 +327,7 @@ void MeshTee::checkpoint(const ActiveRegion& region) {
 
 void MeshTee::end() {
   if (writer_) {
-    if (!batch_->words.empty()) writer_->push(std::move(batch_));
+    if (batch_->used > 0) writer_->push(std::move(batch_));
     batch_ = std::make_unique<Batch>();
     writer_->finish();
     writer_.reset();
