@@ -388,17 +388,20 @@ struct ContourTracer::Impl {
     Poly& A = polys[a];
     Poly& B = polys[b];
     if (skipFirstOfB) dropFirstPoint(B);
-    if (A.midEmpty() && B.midEmpty() && A.size() + B.size() < spillRun) {
-      // Small lines: copy the shorter one into the longer one's runs.
-      if (A.size() >= B.size()) {
-        appendRun(A.back, B.front, true);
-        appendRun(A.back, B.back, false);
-        A.endKey = B.endKey;
-        A.endFinal = B.endFinal;
-        if (!B.endFinal) ends.find(B.endKey)->poly = a;
-        freePoly(b);
-        return a;
-      }
+    // A line held in memory only (no spilled middle) is copied into the other one's run at the joint:
+    // the shorter one when both are, and a run that reaches spillRun goes to the file whole (joins never
+    // write small chunks when one side is short, which is nearly always).
+    if (B.midEmpty() && (!A.midEmpty() || A.size() >= B.size())) {
+      appendRun(A.back, B.front, true);
+      appendRun(A.back, B.back, false);
+      A.endKey = B.endKey;
+      A.endFinal = B.endFinal;
+      if (!B.endFinal) ends.find(B.endKey)->poly = a;
+      freePoly(b);
+      if (A.back.size() >= spillRun) spillRunOf(A, false);
+      return a;
+    }
+    if (A.midEmpty()) {
       // front' = B.front + reverse(A.back) + A.front (the front run is stored reversed)
       appendRun(B.front, A.back, true);
       appendRun(B.front, A.front, false);
@@ -406,10 +409,11 @@ struct ContourTracer::Impl {
       B.startFinal = A.startFinal;
       if (!A.startFinal) ends.find(A.startKey)->poly = b;
       freePoly(a);
+      if (B.front.size() >= spillRun) spillRunOf(B, true);
       return b;
     }
-    // Large lines: the runs that end up inside the joined line go to the spill file, and the chunk lists
-    // are spliced, the longer line's staying in place.  The middle of the result is
+    // Two long lines: the runs that end up inside the joined line go to the spill file, and the chunk
+    // lists are spliced, the longer line's staying in place.  The middle of the result is
     // reverse(A.midFront) + A.midBack + reverse(B.midFront) + B.midBack.
     spillRunOf(A, false);
     spillRunOf(B, true);
