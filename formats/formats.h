@@ -11,11 +11,13 @@
 //                (written with SQLite), UGRID mesh on NetCDF-4.
 //   raster/      DEM outputs through GDAL: GeoTIFF tiles + VRT mosaics, one GeoTIFF or COG, GeoPackage
 //                raster; the PNG quick-look (with contour lines drawn over it).
-//   vector/      vector outputs through OGR: contour lines (GeoPackage, GeoJSON, FlatGeobuf, Shapefile).
+//   vector/      vector outputs: contour lines (GeoPackage directly with SQLite; GeoJSON, FlatGeobuf and
+//                Shapefile through OGR).
 //   crs/         CRSs from GeoTIFF keys, WKT, EPSG codes and user strings; comparison; reprojection of
 //                points; UTM zone choice; lengths with units.
 //   io/          files that are complete or absent (temporary name, rename on success), stdin with push-back,
-//                little-endian fields.
+//                little-endian fields, GeoPackage writing with SQLite (gpkg_file: the TIN's and the
+//                contours').
 //
 // Invariants every writer keeps: output goes to a temporary name beside the target and is renamed only
 // when the run succeeds; a writer destroyed before end() removes what it wrote; I/O errors are DataErrors

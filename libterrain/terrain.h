@@ -8,7 +8,7 @@
 // The folders (docs/design.md, "The tree"):
 //   core/       errors (Error, DataError, UsageError, CancelledError), Diagnostics (warn once per kind,
 //               count every time), JSON and report text, the GDAL-style progress convention, WorkCrew
-//               (decode threads), points and boxes.
+//               (decode threads), TempFile (spill and spool files, unlinked at once), points and boxes.
 //   finalizer/  the spatial finalizer: the 2^k grid (CellMap, bit-exact membership), PointStream and
 //               PointSink, point filters, chunking with a memory budget and spill, BRIO, sprinkles, the
 //               read order of pass 3, survey statistics.
