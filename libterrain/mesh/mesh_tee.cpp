@@ -79,21 +79,18 @@ void VertexTable::erase(std::uint64_t id) {
 // ---------------------------------------------------------------------------------------------------
 // MeshTee: events, the batch queue and the writer thread.
 
-// 40 bytes: the ids, or a vertex's id and coordinates bit for bit.  Triangles travel as ids; the writer
-// side resolves them in its own VertexTable, so the triangulator's thread copies as little as possible.
 // Threaded mode queues the events as 64-bit words, each event one tagged first word (kind in the top
 // two bits) and its operands: vertex = tag|id, x, y, z (bits); triangle = tag|a, b, c; finalization =
 // tag|id; complete = tag|sink, first key, end key (in the batch's key list).  That is 22 bytes per event
 // on average (40 as a fixed struct): the triangulator's thread writes them, the writer thread reads
-// them, and the cache lines between the two cores are the cost.
+// them, and the cache lines between the two cores are the cost.  Triangles travel as ids; the writer
+// side resolves them in its own VertexTable, so the triangulator's thread copies as little as possible.
 namespace {
 enum : std::uint64_t { kVertex = 0, kTriangle = 1, kFinalize = 2, kComplete = 3 };
 constexpr int kTagShift = 62;
 constexpr std::uint64_t kPayload = (std::uint64_t{1} << kTagShift) - 1;
 constexpr std::size_t kBatchWords = 16384;  // 128 KB batches
-}  // namespace
 
-namespace {
 inline std::uint64_t bitsOf(double v) {
   std::uint64_t b;
   std::memcpy(&b, &v, sizeof b);
@@ -139,12 +136,10 @@ class MeshTee::Writer {
     changed_.wait(lock, [&] { return (queue_.empty() && !busy_) || error_; });
     if (error_) std::rethrow_exception(error_);
   }
-  // A used batch for the producer to fill again (saves reallocating the vectors).
+  // A used batch for the producer to fill again (saves reallocating its buffers).
   std::unique_ptr<Batch> recycled() {
     std::lock_guard lock(mutex_);
-    if (spare_.empty()) {
-      return std::make_unique<Batch>();
-    }
+    if (spare_.empty()) return std::make_unique<Batch>();
     auto b = std::move(spare_.back());
     spare_.pop_back();
     return b;
@@ -192,7 +187,7 @@ class MeshTee::Writer {
   std::thread thread_;  // last: started once everything above exists
 };
 
-MeshTee::MeshTee() : batch_(std::make_unique<Batch>()) {}
+MeshTee::MeshTee() = default;
 MeshTee::~MeshTee() = default;  // a writer still running (the run failed) is stopped, its queue dropped
 
 // The consumer side: runs on the writer thread (threaded) or right away (not threaded).  It keeps its
@@ -264,7 +259,7 @@ void MeshTee::put(std::uint64_t tag, std::uint64_t first, std::initializer_list<
 
 void MeshTee::begin(const MeshInfo& info) {
   writer_.reset();
-  batch_ = std::make_unique<Batch>();
+  batch_.reset();
   vertices_ = VertexTable();
   agentVertices_ = VertexTable();
   agents_.clear();
@@ -280,7 +275,10 @@ void MeshTee::begin(const MeshInfo& info) {
   }
   const bool threaded = threaded_ && !empty();
   agentsInApply_ = !threaded;
-  if (threaded) writer_ = std::make_unique<Writer>(*this);
+  if (threaded) {
+    writer_ = std::make_unique<Writer>(*this);
+    batch_ = writer_->recycled();
+  }
 }
 
 void MeshTee::vertex(std::uint64_t id, double x, double y, double z) {
@@ -328,7 +326,7 @@ void MeshTee::checkpoint(const ActiveRegion& region) {
 void MeshTee::end() {
   if (writer_) {
     if (batch_->used > 0) writer_->push(std::move(batch_));
-    batch_ = std::make_unique<Batch>();
+    batch_.reset();
     writer_->finish();
     writer_.reset();
   }

@@ -156,7 +156,7 @@ class MeshTee : public MeshSink {
   bool threaded_ = false;
   ProgressFunc progress_ = nullptr;
   void* progressData_ = nullptr;
-  std::unique_ptr<Batch> batch_;    // being filled (threaded) or the keys of the current event
+  std::unique_ptr<Batch> batch_;    // being filled (threaded mode only)
   std::unique_ptr<Writer> writer_;  // the writer thread (threaded mode, between begin and end)
   std::vector<std::int64_t> keys_;  // scratch for the agents' answers
 };
