@@ -13,9 +13,8 @@
 namespace tinbuild::gpkg {
 
 namespace {
-
-std::string exportWkt(const OGRSpatialReference& srs);
-
+constexpr const char* kRtreeDefinition = "http://www.geopackage.org/spec120/#extension_rtree";
+constexpr const char* kMetadataDefinition = "http://www.geopackage.org/spec120/#extension_metadata";
 }  // namespace
 
 // Position of (x, y) on the Hilbert curve filling a 2^16 x 2^16 grid, four bits of x and y at a time.
@@ -67,6 +66,8 @@ std::string sqlName(const std::string& s) {
   return out + "\"";
 }
 
+namespace {
+
 std::string xmlEscape(const std::string& s) {
   std::string out;
   for (char c : s) {
@@ -90,8 +91,6 @@ std::string xmlEscape(const std::string& s) {
   return out;
 }
 
-namespace {
-
 std::string exportWkt(const OGRSpatialReference& srs) {
   char* text = nullptr;
   // WKT1 as the GeoPackage core expects; WKT2 when the CRS has no WKT1 form (readers take either).
@@ -109,8 +108,8 @@ std::string exportWkt(const OGRSpatialReference& srs) {
   return out;
 }
 
-}  // namespace
-
+// The registration of the survey's CRS: its EPSG code as srs_id when the whole CRS is an EPSG one,
+// otherwise a private id (the GeoPackage reserves none; GDAL also starts at 100000).
 SrsRow srsRowFor(const std::string& text, const std::string& path) {
   SrsRow row;
   if (text.empty()) return row;
@@ -160,6 +159,8 @@ std::string wgs84Definition() {
   const std::string wkt = exportWkt(srs);
   return wkt.empty() ? "undefined" : wkt;
 }
+
+}  // namespace
 
 Stmt::Stmt(Db& db, const std::string& sql) : db_(&db) {
   if (sqlite3_prepare_v2(db.get(), sql.c_str(), static_cast<int>(sql.size()), &s_, nullptr) != SQLITE_OK)

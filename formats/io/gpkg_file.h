@@ -6,7 +6,8 @@
 // - BatchInsert: rows through a prepared multi-row INSERT (fixed-size blobs and integer columns).
 // - RtreeLoader: the GeoPackage spatial index (an SQLite R*-tree) packed in bulk into its shadow tables
 //   (the node format and the packing are described at the class).
-// - srsRowFor: the gpkg_spatial_ref_sys row of a CRS (EPSG code when the whole CRS is one, else 100000).
+// - SrsRow: the gpkg_spatial_ref_sys row of a File's CRS (EPSG code when the whole CRS is one, else
+//   100000).
 // - File: a GeoPackage 1.3 being written under a temporary name beside PATH: the core tables, feature
 //   layers (`fid`, `geom` and extra columns) with their contents rows, extents, feature counts, R*-trees
 //   and the rtree extension's triggers, layer metadata the way GDAL stores it, and the rename onto PATH
@@ -67,10 +68,6 @@ inline void putGpHeader(std::uint8_t* p, std::int32_t srsId) {
   p[3] = 0x01;
   le::putU32(p + 4, static_cast<std::uint32_t>(srsId));
 }
-// ISO WKB Polygon Z (1003), one ring of 4 points: 1 + 4 + 4 + 4 + 4 * 24 bytes.
-constexpr std::size_t kTriangleBlobBytes = kGpHeaderBytes + 13 + 4 * 24;
-// ISO WKB Point Z (1001): 1 + 4 + 24 bytes.
-constexpr std::size_t kPointBlobBytes = kGpHeaderBytes + 5 + 24;
 
 // Float bounds as SQLite's R*-tree stores REAL coordinates: the float nearest the double, moved outwards
 // (by the same relative step SQLite uses) when rounding went the wrong way, so the float box contains
@@ -93,8 +90,6 @@ std::uint32_t hilbertIndex(std::uint32_t x, std::uint32_t y);
 
 // A double-quoted SQL identifier.
 std::string sqlName(const std::string& s);
-
-std::string xmlEscape(const std::string& s);
 
 // ---------------------------------------------------------------------------------------------------
 // SQLite, thinly wrapped: every failure throws DataError naming the output (not the temporary file).
@@ -486,13 +481,6 @@ struct SrsRow {
   std::int64_t code = -1;
 };
 
-
-// The registration of the survey's CRS: its EPSG code as srs_id when the whole CRS is an EPSG one,
-// otherwise a private id (the GeoPackage reserves none; GDAL also starts at 100000).
-SrsRow srsRowFor(const std::string& text, const std::string& path);
-
-std::string wgs84Definition();
-
 // ---------------------------------------------------------------------------------------------------
 
 struct Extent {
@@ -503,9 +491,6 @@ struct Extent {
   }
   bool empty() const { return !(minX <= maxX); }
 };
-
-constexpr const char* kRtreeDefinition = "http://www.geopackage.org/spec120/#extension_rtree";
-constexpr const char* kMetadataDefinition = "http://www.geopackage.org/spec120/#extension_metadata";
 
 // A feature layer of a File.
 struct Layer {

@@ -14,10 +14,14 @@ namespace tinbuild {
 namespace {
 
 using gpkg::File;
-using gpkg::kPointBlobBytes;
-using gpkg::kTriangleBlobBytes;
+using gpkg::kGpHeaderBytes;
 using gpkg::Layer;
 using gpkg::putGpHeader;
+
+// ISO WKB Polygon Z (1003), one ring of 4 points: 1 + 4 + 4 + 4 + 4 * 24 bytes.
+constexpr std::size_t kTriangleBlobBytes = kGpHeaderBytes + 13 + 4 * 24;
+// ISO WKB Point Z (1001): 1 + 4 + 24 bytes.
+constexpr std::size_t kPointBlobBytes = kGpHeaderBytes + 5 + 24;
 
 class GpkgTinWriter final : public TriangleSink {
  public:
