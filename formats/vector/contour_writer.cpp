@@ -23,7 +23,6 @@
 #include "formats/io/gpkg_file.h"
 #include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
-#include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -54,10 +53,11 @@ struct QuietGdal {
   throw DataError(path, what + (msg && *msg ? std::string(": ") + msg : std::string()));
 }
 
+// The OGR formats (a GeoPackage is written by ContourGpkgWriter, without OGR).
 const char* driverName(ContourFormat f) {
   switch (f) {
     case ContourFormat::GeoPackage:
-      return "GPKG";
+      break;
     case ContourFormat::GeoJson:
       return "GeoJSON";
     case ContourFormat::FlatGeobuf:
@@ -69,13 +69,13 @@ const char* driverName(ContourFormat f) {
 }
 
 // Registers only the one OGR driver a run writes with: GDALAllRegister touches every driver's code and
-// adds about 10 MB of resident memory, which on a 10M-point job is a seventh of the mesh job's peak.
-// (Each registration function returns at once when its driver is already registered.)
+// added about 6 MB of resident memory to a 10M-point contour job.  (Each registration function returns
+// at once when its driver is already registered.)
 void registerDriver(ContourFormat format) {
   static std::mutex mutex;
   std::lock_guard<std::mutex> lock(mutex);
   switch (format) {
-    case ContourFormat::GeoPackage: RegisterOGRGeoPackage(); break;
+    case ContourFormat::GeoPackage: break;  // ContourGpkgWriter
     case ContourFormat::GeoJson: RegisterOGRGeoJSON(); break;
     case ContourFormat::FlatGeobuf: RegisterOGRFlatGeobuf(); break;
     case ContourFormat::Shapefile: RegisterOGRShape(); break;
@@ -126,7 +126,7 @@ class ContourWriter final : public ContourLineSink {
     }
     CPLStringList lco;
     switch (format_) {
-      case ContourFormat::GeoPackage:  // written by ContourGpkgWriter (kept for a complete switch)
+      case ContourFormat::GeoPackage:  // ContourGpkgWriter
         break;
       case ContourFormat::FlatGeobuf:
         lco.SetNameValue("SPATIAL_INDEX", "YES");
@@ -152,7 +152,6 @@ class ContourWriter final : public ContourLineSink {
     indexField_ = defn->GetFieldIndex("index");
     if (!o_.commandLine.empty()) layer_->SetMetadataItem("TINBUILD_COMMAND", o_.commandLine.c_str());
     feature_ = new OGRFeature(defn);
-    startTransaction();
   }
 
   void line(const ContourLine& line) override {
@@ -170,10 +169,6 @@ class ContourWriter final : public ContourLineSink {
     feature_->SetFID(OGRNullFID);
     QuietGdal quiet;
     if (layer_->CreateFeature(feature_) != OGRERR_NONE) gdalFailure(path_, "cannot write a contour line");
-    if (inTransaction_ && ++pending_ >= std::max<std::size_t>(1, o_.transactionSize)) {
-      commitTransaction();
-      startTransaction();
-    }
   }
 
   void end() override {
@@ -187,20 +182,8 @@ class ContourWriter final : public ContourLineSink {
   }
 
  private:
-  void startTransaction() {
-    QuietGdal quiet;
-    inTransaction_ = ds_->StartTransaction(FALSE) == OGRERR_NONE;
-    pending_ = 0;
-  }
-  void commitTransaction() {
-    if (!inTransaction_) return;
-    QuietGdal quiet;
-    inTransaction_ = false;
-    if (ds_->CommitTransaction() != OGRERR_NONE) gdalFailure(path_, "cannot write the contour lines");
-  }
-
-  // Closes the dataset (after committing the open transaction): the driver writes what it buffered (the
-  // GeoPackage's R*Tree, the FlatGeobuf index, the Shapefile headers).
+  // Closes the dataset: the driver writes what it buffered (the FlatGeobuf index, the Shapefile
+  // headers).  (These drivers have no transactions.)
   void close() {
     if (!ds_) return;
     QuietGdal quiet;
@@ -208,19 +191,12 @@ class ContourWriter final : public ContourLineSink {
       OGRFeature::DestroyFeature(feature_);
       feature_ = nullptr;
     }
-    bool ok = true;
-    std::string what;
-    if (inTransaction_) {
-      inTransaction_ = false;
-      if (ds_->CommitTransaction() != OGRERR_NONE) ok = false, what = "cannot write the contour lines";
-    }
     GDALDataset* ds = ds_;
     ds_ = nullptr;
     layer_ = nullptr;
-    if (ok) CPLErrorReset();
+    CPLErrorReset();
     GDALClose(ds);  // writes what the driver buffered (void before GDAL 3.8: errors come through CPL)
-    if (ok && CPLGetLastErrorType() >= CE_Failure) ok = false, what = "cannot write the contour file";
-    if (!ok) gdalFailure(path_, what);
+    if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(path_, "cannot write the contour file");
     if (format_ == ContourFormat::GeoJson && !geoJsonComplete())
       throw DataError(path_, "cannot write the contour file: the GeoJSON is incomplete (disk full?)");
   }
@@ -294,8 +270,6 @@ class ContourWriter final : public ContourLineSink {
   OGRLayer* layer_ = nullptr;
   OGRFeature* feature_ = nullptr;
   int elevField_ = -1, indexField_ = -1;
-  bool inTransaction_ = false;
-  std::size_t pending_ = 0;
   bool committed_ = false;
 };
 
@@ -306,7 +280,7 @@ class ContourWriter final : public ContourLineSink {
 class ContourGpkgWriter final : public ContourLineSink {
  public:
   ContourGpkgWriter(std::string path, const ContourWriterOptions& options)
-      : path_(std::move(path)), o_(options), file_(path_, std::max<std::size_t>(1, options.transactionSize)) {}
+      : path_(std::move(path)), o_(options), file_(path_, options.transactionSize) {}
 
   void begin(const MeshInfo& info) override {
     file_.open(o_.crs.wkt.empty() ? info.crsWkt : o_.crs.wkt, kCacheKiB);

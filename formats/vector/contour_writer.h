@@ -32,7 +32,7 @@ struct ContourWriterOptions {
   CrsInfo crs;              // empty: MeshInfo::crsWkt at begin()
   std::string commandLine;  // layer metadata TINBUILD_COMMAND when not empty
   std::string layerName = "contours";
-  std::size_t transactionSize = 10000;
+  std::size_t transactionSize = 10000;  // GeoPackage: lines per transaction
 };
 
 // The format for PATH's extension (case-insensitive); false when it names none of them.
