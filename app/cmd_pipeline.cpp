@@ -65,6 +65,14 @@ std::vector<int> parseClassList(const std::string& option, const std::string& li
   return codes;
 }
 
+// A class list to keep ("2,9") -> the classes to drop: every other one.
+std::bitset<256> dropAllBut(const std::string& option, const std::string& list) {
+  std::bitset<256> drop;
+  drop.set();
+  for (int c : parseClassList(option, list)) drop.reset(static_cast<std::size_t>(c));
+  return drop;
+}
+
 // "a,b,..." -> exactly N finite numbers into v; false when the text is anything else.
 template <std::size_t N>
 bool parseNumbers(const std::string& text, double (&v)[N]) {
@@ -137,11 +145,7 @@ void parseInputOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
   fo.depth = args.getInt("--depth", -1, 0, 15);
   fo.memoryBudget = static_cast<std::size_t>(args.getInt("--memory", 512, 1, 1 << 22)) << 20;
   fo.tempDir = args.get("--temp-dir");
-  if (args.has("--keep-class")) {
-    fo.filter.dropClasses.set();
-    for (int c : parseClassList("--keep-class", args.get("--keep-class")))
-      fo.filter.dropClasses.reset(static_cast<std::size_t>(c));
-  }
+  if (args.has("--keep-class")) fo.filter.dropClasses = dropAllBut("--keep-class", args.get("--keep-class"));
   if (args.has("--drop-class"))
     for (int c : parseClassList("--drop-class", args.get("--drop-class")))
       fo.filter.dropClasses.set(static_cast<std::size_t>(c));
@@ -288,10 +292,7 @@ int runBuildCommand(const cli::ParsedArgs& args) {
     if (args.has("--contour-class")) {
       // Contours are cut from the run's one TIN: the classes must be the TIN's.  Alone, the option sets
       // them; with other outputs it must agree with --keep-class/--drop-class.
-      std::bitset<256> drop;
-      drop.set();
-      for (int k : parseClassList("--contour-class", args.get("--contour-class")))
-        drop.reset(static_cast<std::size_t>(k));
+      const std::bitset<256> drop = dropAllBut("--contour-class", args.get("--contour-class"));
       const bool otherOutputs = !o.meshOutput.empty() || !o.gpkgOutput.empty() || args.has("--dem");
       std::bitset<256>& runDrop = o.finalizer.filter.dropClasses;
       if (!otherOutputs && !args.has("--keep-class") && !args.has("--drop-class")) {
