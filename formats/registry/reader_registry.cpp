@@ -14,6 +14,7 @@
 #include "formats/pointcloud/xyz_reader.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/temp_file.h"
 
 namespace tinbuild {
 
@@ -83,8 +84,7 @@ class StdinLazCopy : public ForwardingReader {
 
 // Copies standard input to a new temporary file; returns its path.
 std::string copyStdinToTemporary() {
-  const char* env = std::getenv("TMPDIR");
-  std::string templ = std::string(env && *env ? env : "/tmp") + "/tinbuild-stdin-XXXXXX.laz";
+  std::string templ = defaultTempDir() + "/tinbuild-stdin-XXXXXX.laz";
   std::vector<char> name(templ.begin(), templ.end());
   name.push_back('\0');
   const int fd = ::mkstemps(name.data(), 4);

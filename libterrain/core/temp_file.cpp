@@ -14,12 +14,13 @@
 
 namespace tinbuild {
 
+std::string defaultTempDir() {
+  const char* env = std::getenv("TMPDIR");
+  return env && *env ? env : "/tmp";
+}
+
 TempFile::TempFile(const std::string& dir, const char* stem) {
-  std::string base = dir;
-  if (base.empty()) {
-    const char* env = std::getenv("TMPDIR");
-    base = env && *env ? env : "/tmp";
-  }
+  const std::string base = dir.empty() ? defaultTempDir() : dir;
   std::string templ = base + "/tinbuild-" + stem + "-XXXXXX";
   std::vector<char> name(templ.begin(), templ.end());
   name.push_back('\0');

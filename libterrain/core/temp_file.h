@@ -12,6 +12,9 @@
 
 namespace tinbuild {
 
+// Where temporary files go when no directory is given: $TMPDIR, else /tmp.
+std::string defaultTempDir();
+
 class TempFile {
  public:
   // `dir` "" means $TMPDIR, else /tmp; `stem` names the file's purpose (tinbuild-STEM-XXXXXX).

@@ -67,6 +67,7 @@
 
 #include "app/jobs/read_benchmark.h"
 #include "formats/pointcloud/las_writer.h"
+#include "libterrain/core/temp_file.h"
 #include "libterrain/synthetic/synthetic_survey.h"
 #include "tests/bench/bench.h"
 
@@ -417,11 +418,6 @@ class TempDir {
   bool keep_;
 };
 
-std::string defaultTempBase() {
-  const char* t = std::getenv("TMPDIR");
-  return t && *t ? t : "/tmp";
-}
-
 Config makeConfig(Args& args) {
   Config cfg;
   cfg.self = selfExecutable();
@@ -575,7 +571,7 @@ int delaunayMain(const std::vector<std::string>& argv) {
   Args args("delaunay", argv);
   Config cfg = makeConfig(args);
   const SurveySpec spec = surveyFromArgs(args, "delaunay", 0);
-  const std::string base = args.value("--dir", defaultTempBase());
+  const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
 
   const std::string loadBefore = loadAverage();
@@ -617,7 +613,7 @@ int latticeVsRandomMain(const std::vector<std::string>& argv) {
   Config cfg = makeConfig(args);
   const std::uint64_t side = args.count("--side", 1000, 2, 100000);
   const std::uint64_t seed = args.count("--seed", 1, 0, std::uint64_t{1} << 52);
-  const std::string base = args.value("--dir", defaultTempBase());
+  const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
 
   SurveySpec lattice;
@@ -665,7 +661,7 @@ int suiteMain(const std::vector<std::string>& argv) {
   Config cfg = makeConfig(args);
   const std::uint64_t n = args.count("--points", 1000000, 4, std::uint64_t{1} << 36);
   const std::uint64_t seed = args.count("--seed", 1, 0, std::uint64_t{1} << 52);
-  const std::string base = args.value("--dir", defaultTempBase());
+  const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
 
   std::vector<SurveySpec> specs;
@@ -782,7 +778,7 @@ int finalizeMain(const std::vector<std::string>& argv) {
   const bool storedOrder = args.flag("--stored-order");
   const bool cold = args.flag("--cold");
   const int tiles = static_cast<int>(args.count("--tiles", 0, 0, 100));
-  const std::string base = args.value("--dir", defaultTempBase());
+  const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
 
   const std::string loadBefore = loadAverage();
