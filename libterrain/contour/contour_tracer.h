@@ -37,8 +37,8 @@
 // ends are final, and a line as long as the survey (or one ending on a hull edge whose vertices the
 // triangulator keeps live to the end) is held for most of the stream; so only the ends of a line stay in
 // memory: its points are kept in a run at each end, and a run that reaches spillRun points is written
-// to a temporary file (tempDir) as one chunk of the line's middle.  Joining two long lines splices their
-// chunk lists.  The points held in memory (peakOpenPoints) are thus at most about 2 * spillRun per open
+// to a temporary file (tempDir) as one chunk of the line's middle.  When two lines join, one with no
+// spilled middle is copied into the other's run at the joint; two long lines splice their chunk lists.  The points held in memory (peakOpenPoints) are thus at most about 2 * spillRun per open
 // line; the line is read back, whole, when it is handed on.
 //
 // Simplification (simplify > 0).  Douglas-Peucker with the tolerance in xy, restricted so that it never
