@@ -120,7 +120,10 @@ std::vector<cli::OptionSpec> inputOptions() {
 
 std::vector<cli::OptionSpec> triangulatorOptions() {
   return {{"--duplicates", "RULE",
-           "which of several points with equal x,y survives: lowest (default), highest, first"}};
+           "which of several points with equal x,y survives: lowest (default), highest, first"},
+          {"--region-level", "L",
+           "triangulate the 4^L quadtree cells of level L as regions, on the --threads, with certified "
+           "seams (default: from the point count; 0 = one region)"}};
 }
 
 std::vector<cli::OptionSpec> reportOptions() {
@@ -171,6 +174,7 @@ void parseTriangulatorOptions(const cli::ParsedArgs& args, PipelineOptions& o) {
                        "'");
     o.delaunay.duplicates = *rule;
   }
+  o.regionLevel = args.getInt("--region-level", -1, 0, 6);
 }
 
 // Runs a pipeline command with the shared diagnostics, progress, summary and report handling.

@@ -354,6 +354,15 @@ void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedO
     for (const std::string& path : r.row->targets(r.path, c)) refuseExistingFile(path);
 }
 
+// The triangulator of a run: regions on the --threads (parallel_delaunay.h).
+ParallelDelaunayOptions triangulatorOptions(const PipelineOptions& o, const DelaunayOptions& dopt, int threads) {
+  ParallelDelaunayOptions p;
+  p.delaunay = dopt;
+  p.threads = threads;
+  p.regionLevel = o.regionLevel;
+  return p;
+}
+
 }  // namespace
 
 int effectiveThreads(int requested) {
@@ -420,7 +429,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   DelaunayOptions dopt = o.delaunay;
   dopt.diagnostics = &diag;
   // Without a writer thread the one mesh writer is fed directly (the tee would only add a call).
-  StreamingDelaunay delaunay(threaded ? static_cast<MeshSink&>(tee) : *mesh, dopt);
+  ParallelDelaunay delaunay(threaded ? static_cast<MeshSink&>(tee) : *mesh, triangulatorOptions(o, dopt, r.threads));
   ProgressPointSink progress(delaunay, o.finalizer.progress, o.finalizer.progressData,
                              o.finalizer.progressCounts);
   const StreamInfo info = readFinalizedStream(finalizedInput, progress);
@@ -432,6 +441,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
     }
   }
   r.delaunay = delaunay.stats();
+  r.parallel = delaunay.parallelStats();
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   r.outputs = {o.meshOutput};
@@ -505,7 +515,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just
   // before it ends the stream).
   MeshSink* direct = opened.size() == 1 && !threadedOutputs ? opened[0]->meshSink() : nullptr;
-  StreamingDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), dopt);
+  ParallelDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), triangulatorOptions(o, dopt, threads));
   if (threads >= 2) {
     ConcurrentPointSink queue(delaunay);
     r.finalizer = finalizePoints(in.streams, fo, queue, diag);
@@ -516,6 +526,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   r.threads = threads;
   r.haveFinalizer = true;
   r.delaunay = delaunay.stats();
+  r.parallel = delaunay.parallelStats();
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   const std::vector<ResolvedOutput> resolved = outputs.all();

@@ -25,6 +25,7 @@
 #include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/delaunay/mesh_verifier.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "libterrain/raster/dem_rasterizer.h"
@@ -62,6 +63,7 @@ struct PipelineOptions {
   bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings
   bool overwrite = false;       // --overwrite: replace existing outputs (else an existing one is an error)
   int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
+  int regionLevel = -1;         // --region-level: the triangulator's regions (-1: from the point count)
 };
 
 // --threads 0 -> the number of cores (at least 1).
@@ -95,6 +97,7 @@ struct RunReport {
   std::size_t memoryBudget = 0;
   bool haveDelaunay = false;
   DelaunayStats delaunay;
+  ParallelDelaunayStats parallel;  // the regions and the seam step
   std::string duplicateRule;
   DemReport dem;
   std::string gpkgOutput;

@@ -14,6 +14,7 @@
 #include <cstring>
 #include <limits>
 #include <string>
+#include <unordered_map>
 #include <vector>
 
 #include "libterrain/core/diagnostics.h"
@@ -370,6 +371,33 @@ struct StreamingDelaunay::Impl {
   std::vector<std::uint32_t> fresh;
   std::vector<std::pair<std::uint64_t, std::uint32_t>> found;
 
+  // Region mode (SeamSink in the header).  ownInner: the region's square shrunk by 2h on the sides it shares
+  // with other regions, unbounded on the grid's border (nothing lies beyond it); a final triangle whose
+  // disk provably lies inside is certified.  ownGrown: where all of the region's triangles lie.
+  bool regionMode = false;
+  SeamSink* seam = nullptr;
+  Rect ownInner{}, ownGrown{};
+  // Per vertex slot: the region-local index of the leaf it arrived in, and kSeamBit once a seam triangle
+  // used it.  Live vertices per local leaf: a dense array when the region has at most 2^20 leaves, else
+  // a map of the nonzero counts.
+  static constexpr std::uint32_t kSeamBit = 0x80000000u;
+  std::vector<std::uint32_t> vleaf;
+  int regionShift = 0;  // leaf level - region level
+  std::vector<std::uint32_t> leafCount;
+  std::unordered_map<std::uint32_t, std::uint32_t> leafLive;
+  struct PendingSeamTag {
+    CellTag cell;
+    std::uint32_t open;  // leaves inside with live vertices
+  };
+  std::vector<PendingSeamTag> pendingSeamTags;
+  struct WedgeList {
+    std::vector<SeamSink::Wedge> wedges;
+    Point2 ghostFrom{}, ghostTo{};
+    bool hasGhostFrom = false, hasGhostTo = false;
+  };
+  std::unordered_map<std::uint32_t, WedgeList> seamWedges;  // per vertex slot touched by a seam triangle
+  std::vector<SeamSink::Wedge> wedgeScratch;
+
   Impl(MeshSink& o, const DelaunayOptions& opt) : out(o), options(opt) {}
 
   // ----- small helpers -----------------------------------------------------------------------------------
@@ -425,6 +453,15 @@ struct StreamingDelaunay::Impl {
     }
     xy[v] = p;
     verts[v] = Vertex{z, kNoId, 0, kNone};
+    if (regionMode) {
+      if (vleaf.size() < verts.size()) vleaf.resize(verts.size());
+      const std::uint32_t local = localLeaf(curLeaf);
+      vleaf[v] = local;
+      if (!leafCount.empty())
+        ++leafCount[local];
+      else
+        ++leafLive[local];
+    }
     if (++activeVerts > stats.maxActiveVertices) stats.maxActiveVertices = activeVerts;
     return v;
   }
@@ -432,6 +469,124 @@ struct StreamingDelaunay::Impl {
     verts[v].uses = 0;
     freeVerts.push_back(v);
     --activeVerts;
+    if (regionMode) {
+      const std::uint32_t local = vleaf[v] & ~kSeamBit;
+      if (!leafCount.empty()) {
+        if (--leafCount[local] == 0) leafEmptied(local);
+      } else {
+        const auto it = leafLive.find(local);
+        if (--it->second == 0) {
+          leafLive.erase(it);
+          leafEmptied(local);
+        }
+      }
+    }
+  }
+
+  // Region mode: a leaf's index inside the region (row-major over the region's 2^k x 2^k leaves).
+  std::uint32_t localLeaf(std::uint64_t key) const {
+    const std::uint64_t mask = (std::uint64_t{1} << grid.depth) - 1;
+    const std::uint32_t side = std::uint32_t{1} << regionShift;
+    const auto col = static_cast<std::uint32_t>(key & mask) & (side - 1);
+    const auto row = static_cast<std::uint32_t>(key >> grid.depth) & (side - 1);
+    return (row << regionShift) | col;
+  }
+
+  // ----- region mode: seam bookkeeping ------------------------------------------------------------------
+  // Does the region-local leaf lie in the cell (a cell inside the region)?
+  bool cellContainsLeaf(const CellTag& c, std::uint32_t local) const {
+    const CellTag& own = options.region.cell;
+    const std::uint32_t col = (own.col << regionShift) | (local & ((1u << regionShift) - 1));
+    const std::uint32_t row = (own.row << regionShift) | (local >> regionShift);
+    const int k = grid.depth - c.level;
+    return (col >> k) == c.col && (row >> k) == c.row;
+  }
+  // The last live vertex of a finalized leaf went: pending seam tags over it may now be complete.
+  void leafEmptied(std::uint32_t key) {
+    for (std::size_t i = 0; i < pendingSeamTags.size();) {
+      PendingSeamTag& p = pendingSeamTags[i];
+      if (cellContainsLeaf(p.cell, key) && --p.open == 0) {
+        const CellTag c = p.cell;
+        pendingSeamTags.erase(pendingSeamTags.begin() + static_cast<std::ptrdiff_t>(i));
+        seam->seamTag(c);
+        continue;
+      }
+      ++i;
+    }
+  }
+  // After a tag: the part of it inside the region is passed on to the seam step once no vertex of the
+  // region inside it is live any more (at once when none is).
+  void registerSeamTag(const CellTag& tag) {
+    const CellTag& own = options.region.cell;
+    CellTag part;
+    if (tag.level >= own.level) {
+      const int k = tag.level - own.level;
+      if ((tag.col >> k) != own.col || (tag.row >> k) != own.row) return;
+      part = tag;
+    } else {
+      const int k = own.level - tag.level;
+      if ((own.col >> k) != tag.col || (own.row >> k) != tag.row) return;
+      part = own;
+    }
+    std::uint32_t open = 0;
+    if (leafCount.empty()) {
+      for (const auto& entry : leafLive)
+        if (cellContainsLeaf(part, entry.first)) ++open;
+    } else {  // the part's leaves: a square block of the dense array
+      const int k = grid.depth - part.level;
+      const std::uint32_t c0 = (part.col << k) - (own.col << regionShift);
+      const std::uint32_t r0 = (part.row << k) - (own.row << regionShift);
+      for (std::uint32_t r = r0; r < r0 + (1u << k); ++r)
+        for (std::uint32_t c = c0; c < c0 + (1u << k); ++c)
+          if (leafCount[(r << regionShift) | c] != 0) ++open;
+    }
+    if (open == 0)
+      seam->seamTag(part);
+    else
+      pendingSeamTags.push_back(PendingSeamTag{part, open});
+  }
+  void addWedge(std::uint32_t v, std::uint32_t from, std::uint32_t to) {
+    vleaf[v] |= kSeamBit;
+    seamWedges[v].wedges.push_back(SeamSink::Wedge{pt(from), pt(to)});
+  }
+  // A final triangle whose disk may reach another region: recorded at its vertices, not written.
+  void seamTriangle(std::uint32_t t) {
+    const Tri& T = tris[t];
+    addWedge(T.v[0], T.v[1], T.v[2]);
+    addWedge(T.v[1], T.v[2], T.v[0]);
+    addWedge(T.v[2], T.v[0], T.v[1]);
+    ++stats.seamTriangles;
+    release(t);
+  }
+  // A final ghost (a, b, oo) (the half-plane left of a -> b): in region mode always a seam triangle.  At a
+  // the outside of the hull begins at the ray a -> b, at b it ends at the ray b -> a.
+  void releaseGhost(std::uint32_t t) {
+    if (regionMode) {
+      const Tri& T = tris[t];
+      const int g = ghostIndex(T);
+      const std::uint32_t a = T.v[kNext[g]], b = T.v[kPrev[g]];
+      vleaf[a] |= kSeamBit;
+      vleaf[b] |= kSeamBit;
+      WedgeList& wa = seamWedges[a];
+      wa.ghostFrom = pt(b);
+      wa.hasGhostFrom = true;
+      WedgeList& wb = seamWedges[b];
+      wb.ghostTo = pt(a);
+      wb.hasGhostTo = true;
+      ++stats.seamTriangles;
+    }
+    release(t);
+  }
+  // A vertex whose last triangle went and which a seam triangle used: handed to the seam step.
+  void handOver(std::uint32_t v, WedgeList& w) {
+    wedgeScratch.clear();
+    wedgeScratch.insert(wedgeScratch.end(), w.wedges.begin(), w.wedges.end());
+    if (w.hasGhostFrom != w.hasGhostTo)
+      throw Error("streaming Delaunay (region mode): a hull vertex without both of its ghosts");
+    if (w.hasGhostFrom) wedgeScratch.push_back(SeamSink::Wedge{w.ghostFrom, w.ghostTo});
+    ++stats.seamVertices;
+    seam->seamVertex(verts[v].id, xy[v].x, xy[v].y, verts[v].z, false, wedgeScratch.data(),
+                     wedgeScratch.size());
   }
 
   std::size_t bytes() const {
@@ -481,6 +636,36 @@ struct StreamingDelaunay::Impl {
     boundary.resize(64);
     cavity.resize(64);
     fresh.resize(64);
+    regionMode = options.region.seam != nullptr;
+    seam = options.region.seam;
+    vleaf.clear();
+    leafLive.clear();
+    leafCount.clear();
+    pendingSeamTags.clear();
+    seamWedges.clear();
+    if (regionMode) {
+      const CellTag& c = options.region.cell;
+      if (c.level > grid.depth || c.col >= (std::uint64_t{1} << c.level) ||
+          c.row >= (std::uint64_t{1} << c.level))
+        throw Error("streaming Delaunay: region cell outside the grid");
+      const std::uint32_t lastIndex = (std::uint32_t{1} << c.level) - 1;
+      const Rect r = nominal(c.level, c.col, c.row);
+      constexpr double inf = std::numeric_limits<double>::infinity();
+      ownInner = Rect{c.col == 0 ? -inf : r.x0 + 2 * h, c.row == 0 ? -inf : r.y0 + 2 * h,
+                      c.col == lastIndex ? inf : r.x1 - 2 * h, c.row == lastIndex ? inf : r.y1 - 2 * h};
+      ownGrown = grown(c.level, c.col, c.row);
+      regionShift = grid.depth - c.level;
+      if (2 * regionShift <= 20) leafCount.assign(std::size_t{1} << (2 * regionShift), 0);
+      // Only the region's own cells will ever receive its points: everything else is final from the
+      // start, for DT(P_r).  (Whether a final triangle is certified is the disk test in emit().)
+      for (int l = 1; l <= c.level; ++l) {
+        const std::uint32_t ac = c.col >> (c.level - l), ar = c.row >> (c.level - l);
+        for (std::uint32_t q = 0; q < 4; ++q) {
+          const std::uint32_t sc = (ac & ~1u) | (q & 1u), sr = (ar & ~1u) | (q >> 1);
+          if (sc != ac || sr != ar) tree.finalize(l, sc, sr);
+        }
+      }
+    }
     begun = true;
     ended = false;
     MeshInfo mi;
@@ -1225,18 +1410,34 @@ struct StreamingDelaunay::Impl {
   }
   [[gnu::noinline]] std::uint64_t writeVertex(std::uint32_t v) {
     Vertex& V = verts[v];
-    V.id = nextId++;
+    V.id = options.slotIds ? v : nextId++;
     ++stats.verticesOut;
     out.vertex(V.id, xy[v].x, xy[v].y, V.z);
     return V.id;
   }
 
   [[gnu::noinline]] void finalizeVertex(std::uint32_t v) {
+    if (regionMode && (vleaf[v] & kSeamBit)) {
+      const auto it = seamWedges.find(v);
+      {
+        handOver(v, it->second);
+        seamWedges.erase(it);
+        freeVertex(v);
+        return;
+      }
+    }
     out.finalizeVertex(writeVertexIfNew(v));
     freeVertex(v);
   }
 
   // Frees a triangle that is not on any list: neighbours see kNone, vertices lose a use.
+  // Region mode: does the final triangle's disk provably avoid every other region?
+  bool ownsDisk(const Tri& T) const {
+    const Point2& a = pt(T.v[0]);
+    const Point2& b = pt(T.v[1]);
+    const Point2& c = pt(T.v[2]);
+    return delaunay::circumdiskInside(a, b, c, ownInner) || insideRect(circumDisk(a, b, c), ownInner);
+  }
   [[gnu::always_inline]] void release(std::uint32_t t) {
     Tri* const tr = tris.data();
     const std::uint32_t n0 = tr[t].n[0], n1 = tr[t].n[1], n2 = tr[t].n[2];
@@ -1254,6 +1455,10 @@ struct StreamingDelaunay::Impl {
 
   [[gnu::always_inline]] void emit(std::uint32_t t) {
     const Tri& T = tris[t];
+    if (regionMode && !ownsDisk(T)) {
+      seamTriangle(t);
+      return;
+    }
     const std::uint64_t a = writeVertexIfNew(T.v[0]);
     const std::uint64_t b = writeVertexIfNew(T.v[1]);
     const std::uint64_t c = writeVertexIfNew(T.v[2]);
@@ -1376,7 +1581,7 @@ struct StreamingDelaunay::Impl {
       const HalfPlane hp{pt(T.v[kNext[inf]]), pt(T.v[kPrev[inf]])};
       open = findOpenLeaf(hp, tree.root(), 0, 0, 0, col, row);
       if (!open) {
-        release(t);
+        releaseGhost(t);
         return;
       }
     } else {
@@ -1407,7 +1612,10 @@ struct StreamingDelaunay::Impl {
     int top = level;
     if (!tree.finalize(level, tag.col, tag.row, &top)) return;
     leaveLeaf();
-    if (!twoD) return;
+    if (!twoD) {
+      if (regionMode) registerSeamTag(tag);
+      return;
+    }
 
     // The lists of the leaves inside the tagged cell.
     found.clear();
@@ -1440,7 +1648,10 @@ struct StreamingDelaunay::Impl {
       freeTriSlot(s);
     }
     updatePeak();
-    out.checkpoint(region_);
+    if (regionMode)
+      registerSeamTag(tag);
+    else
+      out.checkpoint(region_);
   }
 
   // What MeshSink::checkpoint consumers may ask: does an active triangle or ghost still meet a rectangle?
@@ -1456,6 +1667,25 @@ struct StreamingDelaunay::Impl {
 
   void markOpen(const Box2* rects, std::size_t n, bool* open) const {
     if (n == 0) return;
+    if (regionMode) {  // every triangle of the region, now or later, lies in its grown square
+      std::vector<Box2> sub;
+      std::vector<std::size_t> index;
+      for (std::size_t i = 0; i < n; ++i)
+        if (!open[i] && !(rects[i].maxX < ownGrown.x0 || rects[i].minX > ownGrown.x1 ||
+                          rects[i].maxY < ownGrown.y0 || rects[i].minY > ownGrown.y1)) {
+          sub.push_back(rects[i]);
+          index.push_back(i);
+        }
+      if (sub.empty()) return;
+      std::unique_ptr<bool[]> subOpen(new bool[sub.size()]());
+      markOpenAll(sub.data(), sub.size(), subOpen.get());
+      for (std::size_t j = 0; j < sub.size(); ++j)
+        if (subOpen[j]) open[index[j]] = true;
+      return;
+    }
+    markOpenAll(rects, n, open);
+  }
+  void markOpenAll(const Box2* rects, std::size_t n, bool* open) const {
     if (!twoD) {  // no triangulation yet: any later triangle may appear anywhere
       for (std::size_t i = 0; i < n; ++i) open[i] = true;
       return;
@@ -1505,16 +1735,25 @@ struct StreamingDelaunay::Impl {
   void end() {
     if (!begun || ended) throw Error("streaming Delaunay: end() without begin()");
     if (!twoD) {
-      // Fewer than three points off one line: the distinct points, no triangles.
+      // Fewer than three points off one line: the distinct points, no triangles.  In region mode they
+      // all go to the seam step (other regions' points may well make triangles with them).
       dedupPending();
-      for (const std::uint32_t v : pending) finalizeVertex(v);
+      for (const std::uint32_t v : pending) {
+        if (regionMode) {
+          ++stats.seamVertices;
+          seam->seamVertex(kNoId, xy[v].x, xy[v].y, verts[v].z, true, nullptr, 0);
+          freeVertex(v);
+        } else {
+          finalizeVertex(v);
+        }
+      }
       pending.clear();
     } else {
       for (std::uint32_t t = 0; t < tris.size(); ++t) {
         const Tri& T = tris[t];
         if (T.prev == kFreeMark || T.v[0] == kSentinelMark) continue;
         if (ghostIndex(T) >= 0)
-          release(t);
+          releaseGhost(t);
         else
           emit(t);
       }
@@ -1535,6 +1774,11 @@ struct StreamingDelaunay::Impl {
     std::vector<Point2>().swap(xy);
     leaves.reset();
     tree.reset(grid.depth);
+    std::vector<std::uint32_t>().swap(vleaf);
+    std::vector<std::uint32_t>().swap(leafCount);
+    leafLive.clear();
+    seamWedges.clear();
+    pendingSeamTags.clear();
   }
 };
 
@@ -1555,6 +1799,9 @@ void StreamingDelaunay::end() {
 }
 const DelaunayStats& StreamingDelaunay::stats() const {
   return impl_->stats;
+}
+const ActiveRegion& StreamingDelaunay::activeRegion() const {
+  return impl_->region_;
 }
 
 }  // namespace tinbuild

@@ -86,12 +86,40 @@
 #include <optional>
 #include <string_view>
 
+#include "libterrain/delaunay/predicates.h"
 #include "libterrain/finalizer/point_sink.h"
 #include "libterrain/mesh/mesh_sink.h"
 
 namespace tinbuild {
 
+class ActiveRegion;
 class Diagnostics;
+
+// Region mode (parallel_delaunay.h holds the argument).  The triangulator is fed only the points of one
+// quadtree cell, its *region*, but every tag of the stream.  A triangle that becomes final is *certified*
+// and written as usual only when its circumdisk provably avoids every other region (the region's square
+// shrunk by 2h on the sides it shares with other regions); otherwise, and for every ghost, it is a *seam*
+// triangle: not written, but recorded at its vertices as a wedge (the angle it spans there).  A vertex
+// with at least one seam wedge is not finalized: when its last triangle goes, it is handed to
+// SeamSink::seamVertex with its wedges, and the seam step decides the triangles that no region could.
+// SeamSink::seamTag(cell) says that every seam vertex of this region inside `cell` has been handed over.
+class SeamSink {
+ public:
+  struct Wedge {
+    Point2 from, to;  // the wedge spans counter-clockwise from the ray towards `from` to the ray towards `to`
+  };
+  virtual ~SeamSink() = default;
+  // id: the vertex's output id when a certified triangle already wrote it, else ~0.  all: no certified
+  // triangle uses the vertex (no wedge list then: every direction belongs to the seam).
+  virtual void seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* wedges,
+                          std::size_t n) = 0;
+  virtual void seamTag(const CellTag& cell) = 0;
+};
+
+struct RegionSpec {
+  CellTag cell;               // the region: a quadtree cell of the stream's grid
+  SeamSink* seam = nullptr;   // nullptr: not in region mode
+};
 
 struct DelaunayOptions {
   // Which of several points with equal x and y survives: the lowest z, the highest z, or the first in the
@@ -100,6 +128,12 @@ struct DelaunayOptions {
   DuplicateRule duplicates = DuplicateRule::Lowest;
   // When set, dropped duplicates are reported there once ("delaunay.duplicate_xy", with the count).
   Diagnostics* diagnostics = nullptr;
+  // Output ids are the vertex's internal slot instead of 0, 1, 2, ...: a slot is reused after the vertex
+  // was finalized, and is at most the largest number of live vertices.  For a consumer that renumbers
+  // (the parallel triangulator), so that its table is as small as the stream's width.
+  bool slotIds = false;
+  // Region mode (see SeamSink).  region.seam == nullptr: off.
+  RegionSpec region;
 };
 
 // "lowest", "highest", "first".
@@ -125,6 +159,8 @@ struct DelaunayStats {
   std::uint64_t certifiedCheap = 0;       // of those, final by the cheap test (disk inside the new region)
   std::uint64_t parked = 0;               // of those, parked again on another unfinalized leaf
   std::uint64_t peakBytes = 0;            // peak capacity of the triangulator's own arrays
+  std::uint64_t seamTriangles = 0;        // region mode: final triangles and ghosts given to the seam
+  std::uint64_t seamVertices = 0;         // region mode: vertices handed to the seam step
 };
 
 class StreamingDelaunay : public PointSink {
@@ -145,6 +181,9 @@ class StreamingDelaunay : public PointSink {
   void end() override;
 
   const DelaunayStats& stats() const;
+  // The live triangles, for MeshSink::checkpoint consumers (in region mode: clipped to the region's square,
+  // where all of its later triangles lie).  Valid between begin() and end(); not thread-safe.
+  const ActiveRegion& activeRegion() const;
 
  private:
   struct Impl;

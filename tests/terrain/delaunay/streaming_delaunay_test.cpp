@@ -14,6 +14,7 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdlib>
+#include <cstring>
 #include <functional>
 #include <iostream>
 #include <map>
@@ -25,9 +26,11 @@
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/delaunay_predicates.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/predicates.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/grid.h"
+#include "libterrain/mesh/mesh_tee.h"
 #include "libterrain/synthetic/synthetic_survey.h"
 
 #if __has_include(<CGAL/Delaunay_triangulation_2.h>)
@@ -191,13 +194,31 @@ class CheckingSink : public MeshSink {
   std::uint64_t errors = 0;
   std::string firstError;
   bool began = false, ended = false;
+  std::uint64_t eventHash = 1469598103934665603ull;  // FNV-1a over every event: equal streams, equal hashes
 
+  void mix(std::uint64_t v) {
+    for (int i = 0; i < 8; ++i) eventHash = (eventHash ^ ((v >> (8 * i)) & 0xFF)) * 1099511628211ull;
+  }
+  void mix(double v) {
+    std::uint64_t b;
+    std::memcpy(&b, &v, 8);
+    mix(b);
+  }
   void begin(const MeshInfo&) override { began = true; }
   void vertex(std::uint64_t id, double x, double y, double z) override {
+    mix(std::uint64_t{1});
+    mix(id);
+    mix(x);
+    mix(y);
+    mix(z);
     if (id != vertices.size()) fail("vertex id " + std::to_string(id) + " not sequential");
     vertices.push_back(V{x, y, z, false});
   }
   void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    mix(std::uint64_t{2});
+    mix(a);
+    mix(b);
+    mix(c);
     for (const std::uint64_t id : {a, b, c}) {
       if (id >= vertices.size()) return fail("triangle uses vertex " + std::to_string(id) + " before it");
       if (vertices[id].finalized) return fail("triangle uses finalized vertex " + std::to_string(id));
@@ -207,6 +228,8 @@ class CheckingSink : public MeshSink {
     triangles.push_back(canonical(p.x, p.y, q.x, q.y, r.x, r.y));
   }
   void finalizeVertex(std::uint64_t id) override {
+    mix(std::uint64_t{3});
+    mix(id);
     if (id >= vertices.size()) return fail("finalizing unknown vertex");
     if (vertices[id].finalized) return fail("vertex finalized twice");
     vertices[id].finalized = true;
@@ -1030,6 +1053,222 @@ TEST(StreamingDelaunay, DISABLED_Benchmark) {
               << s.parked << "); exact incircle " << ps.incircleExact << ", ties " << ps.perturbedTies
               << "\n";
   }
+}
+
+// ---------------------------------------------------------------------------------------------------------
+// The parallel triangulator: regions with certified seams (parallel_delaunay.h).
+
+// Checks the checkpoints too: a rectangle said closed must never meet a later triangle.
+class CheckpointCheckingSink : public CheckingSink {
+ public:
+  std::vector<Box2> tiles;
+  std::vector<bool> closed;
+  std::uint64_t checkpoints = 0, closedTiles = 0;
+
+  void checkpoint(const ActiveRegion& region) override {
+    ++checkpoints;
+    std::unique_ptr<bool[]> open(new bool[tiles.size()]());
+    region.markOpen(tiles.data(), tiles.size(), open.get());
+    for (std::size_t i = 0; i < tiles.size(); ++i)
+      if (!open[i] && !closed[i]) {
+        closed[i] = true;
+        ++closedTiles;
+      }
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    CheckingSink::triangle(a, b, c);
+    if (a >= vertices.size() || b >= vertices.size() || c >= vertices.size()) return;
+    const V &p = vertices[a], &q = vertices[b], &r = vertices[c];
+    const double x0 = std::min({p.x, q.x, r.x}), x1 = std::max({p.x, q.x, r.x});
+    const double y0 = std::min({p.y, q.y, r.y}), y1 = std::max({p.y, q.y, r.y});
+    for (std::size_t i = 0; i < tiles.size(); ++i)
+      if (closed[i] && !(x1 < tiles[i].minX || x0 > tiles[i].maxX || y1 < tiles[i].minY || y0 > tiles[i].maxY))
+        ++lateTriangles;
+  }
+  std::uint64_t lateTriangles = 0;
+};
+
+struct ParallelResult : Result {
+  std::uint64_t eventHash = 0;
+  ParallelDelaunayStats pstats;
+  std::uint64_t closedTiles = 0, checkpoints = 0;
+};
+
+ParallelResult triangulateParallel(const Points& pts, int depth, int regionLevel, int threads,
+                                   const Feed& feed = {}, const DelaunayOptions& opt = {},
+                                   std::uint64_t checkpointEvery = 5000) {
+  CheckpointCheckingSink sink;
+  const Bounds3 b = boundsOf(pts);
+  for (int i = 0; i < 8; ++i)
+    for (int j = 0; j < 8; ++j) {
+      const double w = (b.maxX - b.minX) / 8, hgt = (b.maxY - b.minY) / 8;
+      sink.tiles.push_back(Box2{b.minX + i * w, b.minY + j * hgt, b.minX + (i + 1) * w, b.minY + (j + 1) * hgt});
+    }
+  sink.closed.assign(sink.tiles.size(), false);
+  ParallelDelaunayOptions popt;
+  popt.delaunay = opt;
+  popt.threads = threads;
+  popt.regionLevel = regionLevel;
+  popt.checkpointEvery = checkpointEvery;
+  popt.maxQueuedPoints = 3000;  // small: the back-pressure path runs too
+  ParallelDelaunay dt(sink, popt);
+  TestFinalizer fin(dt, makeGrid(b, depth), feed);
+  fin.run(pts);
+  EXPECT_EQ(sink.errors, 0u) << "first streaming-mesh error: " << sink.firstError;
+  EXPECT_TRUE(sink.began && sink.ended);
+  EXPECT_EQ(sink.lateTriangles, 0u) << "a checkpoint closed a tile that a later triangle met";
+  ParallelResult r;
+  r.triangles = std::move(sink.triangles);
+  std::sort(r.triangles.begin(), r.triangles.end());
+  r.vertices = std::move(sink.vertices);
+  r.stats = dt.stats();
+  r.pstats = dt.parallelStats();
+  r.eventHash = sink.eventHash;
+  r.closedTiles = sink.closedTiles;
+  r.checkpoints = sink.checkpoints;
+  EXPECT_EQ(r.stats.pointsIn, pts.size());
+  EXPECT_EQ(r.stats.pointsIn, r.stats.verticesOut + r.stats.duplicatesDropped);
+  EXPECT_EQ(r.stats.trianglesEmitted, r.triangles.size());
+  EXPECT_EQ(r.stats.verticesOut, r.vertices.size());
+  return r;
+}
+
+// Every region level and thread count gives CGAL's triangles, and for one level the very same event
+// stream whatever the number of threads.
+void expectParallelMatches(const Points& pts, int depth, const std::vector<int>& levels, const char* what,
+                           const Feed& feed = {}, const DelaunayOptions& opt = {}) {
+#ifdef TINBUILD_TEST_HAVE_CGAL
+  const std::vector<Tri6> reference = cgalTriangles(pts);
+#endif
+  const Result plain = triangulate(pts, depth, feed, opt);
+  for (const int level : levels) {
+    std::uint64_t hash = 0;
+    for (const int threads : {1, 2, 3, 7}) {
+      const std::string label = std::string(what) + ", level " + std::to_string(level) + ", " +
+                                std::to_string(threads) + " threads";
+      const ParallelResult r = triangulateParallel(pts, depth, level, threads, feed, opt);
+#ifdef TINBUILD_TEST_HAVE_CGAL
+      expectSameTriangles(r.triangles, reference, label.c_str());
+#endif
+      expectSameTriangles(r.triangles, plain.triangles, (label + " vs one region").c_str());
+      // The same z survives each duplicate.
+      std::vector<std::array<double, 3>> a, b;
+      for (const auto& v : r.vertices) a.push_back({v.x, v.y, v.z});
+      for (const auto& v : plain.vertices) b.push_back({v.x, v.y, v.z});
+      std::sort(a.begin(), a.end());
+      std::sort(b.begin(), b.end());
+      EXPECT_EQ(a, b) << label;
+      if (threads == 1)
+        hash = r.eventHash;
+      else
+        EXPECT_EQ(r.eventHash, hash) << label << ": the output differs from one thread's";
+    }
+  }
+}
+
+TEST(ParallelDelaunay, RandomInputMatchesCgalAtEveryThreadCount) {
+  const Points pts = randomPoints(20000, 7);
+  expectParallelMatches(pts, 5, {1, 2, 3}, "random");
+}
+
+TEST(ParallelDelaunay, SurveysMatchCgal) {
+  expectParallelMatches(survey(SurveySpec::Kind::UniformRandom, 30000, 3), 5, {2, 3}, "uniform");
+  expectParallelMatches(survey(SurveySpec::Kind::FlightStrips, 30000, 4), 5, {2}, "strips");
+}
+
+TEST(ParallelDelaunay, FeedsAndTagsMatchCgal) {
+  const Points pts = randomPoints(8000, 11);
+  Feed coarse;
+  coarse.coarseTags = true;
+  expectParallelMatches(pts, 4, {2}, "coarse tags", coarse);
+  Feed empty;
+  empty.mode = Feed::Mode::EmptyTagsFirst;
+  expectParallelMatches(pts, 4, {2}, "empty tags first", empty);
+  Feed all;
+  all.mode = Feed::Mode::AllThenEnd;
+  expectParallelMatches(pts, 4, {1, 2}, "everything then end", all);
+}
+
+// A cocircular lattice whose lines fall exactly on region edges (and cell edges): every boundary is
+// degenerate, and most triangles are decided by the perturbation.
+TEST(ParallelDelaunay, LatticeCutOnRegionEdgesMatchesCgal) {
+  Points pts;
+  for (int i = 0; i <= 64; ++i)
+    for (int j = 0; j <= 64; ++j) pts.push_back(rec(1000.0 + i * 0.25, 2000.0 + j * 0.25, (i * 7 + j * 3) % 11));
+  expectParallelMatches(pts, 4, {1, 2, 3}, "lattice");
+  // The same lattice at UTM-like coordinates, shuffled.
+  Points far;
+  for (const auto& p : pts) far.push_back(rec(p.x + 612000.0, p.y + 4180000.0, p.z));
+  std::shuffle(far.begin(), far.end(), std::mt19937_64(5));
+  expectParallelMatches(far, 3, {2}, "shuffled lattice");
+}
+
+// Duplicates (different z) lying on region edges: one survives, with the same z as with one region.
+TEST(ParallelDelaunay, DuplicatesOnRegionEdges) {
+  Points pts = randomPoints(3000, 21, 0.0, 100.0);
+  for (int i = 0; i <= 16; ++i)
+    for (int k = 0; k < 3; ++k) {
+      pts.push_back(rec(50.0, i * 6.25, 10.0 - k));
+      pts.push_back(rec(i * 6.25, 50.0, 20.0 + k));
+    }
+  pts.push_back(rec(0, 0, 0));
+  pts.push_back(rec(100, 100, 0));
+  std::shuffle(pts.begin(), pts.end(), std::mt19937_64(2));
+  for (const auto rule : {DelaunayOptions::DuplicateRule::Lowest, DelaunayOptions::DuplicateRule::Highest,
+                          DelaunayOptions::DuplicateRule::First}) {
+    DelaunayOptions opt;
+    opt.duplicates = rule;
+    expectParallelMatches(pts, 4, {1, 2}, duplicateRuleName(rule), {}, opt);
+  }
+}
+
+// Empty regions, a region with one point, one with two, one whose points are collinear.
+TEST(ParallelDelaunay, EmptyAndTinyRegions) {
+  Points pts = randomPoints(2000, 31, 0.0, 20.0);  // the lower left corner of a 100 x 100 square
+  pts.push_back(rec(90.0, 10.0, 1));                 // alone in its region
+  pts.push_back(rec(10.0, 90.0, 2));                 // two points
+  pts.push_back(rec(11.0, 91.0, 3));
+  for (int i = 0; i < 5; ++i) pts.push_back(rec(60.0 + i, 60.0 + i, 4));  // collinear
+  pts.push_back(rec(100.0, 100.0, 5));
+  expectParallelMatches(pts, 4, {1, 2, 3}, "tiny regions");
+}
+
+// No triangles at all: every point announced and finalized, nothing lost.
+TEST(ParallelDelaunay, CollinearInputAcrossRegions) {
+  Points pts;
+  for (int i = 0; i < 100; ++i) pts.push_back(rec(i, 2.0 * i, i));
+  pts.push_back(rec(3, 6, 99));  // a duplicate
+  for (const int threads : {1, 3}) {
+    const ParallelResult r = triangulateParallel(pts, 3, 2, threads);
+    EXPECT_TRUE(r.triangles.empty());
+    EXPECT_EQ(r.vertices.size(), 100u);
+  }
+}
+
+// The seam is a small part of the work, and the checkpoints close tiles as the stream goes.
+TEST(ParallelDelaunay, SeamShareAndCheckpoints) {
+  Points pts = survey(SurveySpec::Kind::UniformRandom, 100000, 9);
+  // A sweep in y, so that cells complete as the stream goes (as the finalizer's read order makes them).
+  std::sort(pts.begin(), pts.end(), [](const PointRecord& a, const PointRecord& b) { return a.y < b.y; });
+  const ParallelResult r = triangulateParallel(pts, 6, 2, 2);
+  EXPECT_EQ(r.pstats.regions.size(), 16u);
+  EXPECT_GT(r.pstats.seamVertices, 0u);
+  EXPECT_LT(r.pstats.seamVertices, pts.size() / 10) << "seam share";
+  EXPECT_GT(r.pstats.seamWritten, 0u);
+  EXPECT_GT(r.checkpoints, 5u);
+  EXPECT_GT(r.closedTiles, 20u) << "tiles closed before the end";
+  std::cout << "[ INFO     ] 100k uniform, 16 regions: seam vertices " << r.pstats.seamVertices
+            << ", seam triangles written " << r.pstats.seamWritten << ", DT(S) triangles dropped "
+            << r.pstats.seamDropped << ", tiles closed early " << r.closedTiles << "/64\n";
+}
+
+TEST(ParallelDelaunay, ChoosesRegionsFromThePointCount) {
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(100000, 6), 0);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000, 6), 1);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(3000000, 7), 2);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(10000000, 8), 3);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000000, 11), 3);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(10000000, 2), 2);
 }
 
 }  // namespace

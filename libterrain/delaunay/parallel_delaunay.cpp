@@ -1,0 +1,814 @@
+// The parallel streaming triangulator: regions, the ordered merge, the seam step (header essay).
+#include "libterrain/delaunay/parallel_delaunay.h"
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <condition_variable>
+#include <cstring>
+#include <deque>
+#include <exception>
+#include <functional>
+#include <limits>
+#include <mutex>
+#include <thread>
+#include <unordered_map>
+
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/predicates.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+constexpr std::uint64_t kNoId = ~std::uint64_t{0};
+
+// A region's events, as 64-bit words (the low 4 bits of the first word say which).
+enum Op : std::uint64_t {
+  kOpVertex = 1,
+  kOpTriangle = 2,
+  kOpFinalize = 3,
+  kOpSeamVertex = 4,
+  kOpSeamTag = 5,
+  kOpEnd = 6  // the region ended: its slots are no longer used
+};
+
+std::uint64_t bitsOf(double v) {
+  std::uint64_t b;
+  std::memcpy(&b, &v, 8);
+  return b;
+}
+double doubleOf(std::uint64_t b) {
+  double v;
+  std::memcpy(&v, &b, 8);
+  return v;
+}
+
+// The MeshSink and SeamSink of a region's triangulator: records its events for the merge.  Ids are the
+// triangulator's vertex slots (DelaunayOptions::slotIds), below 2^32.
+class Recorder : public MeshSink, public SeamSink {
+ public:
+  std::vector<std::uint64_t> words;
+  // Called when `words` holds more than kFlushWords (so that a region's output never piles up).
+  std::function<void()> flush;
+  static constexpr std::size_t kFlushWords = std::size_t{1} << 13;
+  void check() {
+    if (words.size() > kFlushWords && flush) flush();
+  }
+
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    words.push_back(kOpVertex | id << 4);
+    words.push_back(bitsOf(x));
+    words.push_back(bitsOf(y));
+    words.push_back(bitsOf(z));
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    words.push_back(kOpTriangle | a << 4);
+    words.push_back(b | c << 32);
+    check();
+  }
+  void finalizeVertex(std::uint64_t id) override { words.push_back(kOpFinalize | id << 4); }
+  void end() override {}
+  void seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w,
+                  std::size_t n) override {
+    words.push_back(kOpSeamVertex | (all ? 16u : 0u) | std::uint64_t{n} << 5);
+    words.push_back(id);
+    words.push_back(bitsOf(x));
+    words.push_back(bitsOf(y));
+    words.push_back(bitsOf(z));
+    for (std::size_t i = 0; i < n; ++i) {
+      words.push_back(bitsOf(w[i].from.x));
+      words.push_back(bitsOf(w[i].from.y));
+      words.push_back(bitsOf(w[i].to.x));
+      words.push_back(bitsOf(w[i].to.y));
+    }
+  }
+  void seamTag(const CellTag& c) override {
+    words.push_back(kOpSeamTag | std::uint64_t{c.level} << 4 | std::uint64_t{c.col} << 16);
+    words.push_back(c.row);
+  }
+};
+
+// The ray a -> p is the ray a -> u (u, p distinct from a).
+bool sameRay(const Point2& a, const Point2& u, const Point2& p) {
+  if (orient2d(a, u, p) != 0) return false;
+  return (u.x > a.x) == (p.x > a.x) && (u.x < a.x) == (p.x < a.x) && (u.y > a.y) == (p.y > a.y) &&
+         (u.y < a.y) == (p.y < a.y);
+}
+
+// Does the ray a -> p lie in the wedge at a from the ray a -> b counter-clockwise to the ray a -> c,
+// half-open [b, c)?  Exact (orientation signs and comparisons of input coordinates).
+bool inWedge(const Point2& a, const Point2& b, const Point2& c, const Point2& p) {
+  if (sameRay(a, b, p)) return true;
+  if (sameRay(a, c, p)) return false;
+  const double o = orient2d(a, b, c);
+  if (o > 0) return orient2d(a, b, p) > 0 && orient2d(a, p, c) > 0;
+  if (o < 0) return orient2d(a, b, p) > 0 || orient2d(a, p, c) > 0;
+  if (sameRay(a, b, c)) return true;  // the whole turn
+  return orient2d(a, b, p) > 0;       // half a turn
+}
+
+struct SeamRecord {
+  std::uint64_t id = kNoId;  // output id once written
+  double x = 0, y = 0, z = 0;
+  bool all = false;
+  std::vector<SeamSink::Wedge> wedges;
+};
+
+struct XYKey {
+  std::uint64_t x, y;
+  bool operator==(const XYKey& o) const { return x == o.x && y == o.y; }
+};
+struct XYHash {
+  std::size_t operator()(const XYKey& k) const {
+    std::uint64_t h = k.x * 0x9E3779B97F4A7C15ull ^ (k.y + 0x632BE59BD9B4E019ull + (k.x << 6) + (k.x >> 2));
+    h ^= h >> 29;
+    return static_cast<std::size_t>(h * 0xBF58476D1CE4E5B9ull);
+  }
+};
+
+struct InItem {
+  enum Kind : std::uint8_t { kPoints, kTag, kEnd } kind = kPoints;
+  std::uint64_t seq = 0;  // tags dispatched before this item (a tag: its own index)
+  CellTag tag;
+  std::vector<PointRecord> points;
+};
+
+struct OutChunk {
+  std::uint64_t seq = 0;
+  std::vector<std::uint64_t> words;
+};
+
+}  // namespace
+
+int ParallelDelaunay::chooseRegionLevel(std::uint64_t points, int depth) {
+  if (points < 600000) return 0;
+  int level = 1;
+  while (level < 3 && (points >> (2 * (level + 1))) >= 150000) ++level;
+  return std::min(level, depth);
+}
+
+struct ParallelDelaunay::Impl {
+  MeshSink& out;
+  ParallelDelaunayOptions options;
+  DelaunayStats total;
+  ParallelDelaunayStats pstats;
+
+  // Level 0: the plain triangulator.
+  std::unique_ptr<StreamingDelaunay> single;
+
+  struct Region {
+    CellTag cell;
+    Recorder rec;
+    std::unique_ptr<StreamingDelaunay> tri;
+    std::vector<std::uint64_t> slotToId;
+    bool ended = false;               // whoever runs the region: its cell was final, it has ended
+    std::uint64_t working = 0;        // the worker's: seq of the item being processed
+    // Guarded by Impl::mutex.
+    std::deque<InItem> in;
+    bool busy = false;
+    std::deque<OutChunk> outChunks;
+    std::uint64_t done = 0;  // items of seq < done are processed (tags and end)
+  };
+  std::vector<Region> regions;
+  int level = 0;
+  std::uint32_t regionSide = 1;
+  int shift = 0;  // leaf index >> shift = region index per axis
+  GridSpec grid;
+  double h = 0, leafSize = 0;
+
+  // Dispatcher: the current leaf's grown square and its region (the triangulators' own arrival rule).
+  double curX0 = 1, curY0 = 1, curX1 = 0, curY1 = 0;
+  std::uint32_t curRegion = 0;
+
+  // Merge state.
+  std::uint64_t nextId = 0;
+  std::uint64_t tagsDispatched = 0;
+  std::uint64_t mergeSeq = 0;
+  std::size_t mergeRegion = 0;
+  // The regions each dispatched but unmerged item goes to (a Morton range), from mergeSeq on.
+  std::deque<std::pair<std::size_t, std::size_t>> targets;
+  bool endDispatched = false;
+  std::uint64_t pointsSinceCheckpoint = 0;
+
+  // The seam step.
+  struct SeamFilter : MeshSink {
+    Impl& impl;
+    explicit SeamFilter(Impl& i) : impl(i) {}
+    void begin(const MeshInfo&) override {}
+    void vertex(std::uint64_t slot, double x, double y, double) override { impl.seamVertexWritten(slot, x, y); }
+    void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override { impl.seamTriangle(a, b, c); }
+    void finalizeVertex(std::uint64_t slot) override { impl.seamFinalize(slot); }
+    void end() override {}
+  };
+  SeamFilter seamFilter{*this};
+  std::unique_ptr<StreamingDelaunay> seam;
+  std::unordered_map<XYKey, SeamRecord, XYHash> seamWaiting;  // handed over, not yet met by the seam step
+  std::vector<SeamRecord> seamBySlot;
+  std::vector<PointRecord> seamPoints;
+
+  // Threads.
+  std::mutex mutex;
+  std::condition_variable workCv, mergeCv;
+  std::vector<std::thread> workers;
+  bool stopping = false;
+  std::exception_ptr failure;
+  std::size_t queuedPoints = 0;
+  std::size_t bufferedBytes = 0;
+
+  struct Combined : ActiveRegion {
+    const Impl& impl;
+    explicit Combined(const Impl& i) : impl(i) {}
+    void markOpen(const Box2* rects, std::size_t n, bool* open) const override {
+      for (const Region& r : impl.regions)
+        if (!r.ended) r.tri->activeRegion().markOpen(rects, n, open);
+      impl.seam->activeRegion().markOpen(rects, n, open);
+
+    }
+    std::uint64_t activeTriangles() const override {
+      std::uint64_t s = impl.seam->activeRegion().activeTriangles();
+      for (const Region& r : impl.regions)
+        if (!r.ended) s += r.tri->activeRegion().activeTriangles();
+      return s;
+    }
+  };
+  Combined combined{*this};
+
+  Impl(MeshSink& o, const ParallelDelaunayOptions& opt) : out(o), options(opt) {}
+  ~Impl() { stopWorkers(); }
+
+  bool threaded() const { return !workers.empty(); }
+
+  // ----- lifecycle -----------------------------------------------------------------------------------------
+  void begin(const StreamInfo& info) {
+    stopWorkers();
+    total = DelaunayStats{};
+    pstats = ParallelDelaunayStats{};
+    grid = info.grid;
+    level = options.regionLevel >= 0 ? std::min(options.regionLevel, grid.depth)
+                                     : chooseRegionLevel(info.points, grid.depth);
+    pstats.regionLevel = level;
+    regions = std::vector<Region>();
+    single.reset();
+    if (level == 0) {
+      pstats.threads = 1;
+      single = std::make_unique<StreamingDelaunay>(out, options.delaunay);
+      single->begin(info);
+      return;
+    }
+    regionSide = 1u << level;
+    shift = grid.depth - level;
+    h = kCellTolerance * grid.size +
+        8.0 * std::numeric_limits<double>::epsilon() * (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
+    leafSize = std::ldexp(grid.size, -grid.depth);
+    curX0 = curY0 = 1;
+    curX1 = curY1 = 0;
+    nextId = 0;
+    tagsDispatched = mergeSeq = 0;
+    mergeRegion = 0;
+    targets.clear();
+    endDispatched = false;
+    pointsSinceCheckpoint = 0;
+    seamWaiting.clear();
+    seamBySlot.clear();
+    seamPoints.clear();
+    failure = nullptr;
+    queuedPoints = bufferedBytes = 0;
+
+    const std::size_t count = std::size_t{regionSide} * regionSide;
+    regions = std::vector<Region>(count);
+    for (std::size_t m = 0; m < count; ++m) {
+      Region& r = regions[m];
+      // Morton order: bits of m alternate column (even) and row (odd).
+      std::uint32_t c = 0, rw = 0;
+      for (int b = 0; b < level; ++b) {
+        c |= static_cast<std::uint32_t>((m >> (2 * b)) & 1u) << b;
+        rw |= static_cast<std::uint32_t>((m >> (2 * b + 1)) & 1u) << b;
+      }
+      r.cell = CellTag{static_cast<std::uint8_t>(level), c, rw};
+      DelaunayOptions dopt = options.delaunay;
+      dopt.diagnostics = nullptr;  // reported once, from the totals
+      dopt.slotIds = true;
+      dopt.region.cell = r.cell;
+      dopt.region.seam = &r.rec;
+      r.tri = std::make_unique<StreamingDelaunay>(r.rec, dopt);
+      r.tri->begin(info);
+      Region* rp = &r;
+      if (options.threads >= 2)
+        r.rec.flush = [this, rp] { publish(*rp, false); };
+      else
+        r.rec.flush = [this, rp] { drain(*rp); };
+    }
+    DelaunayOptions sopt = options.delaunay;
+    sopt.diagnostics = nullptr;
+    sopt.slotIds = true;
+    seam = std::make_unique<StreamingDelaunay>(seamFilter, sopt);
+    seam->begin(info);
+
+    MeshInfo mi;
+    mi.bounds = info.bounds;
+    mi.crsWkt = info.crsWkt;
+    out.begin(mi);
+
+    pstats.threads = std::max(1, options.threads);
+    if (options.threads >= 2) {
+      stopping = false;
+      for (int i = 0; i < options.threads; ++i) workers.emplace_back([this] { work(); });
+    }
+  }
+
+  // The region of a point: that of its leaf, by the triangulators' own arrival rule (a point inside the
+  // current leaf's square grown by h belongs to that leaf).
+  std::uint32_t regionOfPoint(const PointRecord& q) {
+    if (!(q.x >= curX0 && q.x <= curX1 && q.y >= curY0 && q.y <= curY1)) {
+      const std::uint32_t col = grid.column(q.x), row = grid.row(q.y);
+      curX0 = grid.originX + col * leafSize - h;
+      curX1 = grid.originX + (col + 1.0) * leafSize + h;
+      curY0 = grid.originY + row * leafSize - h;
+      curY1 = grid.originY + (row + 1.0) * leafSize + h;
+      curRegion = static_cast<std::uint32_t>(regionIndex(col >> shift, row >> shift));
+    }
+    return curRegion;
+  }
+
+  std::size_t regionIndex(std::uint32_t col, std::uint32_t row) const {
+    std::size_t m = 0;
+    for (int b = 0; b < level; ++b) {
+      m |= static_cast<std::size_t>((col >> b) & 1u) << (2 * b);
+      m |= static_cast<std::size_t>((row >> b) & 1u) << (2 * b + 1);
+    }
+    return m;
+  }
+
+  // The regions a tag concerns: the one holding it, or the Morton range of those inside it.
+  std::pair<std::size_t, std::size_t> regionsOf(const CellTag& t) const {
+    if (t.level >= level) {
+      const int k = t.level - level;
+      const std::size_t m = regionIndex(t.col >> k, t.row >> k);
+      return {m, m + 1};
+    }
+    const int k = level - t.level;
+    const std::size_t m = regionIndex(t.col << k, t.row << k);
+    return {m, m + (std::size_t{1} << (2 * k))};
+  }
+
+  void points(const PointRecord* p, std::size_t n) {
+    if (single) return single->points(p, n);
+    rethrow();
+    pointsSinceCheckpoint += n;
+    // Runs of consecutive points of one region (a chunk is one leaf: usually the whole batch).
+    std::size_t queued = 0;
+    for (std::size_t i = 0; i < n;) {
+      const std::uint32_t region = regionOfPoint(p[i]);
+      std::size_t j = i + 1;
+      while (j < n && regionOfPoint(p[j]) == region) ++j;
+      Region& r = regions[region];
+      if (!threaded()) {
+        r.tri->points(p + i, j - i);
+      } else {
+        InItem item;
+        item.kind = InItem::kPoints;
+        item.seq = tagsDispatched;
+        item.points.assign(p + i, p + j);
+        queued += j - i;
+        std::lock_guard<std::mutex> lock(mutex);
+        r.in.push_back(std::move(item));
+      }
+      i = j;
+    }
+    if (!threaded()) return;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      queuedPoints += queued;
+    }
+    workCv.notify_all();
+    merge(tagsDispatched, false);
+    // Back-pressure: wait (merging what is ready) while too much input is queued.
+    std::unique_lock<std::mutex> lock(mutex);
+    while (queuedPoints > options.maxQueuedPoints && !failure) {
+      lock.unlock();
+      const bool progressed = merge(tagsDispatched, false);
+      lock.lock();
+      if (!progressed && queuedPoints > options.maxQueuedPoints && !failure) mergeCv.wait(lock);
+    }
+    lock.unlock();
+    rethrow();
+  }
+
+  void finalizeCell(const CellTag& tag) {
+    if (single) return single->finalizeCell(tag);
+    rethrow();
+    curX0 = curY0 = 1;  // the next point looks its leaf up again, as the triangulators do
+    curX1 = curY1 = 0;
+    if (tag.level > grid.depth || tag.col >= (std::uint64_t{1} << tag.level) ||
+        tag.row >= (std::uint64_t{1} << tag.level))
+      throw Error("parallel Delaunay: finalization tag (" + std::to_string(tag.level) + ", " +
+                  std::to_string(tag.col) + ", " + std::to_string(tag.row) + ") outside the grid of depth " +
+                  std::to_string(grid.depth));
+    const std::uint64_t seq = tagsDispatched++;
+    const bool barrier = pointsSinceCheckpoint >= options.checkpointEvery;
+    const auto range = regionsOf(tag);
+    if (!threaded()) {
+      for (std::size_t m = range.first; m < range.second; ++m) {
+        Region& r = regions[m];
+        runTag(r, tag);
+        drain(r);
+      }
+      ++mergeSeq;
+    } else {
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        targets.push_back(range);
+        for (std::size_t m = range.first; m < range.second; ++m) {
+          Region& r = regions[m];
+          InItem item;
+          item.kind = InItem::kTag;
+          item.seq = seq;
+          item.tag = tag;
+          r.in.push_back(std::move(item));
+        }
+      }
+      workCv.notify_all();
+      merge(barrier ? seq + 1 : tagsDispatched, barrier);
+    }
+    if (barrier) {
+      pointsSinceCheckpoint = 0;
+      ++pstats.checkpoints;
+      out.checkpoint(combined);
+    }
+  }
+
+  void end() {
+    if (single) {
+      single->end();
+      total = single->stats();
+      return;
+    }
+    rethrow();
+    if (!threaded()) {
+      for (Region& r : regions) {
+        runEnd(r);
+        drain(r);
+      }
+    } else {
+      const std::uint64_t seq = tagsDispatched;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        targets.emplace_back(0, regions.size());
+        for (Region& r : regions) {
+          InItem item;
+          item.kind = InItem::kEnd;
+          item.seq = seq;
+          r.in.push_back(std::move(item));
+        }
+      }
+      workCv.notify_all();
+      merge(seq + 1, true);
+      stopWorkers();
+    }
+    flushSeamPoints();
+    seam->end();
+    out.end();
+    collectStats();
+  }
+
+  // A tag for a region.  Once the region's whole cell is final no point can come any more: the region
+  // ends there (its last triangles and seam vertices go out at this point of the stream, its memory is
+  // freed), so regions the stream has passed hold nothing.
+  static void runTag(Region& r, const CellTag& tag) {
+    if (r.ended) return;
+    if (tag.level <= r.cell.level && (r.cell.col >> (r.cell.level - tag.level)) == tag.col &&
+        (r.cell.row >> (r.cell.level - tag.level)) == tag.row) {
+      runEnd(r);
+      return;
+    }
+    r.tri->finalizeCell(tag);
+  }
+  static void runEnd(Region& r) {
+    if (r.ended) return;
+    r.tri->end();
+    r.ended = true;
+    r.rec.words.push_back(kOpEnd);
+  }
+
+  // ----- workers --------------------------------------------------------------------------------------------
+  void work() {
+    std::unique_lock<std::mutex> lock(mutex);
+    for (;;) {
+      if (stopping) return;
+      Region* pick = nullptr;
+      for (Region& r : regions)
+        if (!r.busy && !r.in.empty() && (!pick || r.in.front().seq < pick->in.front().seq)) pick = &r;
+      if (!pick) {
+        workCv.wait(lock);
+        continue;
+      }
+      Region& r = *pick;
+      r.busy = true;
+      std::deque<InItem> items;
+      items.swap(r.in);
+      lock.unlock();
+      try {
+        for (InItem& item : items) {
+          if (item.kind == InItem::kPoints) {
+            r.tri->points(item.points.data(), item.points.size());
+            const std::size_t n = item.points.size();
+            std::lock_guard<std::mutex> g(mutex);
+            queuedPoints -= n;
+            mergeCv.notify_all();
+            continue;
+          }
+          r.working = item.seq;
+          if (item.kind == InItem::kTag)
+            runTag(r, item.tag);
+          else
+            runEnd(r);
+          publish(r, true);
+        }
+      } catch (...) {
+        std::lock_guard<std::mutex> g(mutex);
+        if (!failure) failure = std::current_exception();
+        mergeCv.notify_all();
+      }
+      lock.lock();
+      r.busy = false;
+      if (!r.in.empty()) workCv.notify_one();
+    }
+  }
+
+  // Sync mode: the region's output so far goes straight into the merge (it is the next in order).
+  void drain(Region& r) {
+    decode(r, r.rec.words);
+    r.rec.words.clear();
+    if (r.rec.words.capacity() > 4 * Recorder::kFlushWords) std::vector<std::uint64_t>().swap(r.rec.words);
+  }
+  // Worker: hands the region's output so far to the merge (part of the current item's; `last`: all of it).
+  void publish(Region& r, bool last) {
+    std::lock_guard<std::mutex> g(mutex);
+    if (!r.rec.words.empty()) {
+      bufferedBytes += r.rec.words.size() * 8;
+      pstats.peakBufferedBytes = std::max<std::uint64_t>(pstats.peakBufferedBytes, bufferedBytes);
+      r.outChunks.push_back(OutChunk{r.working, std::move(r.rec.words)});
+      r.rec.words = std::vector<std::uint64_t>();
+      r.rec.words.reserve(Recorder::kFlushWords + 64);
+    }
+    if (last) r.done = r.working + 1;
+    mergeCv.notify_all();
+  }
+
+  void stopWorkers() {
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      stopping = true;
+    }
+    workCv.notify_all();
+    for (std::thread& t : workers) t.join();
+    workers.clear();
+    stopping = false;
+  }
+
+  void rethrow() {
+    std::exception_ptr e;
+    {
+      std::lock_guard<std::mutex> lock(mutex);
+      e = failure;
+    }
+    if (e) std::rethrow_exception(e);
+  }
+
+  // Merges the regions' outputs for the items of seq < until, in order.  blocking: waits for them;
+  // otherwise stops at the first not yet done.  Returns whether anything was merged.
+  bool merge(std::uint64_t until, bool blocking) {
+    bool progressed = false;
+    while (mergeSeq < until) {
+      std::pair<std::size_t, std::size_t> range;
+      {
+        std::lock_guard<std::mutex> lock(mutex);
+        range = targets.front();
+      }
+      if (mergeRegion < range.first) mergeRegion = range.first;
+      Region& r = regions[mergeRegion];
+      // The region's chunks for this item (published as it goes), until it says it is done with it.
+      for (;;) {
+        OutChunk chunk;
+        bool have = false, finished = false;
+        {
+          std::unique_lock<std::mutex> lock(mutex);
+          for (;;) {
+            if (!r.outChunks.empty() && r.outChunks.front().seq == mergeSeq) {
+              chunk = std::move(r.outChunks.front());
+              r.outChunks.pop_front();
+              bufferedBytes -= chunk.words.size() * 8;
+              have = true;
+              break;
+            }
+            if (r.done > mergeSeq) {
+              finished = true;
+              break;
+            }
+            if (failure) {
+              lock.unlock();
+              rethrow();
+            }
+            if (!blocking) return progressed;
+            mergeCv.wait(lock);
+          }
+        }
+        if (have) {
+          decode(r, chunk.words);
+          progressed = true;
+        }
+        if (finished) break;
+      }
+      progressed = true;
+      if (++mergeRegion == range.second) {
+        mergeRegion = 0;
+        ++mergeSeq;
+        std::lock_guard<std::mutex> lock(mutex);
+        targets.pop_front();
+      }
+    }
+    return progressed;
+  }
+
+  // ----- the merge proper ------------------------------------------------------------------------------
+  void decode(Region& r, const std::vector<std::uint64_t>& w) {
+    std::vector<std::uint64_t>& ids = r.slotToId;
+    const std::size_t n = w.size();
+    for (std::size_t i = 0; i < n;) {
+      const std::uint64_t head = w[i];
+      switch (head & 15u) {
+        case kOpVertex: {
+          const std::uint64_t slot = head >> 4;
+          if (slot >= ids.size()) ids.resize(std::max<std::size_t>(slot + 1, 2 * ids.size()));
+          const std::uint64_t id = nextId++;
+          ids[slot] = id;
+          out.vertex(id, doubleOf(w[i + 1]), doubleOf(w[i + 2]), doubleOf(w[i + 3]));
+          i += 4;
+          break;
+        }
+        case kOpTriangle:
+          out.triangle(ids[head >> 4], ids[w[i + 1] & 0xFFFFFFFFu], ids[w[i + 1] >> 32]);
+          ++total.trianglesEmitted;
+          i += 2;
+          break;
+        case kOpFinalize:
+          out.finalizeVertex(ids[head >> 4]);
+          ++i;
+          break;
+        case kOpSeamVertex: {
+          const std::size_t nw = static_cast<std::size_t>(head >> 5);
+          SeamRecord rec;
+          rec.all = (head & 16u) != 0;
+          const std::uint64_t slot = w[i + 1];
+          rec.id = slot == kNoId ? kNoId : ids[slot];
+          rec.x = doubleOf(w[i + 2]);
+          rec.y = doubleOf(w[i + 3]);
+          rec.z = doubleOf(w[i + 4]);
+          rec.wedges.resize(nw);
+          for (std::size_t k = 0; k < nw; ++k) {
+            const std::uint64_t* q = &w[i + 5 + 4 * k];
+            rec.wedges[k] = SeamSink::Wedge{Point2{doubleOf(q[0]), doubleOf(q[1])},
+                                            Point2{doubleOf(q[2]), doubleOf(q[3])}};
+          }
+          PointRecord p;
+          p.x = rec.x;
+          p.y = rec.y;
+          p.z = rec.z;
+          seamPoints.push_back(p);
+          ++pstats.seamVertices;
+          seamWaiting.emplace(XYKey{bitsOf(rec.x), bitsOf(rec.y)}, std::move(rec));
+          i += 5 + 4 * nw;
+          break;
+        }
+        case kOpSeamTag: {
+          CellTag c;
+          c.level = static_cast<std::uint8_t>((head >> 4) & 0xFFu);
+          c.col = static_cast<std::uint32_t>(head >> 16);
+          c.row = static_cast<std::uint32_t>(w[i + 1]);
+          flushSeamPoints();
+          seam->finalizeCell(c);
+          i += 2;
+          break;
+        }
+        case kOpEnd:
+          std::vector<std::uint64_t>().swap(ids);
+          ++i;
+          break;
+        default:
+          throw Error("parallel Delaunay: corrupt region output");
+      }
+    }
+  }
+
+  void flushSeamPoints() {
+    if (seamPoints.empty()) return;
+    seam->points(seamPoints.data(), seamPoints.size());
+    seamPoints.clear();
+  }
+
+  // The seam triangulator writes a vertex (slot ids): find what its region handed over.
+  void seamVertexWritten(std::uint64_t slot, double x, double y) {
+    const auto it = seamWaiting.find(XYKey{bitsOf(x), bitsOf(y)});
+    if (it == seamWaiting.end()) throw Error("parallel Delaunay: seam vertex without a record");
+    if (slot >= seamBySlot.size()) seamBySlot.resize(std::max<std::size_t>(slot + 1, 2 * seamBySlot.size()));
+    seamBySlot[slot] = std::move(it->second);
+    seamWaiting.erase(it);
+  }
+  std::uint64_t writeSeamVertex(SeamRecord& r) {
+    if (r.id == kNoId) {
+      r.id = nextId++;
+      out.vertex(r.id, r.x, r.y, r.z);
+    }
+    return r.id;
+  }
+  void seamTriangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
+    SeamRecord& A = seamBySlot[a];
+    SeamRecord& B = seamBySlot[b];
+    SeamRecord& C = seamBySlot[c];
+    bool missing = A.all;
+    if (!missing) {
+      const Point2 q{A.x, A.y}, p{B.x, B.y};
+      for (const SeamSink::Wedge& w : A.wedges)
+        if (inWedge(q, w.from, w.to, p)) {
+          missing = true;
+          break;
+        }
+    }
+    if (!missing) {
+      ++pstats.seamDropped;
+      return;
+    }
+    ++pstats.seamWritten;
+    ++total.trianglesEmitted;
+    const std::uint64_t ia = writeSeamVertex(A), ib = writeSeamVertex(B), ic = writeSeamVertex(C);
+    out.triangle(ia, ib, ic);
+  }
+  void seamFinalize(std::uint64_t slot) {
+    SeamRecord& r = seamBySlot[slot];
+    out.finalizeVertex(writeSeamVertex(r));  // a vertex of no triangle at all is still announced
+    r = SeamRecord{};
+  }
+
+  void collectStats() {
+    pstats.regions.clear();
+    total.verticesOut = nextId;
+    for (const Region& r : regions) {
+      const DelaunayStats& s = r.tri->stats();
+      pstats.regions.push_back(RegionReport{r.cell, s});
+      total.pointsIn += s.pointsIn;
+      total.duplicatesDropped += s.duplicatesDropped;
+      total.duplicatesAfterWrite += s.duplicatesAfterWrite;
+      total.trianglesKilled += s.trianglesKilled;
+      total.maxActiveTriangles += s.maxActiveTriangles;
+      total.maxActiveVertices += s.maxActiveVertices;
+      total.walkSteps += s.walkSteps;
+      total.restartsLeaf += s.restartsLeaf;
+      total.restartsNeighbour += s.restartsNeighbour;
+      total.restartsExhaustive += s.restartsExhaustive;
+      total.certificationChecks += s.certificationChecks;
+      total.certifiedCheap += s.certifiedCheap;
+      total.parked += s.parked;
+      total.peakBytes += s.peakBytes;
+      total.seamTriangles += s.seamTriangles;
+      total.seamVertices += s.seamVertices;
+    }
+    pstats.seam = seam->stats();
+    total.maxActiveTriangles += pstats.seam.maxActiveTriangles;
+    total.maxActiveVertices += pstats.seam.maxActiveVertices;
+    total.peakBytes += pstats.seam.peakBytes + pstats.peakBufferedBytes;
+    if (options.delaunay.diagnostics && total.duplicatesDropped > 0)
+      options.delaunay.diagnostics->warn(
+          "delaunay.duplicate_xy", "",
+          "points with the x and y of an earlier point were merged (kept the " +
+              std::string(duplicateRuleName(options.delaunay.duplicates)) + " z)",
+          total.duplicatesDropped);
+  }
+};
+
+ParallelDelaunay::ParallelDelaunay(MeshSink& out, const ParallelDelaunayOptions& options)
+    : impl_(std::make_unique<Impl>(out, options)) {}
+ParallelDelaunay::~ParallelDelaunay() = default;
+void ParallelDelaunay::begin(const StreamInfo& info) {
+  impl_->begin(info);
+}
+void ParallelDelaunay::points(const PointRecord* p, std::size_t n) {
+  impl_->points(p, n);
+}
+void ParallelDelaunay::finalizeCell(const CellTag& cell) {
+  impl_->finalizeCell(cell);
+}
+void ParallelDelaunay::end() {
+  impl_->end();
+}
+const DelaunayStats& ParallelDelaunay::stats() const {
+  return impl_->single ? impl_->single->stats() : impl_->total;
+}
+const ParallelDelaunayStats& ParallelDelaunay::parallelStats() const {
+  return impl_->pstats;
+}
+
+}  // namespace tinbuild
