@@ -756,6 +756,18 @@ std::string formatRunSummary(const RunReport& r) {
     line("memory", "at most " + withCommas(d.maxActiveTriangles) + " active triangles and " +
                        withCommas(d.maxActiveVertices) + " active vertices (" + bytesText(d.peakBytes) +
                        " triangulator arrays)");
+    if (r.parallel.regionLevel > 0) {
+      const ParallelDelaunayStats& ps = r.parallel;
+      std::uint64_t busiest = 0;
+      for (const RegionReport& rr : ps.regions) busiest = std::max(busiest, rr.stats.peakBytes);
+      line("regions", withCommas(ps.regions.size()) + " (level " + std::to_string(ps.regionLevel) + ") on " +
+                          std::to_string(ps.threads) + " thread(s), at most " + bytesText(busiest) +
+                          " in one region; seam " + withCommas(ps.seamVertices) + " vertices (" +
+                          formatDouble("%.2f", d.pointsIn ? 100.0 * static_cast<double>(ps.seamVertices) /
+                                                                static_cast<double>(d.pointsIn)
+                                                          : 0.0) +
+                          "% of the points), " + withCommas(ps.seamWritten) + " triangles");
+    }
   }
   if (r.dem.present) {
     const DemReport& d = r.dem;
@@ -924,6 +936,33 @@ std::string formatRunJson(const RunReport& r) {
     j.key("restarts_neighbour").value(d.restartsNeighbour);
     j.key("restarts_exhaustive").value(d.restartsExhaustive);
     j.key("certification_checks").value(d.certificationChecks);
+    const ParallelDelaunayStats& ps = r.parallel;
+    j.key("region_level").value(static_cast<std::int64_t>(ps.regionLevel));
+    if (ps.regionLevel > 0) {
+      j.key("seam").beginObject();
+      j.key("vertices").value(ps.seamVertices);
+      j.key("vertex_share").value(d.pointsIn ? static_cast<double>(ps.seamVertices) / static_cast<double>(d.pointsIn) : 0.0);
+      j.key("triangles_written").value(ps.seamWritten);
+      j.key("dt_s_triangles_dropped").value(ps.seamDropped);
+      j.key("region_seam_triangles").value(d.seamTriangles);
+      j.key("max_active_triangles").value(ps.seam.maxActiveTriangles);
+      j.key("peak_bytes").value(ps.seam.peakBytes);
+      j.endObject();
+      j.key("checkpoints").value(ps.checkpoints);
+      j.key("peak_merge_buffer_bytes").value(ps.peakBufferedBytes);
+      j.key("regions").beginArray();
+      for (const RegionReport& rr : ps.regions) {
+        j.beginObject();
+        j.key("cell").beginArray().value(static_cast<std::int64_t>(rr.cell.level)).value(static_cast<std::int64_t>(rr.cell.col)).value(static_cast<std::int64_t>(rr.cell.row)).endArray();
+        j.key("points_in").value(rr.stats.pointsIn);
+        j.key("triangles").value(rr.stats.trianglesEmitted);
+        j.key("seam_vertices").value(rr.stats.seamVertices);
+        j.key("max_active_triangles").value(rr.stats.maxActiveTriangles);
+        j.key("peak_bytes").value(rr.stats.peakBytes);
+        j.endObject();
+      }
+      j.endArray();
+    }
     j.endObject();
   }
   if (r.dem.present) {

@@ -218,6 +218,9 @@ struct ParallelDelaunay::Impl {
   std::exception_ptr failure;
   std::size_t queuedPoints = 0;
   std::size_t bufferedBytes = 0;
+  // Recycled buffers (guarded by mutex): new ones would cost page faults on every hand-over.
+  std::vector<std::vector<std::uint64_t>> spareWords;
+  std::vector<std::vector<PointRecord>> sparePoints;
 
   struct Combined : ActiveRegion {
     const Impl& impl;
@@ -372,9 +375,13 @@ struct ParallelDelaunay::Impl {
         InItem item;
         item.kind = InItem::kPoints;
         item.seq = tagsDispatched;
-        item.points.assign(p + i, p + j);
         queued += j - i;
         std::lock_guard<std::mutex> lock(mutex);
+        if (!sparePoints.empty()) {
+          item.points = std::move(sparePoints.back());
+          sparePoints.pop_back();
+        }
+        item.points.assign(p + i, p + j);
         r.in.push_back(std::move(item));
       }
       i = j;
@@ -518,6 +525,10 @@ struct ParallelDelaunay::Impl {
             const std::size_t n = item.points.size();
             std::lock_guard<std::mutex> g(mutex);
             queuedPoints -= n;
+            if (sparePoints.size() < 64) {
+              item.points.clear();
+              sparePoints.push_back(std::move(item.points));
+            }
             mergeCv.notify_all();
             continue;
           }
@@ -552,8 +563,13 @@ struct ParallelDelaunay::Impl {
       bufferedBytes += r.rec.words.size() * 8;
       pstats.peakBufferedBytes = std::max<std::uint64_t>(pstats.peakBufferedBytes, bufferedBytes);
       r.outChunks.push_back(OutChunk{r.working, std::move(r.rec.words)});
-      r.rec.words = std::vector<std::uint64_t>();
-      r.rec.words.reserve(Recorder::kFlushWords + 64);
+      if (!spareWords.empty()) {
+        r.rec.words = std::move(spareWords.back());
+        spareWords.pop_back();
+      } else {
+        r.rec.words = std::vector<std::uint64_t>();
+        r.rec.words.reserve(Recorder::kFlushWords + 64);
+      }
     }
     if (last) r.done = r.working + 1;
     mergeCv.notify_all();
@@ -620,6 +636,11 @@ struct ParallelDelaunay::Impl {
         if (have) {
           decode(r, chunk.words);
           progressed = true;
+          chunk.words.clear();
+          if (chunk.words.capacity() <= 4 * Recorder::kFlushWords) {
+            std::lock_guard<std::mutex> lock(mutex);
+            spareWords.push_back(std::move(chunk.words));
+          }
         }
         if (finished) break;
       }

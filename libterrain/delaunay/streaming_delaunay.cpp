@@ -1453,12 +1453,17 @@ struct StreamingDelaunay::Impl {
     if (v2 != kInfinite && --vx[v2].uses == 0) finalizeVertex(v2);
   }
 
+  // A final finite triangle: written, or in region mode given to the seam unless its disk is the region's.
   [[gnu::always_inline]] void emit(std::uint32_t t) {
-    const Tri& T = tris[t];
-    if (regionMode && !ownsDisk(T)) {
+    if (regionMode && !ownsDisk(tris[t])) {
       seamTriangle(t);
       return;
     }
+    write(t);
+  }
+  // A final finite triangle known to be certified: written.
+  [[gnu::always_inline]] void write(std::uint32_t t) {
+    const Tri& T = tris[t];
     const std::uint64_t a = writeVertexIfNew(T.v[0]);
     const std::uint64_t b = writeVertexIfNew(T.v[1]);
     const std::uint64_t c = writeVertexIfNew(T.v[2]);
@@ -1564,7 +1569,7 @@ struct StreamingDelaunay::Impl {
     if (std::min(std::min(T.v[0], T.v[1]), T.v[2]) != kInfinite &&
         delaunay::circumdiskInside(pt(T.v[0]), pt(T.v[1]), pt(T.v[2]), inner)) {
       ++stats.certifiedCheap;
-      emit(t);
+      write(t);
       return;
     }
     certifySlow(t, inner);
@@ -1588,7 +1593,7 @@ struct StreamingDelaunay::Impl {
       const Disk d = circumDisk(pt(T.v[0]), pt(T.v[1]), pt(T.v[2]));
       if (insideRect(d, inner)) {
         ++stats.certifiedCheap;
-        emit(t);
+        write(t);
         return;
       }
       open = openLeafNear(d, col, row);
@@ -1636,7 +1641,13 @@ struct StreamingDelaunay::Impl {
       });
     }
     // The cheap test may use the largest final cell around the tagged one.
-    const Rect region = nominal(top, tag.col >> (level - top), tag.row >> (level - top));
+    Rect region = nominal(top, tag.col >> (level - top), tag.row >> (level - top));
+    // In region mode no larger than the region's square: a disk inside it shrunk by 2h is then inside
+    // ownInner too, so what passes the cheap test is certified (emit() would say the same).
+    if (regionMode && top < options.region.cell.level) {
+      const CellTag& own = options.region.cell;
+      region = nominal(own.level, own.col, own.row);
+    }
     const Rect inner{region.x0 + 2 * h, region.y0 + 2 * h, region.x1 - 2 * h, region.y1 - 2 * h};
     for (const auto& [key, s] : found) {
       leaves.erase(key);
