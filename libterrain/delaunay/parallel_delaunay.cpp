@@ -221,6 +221,7 @@ struct ParallelDelaunay::Impl {
   // Recycled buffers (guarded by mutex): new ones would cost page faults on every hand-over.
   std::vector<std::vector<std::uint64_t>> spareWords;
   std::vector<std::vector<PointRecord>> sparePoints;
+  static constexpr std::size_t kSpares = 16;
 
   struct Combined : ActiveRegion {
     const Impl& impl;
@@ -515,8 +516,15 @@ struct ParallelDelaunay::Impl {
       }
       Region& r = *pick;
       r.busy = true;
+      // Up to its next tag only, then the oldest input again: the regions advance together, in the
+      // merge's order, so little output waits for the merge.
       std::deque<InItem> items;
-      items.swap(r.in);
+      while (!r.in.empty()) {
+        const bool tag = r.in.front().kind != InItem::kPoints;
+        items.push_back(std::move(r.in.front()));
+        r.in.pop_front();
+        if (tag) break;
+      }
       lock.unlock();
       try {
         for (InItem& item : items) {
@@ -525,7 +533,7 @@ struct ParallelDelaunay::Impl {
             const std::size_t n = item.points.size();
             std::lock_guard<std::mutex> g(mutex);
             queuedPoints -= n;
-            if (sparePoints.size() < 64) {
+            if (sparePoints.size() < kSpares && item.points.capacity() <= (std::size_t{1} << 14)) {
               item.points.clear();
               sparePoints.push_back(std::move(item.points));
             }
@@ -639,7 +647,7 @@ struct ParallelDelaunay::Impl {
           chunk.words.clear();
           if (chunk.words.capacity() <= 4 * Recorder::kFlushWords) {
             std::lock_guard<std::mutex> lock(mutex);
-            spareWords.push_back(std::move(chunk.words));
+            if (spareWords.size() < kSpares) spareWords.push_back(std::move(chunk.words));
           }
         }
         if (finished) break;

@@ -67,7 +67,7 @@ struct ParallelDelaunayOptions {
   int threads = 1;           // workers for the regions; 1: all on the calling thread
   int regionLevel = -1;      // regions are the cells of this quadtree level; -1: from the point count
   std::uint64_t checkpointEvery = std::uint64_t{1} << 20;  // points between output checkpoints
-  std::size_t maxQueuedPoints = std::size_t{1} << 20;       // input queued for the workers
+  std::size_t maxQueuedPoints = std::size_t{1} << 18;       // input queued for the workers
 };
 
 struct RegionReport {
