@@ -32,6 +32,9 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--home-strip", "", "--kind strips: add a strip crossing the area diagonally"},
       {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
       {"--seed", "S", "generator seed (default 1)"},
+      {"--input", "LAS", "threads: the survey to measure (default: the demo's four-strip survey of --points)"},
+      {"--keep-class", "LIST", "threads: the classes triangulated (default for the demo survey: 2,9)"},
+      {"--list", "T,T,...", "threads: the thread counts measured, starting with 1 (default 1,2,4,8)"},
       {"--no-cgal", "", "skip the CGAL runs"},
       {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
       {"--keep", "", "keep the generated files"},
@@ -142,6 +145,8 @@ Command benchCommand() {
       "       tinbuild bench finalize [--points N] [--kind KIND] [--swath M] [--home-strip] [--memory MB]\n"
       "                      [--stored-order] [--cold] [--tiles K] [--seed S] [--repeat R] [--threads N]\n"
       "                      [--dir DIR] [--keep]\n"
+      "       tinbuild bench threads [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4,8]\n"
+      "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -156,6 +161,10 @@ Command benchCommand() {
       "bench finalize: the finalizer's three passes (tinbuild finalize -o /dev/null --compute-bounds) on a\n"
       "generated survey (default 10M points, flight strips), each pass's speed against the raw read of the\n"
       "same file (like cat, page cache), with the stream width, pass 3's read order and peak RSS.\n"
+      "bench threads: `tinbuild build --mesh` and `tinbuild triangulate` at each thread count of --list,\n"
+      "median of R alternating rounds (default 5), with the ratios to one thread (time, peak RSS), the\n"
+      "regions and seam share, CGAL on the same points, and a check that every count wrote the same\n"
+      "bytes (input: --input LAS, else the demo's four-strip survey of N points, default 10M, bare earth).\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

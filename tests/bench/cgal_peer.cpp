@@ -16,6 +16,7 @@
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
+#include <sstream>
 #include <vector>
 
 #include "formats/pointcloud/las_reader.h"
@@ -40,14 +41,20 @@ std::int64_t selfMaxRssKb() {
 }  // namespace
 
 int cgalChildMain(const std::vector<std::string>& args) {
-  if (args.size() != 1) throw BenchError("cgal-child: expects one LAS file");
+  if (args.size() != 1 && args.size() != 2)
+    throw BenchError("cgal-child: expects one LAS file (and optionally the classes to keep, e.g. 2,9)");
   const auto t0 = std::chrono::steady_clock::now();
   std::vector<Point> points;
   {
     Diagnostics diag;
     LasReader reader(args[0], diag);
     points.reserve(reader.info().pointCount);
-    const PointFilter filter;
+    PointFilter filter;
+    if (args.size() == 2) {  // --keep-class LIST, as the build being compared used
+      filter.dropClasses.set();
+      std::stringstream list(args[1]);
+      for (std::string c; std::getline(list, c, ',');) filter.dropClasses.reset(std::stoul(c));
+    }
     std::vector<PointRecord> batch(std::size_t{1} << 16);
     for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
       for (std::size_t i = 0; i < n; ++i)

@@ -118,6 +118,15 @@ const char* kUsage =
     "      and every pass read from storage (the file is dropped from the page cache before each).  --tiles "
     "K:\n"
     "      the survey as K x K tile files named in a shuffled order, finalized as a directory.\n"
+    "  tinbuild-bench threads [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4,8]\n"
+    "                         [--repeat R] [--no-cgal] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "      The multi-core triangulator: `tinbuild build --mesh` and `tinbuild triangulate` (of a stream\n"
+    "      finalized beforehand) at each thread count of --list, in R rounds (default 5) alternating the\n"
+    "      counts; prints the median wall time (min-max), its ratio to one thread, the median peak RSS and\n"
+    "      its ratio, the regions and the seam share, and CGAL's insertion of the same points.  Checks that\n"
+    "      every thread count wrote the same bytes.  Input: --input LAS, else the demo's four-strip\n"
+    "      survey of N points (default 10M; `tinbuild demo --survey-only --las --point-format 6`) with\n"
+    "      --keep-class 2,9 (bare earth) unless --keep-class says otherwise.\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -893,6 +902,138 @@ int finalizeMain(const std::vector<std::string>& argv) {
   return 0;
 }
 
+
+// `threads`: the multi-core triangulator against one thread (and CGAL), median of alternating rounds.
+int threadsMain(const std::vector<std::string>& argv) {
+  Args args("threads", argv);
+  Config cfg = makeConfig(args);
+  const std::string input = args.value("--input", "");
+  const std::uint64_t n = args.count("--points", 10000000, 1000000, std::uint64_t{1} << 36);
+  std::string keepClass = args.value("--keep-class", input.empty() ? "2,9" : "");
+  const std::string listText = args.value("--list", "1,2,4,8");
+  const int rounds = static_cast<int>(args.count("--repeat", 5, 1, 1000));
+  const std::string base = args.value("--dir", defaultTempDir());
+  args.finish();
+  std::vector<int> list;
+  {
+    std::stringstream in(listText);
+    for (std::string t; std::getline(in, t, ',');) list.push_back(static_cast<int>(parseCount(t, "--list")));
+  }
+  if (list.empty() || list[0] != 1) throw BenchError("threads: --list must start with 1 (the reference)");
+
+  TempDir dir(base, cfg.keep);
+  std::string las = input;
+  if (las.empty()) {
+    progress("writing the " + group(n) + "-point four-strip survey (untimed)");
+    runChild(cfg.tinbuild, {"demo", dir.path() + "/demo", "--points", fmt("%.6g", static_cast<double>(n) / 1e6),
+                            "--survey-only", "--las", "--point-format", "6"},
+             false);
+    las = dir.path() + "/demo/survey.las";
+  }
+  std::vector<std::string> filter;
+  if (!keepClass.empty()) filter = {"--keep-class", keepClass};
+  const std::string tfs = dir.path() + "/survey.tfs";
+  progress("tinbuild finalize (untimed)");
+  {
+    std::vector<std::string> cmd{"finalize", las, "-o", tfs, "-q", "--overwrite"};
+    cmd.insert(cmd.end(), filter.begin(), filter.end());
+    runChild(cfg.tinbuild, cmd, false);
+  }
+
+  struct Series {
+    std::vector<double> seconds;
+    std::vector<double> rssMiB;
+  };
+  std::vector<Series> build(list.size()), tri(list.size());
+  std::string firstReport;
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? std::numeric_limits<double>::quiet_NaN()
+                     : (v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]));
+  };
+  for (int round = 0; round < rounds; ++round)
+    for (std::size_t k = 0; k < list.size(); ++k) {
+      const std::string t = std::to_string(list[k]);
+      const std::string mesh = dir.path() + "/build" + t + ".smb", report = dir.path() + "/build" + t + ".json";
+      const std::string triMesh = dir.path() + "/tri" + t + ".smb";
+      removeFiles({mesh, report, triMesh});
+      std::vector<std::string> cmd{"build", las, "--mesh", mesh, "-q", "--overwrite", "--threads", t, "--report",
+                                   report};
+      cmd.insert(cmd.end(), filter.begin(), filter.end());
+      ChildRun b = runChild(cfg.tinbuild, cmd, false);
+      build[k].seconds.push_back(b.seconds);
+      build[k].rssMiB.push_back(mib(b.maxRssKb));
+      ChildRun tr = runChild(cfg.tinbuild, {"triangulate", tfs, "-o", triMesh, "-q", "--overwrite", "--threads", t},
+                             false);
+      tri[k].seconds.push_back(tr.seconds);
+      tri[k].rssMiB.push_back(mib(tr.maxRssKb));
+      progress("  round " + std::to_string(round + 1) + "/" + std::to_string(rounds) + ", " + t +
+               " thread(s): build " + fmt("%.3f s", b.seconds) + " " + fmt("%.1f MiB", mib(b.maxRssKb)) +
+               ", triangulate " + fmt("%.3f s", tr.seconds) + " " + fmt("%.1f MiB", mib(tr.maxRssKb)));
+      if (list[k] == 1) firstReport = readFile(report);
+      if (round == 0 && k > 0)
+        for (const std::string& stem : {std::string("/build"), std::string("/tri")}) {
+          const std::string a = readFile(dir.path() + stem + "1.smb"), c = readFile(dir.path() + stem + t + ".smb");
+          if (a != c)
+            throw BenchError("threads: " + stem.substr(1) + " with " + t +
+                             " threads wrote other bytes than with one thread");
+        }
+    }
+  if (!cfg.keep)
+    for (const int t : list)
+      removeFiles({dir.path() + "/build" + std::to_string(t) + ".smb", dir.path() + "/tri" + std::to_string(t) + ".smb"});
+  double cgalSeconds = std::numeric_limits<double>::quiet_NaN(), cgalMiB = 0;
+  if (!cfg.noCgal) {
+    std::vector<std::string> cmd{"cgal-child", las};
+    if (!keepClass.empty()) cmd.push_back(keepClass);
+    std::vector<double> times;
+    for (int i = 0; i < std::min(rounds, 3); ++i) {
+      const ChildRun run = runChild(cfg.self, cmd, true);
+      std::istringstream in(run.output);
+      double insert = 0;
+      in >> insert;
+      times.push_back(insert);
+      cgalMiB = mib(run.maxRssKb);
+      progress("  CGAL run " + std::to_string(i + 1) + ": " + fmt("%.3f s", insert));
+    }
+    cgalSeconds = median(times);
+  }
+
+  const std::string loadAfter = loadAverage();
+  std::printf("tinbuild-bench threads: %s\n", las.c_str());
+  std::printf("  machine     %u cores (nproc), load average %s after; median of %d alternating rounds\n",
+              std::thread::hardware_concurrency(), loadAfter.c_str(), rounds);
+  std::printf("  survey      %s points streamed (%s), region level %s, seam %s vertices (%s%%)\n",
+              group(jsonCount(firstReport, "points_streamed")).c_str(),
+              keepClass.empty() ? "default filter" : ("--keep-class " + keepClass).c_str(),
+              group(jsonCount(firstReport, "region_level", "triangulation")).c_str(),
+              group(jsonCount(firstReport, "vertices", "seam")).c_str(),
+              fmt("%.2f", 100.0 * jsonNumber(firstReport, "vertex_share", "seam").value_or(0)).c_str());
+  std::printf("\n  %7s %22s %7s %9s %6s %22s %7s %9s %6s %10s\n", "threads", "build s (min-max)", "ratio",
+              "RSS MiB", "ratio", "triangulate s (min-max)", "ratio", "RSS MiB", "ratio", "build/CGAL");
+  for (std::size_t k = 0; k < list.size(); ++k) {
+    auto range = [&](const Series& s) {
+      return fmt("%.3f", median(s.seconds)) + " (" +
+             fmt("%.2f", *std::min_element(s.seconds.begin(), s.seconds.end())) + "-" +
+             fmt("%.2f", *std::max_element(s.seconds.begin(), s.seconds.end())) + ")";
+    };
+    std::printf("  %7d %22s %7s %9s %6s %22s %7s %9s %6s %10s\n", list[k], range(build[k]).c_str(),
+                fmt("%.2f", median(build[k].seconds) / median(build[0].seconds)).c_str(),
+                fmt("%.1f", median(build[k].rssMiB)).c_str(),
+                fmt("%.2f", median(build[k].rssMiB) / median(build[0].rssMiB)).c_str(), range(tri[k]).c_str(),
+                fmt("%.2f", median(tri[k].seconds) / median(tri[0].seconds)).c_str(),
+                fmt("%.1f", median(tri[k].rssMiB)).c_str(),
+                fmt("%.2f", median(tri[k].rssMiB) / median(tri[0].rssMiB)).c_str(),
+                fmt("%.2f", median(build[k].seconds) / cgalSeconds).c_str());
+  }
+  std::printf("\n  CGAL Delaunay_triangulation_2 range insertion of the same points: %s s, %s MiB.\n",
+              fmt("%.3f", cgalSeconds).c_str(), fmt("%.1f", cgalMiB).c_str());
+  std::printf(
+      "  build: `tinbuild build LAS --mesh out.smb --threads T`, the whole job; triangulate: `tinbuild\n"
+      "  triangulate survey.tfs -o out.smb --threads T`.  ratio: median / median at one thread (targets at\n"
+      "  2 threads on 2 cores: time <= 0.6, RSS <= 1.5).  Every thread count wrote the same bytes.\n");
+  return 0;
+}
 }  // namespace
 
 }  // namespace tinbuild::bench
@@ -921,6 +1062,7 @@ int main(int argc, char** argv) {
     if (command == "lattice-vs-random") return latticeVsRandomMain(rest);
     if (command == "stream") return streamMain(rest);
     if (command == "finalize") return finalizeMain(rest);
+    if (command == "threads") return threadsMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
     throw BenchError("unknown subcommand '" + command + "' (see tinbuild-bench --help)");
   } catch (const std::exception& e) {
