@@ -6,7 +6,10 @@
 #include <unistd.h>
 
 #include <cerrno>
+#include <chrono>
+#include <cstdio>
 #include <cstdlib>
+#include <ctime>
 
 #include "formats/io/output_file.h"
 
@@ -67,6 +70,31 @@ std::string sqlName(const std::string& s) {
 }
 
 namespace {
+
+// The time the GeoPackage's tables record (last_change, metadata timestamps): now, or SOURCE_DATE_EPOCH
+// (seconds since 1970, the reproducible-builds convention) when set, so that a run can be repeated to
+// the byte.
+std::string changeTime() {
+  std::time_t t = 0;
+  int millis = 0;
+  const char* epoch = std::getenv("SOURCE_DATE_EPOCH");
+  char* end = nullptr;
+  const long long fixed = epoch ? std::strtoll(epoch, &end, 10) : -1;
+  if (epoch && end != epoch && *end == '\0' && fixed >= 0) {
+    t = static_cast<std::time_t>(fixed);
+  } else {
+    const auto now = std::chrono::system_clock::now();
+    t = std::chrono::system_clock::to_time_t(now);
+    millis = static_cast<int>(
+        std::chrono::duration_cast<std::chrono::milliseconds>(now.time_since_epoch()).count() % 1000);
+  }
+  std::tm tm{};
+  gmtime_r(&t, &tm);
+  char buf[96];
+  std::snprintf(buf, sizeof buf, "%04d-%02d-%02dT%02d:%02d:%02d.%03dZ", tm.tm_year + 1900, tm.tm_mon + 1,
+                tm.tm_mday, tm.tm_hour, tm.tm_min, tm.tm_sec, millis);
+  return buf;
+}
 
 std::string xmlEscape(const std::string& s) {
   std::string out;
@@ -350,7 +378,7 @@ void File::finishLayer(Layer& l) {
   {
     Stmt s(db,
            "UPDATE gpkg_contents SET min_x = ?, min_y = ?, max_x = ?, max_y = ?, "
-           "last_change = strftime('%Y-%m-%dT%H:%M:%fZ','now') WHERE table_name = ?");
+           "last_change = ? WHERE table_name = ?");
     if (l.extent.empty()) {
       for (int i = 1; i <= 4; ++i) s.bindNull(i);
     } else {
@@ -359,7 +387,8 @@ void File::finishLayer(Layer& l) {
       s.bind(3, l.extent.maxX);
       s.bind(4, l.extent.maxY);
     }
-    s.bind(5, l.name);
+    s.bind(5, changeTime());
+    s.bind(6, l.name);
     s.run();
   }
   {
@@ -464,9 +493,10 @@ void File::writeMetadata(const std::string& layer,
     s.run();
   }
   Stmt s(db,
-         "INSERT INTO gpkg_metadata_reference (reference_scope, table_name, md_file_id) VALUES "
-         "('table', ?, 1)");
+         "INSERT INTO gpkg_metadata_reference (reference_scope, table_name, md_file_id, timestamp) VALUES "
+         "('table', ?, 1, ?)");
   s.bind(1, layer);
+  s.bind(2, changeTime());
   s.run();
 }
 

@@ -119,6 +119,65 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   }
 }
 
+// The multi-core triangulator (regions with certified seams, forced here on a small file): every output
+// is the same for 1, 2, 3 and 7 threads, the TIN is Delaunay and holds every point (verify, an
+// independent check), `triangulate` of the finalized stream writes the build's very mesh, and the
+// triangles are those of one region.
+TEST(CliRun, RegionsGiveByteIdenticalOutputsForAnyThreads) {
+  TINBUILD_REQUIRE_DATA();
+  const auto out = test::scratchDir();
+  const std::string las = test::dataPath("las/autzen_trim.las");
+  for (int n : {1, 2, 3, 7}) {
+    const fs::path d = out / ("t" + std::to_string(n));
+    fs::create_directories(d);
+    auto r = tinbuild("build " + las + " --region-level 2 --mesh m.smb --gpkg m.gpkg --dem tiles --step 3ft "
+                          "--tile-size 64 --contours c.gpkg --interval 5 -q --threads " + std::to_string(n) +
+                          " --report r.json",
+                      "cd " + d.string() + " && SOURCE_DATE_EPOCH=1764000000 ");
+    ASSERT_EQ(r.code, 0) << r.err;
+    auto p = tinbuild("build " + las + " --region-level 2 --mesh m.ply --dem one.tif --step 3ft -q --threads " +
+                          std::to_string(n),
+                      "cd " + d.string() + " && ");
+    ASSERT_EQ(p.code, 0) << p.err;
+    const std::string report = slurp(d / "r.json");
+    EXPECT_NE(report.find("\"region_level\": 2"), std::string::npos) << report;
+    EXPECT_NE(report.find("\"seam\": {"), std::string::npos) << report;
+  }
+  const std::vector<std::string> files = listDir(out / "t1");
+  for (int n : {2, 3, 7}) {
+    const fs::path d = out / ("t" + std::to_string(n));
+    EXPECT_EQ(listDir(d), files);
+    for (const auto& f : files) {
+      if (f == "r.json" || fs::is_directory(out / "t1" / f)) continue;
+      const std::string a = slurp(out / "t1" / f);
+      const std::string b = replaceAll(slurp(d / f), "--threads " + std::to_string(n), "--threads 1");
+      EXPECT_TRUE(a == b) << f << " differs between --threads 1 and --threads " << n;
+    }
+  }
+  // Delaunay, every distinct point once, a valid streaming mesh.
+  auto v = tinbuild("verify " + (out / "t7" / "m.smb").string() + " --points " + las);
+  EXPECT_EQ(v.code, 0) << v.out << v.err;
+  // The stream triangulated on its own gives the same mesh.
+  auto f = tinbuild("finalize " + las + " -o " + (out / "s.tfs").string() + " -q");
+  ASSERT_EQ(f.code, 0) << f.err;
+  for (int n : {1, 3}) {
+    auto t = tinbuild("triangulate " + (out / "s.tfs").string() + " --region-level 2 -o " +
+                      (out / ("tri" + std::to_string(n) + ".smb")).string() + " -q --threads " + std::to_string(n));
+    ASSERT_EQ(t.code, 0) << t.err;
+    EXPECT_TRUE(slurp(out / ("tri" + std::to_string(n) + ".smb")) == slurp(out / "t1" / "m.smb"))
+        << "triangulate --threads " << n << " differs from build";
+  }
+  // One region: as many triangles (the unit tests compare the sets with CGAL's).
+  auto one = tinbuild("build " + las + " --region-level 0 --mesh " + (out / "one.smb").string() +
+                      " -q --report " + (out / "one.json").string());
+  ASSERT_EQ(one.code, 0) << one.err;
+  auto triangles = [](const std::string& json) {
+    const auto at = json.find("\"triangles\": ", json.find("\"triangulation\""));
+    return json.substr(at, json.find(',', at) - at);
+  };
+  EXPECT_EQ(triangles(slurp(out / "one.json")), triangles(slurp(out / "t1" / "r.json")));
+}
+
 // A child tinbuild whose stderr we read line by line, so a signal can be sent mid-run.
 struct Child {
   pid_t pid = -1;
