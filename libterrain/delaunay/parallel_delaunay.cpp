@@ -216,6 +216,21 @@ struct ParallelDelaunay::Impl {
   std::vector<std::thread> workers;
   bool stopping = false;
   std::exception_ptr failure;
+  // Who sleeps (guarded by mutex): a wake-up is sent only to a sleeper, and one at a time (on a virtual
+  // machine every futex wake-up is an interrupt to another CPU).
+  int idleWorkers = 0;
+  bool mergerWaiting = false;
+  void wakeWorker() {
+    if (idleWorkers > 0) workCv.notify_one();
+  }
+  void wakeMerger() {
+    if (mergerWaiting) mergeCv.notify_one();
+  }
+  void waitForWorkers(std::unique_lock<std::mutex>& lock) {
+    mergerWaiting = true;
+    mergeCv.wait(lock);
+    mergerWaiting = false;
+  }
   std::size_t queuedPoints = 0;
   std::size_t bufferedBytes = 0;
   // Recycled buffers (guarded by mutex): new ones would cost page faults on every hand-over.
@@ -391,8 +406,8 @@ struct ParallelDelaunay::Impl {
     {
       std::lock_guard<std::mutex> lock(mutex);
       queuedPoints += queued;
+      wakeWorker();
     }
-    workCv.notify_all();
     merge(tagsDispatched, false);
     // Back-pressure: wait (merging what is ready) while too much input is queued.
     std::unique_lock<std::mutex> lock(mutex);
@@ -400,7 +415,7 @@ struct ParallelDelaunay::Impl {
       lock.unlock();
       const bool progressed = merge(tagsDispatched, false);
       lock.lock();
-      if (!progressed && queuedPoints > options.maxQueuedPoints && !failure) mergeCv.wait(lock);
+      if (!progressed && queuedPoints > options.maxQueuedPoints && !failure) waitForWorkers(lock);
     }
     lock.unlock();
     rethrow();
@@ -438,8 +453,8 @@ struct ParallelDelaunay::Impl {
           item.tag = tag;
           r.in.push_back(std::move(item));
         }
+        wakeWorker();
       }
-      workCv.notify_all();
       merge(barrier ? seq + 1 : tagsDispatched, barrier);
     }
     if (barrier) {
@@ -508,12 +523,19 @@ struct ParallelDelaunay::Impl {
     for (;;) {
       if (stopping) return;
       Region* pick = nullptr;
+      int runnable = 0;
       for (Region& r : regions)
-        if (!r.busy && !r.in.empty() && (!pick || r.in.front().seq < pick->in.front().seq)) pick = &r;
+        if (!r.busy && !r.in.empty()) {
+          ++runnable;
+          if (!pick || r.in.front().seq < pick->in.front().seq) pick = &r;
+        }
       if (!pick) {
+        ++idleWorkers;
         workCv.wait(lock);
+        --idleWorkers;
         continue;
       }
+      if (runnable > 1) wakeWorker();
       Region& r = *pick;
       r.busy = true;
       // Up to its next tag only, then the oldest input again: the regions advance together, in the
@@ -537,7 +559,7 @@ struct ParallelDelaunay::Impl {
               item.points.clear();
               sparePoints.push_back(std::move(item.points));
             }
-            mergeCv.notify_all();
+            wakeMerger();
             continue;
           }
           r.working = item.seq;
@@ -554,7 +576,7 @@ struct ParallelDelaunay::Impl {
       }
       lock.lock();
       r.busy = false;
-      if (!r.in.empty()) workCv.notify_one();
+      if (!r.in.empty()) wakeWorker();
     }
   }
 
@@ -580,7 +602,7 @@ struct ParallelDelaunay::Impl {
       }
     }
     if (last) r.done = r.working + 1;
-    mergeCv.notify_all();
+    wakeMerger();
   }
 
   void stopWorkers() {
@@ -638,7 +660,7 @@ struct ParallelDelaunay::Impl {
               rethrow();
             }
             if (!blocking) return progressed;
-            mergeCv.wait(lock);
+            waitForWorkers(lock);
           }
         }
         if (have) {
