@@ -48,9 +48,11 @@
 // only which region runs when.  Checkpoints for the outputs' area bookkeeping (MeshSink::checkpoint) come
 // after the first tag following every `checkpointEvery` points, when every region is paused there.
 //
-// Threads.  `threads` >= 2: that many workers take the regions with queued input (one worker per region at
-// a time, oldest input first); the calling thread splits batches by region, merges the regions' outputs
-// in order and runs the seam step.  1: everything on the calling thread, in the same order.
+// Threads.  `threads` >= 2: threads - 1 workers take the regions with queued input (one thread per region
+// at a time, oldest input first, up to the region's next tag); the calling thread splits batches by
+// region, merges the regions' outputs in order, runs the seam step, and runs regions itself whenever it
+// would otherwise wait (for queued input to drain, or for the region the merge needs).  1: everything on
+// the calling thread, in the same order.
 #pragma once
 
 #include <cstddef>
@@ -64,7 +66,7 @@ namespace tinbuild {
 
 struct ParallelDelaunayOptions {
   DelaunayOptions delaunay;  // slotIds and region are set by ParallelDelaunay
-  int threads = 1;           // workers for the regions; 1: all on the calling thread
+  int threads = 1;           // threads running the regions (the caller's included); 1: all on the caller's
   int regionLevel = -1;      // regions are the cells of this quadtree level; -1: from the point count
   std::uint64_t checkpointEvery = std::uint64_t{1} << 20;  // points between output checkpoints
   std::size_t maxQueuedPoints = std::size_t{1} << 18;       // input queued for the workers
