@@ -193,6 +193,7 @@ struct ParallelDelaunay::Impl {
   std::deque<std::pair<std::size_t, std::size_t>> targets;
   bool endDispatched = false;
   std::uint64_t pointsSinceCheckpoint = 0;
+  bool wantsCheckpoints = false;  // out.wantsCheckpoints(): else no pauses for them
 
   // The seam step.
   struct SeamFilter : MeshSink {
@@ -291,6 +292,7 @@ struct ParallelDelaunay::Impl {
     targets.clear();
     endDispatched = false;
     pointsSinceCheckpoint = 0;
+    wantsCheckpoints = out.wantsCheckpoints();
     seamWaiting.clear();
     seamBySlot.clear();
     seamPoints.clear();
@@ -435,7 +437,7 @@ struct ParallelDelaunay::Impl {
                   std::to_string(tag.col) + ", " + std::to_string(tag.row) + ") outside the grid of depth " +
                   std::to_string(grid.depth));
     const std::uint64_t seq = tagsDispatched++;
-    const bool barrier = pointsSinceCheckpoint >= options.checkpointEvery;
+    const bool barrier = wantsCheckpoints && pointsSinceCheckpoint >= options.checkpointEvery;
     const auto range = regionsOf(tag);
     if (!threaded()) {
       for (std::size_t m = range.first; m < range.second; ++m) {

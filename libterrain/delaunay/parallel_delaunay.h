@@ -46,7 +46,10 @@
 // produced for it, regions in Morton order, each followed at once by what the seam step makes of them;
 // then the regions' ends and the seam's end.  Vertex ids are given in that merged order.  Threads decide
 // only which region runs when.  Checkpoints for the outputs' area bookkeeping (MeshSink::checkpoint) come
-// after the first tag following every `checkpointEvery` points, when every region is paused there.
+// after the first tag following every `checkpointEvery` points, when every region is paused there, and
+// only for a sink that wants them (MeshSink::wantsCheckpoints: the DEM's tile tracker does, a mesh file
+// does not).  A region's later triangles lie in its own square, so an area can be complete while other
+// regions run.
 //
 // Threads.  `threads` >= 2: threads - 1 workers take the regions with queued input (one thread per region
 // at a time, oldest input first, up to the region's next tag); the calling thread splits batches by

@@ -96,7 +96,9 @@ class ActiveRegion;
 class Diagnostics;
 
 // Region mode (parallel_delaunay.h holds the argument).  The triangulator is fed only the points of one
-// quadtree cell, its *region*, but every tag of the stream.  A triangle that becomes final is *certified*
+// quadtree cell, its *region*, and the tags inside or over it; everything outside the region is final for
+// it from the start (no point of the region can come there), so it computes DT(P_r), P_r the region's
+// points, and holds the region's width only.  A triangle that becomes final is *certified*
 // and written as usual only when its circumdisk provably avoids every other region (the region's square
 // shrunk by 2h on the sides it shares with other regions); otherwise, and for every ghost, it is a *seam*
 // triangle: not written, but recorded at its vertices as a wedge (the angle it spans there).  A vertex

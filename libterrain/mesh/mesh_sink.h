@@ -34,6 +34,9 @@ class MeshSink {
   // After each finalization event, when every triangle it made final has been written (see mesh_tee.h):
   // lets consumers with per-area state find the areas no later triangle can reach.  Default: ignored.
   virtual void checkpoint(const ActiveRegion& region) { (void)region; }
+  // Whether checkpoint() does anything (a producer that must pause its threads for a checkpoint skips
+  // them when it does not).  Default: no.
+  virtual bool wantsCheckpoints() const { return false; }
   virtual void end() = 0;
 };
 

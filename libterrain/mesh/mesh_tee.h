@@ -135,6 +135,7 @@ class MeshTee : public MeshSink {
   void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override;
   void finalizeVertex(std::uint64_t id) override;
   void checkpoint(const ActiveRegion& region) override;
+  bool wantsCheckpoints() const override { return !agents_.empty(); }
   void end() override;
 
  private:

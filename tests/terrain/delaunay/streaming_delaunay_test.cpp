@@ -1065,6 +1065,7 @@ class CheckpointCheckingSink : public CheckingSink {
   std::vector<bool> closed;
   std::uint64_t checkpoints = 0, closedTiles = 0;
 
+  bool wantsCheckpoints() const override { return true; }
   void checkpoint(const ActiveRegion& region) override {
     ++checkpoints;
     std::unique_ptr<bool[]> open(new bool[tiles.size()]());
