@@ -246,7 +246,6 @@ struct ParallelDelaunay::Impl {
       for (const Region& r : impl.regions)
         if (!r.ended) r.tri->activeRegion().markOpen(rects, n, open);
       impl.seam->activeRegion().markOpen(rects, n, open);
-
     }
     std::uint64_t activeTriangles() const override {
       std::uint64_t s = impl.seam->activeRegion().activeTriangles();
@@ -292,7 +291,6 @@ struct ParallelDelaunay::Impl {
     targets.clear();
     endDispatched = false;
     pointsSinceCheckpoint = 0;
-    wantsCheckpoints = out.wantsCheckpoints();
     seamWaiting.clear();
     seamBySlot.clear();
     seamPoints.clear();
@@ -333,6 +331,7 @@ struct ParallelDelaunay::Impl {
     mi.bounds = info.bounds;
     mi.crsWkt = info.crsWkt;
     out.begin(mi);
+    wantsCheckpoints = out.wantsCheckpoints();  // known once the outputs have begun
 
     pstats.threads = std::max(1, options.threads);
     if (options.threads >= 2) {

@@ -71,7 +71,7 @@ struct ParallelDelaunayOptions {
   DelaunayOptions delaunay;  // slotIds and region are set by ParallelDelaunay
   int threads = 1;           // threads running the regions (the caller's included); 1: all on the caller's
   int regionLevel = -1;      // regions are the cells of this quadtree level; -1: from the point count
-  std::uint64_t checkpointEvery = std::uint64_t{1} << 20;  // points between output checkpoints
+  std::uint64_t checkpointEvery = std::uint64_t{1} << 18;  // points between output checkpoints
   std::size_t maxQueuedPoints = std::size_t{1} << 18;       // input queued for the workers
 };
 
