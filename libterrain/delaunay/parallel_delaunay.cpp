@@ -257,6 +257,11 @@ struct ParallelDelaunay::Impl {
   Combined combined{*this};
 
   Impl(MeshSink& o, const ParallelDelaunayOptions& opt) : out(o), options(opt) {}
+
+  int levelFor(const StreamInfo& info) const {
+    return options.regionLevel >= 0 ? std::min(options.regionLevel, info.grid.depth)
+                                    : chooseRegionLevel(info.points, info.grid.depth);
+  }
   ~Impl() { stopWorkers(); }
 
   bool threaded() const { return options.threads >= 2; }
@@ -267,8 +272,7 @@ struct ParallelDelaunay::Impl {
     total = DelaunayStats{};
     pstats = ParallelDelaunayStats{};
     grid = info.grid;
-    level = options.regionLevel >= 0 ? std::min(options.regionLevel, grid.depth)
-                                     : chooseRegionLevel(info.points, grid.depth);
+    level = levelFor(info);
     pstats.regionLevel = level;
     regions = std::vector<Region>();
     single.reset();
@@ -869,6 +873,9 @@ void ParallelDelaunay::end() {
 }
 const DelaunayStats& ParallelDelaunay::stats() const {
   return impl_->single ? impl_->single->stats() : impl_->total;
+}
+bool ParallelDelaunay::runsThreads(const StreamInfo& info) const {
+  return impl_->options.threads >= 2 && impl_->levelFor(info) > 0;
 }
 const ParallelDelaunayStats& ParallelDelaunay::parallelStats() const {
   return impl_->pstats;

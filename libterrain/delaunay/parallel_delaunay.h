@@ -111,6 +111,9 @@ class ParallelDelaunay : public PointSink {
   // The level used when regionLevel is -1: regions of about 150,000 points, at most 64 of them, none
   // below 600,000 points in all (level 0: one region, the plain streaming triangulator).
   static int chooseRegionLevel(std::uint64_t points, int depth);
+  // Will begin(info) triangulate regions on threads of its own (threads >= 2, level > 0)?  Then the
+  // caller need not put the triangulator on a thread behind a queue.
+  bool runsThreads(const StreamInfo& info) const;
 
  private:
   struct Impl;

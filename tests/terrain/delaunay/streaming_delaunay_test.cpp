@@ -1263,6 +1263,48 @@ TEST(ParallelDelaunay, SeamShareAndCheckpoints) {
             << r.pstats.seamDropped << ", tiles closed early " << r.closedTiles << "/64\n";
 }
 
+// A broken stream is an error whatever thread meets it (a worker's error comes back by a later call).
+TEST(ParallelDelaunay, RejectsBrokenStreams) {
+  const Points pts = randomPoints(2000, 1);
+  const GridSpec grid = makeGrid(boundsOf(pts), 3);
+  StreamInfo info;
+  info.grid = grid;
+  for (const int threads : {1, 3}) {
+    CountingSink sink;
+    ParallelDelaunayOptions opt;
+    opt.threads = threads;
+    opt.regionLevel = 1;
+    {
+      ParallelDelaunay dt(sink, opt);
+      dt.begin(info);
+      dt.points(pts.data(), pts.size());
+      const std::uint64_t c = grid.cellOf(pts[0].x, pts[0].y);
+      dt.finalizeCell(CellTag{3, static_cast<std::uint32_t>(c % 8), static_cast<std::uint32_t>(c / 8)});
+      EXPECT_THROW(
+          {
+            dt.points(pts.data(), 1);  // a point after its cell's tag
+            dt.finalizeCell(CellTag{0, 0, 0});
+            dt.end();
+          },
+          Error)
+          << threads << " threads";
+    }
+    {
+      ParallelDelaunay dt(sink, opt);
+      dt.begin(info);
+      const PointRecord nan = rec(std::nan(""), 1);
+      EXPECT_THROW(
+          {
+            dt.points(&nan, 1);
+            dt.end();
+          },
+          Error)
+          << threads << " threads";
+      EXPECT_THROW(dt.finalizeCell(CellTag{4, 0, 0}), Error);  // level > depth
+    }
+  }
+}
+
 TEST(ParallelDelaunay, ChoosesRegionsFromThePointCount) {
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(100000, 6), 0);
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000, 6), 1);
