@@ -499,6 +499,7 @@ struct ParallelDelaunay::Impl {
       workCv.notify_all();
       merge(seq + 1, true);
       stopWorkers();
+      rethrow();
     }
     flushSeamPoints();
     seam->end();
@@ -542,6 +543,7 @@ struct ParallelDelaunay::Impl {
   // lock released meanwhile) and returns true; false when no region can run now.  Workers loop on it; the
   // dispatcher calls it instead of waiting, so it works too when it would only wait.
   bool runSome(std::unique_lock<std::mutex>& lock) {
+    if (failure) return false;  // a region failed: its later input must not run (nor anyone's)
     Region* pick = nullptr;
     int runnable = 0;
     for (Region& r : regions)
@@ -660,6 +662,10 @@ struct ParallelDelaunay::Impl {
         {
           std::unique_lock<std::mutex> lock(mutex);
           for (;;) {
+            if (failure) {
+              lock.unlock();
+              rethrow();
+            }
             if (!r.outChunks.empty() && r.outChunks.front().seq == mergeSeq) {
               chunk = std::move(r.outChunks.front());
               r.outChunks.pop_front();
@@ -670,10 +676,6 @@ struct ParallelDelaunay::Impl {
             if (r.done > mergeSeq) {
               finished = true;
               break;
-            }
-            if (failure) {
-              lock.unlock();
-              rethrow();
             }
             if (!blocking) return progressed;
             if (!runSome(lock)) waitForWorkers(lock);
