@@ -1,6 +1,7 @@
 // The product pipeline on real surveys against CGAL: every ../shared/data/las file with more than 10k
 // points is read, filtered (the default: withheld and classes 7, 18 dropped), finalized and triangulated
-// by tinbuild, and the set of triangles must equal CGAL's Delaunay_triangulation_2 of the same points.
+// by tinbuild, and the set of triangles must equal CGAL's Delaunay_triangulation_2 of the same points: with
+// the one-region triangulator, and with regions (parallel_delaunay.h) at 1, 2, 3 and 7 threads.
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -11,6 +12,7 @@
 
 #include "formats/pointcloud/las_reader.h"
 #include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "test_support.h"
@@ -69,6 +71,22 @@ TEST_P(RealSurveys, TinEqualsCgal) {
   EXPECT_EQ(ours.triangles.size(), theirs.size()) << GetParam();
   EXPECT_TRUE(ours.triangles == theirs) << GetParam() << ": the triangle sets differ";
   EXPECT_EQ(delaunay.stats().verticesOut, dt.number_of_vertices());
+
+  // Regions: 16 of them (fewer when the grid is shallower), at 1, 2, 3 and 7 threads.
+  for (const int threads : {1, 2, 3, 7}) {
+    LasReader input(path, diag);
+    TriangleCollector regions;
+    ParallelDelaunayOptions po;
+    po.threads = threads;
+    po.regionLevel = 2;
+    ParallelDelaunay parallel(regions, po);
+    std::vector<PointStream*> in{&input};
+    finalizePoints(in, fo, parallel, diag);
+    EXPECT_TRUE(regions.triangles == theirs) << GetParam() << ": regions at " << threads
+                                             << " threads differ from CGAL";
+    EXPECT_EQ(parallel.stats().verticesOut, dt.number_of_vertices());
+    EXPECT_GT(parallel.parallelStats().regionLevel, 0) << GetParam();
+  }
 #endif
 }
 
