@@ -17,6 +17,7 @@
 #include "formats/pointcloud/copc_writer.h"
 #include "formats/pointcloud/las_reader.h"
 #include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "test_support.h"
@@ -89,8 +90,10 @@ struct RunResult {
   bool pointsAtMost = false;
 };
 
+// regionThreads > 0: the parallel triangulator with 16 regions on that many threads.
 RunResult finalizeAndTriangulate(const std::vector<std::string>& paths, bool countBlocks,
-                                 const PointFilter& filter, std::uint64_t* skipped = nullptr, int depth = -1) {
+                                 const PointFilter& filter, std::uint64_t* skipped = nullptr, int depth = -1,
+                                 int regionThreads = 0) {
   Diagnostics diag;
   std::vector<std::unique_ptr<LasReader>> readers;
   std::vector<PointStream*> inputs;
@@ -104,7 +107,12 @@ RunResult finalizeAndTriangulate(const std::vector<std::string>& paths, bool cou
     inputs.push_back(readers.back().get());
   }
   Collector tin;
-  StreamingDelaunay delaunay(tin);
+  StreamingDelaunay single(tin);
+  ParallelDelaunayOptions po;
+  po.threads = regionThreads;
+  po.regionLevel = 2;
+  ParallelDelaunay regions(tin, po);
+  PointSink& delaunay = regionThreads > 0 ? static_cast<PointSink&>(regions) : single;
   ContractCheck check(delaunay);
   FinalizerOptions fo;
   fo.filter = filter;
@@ -126,8 +134,9 @@ RunResult finalizeAndTriangulate(const std::vector<std::string>& paths, bool cou
 }
 
 RunResult finalizeAndTriangulate(const std::string& path, bool countBlocks, const PointFilter& filter,
-                                 std::uint64_t* skipped = nullptr, int depth = -1) {
-  return finalizeAndTriangulate(std::vector<std::string>{path}, countBlocks, filter, skipped, depth);
+                                 std::uint64_t* skipped = nullptr, int depth = -1, int regionThreads = 0) {
+  return finalizeAndTriangulate(std::vector<std::string>{path}, countBlocks, filter, skipped, depth,
+                                regionThreads);
 }
 
 void expectSameTin(const RunResult& blocks, const RunResult& spooled, const std::string& what) {
@@ -245,6 +254,12 @@ TEST(CopcBlocks, SyntheticOctrees) {
     expectSameTin(blocks, spooled, "one file, depth " + std::to_string(depth));
     EXPECT_EQ(blocks.stats.blocks, st.nodes);
     EXPECT_EQ(blocks.stats.filter.read, survey.size());
+    // Regions (points on node edges may arrive in a neighbour leaf's chunk): the same TIN.
+    for (const int threads : {1, 3}) {
+      const RunResult regions = finalizeAndTriangulate(one, true, byClass, nullptr, depth, threads);
+      EXPECT_TRUE(regions.triangles == spooled.triangles)
+          << "regions at " << threads << " threads, depth " << depth << ": the TINs differ";
+    }
   }
   // Two tiles, split at an x that is no plane of either octree.
   std::vector<PointRecord> west, east;
