@@ -2,7 +2,8 @@
 //
 // The data flow (docs/design.md, "The pipeline"):
 //   PointStream (pulled in batches, several passes) -> finalizer -> PointSink (points and finalization
-//   tags) -> StreamingDelaunay -> MeshSink (vertices, triangles, vertex finalization) -> MeshTee ->
+//   tags) -> ParallelDelaunay (StreamingDelaunay per region, certified seams) -> MeshSink (vertices,
+//   triangles, vertex finalization) -> MeshTee ->
 //   outputs, among them the DemRasterizer.
 //
 // The folders (docs/design.md, "The tree"):
@@ -13,7 +14,9 @@
 //               PointSink, point filters, chunking with a memory budget and spill, BRIO, sprinkles, the
 //               read order of pass 3, survey statistics.
 //   delaunay/   exact predicates (floating-point filter, exact fallback, symbolic perturbation), the
-//               streaming Delaunay triangulator (certification against finalized space), the verifier.
+//               streaming Delaunay triangulator (certification against finalized space), the parallel
+//               one (quadtree regions on threads, certified seams, the same bytes for any thread
+//               count), the verifier.
 //   mesh/       MeshSink / TriangleSink and the MeshTee that fans a mesh out to many outputs, on a writer
 //               thread when asked, with checkpoint agents for "is this area complete?".
 //   raster/     the DEM rasterizer: TIN interpolation at pixel centres, tiles released when complete.
@@ -25,6 +28,7 @@
 
 #include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/error.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
 #include "libterrain/mesh/mesh_tee.h"
