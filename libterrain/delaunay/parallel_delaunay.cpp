@@ -14,7 +14,6 @@
 #include <thread>
 #include <unordered_map>
 
-#include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
 #include "libterrain/mesh/mesh_tee.h"
@@ -849,12 +848,7 @@ struct ParallelDelaunay::Impl {
     total.maxActiveTriangles += pstats.seam.maxActiveTriangles;
     total.maxActiveVertices += pstats.seam.maxActiveVertices;
     total.peakBytes += pstats.seam.peakBytes + pstats.peakBufferedBytes;
-    if (options.delaunay.diagnostics && total.duplicatesDropped > 0)
-      options.delaunay.diagnostics->warn(
-          "delaunay.duplicate_xy", "",
-          "points with the x and y of an earlier point were merged (kept the " +
-              std::string(duplicateRuleName(options.delaunay.duplicates)) + " z)",
-          total.duplicatesDropped);
+    warnDuplicates(options.delaunay.diagnostics, options.delaunay.duplicates, total.duplicatesDropped);
   }
 };
 

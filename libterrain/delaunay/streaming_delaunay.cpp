@@ -43,6 +43,14 @@ std::optional<DelaunayOptions::DuplicateRule> parseDuplicateRule(std::string_vie
   return std::nullopt;
 }
 
+void warnDuplicates(Diagnostics* diagnostics, DelaunayOptions::DuplicateRule rule, std::uint64_t dropped) {
+  if (diagnostics && dropped > 0)
+    diagnostics->warn("delaunay.duplicate_xy", "",
+                      "points with the x and y of an earlier point were merged (kept the " +
+                          std::string(duplicateRuleName(rule)) + " z)",
+                      dropped);
+}
+
 namespace {
 
 constexpr std::uint32_t kNone = 0xFFFFFFFFu;          // no neighbour (freed space), no list entry, no leaf
@@ -1771,11 +1779,7 @@ struct StreamingDelaunay::Impl {
     }
     assert(activeVerts == 0);
     updatePeak();
-    if (options.diagnostics && stats.duplicatesDropped > 0)
-      options.diagnostics->warn("delaunay.duplicate_xy", "",
-                                "points with the x and y of an earlier point were merged (kept the " +
-                                    std::string(duplicateRuleName(options.duplicates)) + " z)",
-                                stats.duplicatesDropped);
+    warnDuplicates(options.diagnostics, options.duplicates, stats.duplicatesDropped);
     ended = true;
     begun = false;
     out.end();

@@ -142,6 +142,8 @@ struct DelaunayOptions {
 const char* duplicateRuleName(DelaunayOptions::DuplicateRule rule);
 // Accepts the names above; nullopt when unknown.
 std::optional<DelaunayOptions::DuplicateRule> parseDuplicateRule(std::string_view name);
+// Reports `dropped` merged duplicates once to `diagnostics` ("delaunay.duplicate_xy"); nothing when 0.
+void warnDuplicates(Diagnostics* diagnostics, DelaunayOptions::DuplicateRule rule, std::uint64_t dropped);
 
 struct DelaunayStats {
   std::uint64_t pointsIn = 0;              // points received

@@ -75,6 +75,22 @@ std::string replaceAll(std::string s, const std::string& from, const std::string
 // --threads changes nothing but speed: the mesh files, the single-file DEM and the tiles are the same
 // bytes for 1, 2 and 3 threads.  The only difference allowed is the command line the outputs record
 // (it says --threads N), so that is normalized before comparing.
+// out/tN (N in `counts`) holds the same files as out/t1, byte for byte, apart from the reports and the
+// command line the outputs record.
+void expectSameFiles(const fs::path& out, std::initializer_list<int> counts) {
+  const std::vector<std::string> files = listDir(out / "t1");
+  for (int n : counts) {
+    const fs::path d = out / ("t" + std::to_string(n));
+    EXPECT_EQ(listDir(d), files);
+    for (const auto& f : files) {
+      if (f == "r.json" || fs::is_directory(out / "t1" / f)) continue;
+      const std::string a = slurp(out / "t1" / f);
+      const std::string b = replaceAll(slurp(d / f), "--threads " + std::to_string(n), "--threads 1");
+      EXPECT_TRUE(a == b) << f << " differs between --threads 1 and --threads " << n;
+    }
+  }
+}
+
 TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   TINBUILD_REQUIRE_DATA();
   const auto out = test::scratchDir();
@@ -107,16 +123,7 @@ TEST(CliRun, ThreadsGiveByteIdenticalOutputs) {
   EXPECT_GT(std::count_if(files.begin(), files.end(),
                           [](const std::string& f) { return f.rfind("tiles/dem_", 0) == 0; }),
             4);
-  for (int n : {2, 3}) {
-    const fs::path d = out / ("t" + std::to_string(n));
-    EXPECT_EQ(listDir(d), files);
-    for (const auto& f : files) {
-      if (f == "r.json" || fs::is_directory(out / "t1" / f)) continue;
-      const std::string a = slurp(out / "t1" / f);
-      const std::string b = replaceAll(slurp(d / f), "--threads " + std::to_string(n), "--threads 1");
-      EXPECT_TRUE(a == b) << f << " differs between --threads 1 and --threads " << n;
-    }
-  }
+  expectSameFiles(out, {2, 3});
 }
 
 // The multi-core triangulator (regions with certified seams, forced here on a small file): every output
@@ -143,17 +150,7 @@ TEST(CliRun, RegionsGiveByteIdenticalOutputsForAnyThreads) {
     EXPECT_NE(report.find("\"region_level\": 2"), std::string::npos) << report;
     EXPECT_NE(report.find("\"seam\": {"), std::string::npos) << report;
   }
-  const std::vector<std::string> files = listDir(out / "t1");
-  for (int n : {2, 3, 7}) {
-    const fs::path d = out / ("t" + std::to_string(n));
-    EXPECT_EQ(listDir(d), files);
-    for (const auto& f : files) {
-      if (f == "r.json" || fs::is_directory(out / "t1" / f)) continue;
-      const std::string a = slurp(out / "t1" / f);
-      const std::string b = replaceAll(slurp(d / f), "--threads " + std::to_string(n), "--threads 1");
-      EXPECT_TRUE(a == b) << f << " differs between --threads 1 and --threads " << n;
-    }
-  }
+  expectSameFiles(out, {2, 3, 7});
   // Delaunay, every distinct point once, a valid streaming mesh.
   auto v = tinbuild("verify " + (out / "t7" / "m.smb").string() + " --points " + las);
   EXPECT_EQ(v.code, 0) << v.out << v.err;
