@@ -2,7 +2,6 @@
 #include "libterrain/delaunay/parallel_delaunay.h"
 
 #include <algorithm>
-#include <atomic>
 #include <cmath>
 #include <condition_variable>
 #include <cstring>
