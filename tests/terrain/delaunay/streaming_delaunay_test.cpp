@@ -1263,6 +1263,17 @@ TEST(ParallelDelaunay, SeamShareAndCheckpoints) {
             << r.pstats.seamDropped << ", tiles closed early " << r.closedTiles << "/64\n";
 }
 
+// Regions of more than 2^20 leaves keep their live-vertex counts in a map instead of an array.
+TEST(ParallelDelaunay, DeepGridMatchesCgal) {
+  const Points pts = randomPoints(20000, 41);
+  const Result plain = triangulate(pts, 12);
+  for (const int threads : {1, 3}) {
+    const ParallelResult r = triangulateParallel(pts, 12, 1, threads);
+    expectSameTriangles(r.triangles, plain.triangles, "depth 12, 4 regions");
+    expectMatchesCgal(pts, r, "depth 12, 4 regions");
+  }
+}
+
 // A broken stream is an error whatever thread meets it (a worker's error comes back by a later call).
 TEST(ParallelDelaunay, RejectsBrokenStreams) {
   const Points pts = randomPoints(2000, 1);
