@@ -1008,6 +1008,7 @@ std::string formatRunJson(const RunReport& r) {
     j.key("tiles_written").value(d.stats.tilesWritten);
     j.key("tiles_empty").value(d.stats.tilesEmpty);
     j.key("tiles_completed_during_run").value(d.stats.tilesCompletedEarly);
+    j.key("tiles_filled").value(d.stats.tilesFilled);
     j.key("max_open_tiles").value(d.stats.maxOpenTiles);
     j.key("peak_tile_bytes").value(d.stats.peakTileBytes);
     j.key("files").beginArray();

@@ -139,6 +139,7 @@ DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
 struct DemRasterizer::Open {
   DemTile tile;
   std::uint64_t dataPixels = 0;  // pixels with data in any band
+  std::uint64_t assigned = 0;    // pixel centres a triangle has claimed (each has exactly one)
 };
 
 DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out)
@@ -262,6 +263,7 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
   const std::int64_t T = L.tileSize;
   Open* cur = nullptr;
   std::int64_t curTx = 0, curTy = 0;
+  filled_.clear();
   for (std::int64_t j = j0; j <= j1; ++j) {
     const double py = centre(L.originY, L.step, j);
     const std::int64_t ty = floorDiv(j - L.tileRow0, T);
@@ -278,6 +280,12 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
       const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
                               static_cast<std::size_t>(i - t.col0);
       any = true;
+      // Every pixel centre belongs to exactly one triangle: when all of a tile's have theirs, no later
+      // triangle can change the tile, so it is complete (at this point of the stream, whatever the
+      // threads).  Not with the count band: a vertex may still come without a pixel centre of its own.
+      if (++cur->assigned == static_cast<std::uint64_t>(t.width) * static_cast<std::uint64_t>(t.height) &&
+          !opt_.count)
+        filled_.push_back(tileKey(curTx, curTy));
       const bool hadData = t.z[idx] != opt_.nodata || (!t.count.empty() && t.count[idx] > 0) ||
                            (!t.edgeLength.empty() && t.edgeLength[idx] != opt_.nodata);
       if (!hadData) ++cur->dataPixels;
@@ -296,6 +304,11 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
     }
   }
   if (any) ++stats_.trianglesRasterized;
+  for (const std::int64_t key : filled_) {
+    ++stats_.tilesFilled;
+    ++stats_.tilesCompletedEarly;
+    complete(key);
+  }
 }
 
 void DemRasterizer::complete(std::int64_t key) {

@@ -111,6 +111,7 @@ struct DemStats {
   std::uint64_t pixelsMaxEdge = 0;        // pixels left nodata by --max-edge
   std::uint64_t tilesWritten = 0, tilesEmpty = 0;
   std::uint64_t tilesCompletedEarly = 0;  // tiles handed over before end(): the streaming at work
+  std::uint64_t tilesFilled = 0;          // of those, complete because every pixel centre had its triangle
   std::uint64_t maxOpenTiles = 0;
   std::uint64_t openChecks = 0;  // markOpen scans
   std::uint64_t peakTileBytes = 0;
@@ -178,6 +179,7 @@ class DemRasterizer : public TriangleSink {
   DemStats stats_;
   std::int64_t tilesX_ = 0, tilesY_ = 0, firstTx_ = 0, firstTy_ = 0;
   std::map<std::int64_t, std::unique_ptr<Open>> open_;
+  std::vector<std::int64_t> filled_;  // tiles the current triangle completed
   std::unordered_set<std::int64_t> done_;
   DemTileTracker tracker_;
   double lightX_ = 0, lightY_ = 0, lightZ_ = 0;
