@@ -501,6 +501,11 @@ struct ParallelDelaunay::Impl {
     }
     flushSeamPoints();
     seam->end();
+    if (!seamWaiting.empty()) {  // the seam triangulator merged a twin (see decode): refuse
+      const SeamRecord& r = seamWaiting.begin()->second;
+      throw Error("the point (" + std::to_string(r.x) + ", " + std::to_string(r.y) +
+                  ") came twice, in two regions (a point on a COPC node's edge); run with --region-level 0");
+    }
     out.end();
     collectStats();
   }
@@ -747,7 +752,13 @@ struct ParallelDelaunay::Impl {
           p.z = rec.z;
           seamPoints.push_back(p);
           ++pstats.seamVertices;
-          seamWaiting.emplace(XYKey{bitsOf(rec.x), bitsOf(rec.y)}, std::move(rec));
+          // Equal x and y fall in one leaf, hence one region, which merged them.  Only a point that the
+          // stream put in a neighbouring leaf (a COPC point on its node's edge) can meet its twin here:
+          // refuse rather than write two vertices at one place.
+          if (!seamWaiting.emplace(XYKey{bitsOf(rec.x), bitsOf(rec.y)}, std::move(rec)).second)
+            throw Error("the point (" + std::to_string(p.x) + ", " + std::to_string(p.y) +
+                        ") came twice, in two regions (a point on a COPC node's edge); run with "
+                        "--region-level 0");
           i += 5 + 4 * nw;
           break;
         }

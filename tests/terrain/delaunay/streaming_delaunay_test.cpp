@@ -1316,6 +1316,37 @@ TEST(ParallelDelaunay, RejectsBrokenStreams) {
   }
 }
 
+// One xy in two regions (a stream may put a point on a leaf's edge in the neighbour's chunk, as the
+// finalizer does for COPC nodes): refused, not written as two vertices.
+TEST(ParallelDelaunay, RefusesOnePointInTwoRegions) {
+  StreamInfo info;
+  info.grid.originX = 0;
+  info.grid.originY = 0;
+  info.grid.size = 100;
+  info.grid.depth = 1;  // four leaves, four regions
+  const PointRecord q = rec(50.0, 20.0, 1);  // on the edge: GridSpec puts it in the right leaf
+  Points left{rec(10, 10), rec(30, 15), rec(20, 40), q}, right{rec(70, 10), q, rec(90, 30), rec(60, 45)};
+  for (const int threads : {1, 3}) {
+    CountingSink sink;
+    ParallelDelaunayOptions opt;
+    opt.threads = threads;
+    opt.regionLevel = 1;
+    ParallelDelaunay dt(sink, opt);
+    std::string message;
+    try {
+      dt.begin(info);
+      dt.points(left.data(), left.size());  // q travels with the left leaf's chunk
+      dt.finalizeCell(CellTag{1, 0, 0});
+      dt.points(right.data(), right.size());
+      dt.finalizeCell(CellTag{0, 0, 0});
+      dt.end();
+    } catch (const Error& e) {
+      message = e.what();
+    }
+    EXPECT_NE(message.find("came twice, in two regions"), std::string::npos) << threads << " threads: " << message;
+  }
+}
+
 TEST(ParallelDelaunay, ChoosesRegionsFromThePointCount) {
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(100000, 6), 0);
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000, 6), 1);
