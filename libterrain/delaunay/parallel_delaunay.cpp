@@ -187,7 +187,8 @@ struct ParallelDelaunay::Impl {
   std::uint64_t tagsDispatched = 0;
   std::uint64_t mergeSeq = 0;
   std::size_t mergeRegion = 0;
-  // The regions each dispatched but unmerged item goes to (a Morton range), from mergeSeq on.
+  // The regions each dispatched but unmerged item goes to (a Morton range), from mergeSeq on.  Only the
+  // dispatching thread touches it (it also merges), so it needs no lock.
   std::deque<std::pair<std::size_t, std::size_t>> targets;
   bool endDispatched = false;
   std::uint64_t pointsSinceCheckpoint = 0;
@@ -282,8 +283,7 @@ struct ParallelDelaunay::Impl {
     }
     regionSide = 1u << level;
     shift = grid.depth - level;
-    h = kCellTolerance * grid.size +
-        8.0 * std::numeric_limits<double>::epsilon() * (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
+    h = cellGrowth(grid);  // the triangulators' own arrival slack
     leafSize = std::ldexp(grid.size, -grid.depth);
     curX0 = curY0 = 1;
     curX1 = curY1 = 0;
@@ -515,8 +515,7 @@ struct ParallelDelaunay::Impl {
   // freed), so regions the stream has passed hold nothing.
   static void runTag(Region& r, const CellTag& tag) {
     if (r.ended) return;
-    if (tag.level <= r.cell.level && (r.cell.col >> (r.cell.level - tag.level)) == tag.col &&
-        (r.cell.row >> (r.cell.level - tag.level)) == tag.row) {
+    if (cellContains(tag, r.cell)) {
       runEnd(r);
       return;
     }
@@ -651,11 +650,7 @@ struct ParallelDelaunay::Impl {
   bool merge(std::uint64_t until, bool blocking) {
     bool progressed = false;
     while (mergeSeq < until) {
-      std::pair<std::size_t, std::size_t> range;
-      {
-        std::lock_guard<std::mutex> lock(mutex);
-        range = targets.front();
-      }
+      const std::pair<std::size_t, std::size_t> range = targets.front();
       if (mergeRegion < range.first) mergeRegion = range.first;
       Region& r = regions[mergeRegion];
       // The region's chunks for this item (published as it goes), until it says it is done with it.
@@ -699,7 +694,6 @@ struct ParallelDelaunay::Impl {
       if (++mergeRegion == range.second) {
         mergeRegion = 0;
         ++mergeSeq;
-        std::lock_guard<std::mutex> lock(mutex);
         targets.pop_front();
       }
     }

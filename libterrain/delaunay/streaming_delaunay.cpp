@@ -527,15 +527,12 @@ struct StreamingDelaunay::Impl {
   void registerSeamTag(const CellTag& tag) {
     const CellTag& own = options.region.cell;
     CellTag part;
-    if (tag.level >= own.level) {
-      const int k = tag.level - own.level;
-      if ((tag.col >> k) != own.col || (tag.row >> k) != own.row) return;
+    if (cellContains(own, tag))
       part = tag;
-    } else {
-      const int k = own.level - tag.level;
-      if ((own.col >> k) != tag.col || (own.row >> k) != tag.row) return;
+    else if (cellContains(tag, own))
       part = own;
-    }
+    else
+      return;
     std::uint32_t open = 0;
     if (leafCount.empty()) {
       for (const auto& entry : leafLive)
@@ -617,8 +614,7 @@ struct StreamingDelaunay::Impl {
       throw Error("streaming Delaunay: invalid grid in the stream header");
     stats = DelaunayStats{};
     grid = info.grid;
-    h = kCellTolerance * grid.size + 8.0 * std::numeric_limits<double>::epsilon() *
-                                         (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
+    h = cellGrowth(grid);
     cellSize.assign(static_cast<std::size_t>(grid.depth) + 1, 0.0);
     for (int l = 0; l <= grid.depth; ++l) cellSize[l] = std::ldexp(grid.size, -l);
     tris.clear();
@@ -1427,18 +1423,15 @@ struct StreamingDelaunay::Impl {
   [[gnu::noinline]] void finalizeVertex(std::uint32_t v) {
     if (regionMode && (vleaf[v] & kSeamBit)) {
       const auto it = seamWedges.find(v);
-      {
-        handOver(v, it->second);
-        seamWedges.erase(it);
-        freeVertex(v);
-        return;
-      }
+      handOver(v, it->second);
+      seamWedges.erase(it);
+      freeVertex(v);
+      return;
     }
     out.finalizeVertex(writeVertexIfNew(v));
     freeVertex(v);
   }
 
-  // Frees a triangle that is not on any list: neighbours see kNone, vertices lose a use.
   // Region mode: does the final triangle's disk provably avoid every other region?
   bool ownsDisk(const Tri& T) const {
     const Point2& a = pt(T.v[0]);
@@ -1446,6 +1439,7 @@ struct StreamingDelaunay::Impl {
     const Point2& c = pt(T.v[2]);
     return delaunay::circumdiskInside(a, b, c, ownInner) || insideRect(circumDisk(a, b, c), ownInner);
   }
+  // Frees a triangle that is not on any list: neighbours see kNone, vertices lose a use.
   [[gnu::always_inline]] void release(std::uint32_t t) {
     Tri* const tr = tris.data();
     const std::uint32_t n0 = tr[t].n[0], n1 = tr[t].n[1], n2 = tr[t].n[2];

@@ -19,8 +19,10 @@
 // points and tags is exact.  Implementations may be called from one thread only.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <cstdint>
+#include <limits>
 #include <string>
 
 #include "libterrain/core/point.h"
@@ -35,6 +37,21 @@ struct CellTag {
   std::uint8_t level = 0;
   std::uint32_t col = 0, row = 0;
 };
+
+// Does quadtree cell `outer` contain cell `inner` (or equal it)?
+inline bool cellContains(const CellTag& outer, const CellTag& inner) {
+  if (outer.level > inner.level) return false;
+  const int k = inner.level - outer.level;
+  return (inner.col >> k) == outer.col && (inner.row >> k) == outer.row;
+}
+
+// How far outside its leaf's nominal square a point of the stream may lie, absolutely: kCellTolerance *
+// grid.size plus the rounding of the square's corners.  Consumers grow a leaf's square by it to admit its
+// points (and any region by it when certifying), all with this one value.
+inline double cellGrowth(const GridSpec& grid) {
+  return kCellTolerance * grid.size + 8.0 * std::numeric_limits<double>::epsilon() *
+                                          (std::fabs(grid.originX) + std::fabs(grid.originY) + grid.size);
+}
 
 struct StreamInfo {
   GridSpec grid;

@@ -1274,6 +1274,13 @@ TEST(ParallelDelaunay, DeepGridMatchesCgal) {
   }
 }
 
+ParallelDelaunayOptions regionOptions(int threads, int level) {
+  ParallelDelaunayOptions o;
+  o.threads = threads;
+  o.regionLevel = level;
+  return o;
+}
+
 // A broken stream is an error whatever thread meets it (a worker's error comes back by a later call).
 TEST(ParallelDelaunay, RejectsBrokenStreams) {
   const Points pts = randomPoints(2000, 1);
@@ -1282,9 +1289,7 @@ TEST(ParallelDelaunay, RejectsBrokenStreams) {
   info.grid = grid;
   for (const int threads : {1, 3}) {
     CountingSink sink;
-    ParallelDelaunayOptions opt;
-    opt.threads = threads;
-    opt.regionLevel = 1;
+    const ParallelDelaunayOptions opt = regionOptions(threads, 1);
     {
       ParallelDelaunay dt(sink, opt);
       dt.begin(info);
@@ -1328,9 +1333,7 @@ TEST(ParallelDelaunay, RefusesOnePointInTwoRegions) {
   Points left{rec(10, 10), rec(30, 15), rec(20, 40), q}, right{rec(70, 10), q, rec(90, 30), rec(60, 45)};
   for (const int threads : {1, 3}) {
     CountingSink sink;
-    ParallelDelaunayOptions opt;
-    opt.threads = threads;
-    opt.regionLevel = 1;
+    const ParallelDelaunayOptions opt = regionOptions(threads, 1);
     ParallelDelaunay dt(sink, opt);
     std::string message;
     try {

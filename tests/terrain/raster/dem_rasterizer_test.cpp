@@ -207,6 +207,17 @@ TEST(DemRasterizer, LatticeCentresOnEdgesArePartitioned) {
   }
 }
 
+// The streamed raster has the bits of the same mesh rasterized at the end, all at once.
+void expectSameBitsAsReplay(const DemRun& run, const DemOptions& o) {
+  Assembler ref;
+  replay(run.mesh, o, ref);
+  EXPECT_TRUE(sameBits(run.raster.z, ref.z));
+  EXPECT_TRUE(sameBits(run.raster.slope, ref.slope));
+  EXPECT_TRUE(sameBits(run.raster.edge, ref.edge));
+  EXPECT_EQ(run.raster.shade, ref.shade);
+  EXPECT_EQ(run.raster.count, ref.count);
+}
+
 TEST(DemRasterizer, StreamingEqualsNonStreamingBitForBit) {
   const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
   DemOptions o;
@@ -221,13 +232,7 @@ TEST(DemRasterizer, StreamingEqualsNonStreamingBitForBit) {
   EXPECT_LT(run.stats.maxOpenTiles, run.stats.tilesWritten) << "not all tiles may be open at once";
   EXPECT_GT(run.stats.pixelsWritten, 40000u);  // 200k points at 4 per m^2
 
-  Assembler ref;
-  replay(run.mesh, o, ref);
-  EXPECT_TRUE(sameBits(run.raster.z, ref.z));
-  EXPECT_TRUE(sameBits(run.raster.slope, ref.slope));
-  EXPECT_TRUE(sameBits(run.raster.edge, ref.edge));
-  EXPECT_EQ(run.raster.shade, ref.shade);
-  EXPECT_EQ(run.raster.count, ref.count);
+  expectSameBitsAsReplay(run, o);
 
   // Any triangle order, and vertices listed from another corner, give the same bits.
   std::vector<std::size_t> order(run.mesh.tris.size());
@@ -260,12 +265,7 @@ TEST(DemRasterizer, FilledTilesCompleteAtOnce) {
   runStreaming(pts, o, run);
   EXPECT_GT(run.stats.tilesFilled, run.stats.tilesWritten / 2) << "interior tiles fill";
   EXPECT_GE(run.stats.tilesCompletedEarly, run.stats.tilesFilled);
-  Assembler ref;
-  replay(run.mesh, o, ref);
-  EXPECT_TRUE(sameBits(run.raster.z, ref.z));
-  EXPECT_TRUE(sameBits(run.raster.slope, ref.slope));
-  EXPECT_TRUE(sameBits(run.raster.edge, ref.edge));
-  EXPECT_EQ(run.raster.shade, ref.shade);
+  expectSameBitsAsReplay(run, o);
 }
 
 TEST(DemRasterizer, GridDepthDoesNotChangeTheRaster) {
