@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "app/commands.h"
+#include "app/jobs/mpi_run.h"
 #include "app/jobs/pipeline.h"
 #include "app/progress.h"
 #include "formats/io/output_file.h"
@@ -255,7 +256,8 @@ std::pair<double, double> parsePair(const std::string& option, const std::string
   return {v[0], v[1]};
 }
 
-int runBuildCommand(const cli::ParsedArgs& args) {
+// The build's options from its arguments (also a plan's stored ones).
+PipelineOptions parseBuildOptions(const cli::ParsedArgs& args) {
   PipelineOptions o;
   parseInputOptions(args, o);
   parseTriangulatorOptions(args, o);
@@ -349,7 +351,89 @@ int runBuildCommand(const cli::ParsedArgs& args) {
       b.extent = Box2{c.minX, c.minY, c.maxX, c.maxY};
     }
   }
+  return o;
+}
+
+// The options that say how to run, not what to make: a plan does not store them, each process takes its
+// own.
+bool isRunOption(const std::string& name) {
+  for (const auto& spec : reportOptions())
+    if (spec.name == name) return true;
+  return name == "--parts" || name == "-o" || name == "--plan" || name == "--part" || name == "--mpi";
+}
+
+// A plan's build: the inputs as expanded, then every build option given, in the build table's order.
+std::vector<std::string> planBuildArgs(const cli::ParsedArgs& args, const PipelineOptions& o) {
+  std::vector<std::string> out = o.inputs;
+  for (const auto& spec : buildCommand().options) {
+    if (isRunOption(spec.name) || !args.has(spec.name)) continue;
+    for (const std::string& v : args.all(spec.name)) {
+      out.push_back(spec.name);
+      if (!spec.metavar.empty()) out.push_back(v);
+    }
+  }
+  return out;
+}
+
+std::string joinCommand(const std::vector<std::string>& words) {
+  std::string s = "tinbuild build";
+  for (const auto& w : words) s += " " + w;
+  return s;
+}
+
+// A plan's build options, parsed as `build` parses them.
+PipelineOptions planOptions(const Plan& plan) {
+  const cli::ParsedArgs stored = cli::parseArgs(plan.buildArgs, buildCommand().options, "build");
+  PipelineOptions o = parseBuildOptions(stored);
+  o.commandLine = plan.command;
+  return o;
+}
+
+int runBuildCommand(const cli::ParsedArgs& args) {
+  if (args.has("--plan")) {
+    if (!args.positional.empty())
+      throw UsageError("build --plan: the inputs and outputs are the plan's; give only --part I (and run options)");
+    if (!args.has("--part")) throw UsageError("build --plan: say which part: --part I (0-based)");
+    const Plan plan = readPlan(args.get("--plan"));
+    PipelineOptions o = planOptions(plan);
+    o.plan = &plan;
+    o.part = args.getInt("--part", -1, 0, 1 << 20);
+    return runWithReport(args, o, runBuild);
+  }
+  if (args.has("--part")) throw UsageError("--part needs --plan PLAN.json");
+  PipelineOptions o = parseBuildOptions(args);
+  if (args.has("--mpi")) {
+    const std::vector<std::string> buildArgs = planBuildArgs(args, o);
+    const std::string command = joinCommand(buildArgs);
+    return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
+      return runMpiBuild(opts, buildArgs, command, diag);
+    });
+  }
   return runWithReport(args, o, runBuild);
+}
+
+int runPlanCommand(const cli::ParsedArgs& args) {
+  if (!args.has("-o") || args.get("-o").empty()) throw UsageError("plan: name the plan file: -o PLAN.json");
+  if (!args.has("--parts")) throw UsageError("plan: say how many parts: --parts N");
+  PipelineOptions o = parseBuildOptions(args);
+  const int parts = args.getInt("--parts", 1, 1, 1 << 20);
+  Plan plan;
+  plan.path = args.get("-o");
+  plan.buildArgs = planBuildArgs(args, o);
+  plan.command = joinCommand(plan.buildArgs);
+  return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
+    RunReport r = runPlan(opts, parts, plan, diag);
+    return r;
+  });
+}
+
+int runMergeCommand(const cli::ParsedArgs& args) {
+  if (args.positional.size() != 1) throw UsageError("merge: give the plan: tinbuild merge PLAN.json");
+  const Plan plan = readPlan(args.positional[0]);
+  PipelineOptions o = planOptions(plan);
+  return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
+    return runMerge(opts, plan, diag);
+  });
 }
 
 int runVerifyCommand(const cli::ParsedArgs& args) {
@@ -484,9 +568,50 @@ Command buildCommand() {
            {"--hillshade", "",
             "DEM: also a hillshade raster (Byte, light from the north-west at 45 degrees)"},
            {"--count", "", "DEM: also a raster of TIN vertices per pixel (UInt16)"},
-           {"--edge-length", "", "DEM: also a QA raster of the longest edge of the covering triangle"}},
+           {"--edge-length", "", "DEM: also a QA raster of the longest edge of the covering triangle"},
+           {"--mpi", "",
+            "under mpirun: one part per rank, the same TIN and DEM as one process (--mesh FILE.smb and "
+            "--dem DIR; docs/parts.md)"},
+           {"--plan", "PLAN.json", "run one part of a plan from `tinbuild plan` (with --part)"},
+           {"--part", "I", "the part to run, 0-based (e.g. $SLURM_ARRAY_TASK_ID)"}},
           inputOptions(), triangulatorOptions(), reportOptions()),
       runBuildCommand};
+}
+
+Command planCommand() {
+  Command c = buildCommand();
+  c.name = "plan";
+  c.synopsis = "tinbuild plan INPUT... --parts N -o PLAN.json [build outputs and options]";
+  c.summary = "split a survey into N parts of equal work for batch schedulers (then build --part, merge)";
+  c.description =
+      "Reads the inputs as `build` would (bounds, counts; not the triangulation) and writes a plan: the\n"
+      "finalizer's grid, and N consecutive ranges of quadtree regions holding about equal numbers of\n"
+      "points, with the build's outputs and options.  Then run `tinbuild build --plan PLAN.json --part I`\n"
+      "for I = 0..N-1 anywhere the inputs and outputs are reachable (a Slurm array, GNU parallel), and\n"
+      "`tinbuild merge PLAN.json`.  The result is the TIN and DEM one process would make.  Parts write\n"
+      "--mesh FILE.smb as FILE.part-NNNN.smb and --dem DIR tiles; state goes to PLAN.parts/.";
+  c.options.erase(std::remove_if(c.options.begin(), c.options.end(),
+                                 [](const cli::OptionSpec& o) {
+                                   return o.name == "--mpi" || o.name == "--plan" || o.name == "--part";
+                                 }),
+                  c.options.end());
+  c.options.push_back({"--parts", "N", "how many parts"});
+  c.options.push_back({"-o", "PLAN.json", "the plan file", "--output"});
+  c.run = runPlanCommand;
+  return c;
+}
+
+Command mergeCommand() {
+  return Command{
+      "merge",
+      "tinbuild merge PLAN.json [--report FILE.json] [-q]",
+      "settle the seams of a plan's finished parts and write the index files",
+      "Checks that every part of the plan finished (and belongs to it: a part left by another plan, or\n"
+      "missing, is named), triangulates the seam vertices the parts handed over and writes the triangles no\n"
+      "part could certify: FILE.seam.smb and the manifest FILE.parts.json, which `tinbuild verify` reads as\n"
+      "one TIN; the DEM tiles the parts left unfinished, then mosaic.vrt over all tiles.",
+      reportOptions(),
+      runMergeCommand};
 }
 
 }  // namespace tinbuild::app

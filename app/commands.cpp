@@ -4,8 +4,8 @@ namespace tinbuild::app {
 
 const std::vector<Command>& commands() {
   static const std::vector<Command> all = {infoCommand(),        buildCommand(),  finalizeCommand(),
-                                           triangulateCommand(), verifyCommand(), demoCommand(),
-                                           benchCommand()};
+                                           triangulateCommand(), verifyCommand(), planCommand(),
+                                           mergeCommand(),       demoCommand(),   benchCommand()};
   return all;
 }
 

@@ -26,6 +26,8 @@ Command benchCommand();
 Command finalizeCommand();
 Command triangulateCommand();
 Command buildCommand();
+Command planCommand();
+Command mergeCommand();
 Command verifyCommand();
 
 }  // namespace tinbuild::app

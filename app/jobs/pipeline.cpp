@@ -7,10 +7,15 @@
 #include <filesystem>
 #include <fstream>
 #include <memory>
+#include <map>
 #include <thread>
+#include <unordered_map>
 
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
+#include "formats/io/plan_file.h"
+#include "formats/mesh/seam_file.h"
+#include "formats/raster/dem_pieces.h"
 #include "formats/mesh/streaming_mesh.h"
 #include "formats/pointcloud/finalized_stream.h"
 #include "formats/registry/reader_registry.h"
@@ -245,6 +250,30 @@ void reportTransform(const OpenedInputs& in, RunReport& r, Diagnostics& diag) {
   }
 }
 
+// The DEM's options in CRS units, now that the run's CRS is known (lengths as typed, see DemRequest).
+void demContext(const PipelineOptions& o, const OpenedInputs& in, DemOptions& d, DemReport& dr, Diagnostics& diag) {
+  dr.present = true;
+  dr.path = o.dem.path;
+  d.step = parseLength(o.dem.step, in.crs, "--step");
+  if (!(d.step > 0)) throw UsageError("--step must be positive, got '" + o.dem.step + "'");
+  d.maxEdge = parseLength(o.dem.maxEdge, in.crs, "--max-edge");
+  d.tileSize = o.dem.tileSize;
+  if (!o.dem.tileSizeLength.empty()) {
+    const double len = parseLength(o.dem.tileSizeLength, in.crs, "--tile-size-m");
+    d.tileSize = static_cast<int>(std::llround(len / d.step));
+    if (std::fabs(d.tileSize * d.step - len) > 1e-9 * len)
+      diag.warn("dem.tile_size_rounded", "",
+                "--tile-size-m " + o.dem.tileSizeLength +
+                    " is not a whole number of --step pixels; tiles are " + std::to_string(d.tileSize) +
+                    " pixels");
+  }
+  // Slope and shading need z in the horizontal unit (feet of z over metres of x would tilt everything).
+  if (!in.crs.empty() && in.crs.linearUnitToMetre > 0) d.zToXY = in.zUnitToMetre / in.crs.linearUnitToMetre;
+  dr.step = d.step;
+  dr.maxEdge = d.maxEdge;
+  dr.unit = in.crs.empty() ? "" : in.crs.linearUnit;
+}
+
 void finish(RunReport& r, const Diagnostics& diag, Clock::time_point t0) {
   r.warnings = diag.entries();
   r.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
@@ -475,8 +504,63 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   return r;
 }
 
-RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
+namespace {
+
+// A part checks, before anything is triangulated, that the finalizer laid the plan's very grid over the
+// survey (same inputs, same options): otherwise its regions would not be the plan's.
+class PlanGridCheck : public PointSink {
+ public:
+  PlanGridCheck(PointSink& out, const Plan& plan) : out_(out), plan_(plan) {}
+  void begin(const StreamInfo& info) override {
+    const GridSpec& g = info.grid;
+    const GridSpec& p = plan_.grid;
+    if (g.originX != p.originX || g.originY != p.originY || g.size != p.size || g.depth != p.depth ||
+        info.points != plan_.points)
+      throw DataError(plan_.path,
+                      "stale plan: the survey read now has another grid or point count than when it was "
+                      "planned (" +
+                          std::to_string(info.points) + " points now, " + std::to_string(plan_.points) +
+                          " then); make the plan again");
+    out_.begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override { out_.points(p, n); }
+  void finalizeCell(const CellTag& cell) override { out_.finalizeCell(cell); }
+  void end() override { out_.end(); }
+
+ private:
+  PointSink& out_;
+  const Plan& plan_;
+};
+
+// A part's options: its own mesh file, no outputs that cannot be split (yet), the plan's regions.
+PipelineOptions partOptions(const PipelineOptions& o) {
+  const Plan& plan = *o.plan;
+  if (o.part < 0 || o.part >= static_cast<int>(plan.parts.size()))
+    throw UsageError("--part " + std::to_string(o.part) + ": the plan " + plan.path + " has parts 0 to " +
+                     std::to_string(plan.parts.size() - 1));
+  if (!o.gpkgOutput.empty() || !o.contoursOutput.empty())
+    throw UsageError("a planned or MPI run writes --mesh FILE.smb|.sma and --dem DIR; run --gpkg and --contours "
+                     "in one process (or from the merged TIN)");
+  PipelineOptions po = o;
+  if (!o.meshOutput.empty()) {
+    const ResolvedOutput mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
+    if (!mesh.is(WriterKind::StreamingMeshBinary) && !mesh.is(WriterKind::StreamingMeshAscii))
+      throw UsageError("--mesh " + o.meshOutput + ": a planned or MPI run writes the TIN as streaming mesh parts "
+                       "(.smb or .sma)");
+    po.meshOutput = partMeshPath(o.meshOutput, o.part);
+  }
+  po.overwrite = true;  // a part's files are its own: a re-run replaces them
+  po.regionLevel = plan.regionLevel;
+  return po;
+}
+
+}  // namespace
+
+RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
   const auto t0 = Clock::now();
+  const Plan* plan = options.plan;
+  if (plan) checkPlanInputs(*plan);
+  const PipelineOptions o = plan ? partOptions(options) : options;
   RunReport r;
   r.command = "build";
   r.inputs = o.inputs;
@@ -485,7 +569,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
         "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, --contours "
         "FILE");
   const RunOutputs outputs = resolveOutputs(o);
-  refuseExistingOutputs(o, outputs.all());
+  if (!plan) refuseExistingOutputs(o, outputs.all());
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
   r.crs = in.crs;
@@ -495,29 +579,18 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   // Open every output before any work, so an unwritable target or a bad length fails at once.
   WriterContext context = writerContext(o);
   context.crs = in.crs;
-  if (outputs.dem) {
-    DemOptions& d = context.dem;
-    DemReport& dr = r.dem;
-    dr.present = true;
-    dr.path = o.dem.path;
-    d.step = parseLength(o.dem.step, in.crs, "--step");
-    if (!(d.step > 0)) throw UsageError("--step must be positive, got '" + o.dem.step + "'");
-    d.maxEdge = parseLength(o.dem.maxEdge, in.crs, "--max-edge");
-    d.tileSize = o.dem.tileSize;
-    if (!o.dem.tileSizeLength.empty()) {
-      const double len = parseLength(o.dem.tileSizeLength, in.crs, "--tile-size-m");
-      d.tileSize = static_cast<int>(std::llround(len / d.step));
-      if (std::fabs(d.tileSize * d.step - len) > 1e-9 * len)
-        diag.warn("dem.tile_size_rounded", "",
-                  "--tile-size-m " + o.dem.tileSizeLength +
-                      " is not a whole number of --step pixels; tiles are " + std::to_string(d.tileSize) +
-                      " pixels");
-    }
-    // Slope and shading need z in the horizontal unit (feet of z over metres of x would tilt everything).
-    if (!in.crs.empty() && in.crs.linearUnitToMetre > 0) d.zToXY = in.zUnitToMetre / in.crs.linearUnitToMetre;
-    dr.step = d.step;
-    dr.maxEdge = d.maxEdge;
-    dr.unit = in.crs.empty() ? "" : in.crs.linearUnit;
+  if (outputs.dem) demContext(o, in, context.dem, r.dem, diag);
+  std::unique_ptr<SeamFileWriter> seamFile;
+  if (plan) {
+    std::error_code ec;
+    std::filesystem::create_directories(plan->stateDir(), ec);
+    if (ec) throw DataError(plan->stateDir(), "cannot create the plan's state directory: " + ec.message());
+    if (outputs.dem) context.demPieces = plan->partFile(o.part, "dem");
+    seamFile = std::make_unique<SeamFileWriter>(plan->partFile(o.part, "seam"), plan->id,
+                                                static_cast<std::uint32_t>(o.part));
+    r.part = o.part;
+    r.parts = static_cast<int>(plan->parts.size());
+    r.planPath = plan->path;
   }
   std::vector<std::unique_ptr<OpenedOutput>> opened;
   for (const ResolvedOutput& out : outputs.all()) opened.push_back(out.row->open(out.path, context));
@@ -540,12 +613,22 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just
   // before it ends the stream).
   MeshSink* direct = opened.size() == 1 && !threadedOutputs ? opened[0]->meshSink() : nullptr;
-  ParallelDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), triangulatorOptions(o, dopt, threads));
-  if (threads >= 2) {
+  ParallelDelaunayOptions popt = triangulatorOptions(o, dopt, threads);
+  if (plan) {
+    popt.partSeam = seamFile.get();
+    popt.partFirst = plan->parts[static_cast<std::size_t>(o.part)].first;
+    popt.partEnd = plan->parts[static_cast<std::size_t>(o.part)].end;
+  }
+  ParallelDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), popt);
+  {
     TriangulatorFeed feed(delaunay);
-    r.finalizer = finalizePoints(in.streams, fo, feed, diag);
-  } else {
-    r.finalizer = finalizePoints(in.streams, fo, delaunay, diag);
+    PointSink& sink = threads >= 2 ? static_cast<PointSink&>(feed) : delaunay;
+    if (plan) {
+      PlanGridCheck check(sink, *plan);
+      r.finalizer = finalizePoints(in.streams, fo, check, diag);
+    } else {
+      r.finalizer = finalizePoints(in.streams, fo, sink, diag);
+    }
   }
   countSkipped(in, r);
   r.threads = threads;
@@ -555,8 +638,10 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   const std::vector<ResolvedOutput> resolved = outputs.all();
+  PartDone done;
   for (std::size_t i = 0; i < opened.size(); ++i) {
-    const OpenedOutput& out = *opened[i];
+    OpenedOutput& out = *opened[i];
+    out.commitPieces();
     const std::vector<std::string> files = out.files();
     r.outputs.insert(r.outputs.end(), files.begin(), files.end());
     r.outputBytes += out.bytes();
@@ -565,6 +650,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
       r.gpkgTriangles = r.delaunay.trianglesEmitted;
       r.gpkgBytes = out.bytes();
     }
+    if (resolved[i].row->option == OutputOption::Mesh) done.mesh = resolved[i].path;
     if (const ContourStats* cs = out.contourStats()) {
       r.contoursOutput = resolved[i].path;
       r.contours = o.contours;
@@ -574,13 +660,401 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
       r.dem.layout = dem->layout();
       r.dem.stats = dem->stats();
       r.dem.files = files;
-      if (r.dem.stats.tilesWritten == 0)
+      done.demTiles = files;
+      if (r.dem.stats.tilesWritten == 0 && !plan)
         diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
     }
+  }
+  if (plan) {
+    // The seam file, then the record that the part is done (the merge trusts nothing without it).
+    seamFile->commit();
+    r.seamBytes = seamFile->bytes();
+    r.seamVertices = seamFile->vertices();
+    r.otherPartPoints = r.parallel.otherPartPoints;
+    r.pieceBytes = fileSizeOrZero(plan->partFile(o.part, "dem"));
+    done.planId = plan->id;
+    done.part = o.part;
+    done.points = r.delaunay.pointsIn;
+    done.otherPartPoints = r.otherPartPoints;
+    done.triangles = r.delaunay.trianglesEmitted;
+    done.vertices = r.delaunay.verticesOut;
+    done.seamVertices = r.seamVertices;
+    done.seamBytes = r.seamBytes;
+    done.pieceBytes = r.pieceBytes;
+    done.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    done.peakRssBytes = peakRssBytes();
+    writePartDone(done, plan->partFile(o.part, "json"));
   }
   reportTransform(in, r, diag);
   finish(r, diag, t0);
   return r;
+}
+
+namespace {
+
+// The plan's counting pass: the finalizer's stream (its grid), counted per region of the plan's level.
+class PlanCounter : public PointSink {
+ public:
+  explicit PlanCounter(int parts) : parts_(parts) {}
+  void begin(const StreamInfo& info) override {
+    info_ = info;
+    if (info.grid.depth < 1)
+      throw DataError("", "the survey is too small to split into parts (" + std::to_string(info.points) +
+                              " points, one grid cell): run `tinbuild build` on it");
+    // At least 4 regions a part (for balance), at least the regions one process would use, at most 4^7.
+    int level = 1;
+    while (level < 7 && (std::uint64_t{1} << (2 * level)) < 4 * static_cast<std::uint64_t>(parts_)) ++level;
+    level = std::max(level, ParallelDelaunay::chooseRegionLevel(info.points, info.grid.depth));
+    level_ = std::min(level, info.grid.depth);
+    shift_ = info.grid.depth - level_;
+    counts_.assign(std::size_t{1} << (2 * level_), 0);
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::uint32_t c = info_.grid.column(p[i].x) >> shift_, r = info_.grid.row(p[i].y) >> shift_;
+      std::size_t m = 0;
+      for (int b = 0; b < level_; ++b)
+        m |= static_cast<std::size_t>((c >> b) & 1u) << (2 * b) | static_cast<std::size_t>((r >> b) & 1u) << (2 * b + 1);
+      ++counts_[m];
+    }
+  }
+  void finalizeCell(const CellTag&) override {}
+  void end() override {}
+
+  // Consecutive Morton ranges of about equal point counts, none empty of regions.
+  std::vector<PlanPart> split() const {
+    std::vector<PlanPart> parts;
+    const std::size_t n = counts_.size();
+    std::uint64_t total = 0;
+    for (std::uint64_t c : counts_) total += c;
+    std::size_t m = 0;
+    for (int k = 0; k < parts_; ++k) {
+      PlanPart part;
+      part.first = m;
+      const std::uint64_t target = total * static_cast<std::uint64_t>(k + 1) / static_cast<std::uint64_t>(parts_);
+      std::uint64_t sofar = 0;
+      for (const PlanPart& q : parts) sofar += q.points;
+      const std::size_t lastAllowed = n - static_cast<std::size_t>(parts_ - 1 - k);  // leave a region each
+      do {
+        part.points += counts_[m];
+        ++m;
+      } while (m < lastAllowed && (k == parts_ - 1 || sofar + part.points + counts_[m] / 2 <= target));
+      if (k == parts_ - 1)
+        for (; m < n; ++m) part.points += counts_[m];
+      part.end = m;
+      parts.push_back(part);
+    }
+    return parts;
+  }
+  const StreamInfo& info() const { return info_; }
+  int level() const { return level_; }
+
+ private:
+  int parts_;
+  StreamInfo info_;
+  int level_ = 1, shift_ = 0;
+  std::vector<std::uint64_t> counts_;
+};
+
+}  // namespace
+
+RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "plan";
+  r.inputs = o.inputs;
+  if (parts < 1) throw UsageError("--parts must be at least 1");
+  for (const std::string& input : o.inputs)
+    if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
+  if (!o.overwrite) refuseExistingFile(plan.path);
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+  r.threads = effectiveThreads(o.threads);
+  setFinalizerThreads(fo, r.threads, o.reader);
+  PlanCounter counter(parts);
+  r.finalizer = finalizePoints(in.streams, fo, counter, diag);
+  r.haveFinalizer = true;
+  countSkipped(in, r);
+  plan.inputs.clear();
+  for (const std::string& input : o.inputs) plan.inputs.push_back(describeInput(input));
+  plan.grid = counter.info().grid;
+  plan.bounds = counter.info().bounds;
+  plan.points = counter.info().points;
+  plan.regionLevel = counter.level();
+  plan.parts = counter.split();
+  writePlan(plan, plan.path);
+  r.outputs = {plan.path};
+  r.outputBytes = fileSizeOrZero(plan.path);
+  r.parts = parts;
+  r.planPath = plan.path;
+  reportTransform(in, r, diag);
+  finish(r, diag, t0);
+  return r;
+}
+
+namespace {
+
+// The merge's seam output: the seam's own streaming mesh file (every vertex it uses declared again, so
+// the file stands alone) and the DEM rasterizer (a vertex counted only where it was first written).
+class MergeSeamOutput : public SeamOutput {
+ public:
+  MergeSeamOutput(MeshSink* mesh, TriangleSink* dem) : mesh_(mesh), dem_(dem) {}
+  void begin(const MeshInfo& info) override {
+    if (mesh_) mesh_->begin(info);
+    if (dem_) dem_->begin(info);
+  }
+  void triangle(SeamRecord& a, SeamRecord& b, SeamRecord& c) override {
+    declare(a);
+    declare(b);
+    declare(c);
+    if (mesh_) mesh_->triangle(a.out, b.out, c.out);
+    if (dem_) dem_->triangle(vertexOf(a), vertexOf(b), vertexOf(c));
+    ++triangles_;
+  }
+  void finalize(SeamRecord& r) override {
+    declare(r);
+    if (mesh_) mesh_->finalizeVertex(r.out);
+  }
+  void end() override {
+    if (mesh_) mesh_->end();
+    if (dem_) dem_->end();
+  }
+  std::uint64_t triangles() const { return triangles_; }
+  std::uint64_t newVertices() const { return newVertices_; }
+
+ private:
+  static MeshVertex vertexOf(const SeamRecord& r) { return MeshVertex{r.out, r.x, r.y, r.z}; }
+  void declare(SeamRecord& r) {
+    if (r.out != kNoSeamId) return;
+    r.out = next_++;
+    if (mesh_) mesh_->vertex(r.out, r.x, r.y, r.z);
+    if (r.id == kNoSeamId) {  // no part wrote it (nor counted it in the DEM)
+      ++newVertices_;
+      if (dem_) dem_->vertex(vertexOf(r));
+    }
+  }
+  MeshSink* mesh_;
+  TriangleSink* dem_;
+  std::uint64_t next_ = 0, triangles_ = 0, newVertices_ = 0;
+};
+
+}  // namespace
+
+RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "merge";
+  r.inputs = {plan.path};
+  r.planPath = plan.path;
+  r.parts = static_cast<int>(plan.parts.size());
+  // Every part, finished, for this plan: else say which to run again.
+  std::vector<PartDone> done;
+  std::string missing, stale;
+  for (int i = 0; i < r.parts; ++i) {
+    const std::string path = plan.partFile(i, "json");
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) {
+      missing += (missing.empty() ? "" : ", ") + std::to_string(i);
+      continue;
+    }
+    PartDone d = readPartDone(path);
+    if (d.planId != plan.id || d.part != i) stale += (stale.empty() ? "" : ", ") + std::to_string(i);
+    done.push_back(std::move(d));
+  }
+  if (!missing.empty() || !stale.empty())
+    throw DataError(plan.path, (missing.empty() ? "" : "parts not finished: " + missing) +
+                                   (missing.empty() || stale.empty() ? "" : "; ") +
+                                   (stale.empty() ? "" : "parts left by another plan: " + stale) +
+                                   " (run each with `tinbuild build --plan " + plan.path +
+                                   " --part I`, then merge again)");
+  checkPlanInputs(plan);
+  const RunOutputs outputs = resolveOutputs(o);
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);  // headers only: the CRS
+  r.crs = in.crs;
+  WriterContext context = writerContext(o);
+  context.crs = in.crs;
+  context.overwrite = true;
+  DemPieceIndex pieces;
+  std::vector<std::string> partTiles;
+  if (outputs.dem) {
+    demContext(o, in, context.dem, r.dem, diag);
+    for (int i = 0; i < r.parts; ++i) {
+      const std::string path = plan.partFile(i, "dem");
+      std::error_code ec;
+      if (std::filesystem::exists(path, ec)) pieces.add(path);
+      r.pieceBytes += fileSizeOrZero(path);
+    }
+    for (const PartDone& d : done) partTiles.insert(partTiles.end(), d.demTiles.begin(), d.demTiles.end());
+    context.demMerge = &pieces;
+    context.demOtherTiles = partTiles;
+  }
+  std::unique_ptr<OpenedOutput> mesh, dem;
+  std::string seamMesh;
+  if (outputs.mesh) {
+    seamMesh = seamMeshPath(o.meshOutput);
+    const ResolvedOutput out = resolveOutput(OutputOption::Mesh, seamMesh);
+    mesh = out.row->open(out.path, context);
+  }
+  if (outputs.dem) dem = outputs.dem.row->open(outputs.dem.path, context);
+  MergeSeamOutput seamOut(mesh ? mesh->meshSink() : nullptr, dem ? dem->triangleSink() : nullptr);
+  SeamStep step(seamOut, o.delaunay);
+  StreamInfo info;
+  info.grid = plan.grid;
+  info.bounds = plan.bounds;
+  info.crsWkt = in.crs.wkt;
+  step.begin(info);
+  for (int i = 0; i < r.parts; ++i) {
+    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step);
+    r.seamBytes += c.bytes;
+  }
+  step.end();
+  const SeamStats& ss = step.stats();
+  r.seamVertices = ss.vertices;
+  r.seamTriangles = ss.written;
+  r.demPieces = pieces.pieces();
+  std::uint64_t triangles = seamOut.triangles(), vertices = seamOut.newVertices();
+  for (const PartDone& d : done) {
+    triangles += d.triangles;
+    vertices += d.vertices;
+    r.otherPartPoints += d.otherPartPoints;
+  }
+  if (mesh) {
+    MeshManifest m;
+    m.planId = plan.id;
+    for (const PartDone& d : done) m.parts.push_back(d.mesh);
+    m.seam = seamMesh;
+    m.triangles = triangles;
+    m.vertices = vertices;
+    const std::string manifest = meshManifestPath(o.meshOutput);
+    writeMeshManifest(m, manifest);
+    r.outputs.push_back(manifest);
+    r.outputs.push_back(seamMesh);
+    r.outputBytes += mesh->bytes() + fileSizeOrZero(manifest);
+  }
+  if (dem) {
+    const std::vector<std::string> files = dem->files();
+    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+    r.outputBytes += dem->bytes();
+    r.dem.layout = dem->rasterizer()->layout();
+    r.dem.stats = dem->rasterizer()->stats();
+    r.dem.files = files;
+  }
+  r.haveDelaunay = true;
+  r.delaunay.trianglesEmitted = triangles;
+  r.delaunay.verticesOut = vertices;
+  r.delaunay.peakBytes = ss.triangulator.peakBytes;
+  r.parallel.regionLevel = plan.regionLevel;
+  r.parallel.seam = ss.triangulator;
+  r.parallel.seamVertices = ss.vertices;
+  r.parallel.seamWritten = ss.written;
+  r.parallel.seamDropped = ss.dropped;
+  r.duplicateRule = duplicateRuleName(o.delaunay.duplicates);
+  finish(r, diag, t0);
+  return r;
+}
+
+namespace {
+
+// readMeshParts' adapter for one file: local ids to the TIN's ids.  A seam vertex (its xy in `seam`) gets
+// one id for all files and is finalized only by the seam file.
+class PartRenumber : public MeshSink {
+ public:
+  struct Shared {
+    MeshSink& out;
+    std::uint64_t next = 0;
+    std::map<std::pair<double, double>, std::uint64_t> seamIds;  // seam xy -> TIN id (kNoSeamId: not yet)
+  };
+  PartRenumber(Shared& s, bool seamFile) : s_(s), seamFile_(seamFile) {}
+  void begin(const MeshInfo& info) override { s_.out.begin(info); }
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    std::uint64_t global;
+    bool shared = false;
+    const auto it = s_.seamIds.find({x, y});
+    if (it != s_.seamIds.end()) {
+      shared = true;
+      if (it->second == kNoSeamId) {
+        it->second = s_.next++;
+        s_.out.vertex(it->second, x, y, z);
+      }
+      global = it->second;
+    } else {
+      global = s_.next++;
+      s_.out.vertex(global, x, y, z);
+    }
+    local_[id] = {global, shared};
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    s_.out.triangle(at(a).first, at(b).first, at(c).first);
+  }
+  void finalizeVertex(std::uint64_t id) override {
+    const auto it = local_.find(id);
+    if (it == local_.end()) throw Error("mesh parts: a vertex finalized twice");
+    if (!it->second.second || seamFile_) s_.out.finalizeVertex(it->second.first);
+    local_.erase(it);
+  }
+  void end() override {}
+
+ private:
+  const std::pair<std::uint64_t, bool>& at(std::uint64_t id) const {
+    const auto it = local_.find(id);
+    if (it == local_.end()) throw Error("mesh parts: a triangle uses an unknown vertex");
+    return it->second;
+  }
+  Shared& s_;
+  bool seamFile_;
+  std::unordered_map<std::uint64_t, std::pair<std::uint64_t, bool>> local_;
+};
+
+// Collects the xy of the seam file's vertices.
+class SeamVertices : public MeshSink {
+ public:
+  std::map<std::pair<double, double>, std::uint64_t>& ids;
+  explicit SeamVertices(std::map<std::pair<double, double>, std::uint64_t>& m) : ids(m) {}
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t, double x, double y, double) override { ids.emplace(std::make_pair(x, y), kNoSeamId); }
+  void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override {}
+  void finalizeVertex(std::uint64_t) override {}
+  void end() override {}
+};
+
+// Forwards everything but begin() and end(): one TIN over several files.
+class Inner : public MeshSink {
+ public:
+  explicit Inner(MeshSink& out) : out_(out) {}
+  void begin(const MeshInfo& info) override {
+    if (!begun_) out_.begin(info);
+    begun_ = true;
+  }
+  void vertex(std::uint64_t id, double x, double y, double z) override { out_.vertex(id, x, y, z); }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override { out_.triangle(a, b, c); }
+  void finalizeVertex(std::uint64_t id) override { out_.finalizeVertex(id); }
+  void end() override {}
+
+ private:
+  MeshSink& out_;
+  bool begun_ = false;
+};
+
+}  // namespace
+
+void readMeshParts(const std::string& manifestPath, MeshSink& out) {
+  const MeshManifest m = readMeshManifest(manifestPath);
+  Inner inner(out);
+  PartRenumber::Shared shared{inner, 0, {}};
+  SeamVertices collect(shared.seamIds);
+  readStreamingMesh(m.seam, collect);
+  // The first file's header starts the TIN; later begin() calls are swallowed by Inner.
+  for (const std::string& part : m.parts) {
+    PartRenumber renumber(shared, false);
+    readStreamingMesh(part, renumber);
+  }
+  PartRenumber seam(shared, true);
+  readStreamingMesh(m.seam, seam);
+  out.end();
 }
 
 VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagnostics& diag) {
@@ -588,7 +1062,10 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
   VerifyReport r;
   r.mesh = mesh;
   MeshVerifier verifier;
-  readStreamingMesh(mesh, verifier);
+  if (isMeshManifest(mesh))
+    readMeshParts(mesh, verifier);  // a TIN written in parts (tinbuild merge)
+  else
+    readStreamingMesh(mesh, verifier);
   r.check = verifier.report();
   if (!o.inputs.empty()) {
     // The same inputs, CRS handling (--t_srs, UTM for geographic input) and filters as `build`.

@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "formats/crs/crs.h"
+#include "formats/io/plan_file.h"
 #include "formats/pointcloud/point_reader.h"
 #include "libterrain/contour/contour_tracer.h"
 #include "libterrain/core/diagnostics.h"
@@ -64,6 +65,12 @@ struct PipelineOptions {
   bool overwrite = false;       // --overwrite: replace existing outputs (else an existing one is an error)
   int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
   int regionLevel = -1;         // --region-level: the triangulator's regions (-1: from the point count)
+  // --plan P --part I: runBuild runs one part of a plan (docs/design.md, "Beyond one machine"): it
+  // triangulates the regions of part I, writes the certified triangles to its own mesh file
+  // (partMeshPath), the seam vertices to the plan's state directory, DEM tiles it completes to the DEM
+  // directory and the rest of its tiles as pieces; runMerge settles the rest.
+  const Plan* plan = nullptr;
+  int part = -1;
 };
 
 // --threads 0 -> the number of cores (at least 1).
@@ -110,12 +117,38 @@ struct RunReport {
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;
   int threads = 1;
+  // A part or a merge of a plan.
+  int part = -1, parts = 0;
+  std::string planPath;
+  std::uint64_t otherPartPoints = 0;  // a part: points of other parts it read and left
+  std::uint64_t seamBytes = 0, pieceBytes = 0;  // a part: what it leaves for the merge; a merge: read
+  std::uint64_t seamVertices = 0, seamTriangles = 0, demPieces = 0;
+  // --mpi (rank 0): bytes sent between ranks (plan, seam files, DEM pieces, part records) and every
+  // rank's peak resident set.
+  std::uint64_t exchangedBytes = 0;
+  std::vector<std::uint64_t> rankPeakRss;
 };
 
 RunReport runFinalize(const PipelineOptions& options, Diagnostics& diag);
 RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& options,
                          Diagnostics& diag);
 RunReport runBuild(const PipelineOptions& options, Diagnostics& diag);
+
+// `tinbuild plan`: reads the inputs as `build` would (bounds and counts; the finalizer's grid), splits the
+// survey into `parts` Morton ranges of regions holding about equal numbers of points and writes the plan
+// (plan.path; plan.command and plan.buildArgs are the caller's).  Throws DataError for a survey too small
+// to split (a grid of depth 0) and UsageError for stdin (parts read the inputs again).
+RunReport runPlan(const PipelineOptions& options, int parts, Plan& plan, Diagnostics& diag);
+
+// `tinbuild merge`: checks that every part of the plan finished (and for this plan), runs the seam step
+// over their seam files, writes the seam's triangles (mesh: the seam file and the manifest of the TIN's
+// files) and the DEM tiles the parts left as pieces, then the mosaics.  options: the plan's build.
+RunReport runMerge(const PipelineOptions& options, const Plan& plan, Diagnostics& diag);
+
+// Reads the TIN of a mesh manifest (its parts and its seam, formats/io/plan_file.h) as one streaming mesh:
+// a seam vertex that a part wrote is one vertex, with one id, finalized after the seam's last use.
+// Memory: the seam's vertices plus each file's width.
+void readMeshParts(const std::string& manifest, MeshSink& out);
 
 // `tinbuild verify`: checks a streaming mesh file independently (libterrain/delaunay/mesh_verifier.h) and,
 // when options.inputs is not empty, that its vertices are exactly the distinct (x, y) of those inputs after

@@ -380,7 +380,11 @@ void DemWriter::end() {
         bytes_ += fs::file_size(final);
       }
       b.staged.clear();
-      if (finals.empty()) continue;
+      const std::string prefix = std::string(kBandName[b.kind]) + "_";
+      for (const std::string& other : m.o.otherTiles)
+        if (fs::path(other).filename().string().rfind(prefix, 0) == 0) finals.push_back(other);
+      if (finals.empty() || !m.o.mosaic) continue;
+      std::sort(finals.begin(), finals.end());
       // The mosaic, with paths relative to it (the directory can be moved as a whole).
       const std::string vrt = (fs::path(m.o.path) / (b.kind == kZ ? std::string("mosaic.vrt")
                                                                   : std::string(kBandName[b.kind]) + ".vrt"))

@@ -51,6 +51,11 @@ struct DemWriterOptions {
   // DIR: after a successful run, remove the tiles and mosaics of an earlier run (files named like ours)
   // that this run did not write, so DIR holds exactly this DEM (`--overwrite`).
   bool replace = false;
+  // DIR, plan parts and their merge (dem_pieces.h): a part writes its tiles and no mosaic (mosaic =
+  // false); the merge writes the rest and the mosaics over its tiles and `otherTiles` (the parts' tile
+  // files, any band: each goes to the mosaic its name starts with).
+  bool mosaic = true;
+  std::vector<std::string> otherTiles;
 };
 
 // Sets the writer's band flags to the rasterizer's (they must match).

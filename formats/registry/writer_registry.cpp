@@ -8,6 +8,7 @@
 #include "formats/mesh/gpkg_tin_writer.h"
 #include "formats/mesh/streaming_mesh.h"
 #include "formats/mesh/ugrid_writer.h"
+#include "formats/raster/dem_pieces.h"
 #include "formats/raster/dem_writer.h"
 #include "formats/vector/contour_writer.h"
 #include "libterrain/core/error.h"
@@ -115,15 +116,34 @@ std::unique_ptr<OpenedOutput> openGpkgTin(const std::string& path, const WriterC
 
 class DemOutput : public OpenedOutput {
  public:
-  DemOutput(const DemWriterOptions& wo, const DemOptions& d)
-      : writer_(std::make_unique<DemWriter>(wo)), rasterizer_(std::make_unique<DemRasterizer>(d, *writer_)) {}
+  DemOutput(const DemWriterOptions& wo, const DemOptions& d, const WriterContext& c)
+      : writer_(std::make_unique<DemWriter>(wo)) {
+    DemTileSink* sink = writer_.get();
+    if (!c.demPieces.empty()) {
+      pieces_ = std::make_unique<DemPieceWriter>(c.demPieces);
+      part_ = std::make_unique<PartDemSink>(*writer_, *pieces_);
+      sink = part_.get();
+    } else if (c.demMerge) {
+      merge_ = std::make_unique<MergeDemSink>(*writer_, *c.demMerge, d.nodata);
+      sink = merge_.get();
+    }
+    rasterizer_ = std::make_unique<DemRasterizer>(d, *sink);
+  }
   void attach(MeshTee& tee) override { tee.add(*rasterizer_); }
   std::vector<std::string> files() const override { return writer_->outputs(); }
-  std::uint64_t bytes() const override { return writer_->bytesWritten(); }
+  std::uint64_t bytes() const override { return writer_->bytesWritten() + (pieces_ ? pieces_->bytes() : 0); }
   const DemRasterizer* rasterizer() const override { return rasterizer_.get(); }
+  TriangleSink* triangleSink() override { return rasterizer_.get(); }
+  // A part's pieces are committed with its outputs (after the run).
+  void commitPieces() override {
+    if (pieces_) pieces_->commit();
+  }
 
  private:
   std::unique_ptr<DemWriter> writer_;  // declared first: the rasterizer writes into it until destroyed
+  std::unique_ptr<DemPieceWriter> pieces_;
+  std::unique_ptr<PartDemSink> part_;
+  std::unique_ptr<MergeDemSink> merge_;
   std::unique_ptr<DemRasterizer> rasterizer_;
 };
 
@@ -175,7 +195,16 @@ std::unique_ptr<OpenedOutput> openDem(const std::string& path, const WriterConte
     d.anchorTilesAtRaster = true;
     d.tileSize = std::max(256, (d.tileSize + 255) / 256 * 256);
   }
-  return std::make_unique<DemOutput>(demWriterOptions(path, T, c), d);
+  DemWriterOptions wo = demWriterOptions(path, T, c);
+  if (!c.demPieces.empty() || c.demMerge) {
+    if (T != DemTarget::TileDirectory)
+      throw UsageError("--dem " + path + ": a planned or MPI run writes a DEM as tiles: give a directory");
+    d.partial = true;  // tiles not full here are pieces (dem_pieces.h)
+    wo.replace = false;  // the directory holds other processes' tiles
+    wo.mosaic = c.demMerge != nullptr;
+    wo.otherTiles = c.demOtherTiles;
+  }
+  return std::make_unique<DemOutput>(wo, d, c);
 }
 
 // ---- contour lines: the tracer (libterrain) feeding the OGR vector writer ----

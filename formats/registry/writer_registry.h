@@ -32,6 +32,7 @@ namespace tinbuild {
 
 class MeshSink;
 class MeshTee;
+class DemPieceIndex;
 
 // The option that names an output.
 enum class OutputOption { Mesh, Gpkg, Dem, Contours };
@@ -59,6 +60,12 @@ struct WriterContext {
   DemOptions dem;           // --dem: the rasterizer's options, lengths in CRS units
   bool cog = false;         // --cog
   ContourOptions contours;  // --contours: --interval, --base, --index-every, --min-length
+  // --dem DIR in a plan (formats/raster/dem_pieces.h).  A part: its unfinished tiles go to the piece
+  // file `demPieces`, no mosaic.  The merge: `demMerge` holds the parts' pieces, `demOtherTiles` the
+  // tiles they wrote whole (for the mosaics).
+  std::string demPieces;
+  const DemPieceIndex* demMerge = nullptr;
+  std::vector<std::string> demOtherTiles;
 };
 
 // One opened output.  attach() adds its sink to the tee; after the run (the tee's end()), files() and
@@ -74,8 +81,13 @@ class OpenedOutput {
   virtual std::uint64_t bytes() const = 0;
   // DEM outputs: the rasterizer (layout and statistics for the report); nullptr otherwise.
   virtual const DemRasterizer* rasterizer() const { return nullptr; }
+  // DEM outputs: the rasterizer as a sink of triangles, for a caller that feeds it without a tee (the
+  // merge of a plan); nullptr otherwise.
+  virtual TriangleSink* triangleSink() { return nullptr; }
   // Contour outputs: the tracer's statistics (complete after the run); nullptr otherwise.
   virtual const ContourStats* contourStats() const { return nullptr; }
+  // DEM outputs of a plan part: commits the file of unfinished tiles (after the run).  Default: nothing.
+  virtual void commitPieces() {}
 };
 
 struct WriterRow {

@@ -15,6 +15,7 @@
 
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
+#include "libterrain/delaunay/seam_step.h"
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
@@ -90,44 +91,6 @@ class Recorder : public MeshSink, public SeamSink {
   }
 };
 
-// The ray a -> p is the ray a -> u (u, p distinct from a).
-bool sameRay(const Point2& a, const Point2& u, const Point2& p) {
-  if (orient2d(a, u, p) != 0) return false;
-  return (u.x > a.x) == (p.x > a.x) && (u.x < a.x) == (p.x < a.x) && (u.y > a.y) == (p.y > a.y) &&
-         (u.y < a.y) == (p.y < a.y);
-}
-
-// Does the ray a -> p lie in the wedge at a from the ray a -> b counter-clockwise to the ray a -> c,
-// half-open [b, c)?  Exact (orientation signs and comparisons of input coordinates).
-bool inWedge(const Point2& a, const Point2& b, const Point2& c, const Point2& p) {
-  if (sameRay(a, b, p)) return true;
-  if (sameRay(a, c, p)) return false;
-  const double o = orient2d(a, b, c);
-  if (o > 0) return orient2d(a, b, p) > 0 && orient2d(a, p, c) > 0;
-  if (o < 0) return orient2d(a, b, p) > 0 || orient2d(a, p, c) > 0;
-  if (sameRay(a, b, c)) return true;  // the whole turn
-  return orient2d(a, b, p) > 0;       // half a turn
-}
-
-struct SeamRecord {
-  std::uint64_t id = kNoId;  // output id once written
-  double x = 0, y = 0, z = 0;
-  bool all = false;
-  std::vector<SeamSink::Wedge> wedges;
-};
-
-struct XYKey {
-  std::uint64_t x, y;
-  bool operator==(const XYKey& o) const { return x == o.x && y == o.y; }
-};
-struct XYHash {
-  std::size_t operator()(const XYKey& k) const {
-    std::uint64_t h = k.x * 0x9E3779B97F4A7C15ull ^ (k.y + 0x632BE59BD9B4E019ull + (k.x << 6) + (k.x >> 2));
-    h ^= h >> 29;
-    return static_cast<std::size_t>(h * 0xBF58476D1CE4E5B9ull);
-  }
-};
-
 struct InItem {
   enum Kind : std::uint8_t { kPoints, kTag, kEnd } kind = kPoints;
   std::uint64_t seq = 0;  // tags dispatched before this item (a tag: its own index)
@@ -194,21 +157,12 @@ struct ParallelDelaunay::Impl {
   std::uint64_t pointsSinceCheckpoint = 0;
   bool wantsCheckpoints = false;  // out.wantsCheckpoints(): else no pauses for them
 
-  // The seam step.
-  struct SeamFilter : MeshSink {
-    Impl& impl;
-    explicit SeamFilter(Impl& i) : impl(i) {}
-    void begin(const MeshInfo&) override {}
-    void vertex(std::uint64_t slot, double x, double y, double) override { impl.seamVertexWritten(slot, x, y); }
-    void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override { impl.seamTriangle(a, b, c); }
-    void finalizeVertex(std::uint64_t slot) override { impl.seamFinalize(slot); }
-    void end() override {}
-  };
-  SeamFilter seamFilter{*this};
-  std::unique_ptr<StreamingDelaunay> seam;
-  std::unordered_map<XYKey, SeamRecord, XYHash> seamWaiting;  // handed over, not yet met by the seam step
-  std::vector<SeamRecord> seamBySlot;
-  std::vector<PointRecord> seamPoints;
+  // The seam step (in-process), or, for one part of a plan, the sink its records go to instead.
+  SeamToMesh seamOut{out, nextId};
+  std::unique_ptr<SeamStep> seam;
+  SeamSink* partSeam = nullptr;
+  std::size_t partFirst = 0, partEnd = 0;  // the part's regions (Morton range); all of them without a part
+  bool partMode() const { return partSeam != nullptr; }
 
   // Threads.
   std::mutex mutex;
@@ -244,10 +198,10 @@ struct ParallelDelaunay::Impl {
     void markOpen(const Box2* rects, std::size_t n, bool* open) const override {
       for (const Region& r : impl.regions)
         if (!r.ended) r.tri->activeRegion().markOpen(rects, n, open);
-      impl.seam->activeRegion().markOpen(rects, n, open);
+      if (impl.seam) impl.seam->activeRegion().markOpen(rects, n, open);
     }
     std::uint64_t activeTriangles() const override {
-      std::uint64_t s = impl.seam->activeRegion().activeTriangles();
+      std::uint64_t s = impl.seam ? impl.seam->activeRegion().activeTriangles() : 0;
       for (const Region& r : impl.regions)
         if (!r.ended) s += r.tri->activeRegion().activeTriangles();
       return s;
@@ -275,6 +229,10 @@ struct ParallelDelaunay::Impl {
     pstats.regionLevel = level;
     regions = std::vector<Region>();
     single.reset();
+    partSeam = options.partSeam;
+    if (partSeam && level == 0)
+      throw Error("parallel Delaunay: a part of a plan needs regions (the grid of depth " +
+                  std::to_string(grid.depth) + " has none)");
     if (level == 0) {
       pstats.threads = 1;
       single = std::make_unique<StreamingDelaunay>(out, options.delaunay);
@@ -293,13 +251,12 @@ struct ParallelDelaunay::Impl {
     targets.clear();
     endDispatched = false;
     pointsSinceCheckpoint = 0;
-    seamWaiting.clear();
-    seamBySlot.clear();
-    seamPoints.clear();
     failure = nullptr;
     queuedPoints = bufferedBytes = 0;
 
     const std::size_t count = std::size_t{regionSide} * regionSide;
+    partFirst = partMode() ? std::min(options.partFirst, count) : 0;
+    partEnd = partMode() ? std::min(options.partEnd, count) : count;
     regions = std::vector<Region>(count);
     for (std::size_t m = 0; m < count; ++m) {
       Region& r = regions[m];
@@ -310,6 +267,10 @@ struct ParallelDelaunay::Impl {
         rw |= static_cast<std::uint32_t>((m >> (2 * b + 1)) & 1u) << b;
       }
       r.cell = CellTag{static_cast<std::uint8_t>(level), c, rw};
+      if (m < partFirst || m >= partEnd) {  // another part's: its points are dropped, its tags ignored
+        r.ended = true;
+        continue;
+      }
       DelaunayOptions dopt = options.delaunay;
       dopt.diagnostics = nullptr;  // reported once, from the totals
       dopt.slotIds = true;
@@ -323,17 +284,19 @@ struct ParallelDelaunay::Impl {
       else
         r.rec.flush = [this, rp] { drain(*rp); };
     }
-    DelaunayOptions sopt = options.delaunay;
-    sopt.diagnostics = nullptr;
-    sopt.slotIds = true;
-    seam = std::make_unique<StreamingDelaunay>(seamFilter, sopt);
-    seam->begin(info);
+    seam.reset();
+    if (!partMode()) {
+      seam = std::make_unique<SeamStep>(seamOut, options.delaunay);
+      seam->begin(info);
+    }
 
     MeshInfo mi;
     mi.bounds = info.bounds;
     mi.crsWkt = info.crsWkt;
     out.begin(mi);
-    wantsCheckpoints = out.wantsCheckpoints();  // known once the outputs have begun
+    // Known once the outputs have begun.  A part has none: the seam's triangles come in another process,
+    // so no area of its output is ever complete before the merge.
+    wantsCheckpoints = !partMode() && out.wantsCheckpoints();
 
     pstats.threads = std::max(1, options.threads);
     if (options.threads >= 2) {
@@ -389,6 +352,11 @@ struct ParallelDelaunay::Impl {
       const std::uint32_t region = regionOfPoint(p[i]);
       std::size_t j = i + 1;
       while (j < n && regionOfPoint(p[j]) == region) ++j;
+      if (region < partFirst || region >= partEnd) {  // another part's (its tags reach r, which ignores them)
+        pstats.otherPartPoints += j - i;
+        i = j;
+        continue;
+      }
       Region& r = regions[region];
       if (!threaded()) {
         r.tri->points(p + i, j - i);
@@ -499,13 +467,7 @@ struct ParallelDelaunay::Impl {
       stopWorkers();
       rethrow();
     }
-    flushSeamPoints();
-    seam->end();
-    if (!seamWaiting.empty()) {  // the seam triangulator merged a twin (see decode): refuse
-      const SeamRecord& r = seamWaiting.begin()->second;
-      throw Error("the point (" + std::to_string(r.x) + ", " + std::to_string(r.y) +
-                  ") came twice, in two regions (a point on a COPC node's edge); run with --region-level 0");
-    }
+    if (seam) seam->end();
     out.end();
     collectStats();
   }
@@ -740,19 +702,15 @@ struct ParallelDelaunay::Impl {
             rec.wedges[k] = SeamSink::Wedge{Point2{doubleOf(q[0]), doubleOf(q[1])},
                                             Point2{doubleOf(q[2]), doubleOf(q[3])}};
           }
-          PointRecord p;
-          p.x = rec.x;
-          p.y = rec.y;
-          p.z = rec.z;
-          seamPoints.push_back(p);
           ++pstats.seamVertices;
-          // Equal x and y fall in one leaf, hence one region, which merged them.  Only a point that the
-          // stream put in a neighbouring leaf (a COPC point on its node's edge) can meet its twin here:
-          // refuse rather than write two vertices at one place.
-          if (!seamWaiting.emplace(XYKey{bitsOf(rec.x), bitsOf(rec.y)}, std::move(rec)).second)
-            throw Error("the point (" + std::to_string(p.x) + ", " + std::to_string(p.y) +
-                        ") came twice, in two regions (a point on a COPC node's edge); run with "
-                        "--region-level 0");
+          if (partMode()) {
+            // The part's output is done with the vertex (its region's triangles are all out); the seam
+            // step of the merge declares it again in the seam's own output.
+            partSeam->seamVertex(rec.id, rec.x, rec.y, rec.z, rec.all, rec.wedges.data(), nw);
+            if (rec.id != kNoId) out.finalizeVertex(rec.id);
+          } else {
+            seam->vertex(std::move(rec));
+          }
           i += 5 + 4 * nw;
           break;
         }
@@ -761,8 +719,10 @@ struct ParallelDelaunay::Impl {
           c.level = static_cast<std::uint8_t>((head >> 4) & 0xFFu);
           c.col = static_cast<std::uint32_t>(head >> 16);
           c.row = static_cast<std::uint32_t>(w[i + 1]);
-          flushSeamPoints();
-          seam->finalizeCell(c);
+          if (partMode())
+            partSeam->seamTag(c);
+          else
+            seam->tag(c);
           i += 2;
           break;
         }
@@ -776,59 +736,11 @@ struct ParallelDelaunay::Impl {
     }
   }
 
-  void flushSeamPoints() {
-    if (seamPoints.empty()) return;
-    seam->points(seamPoints.data(), seamPoints.size());
-    seamPoints.clear();
-  }
-
-  // The seam triangulator writes a vertex (slot ids): find what its region handed over.
-  void seamVertexWritten(std::uint64_t slot, double x, double y) {
-    const auto it = seamWaiting.find(XYKey{bitsOf(x), bitsOf(y)});
-    if (it == seamWaiting.end()) throw Error("parallel Delaunay: seam vertex without a record");
-    if (slot >= seamBySlot.size()) seamBySlot.resize(std::max<std::size_t>(slot + 1, 2 * seamBySlot.size()));
-    seamBySlot[slot] = std::move(it->second);
-    seamWaiting.erase(it);
-  }
-  std::uint64_t writeSeamVertex(SeamRecord& r) {
-    if (r.id == kNoId) {
-      r.id = nextId++;
-      out.vertex(r.id, r.x, r.y, r.z);
-    }
-    return r.id;
-  }
-  void seamTriangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
-    SeamRecord& A = seamBySlot[a];
-    SeamRecord& B = seamBySlot[b];
-    SeamRecord& C = seamBySlot[c];
-    bool missing = A.all;
-    if (!missing) {
-      const Point2 q{A.x, A.y}, p{B.x, B.y};
-      for (const SeamSink::Wedge& w : A.wedges)
-        if (inWedge(q, w.from, w.to, p)) {
-          missing = true;
-          break;
-        }
-    }
-    if (!missing) {
-      ++pstats.seamDropped;
-      return;
-    }
-    ++pstats.seamWritten;
-    ++total.trianglesEmitted;
-    const std::uint64_t ia = writeSeamVertex(A), ib = writeSeamVertex(B), ic = writeSeamVertex(C);
-    out.triangle(ia, ib, ic);
-  }
-  void seamFinalize(std::uint64_t slot) {
-    SeamRecord& r = seamBySlot[slot];
-    out.finalizeVertex(writeSeamVertex(r));  // a vertex of no triangle at all is still announced
-    r = SeamRecord{};
-  }
-
   void collectStats() {
     pstats.regions.clear();
     total.verticesOut = nextId;
     for (const Region& r : regions) {
+      if (!r.tri) continue;  // another part's
       const DelaunayStats& s = r.tri->stats();
       pstats.regions.push_back(RegionReport{r.cell, s});
       total.pointsIn += s.pointsIn;
@@ -848,7 +760,13 @@ struct ParallelDelaunay::Impl {
       total.seamTriangles += s.seamTriangles;
       total.seamVertices += s.seamVertices;
     }
-    pstats.seam = seam->stats();
+    if (seam) {
+      const SeamStats& ss = seam->stats();
+      pstats.seam = ss.triangulator;
+      pstats.seamWritten = ss.written;
+      pstats.seamDropped = ss.dropped;
+      total.trianglesEmitted += ss.written;
+    }
     total.maxActiveTriangles += pstats.seam.maxActiveTriangles;
     total.maxActiveVertices += pstats.seam.maxActiveVertices;
     total.peakBytes += pstats.seam.peakBytes + pstats.peakBufferedBytes;

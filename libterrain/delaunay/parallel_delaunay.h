@@ -73,6 +73,13 @@ struct ParallelDelaunayOptions {
   int regionLevel = -1;      // regions are the cells of this quadtree level; -1: from the point count
   std::uint64_t checkpointEvery = std::uint64_t{1} << 18;  // points between output checkpoints
   std::size_t maxQueuedPoints = std::size_t{1} << 18;       // input queued for the workers
+  // One part of a plan (tinbuild plan/merge, MPI): only the regions partFirst <= m < partEnd (Morton
+  // indices at regionLevel, which must then be set) are triangulated, the other regions' points are
+  // dropped (counted), and the seam vertices and tags go to partSeam instead of an in-process seam step.
+  // The MeshSink gets the certified triangles, and finalizeVertex for a seam vertex when it is handed
+  // over (the merge's seam output declares it again).  nullptr: the whole survey.
+  SeamSink* partSeam = nullptr;
+  std::size_t partFirst = 0, partEnd = ~std::size_t{0};
 };
 
 struct RegionReport {
@@ -90,6 +97,7 @@ struct ParallelDelaunayStats {
   std::uint64_t seamDropped = 0;        // triangles of DT(S) inside certified space
   std::uint64_t checkpoints = 0;
   std::uint64_t peakBufferedBytes = 0;  // region output waiting for the merge
+  std::uint64_t otherPartPoints = 0;    // a part: points of other parts' regions, dropped
 };
 
 class ParallelDelaunay : public PointSink {

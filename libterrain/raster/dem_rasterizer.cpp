@@ -321,6 +321,7 @@ void DemRasterizer::complete(std::int64_t key) {
     ++stats_.tilesEmpty;
     return;
   }
+  o->tile.partial = opt_.partial && !begun_;  // still open at end(): see DemOptions::partial
   out_.tile(o->tile);
   ++stats_.tilesWritten;
 }
@@ -415,9 +416,31 @@ void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int
 
 void DemRasterizer::end() {
   if (!begun_) throw Error("DEM: end() without begin()");
+  begun_ = false;  // (complete() marks what is left partial in a part)
   while (!open_.empty()) complete(open_.begin()->first);
-  begun_ = false;
   out_.end();
+}
+
+void combinePartialTile(DemTile& into, const DemTile& from, float nodata) {
+  if (into.width != from.width || into.height != from.height || into.z.size() != from.z.size())
+    throw Error("DEM: pieces of tile (" + std::to_string(into.tx) + ", " + std::to_string(into.ty) +
+                ") differ in size");
+  const bool nanNodata = std::isnan(nodata);
+  auto empty = [nodata, nanNodata](float v) { return v == nodata || (nanNodata && std::isnan(v)); };
+  auto take = [&empty](std::vector<float>& a, const std::vector<float>& b) {
+    for (std::size_t i = 0; i < a.size() && i < b.size(); ++i)
+      if (empty(a[i])) a[i] = b[i];
+  };
+  take(into.z, from.z);
+  take(into.slope, from.slope);
+  take(into.aspect, from.aspect);
+  take(into.edgeLength, from.edgeLength);
+  for (std::size_t i = 0; i < into.hillshade.size() && i < from.hillshade.size(); ++i)
+    if (into.hillshade[i] == 0) into.hillshade[i] = from.hillshade[i];
+  for (std::size_t i = 0; i < into.count.size() && i < from.count.size(); ++i)
+    into.count[i] = static_cast<std::uint16_t>(std::min<unsigned>(65535u, unsigned{into.count[i]} + from.count[i]));
+  into.validPixels = 0;
+  for (float v : into.z) into.validPixels += !empty(v);
 }
 
 }  // namespace tinbuild

@@ -65,6 +65,11 @@ struct DemOptions {
   double hillshadeAzimuth = 315, hillshadeAltitude = 45;  // degrees
   float nodata = -9999.0f;
   bool streaming = true;  // false: keep every tile until end() (the reference for tests)
+  // One part of a plan (or the seam step of its merge): triangles of other processes may still cover
+  // any tile that is not full, so the tiles open at end() are handed over marked DemTile::partial, to be
+  // combined (combinePartialTile) with the other processes' pieces of them.  Tiles every pixel centre of
+  // which has its triangle are final here as always.
+  bool partial = false;
 };
 
 // The raster's geometry, fixed at begin().
@@ -92,6 +97,7 @@ struct DemTile {
   std::vector<std::uint8_t> hillshade;
   std::vector<std::uint16_t> count;
   std::uint64_t validPixels = 0;  // pixels with a z value
+  bool partial = false;           // DemOptions::partial: a piece of the tile; other processes hold the rest
   // Offset of this tile's top-left pixel in the raster (GDAL's xoff, yoff).
   std::int64_t rasterX(const DemLayout& l) const { return col0 - l.colMin; }
   std::int64_t rasterY(const DemLayout& l) const { return l.rowMax - (row0 + height - 1); }
@@ -116,6 +122,11 @@ struct DemStats {
   std::uint64_t openChecks = 0;  // markOpen scans
   std::uint64_t peakTileBytes = 0;
 };
+
+// Adds the piece `from` of a tile to `into` (the same tile, the same bands).  A pixel centre belongs to one
+// triangle, so at most one piece has a value in z, slope, aspect, edge_length or hillshade: that value is
+// kept; counts (vertices, each in one piece) add up.  validPixels is recounted.
+void combinePartialTile(DemTile& into, const DemTile& from, float nodata);
 
 // Computes the raster geometry from the options and the data bounds.  Throws UsageError for a bad step,
 // tile size or extent, or a raster beyond 2^31 pixels a side.

@@ -28,6 +28,7 @@
 #include "libterrain/delaunay/delaunay_predicates.h"
 #include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/predicates.h"
+#include "libterrain/delaunay/seam_step.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/grid.h"
 #include "libterrain/mesh/mesh_tee.h"
@@ -1279,6 +1280,151 @@ ParallelDelaunayOptions regionOptions(int threads, int level) {
   o.threads = threads;
   o.regionLevel = level;
   return o;
+}
+
+// ---- Parts of a plan (tinbuild plan / merge, MPI): each part triangulates a Morton range of regions and
+// hands its seam records over; one SeamStep over all parts' records settles the rest.
+
+// A part's seam records, kept for the merge (as a seam file would).
+struct SeamRecorder : SeamSink {
+  struct Item {
+    bool isTag = false;
+    SeamRecord record;
+    CellTag tag;
+  };
+  std::vector<Item> items;
+  void seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w, std::size_t n) override {
+    Item it;
+    it.record.id = id;
+    it.record.x = x;
+    it.record.y = y;
+    it.record.z = z;
+    it.record.all = all;
+    it.record.wedges.assign(w, w + n);
+    items.push_back(std::move(it));
+  }
+  void seamTag(const CellTag& c) override {
+    Item it;
+    it.isTag = true;
+    it.tag = c;
+    items.push_back(std::move(it));
+  }
+};
+
+// The merge's seam output in a test: triangles by coordinates; vertices no part wrote, with their z.
+struct SeamCollector : SeamOutput {
+  std::vector<Tri6> triangles;
+  std::vector<std::array<double, 3>> newVertices;
+  void begin(const MeshInfo&) override {}
+  void triangle(SeamRecord& a, SeamRecord& b, SeamRecord& c) override {
+    EXPECT_GT(orient2d({a.x, a.y}, {b.x, b.y}, {c.x, c.y}), 0);
+    triangles.push_back(canonical(a.x, a.y, b.x, b.y, c.x, c.y));
+    for (SeamRecord* r : {&a, &b, &c}) note(*r);
+  }
+  void finalize(SeamRecord& r) override { note(r); }
+  void end() override {}
+  void note(SeamRecord& r) {
+    if (r.out != kNoSeamId) return;
+    r.out = 0;
+    if (r.id == kNoSeamId) newVertices.push_back({r.x, r.y, r.z});
+  }
+};
+
+// Splits the regions of `level` into `parts` Morton ranges, triangulates each part alone (every part sees
+// the whole stream, as a part process does) and merges; returns the union of the triangles.
+Result triangulateInParts(const Points& pts, int depth, int level, int parts, int threads, const Feed& feed = {},
+                          const DelaunayOptions& opt = {}) {
+  const std::size_t regions = std::size_t{1} << (2 * level);
+  const GridSpec grid = makeGrid(boundsOf(pts), depth);
+  std::vector<SeamRecorder> seams(static_cast<std::size_t>(parts));
+  Result all;
+  for (int k = 0; k < parts; ++k) {
+    CheckingSink sink;
+    ParallelDelaunayOptions popt;
+    popt.delaunay = opt;
+    popt.threads = threads;
+    popt.regionLevel = level;
+    popt.maxQueuedPoints = 3000;
+    popt.partSeam = &seams[static_cast<std::size_t>(k)];
+    popt.partFirst = regions * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
+    popt.partEnd = regions * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
+    ParallelDelaunay dt(sink, popt);
+    TestFinalizer fin(dt, grid, feed);
+    fin.run(pts);
+    EXPECT_EQ(sink.errors, 0u) << "part " << k << ": " << sink.firstError;  // a valid mesh of its own
+    all.triangles.insert(all.triangles.end(), sink.triangles.begin(), sink.triangles.end());
+    all.vertices.insert(all.vertices.end(), sink.vertices.begin(), sink.vertices.end());
+    all.stats.pointsIn += dt.stats().pointsIn;
+    all.stats.duplicatesDropped += dt.stats().duplicatesDropped;
+    EXPECT_EQ(dt.stats().pointsIn + dt.parallelStats().otherPartPoints, pts.size());
+  }
+  SeamCollector collector;
+  SeamStep step(collector, opt);
+  StreamInfo info;
+  info.grid = grid;
+  info.bounds = boundsOf(pts);
+  step.begin(info);
+  for (auto& seam : seams)
+    for (auto& item : seam.items) {
+      if (item.isTag)
+        step.tag(item.tag);
+      else
+        step.vertex(std::move(item.record));
+    }
+  step.end();
+  EXPECT_EQ(step.stats().written, collector.triangles.size());
+  all.triangles.insert(all.triangles.end(), collector.triangles.begin(), collector.triangles.end());
+  for (const auto& v : collector.newVertices) all.vertices.push_back(CheckingSink::V{v[0], v[1], v[2], true});
+  std::sort(all.triangles.begin(), all.triangles.end());
+  EXPECT_EQ(all.stats.pointsIn, pts.size());
+  return all;
+}
+
+void expectPartsMatch(const Points& pts, int depth, int level, const char* what, const Feed& feed = {},
+                      const DelaunayOptions& opt = {}) {
+  const Result plain = triangulate(pts, depth, feed, opt);
+  std::vector<std::array<double, 3>> b;
+  for (const auto& v : plain.vertices) b.push_back({v.x, v.y, v.z});
+  std::sort(b.begin(), b.end());
+  for (const int parts : {1, 2, 3, 7}) {
+    const int threads = parts % 2 ? 1 : 2;
+    const std::string label = std::string(what) + ", " + std::to_string(parts) + " parts";
+    const Result r = triangulateInParts(pts, depth, level, parts, threads, feed, opt);
+    expectSameTriangles(r.triangles, plain.triangles, label.c_str());
+    // Every vertex once (a seam vertex written by its part is not announced again), with the same z.
+    std::vector<std::array<double, 3>> a;
+    for (const auto& v : r.vertices) a.push_back({v.x, v.y, v.z});
+    std::sort(a.begin(), a.end());
+    EXPECT_EQ(a, b) << label;
+  }
+#ifdef TINBUILD_TEST_HAVE_CGAL
+  expectMatchesCgal(pts, plain, what);
+#endif
+}
+
+TEST(ParallelDelaunay, PartsAndMergeGiveTheWholeTriangulation) {
+  expectPartsMatch(randomPoints(12000, 5), 5, 2, "random");
+  expectPartsMatch(survey(SurveySpec::Kind::FlightStrips, 20000, 9), 5, 3, "strips");
+  Feed empty;
+  empty.mode = Feed::Mode::EmptyTagsFirst;
+  expectPartsMatch(survey(SurveySpec::Kind::UniformRandom, 10000, 2), 4, 2, "uniform, empty tags first", empty);
+}
+
+TEST(ParallelDelaunay, PartsOnDegenerateInput) {
+  Points lattice;
+  for (int i = 0; i <= 48; ++i)
+    for (int j = 0; j <= 48; ++j) lattice.push_back(rec(1000.0 + i * 0.25, 2000.0 + j * 0.25, (i * 7 + j * 3) % 11));
+  expectPartsMatch(lattice, 4, 2, "lattice on region edges");
+  // Duplicates with different z on region edges: the rule picks the same survivor.
+  Points dup = lattice;
+  for (int i = 0; i <= 48; i += 4) dup.push_back(rec(1000.0 + i * 0.25, 2000.0 + 6.0, 50.0 + i));
+  DelaunayOptions highest;
+  highest.duplicates = DelaunayOptions::DuplicateRule::Highest;
+  expectPartsMatch(dup, 4, 2, "duplicates, highest", {}, highest);
+  // Points in few regions only: most parts are empty.
+  Points corner = randomPoints(3000, 3, 500000.0, 100.0);
+  corner.push_back(rec(501000.0, 501000.0, 1.0));
+  expectPartsMatch(corner, 5, 2, "empty parts");
 }
 
 // A broken stream is an error whatever thread meets it (a worker's error comes back by a later call).

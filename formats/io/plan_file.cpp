@@ -1,0 +1,294 @@
+// Plans, done files and mesh manifests (header).
+#include "formats/io/plan_file.h"
+
+#include <cpl_json.h>
+#include <sys/stat.h>
+
+#include <cerrno>
+#include <cstdio>
+#include <cstdlib>
+#include <cstring>
+#include <filesystem>
+#include <fstream>
+
+#include "formats/io/output_file.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
+
+namespace tinbuild {
+
+namespace fs = std::filesystem;
+
+namespace {
+
+std::string hexDouble(double v) {
+  char buf[64];
+  std::snprintf(buf, sizeof buf, "%a", v);
+  return buf;
+}
+
+double parseHexDouble(const std::string& s, const std::string& file, const std::string& what) {
+  if (s.empty()) throw DataError(file, "the plan has no " + what);
+  char* end = nullptr;
+  const double v = std::strtod(s.c_str(), &end);
+  if (!end || *end) throw DataError(file, "the plan's " + what + " is not a number: " + s);
+  return v;
+}
+
+// FNV-1a, 64 bits, as 16 hex digits.
+std::string hashText(const std::string& s) {
+  std::uint64_t h = 0xcbf29ce484222325ull;
+  for (unsigned char c : s) {
+    h ^= c;
+    h *= 0x100000001b3ull;
+  }
+  char buf[17];
+  std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
+  return buf;
+}
+
+void writeText(const std::string& path, const std::string& text) {
+  OutputFile f(path, text.size() + 16);
+  f.write(text);
+  f.write("\n");
+  f.commit();
+}
+
+CPLJSONObject loadJson(const std::string& path, const char* what) {
+  CPLJSONDocument doc;
+  std::error_code ec;
+  if (!fs::exists(path, ec)) throw DataError(path, std::string("no such ") + what);
+  if (!doc.Load(path)) throw DataError(path, std::string("not a readable ") + what + " (invalid JSON)");
+  return doc.GetRoot();
+}
+
+std::uint64_t getU64(const CPLJSONObject& o, const char* key) {
+  return static_cast<std::uint64_t>(o.GetLong(key, 0));
+}
+
+// The plan's content without its id, in a fixed form: what the id hashes.
+std::string planBody(const Plan& p) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("tinbuild_plan").value(1);
+  j.key("command").value(p.command);
+  j.key("build_args").beginArray();
+  for (const auto& a : p.buildArgs) j.value(a);
+  j.endArray();
+  j.key("inputs").beginArray();
+  for (const auto& in : p.inputs) {
+    j.beginObject();
+    j.key("path").value(in.path);
+    j.key("bytes").value(in.bytes);
+    j.key("mtime_ns").value(in.mtimeNs);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("grid").beginObject();
+  j.key("origin_x").value(p.grid.originX).key("origin_y").value(p.grid.originY);
+  j.key("size").value(p.grid.size).key("depth").value(p.grid.depth);
+  j.key("origin_x_exact").value(hexDouble(p.grid.originX));
+  j.key("origin_y_exact").value(hexDouble(p.grid.originY));
+  j.key("size_exact").value(hexDouble(p.grid.size));
+  j.endObject();
+  j.key("bounds").beginArray();
+  for (double v : {p.bounds.minX, p.bounds.minY, p.bounds.minZ, p.bounds.maxX, p.bounds.maxY, p.bounds.maxZ})
+    j.value(hexDouble(v));
+  j.endArray();
+  j.key("points").value(p.points);
+  j.key("region_level").value(p.regionLevel);
+  j.key("parts").beginArray();
+  for (const auto& part : p.parts) {
+    j.beginObject();
+    j.key("first_region").value(part.first).key("end_region").value(part.end).key("points").value(part.points);
+    j.endObject();
+  }
+  j.endArray();
+  j.endObject();
+  return j.str();
+}
+
+}  // namespace
+
+std::string Plan::stateDir() const {
+  std::string s = path;
+  if (s.size() > 5 && s.compare(s.size() - 5, 5, ".json") == 0) s.resize(s.size() - 5);
+  return s + ".parts";
+}
+
+std::string Plan::partFile(int part, const std::string& extension) const {
+  char name[64];
+  std::snprintf(name, sizeof name, "part-%04d.", part);
+  return (fs::path(stateDir()) / (name + extension)).string();
+}
+
+PlanInput describeInput(const std::string& path) {
+  struct stat st;
+  if (::stat(path.c_str(), &st) != 0) throw DataError(path, std::string("cannot read: ") + std::strerror(errno));
+  PlanInput in;
+  in.path = path;
+  in.bytes = static_cast<std::uint64_t>(st.st_size);
+  in.mtimeNs = static_cast<std::int64_t>(st.st_mtim.tv_sec) * 1000000000 + st.st_mtim.tv_nsec;
+  return in;
+}
+
+void checkPlanInputs(const Plan& plan) {
+  for (const PlanInput& in : plan.inputs) {
+    const PlanInput now = describeInput(in.path);
+    if (now.bytes != in.bytes || now.mtimeNs != in.mtimeNs)
+      throw DataError(in.path, "changed since the plan " + plan.path + " was made; make the plan again");
+  }
+}
+
+void writePlan(Plan& plan, const std::string& path) {
+  plan.path = path;
+  const std::string body = planBody(plan);
+  plan.id = hashText(body);
+  // The id first, then the body's members.
+  std::string text = "{\n  \"id\": \"" + plan.id + "\"," + body.substr(1);
+  writeText(path, text);
+}
+
+Plan readPlan(const std::string& path) {
+  const CPLJSONObject root = loadJson(path, "plan");
+  if (root.GetInteger("tinbuild_plan", 0) != 1) throw DataError(path, "not a tinbuild plan");
+  Plan p;
+  p.path = path;
+  p.command = root.GetString("command");
+  for (const auto& a : root.GetArray("build_args")) p.buildArgs.push_back(a.ToString());
+  for (const auto& o : root.GetArray("inputs")) {
+    PlanInput in;
+    in.path = o.GetString("path");
+    in.bytes = getU64(o, "bytes");
+    in.mtimeNs = o.GetLong("mtime_ns", 0);
+    p.inputs.push_back(in);
+  }
+  const CPLJSONObject g = root.GetObj("grid");
+  p.grid.originX = parseHexDouble(g.GetString("origin_x_exact"), path, "grid origin");
+  p.grid.originY = parseHexDouble(g.GetString("origin_y_exact"), path, "grid origin");
+  p.grid.size = parseHexDouble(g.GetString("size_exact"), path, "grid size");
+  p.grid.depth = g.GetInteger("depth", -1);
+  const CPLJSONArray b = root.GetArray("bounds");
+  if (b.Size() != 6) throw DataError(path, "the plan's bounds are damaged");
+  p.bounds.minX = parseHexDouble(b[0].ToString(), path, "bounds");
+  p.bounds.minY = parseHexDouble(b[1].ToString(), path, "bounds");
+  p.bounds.minZ = parseHexDouble(b[2].ToString(), path, "bounds");
+  p.bounds.maxX = parseHexDouble(b[3].ToString(), path, "bounds");
+  p.bounds.maxY = parseHexDouble(b[4].ToString(), path, "bounds");
+  p.bounds.maxZ = parseHexDouble(b[5].ToString(), path, "bounds");
+  p.points = getU64(root, "points");
+  p.regionLevel = root.GetInteger("region_level", -1);
+  for (const auto& o : root.GetArray("parts"))
+    p.parts.push_back(PlanPart{getU64(o, "first_region"), getU64(o, "end_region"), getU64(o, "points")});
+  if (p.grid.depth < 0 || p.grid.depth > 15 || p.regionLevel < 1 || p.regionLevel > p.grid.depth ||
+      p.parts.empty() || p.inputs.empty())
+    throw DataError(path, "the plan is damaged (grid, region level, parts or inputs)");
+  p.id = hashText(planBody(p));
+  if (p.id != root.GetString("id"))
+    throw DataError(path, "the plan was edited or damaged (its id does not match its content); make it again");
+  return p;
+}
+
+void writePartDone(const PartDone& d, const std::string& path) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("tinbuild_part").value(1);
+  j.key("plan_id").value(d.planId);
+  j.key("part").value(d.part);
+  j.key("points").value(d.points);
+  j.key("other_part_points").value(d.otherPartPoints);
+  j.key("triangles").value(d.triangles);
+  j.key("vertices").value(d.vertices);
+  j.key("seam_vertices").value(d.seamVertices);
+  j.key("seam_bytes").value(d.seamBytes);
+  j.key("dem_piece_bytes").value(d.pieceBytes);
+  j.key("dem_pieces").value(d.demPieces);
+  j.key("mesh").value(d.mesh);
+  j.key("dem_tiles").beginArray();
+  for (const auto& t : d.demTiles) j.value(t);
+  j.endArray();
+  j.key("seconds").value(d.seconds);
+  j.key("peak_rss_bytes").value(d.peakRssBytes);
+  j.endObject();
+  writeText(path, j.str());
+}
+
+PartDone readPartDone(const std::string& path) {
+  const CPLJSONObject root = loadJson(path, "part record");
+  if (root.GetInteger("tinbuild_part", 0) != 1) throw DataError(path, "not a tinbuild part record");
+  PartDone d;
+  d.planId = root.GetString("plan_id");
+  d.part = root.GetInteger("part", -1);
+  d.points = getU64(root, "points");
+  d.otherPartPoints = getU64(root, "other_part_points");
+  d.triangles = getU64(root, "triangles");
+  d.vertices = getU64(root, "vertices");
+  d.seamVertices = getU64(root, "seam_vertices");
+  d.seamBytes = getU64(root, "seam_bytes");
+  d.pieceBytes = getU64(root, "dem_piece_bytes");
+  d.demPieces = getU64(root, "dem_pieces");
+  d.mesh = root.GetString("mesh");
+  for (const auto& t : root.GetArray("dem_tiles")) d.demTiles.push_back(t.ToString());
+  d.seconds = root.GetDouble("seconds", 0);
+  d.peakRssBytes = getU64(root, "peak_rss_bytes");
+  return d;
+}
+
+void writeMeshManifest(const MeshManifest& m, const std::string& path) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("tinbuild_mesh_parts").value(1);
+  j.key("plan_id").value(m.planId);
+  j.key("triangles").value(m.triangles);
+  j.key("vertices").value(m.vertices);
+  j.key("parts").beginArray();
+  for (const auto& p : m.parts) j.value(fs::path(p).filename().string());
+  j.endArray();
+  j.key("seam").value(fs::path(m.seam).filename().string());
+  j.endObject();
+  writeText(path, j.str());
+}
+
+MeshManifest readMeshManifest(const std::string& path) {
+  const CPLJSONObject root = loadJson(path, "mesh manifest");
+  if (root.GetInteger("tinbuild_mesh_parts", 0) != 1) throw DataError(path, "not a tinbuild mesh manifest");
+  const fs::path dir = fs::path(path).parent_path();
+  MeshManifest m;
+  m.planId = root.GetString("plan_id");
+  m.triangles = getU64(root, "triangles");
+  m.vertices = getU64(root, "vertices");
+  for (const auto& p : root.GetArray("parts")) m.parts.push_back((dir / p.ToString()).string());
+  m.seam = (dir / root.GetString("seam")).string();
+  if (m.parts.empty() || root.GetString("seam").empty()) throw DataError(path, "the mesh manifest lists no parts");
+  return m;
+}
+
+bool isMeshManifest(const std::string& path) {
+  std::ifstream in(path);
+  char buf[256] = {};
+  in.read(buf, sizeof buf - 1);
+  return std::strstr(buf, "\"tinbuild_mesh_parts\"") != nullptr;
+}
+
+namespace {
+std::pair<std::string, std::string> splitExtension(const std::string& mesh) {
+  const fs::path p(mesh);
+  return {(p.parent_path() / p.stem()).string(), p.extension().string()};
+}
+}  // namespace
+
+std::string partMeshPath(const std::string& mesh, int part) {
+  const auto [stem, ext] = splitExtension(mesh);
+  char buf[32];
+  std::snprintf(buf, sizeof buf, ".part-%04d", part);
+  return stem + buf + ext;
+}
+std::string seamMeshPath(const std::string& mesh) {
+  const auto [stem, ext] = splitExtension(mesh);
+  return stem + ".seam" + ext;
+}
+std::string meshManifestPath(const std::string& mesh) {
+  return splitExtension(mesh).first + ".parts.json";
+}
+
+}  // namespace tinbuild

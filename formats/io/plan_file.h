@@ -1,0 +1,98 @@
+// The plan of a job split into parts (`tinbuild plan`), and the record a finished part leaves (its
+// "done" file).  Both are JSON; the merge and every part read the plan, the merge reads the done files.
+//
+// A plan pins everything a part must agree on with the others: the inputs (path, size and modification
+// time: a changed input makes the plan stale), the build's own arguments, the finalizer's grid (bit for
+// bit: doubles are stored as hexadecimal floating-point strings beside a readable value), the region
+// level and each part's Morton range of regions.  Its id is a hash of all that; every file a part writes
+// carries the id, so the merge can tell a part of this plan from a leftover of another.
+//
+// Files beside PLAN.json: the state directory PLAN.parts/ holds part-NNNN.seam (seam_file.h),
+// part-NNNN.dem (DEM pieces, dem_pieces.h) and part-NNNN.json (the done file, written last).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "libterrain/core/point.h"
+#include "libterrain/finalizer/grid.h"
+
+namespace tinbuild {
+
+struct PlanInput {
+  std::string path;
+  std::uint64_t bytes = 0;
+  std::int64_t mtimeNs = 0;
+};
+
+struct PlanPart {
+  std::uint64_t first = 0, end = 0;  // regions [first, end) in Morton order at Plan::regionLevel
+  std::uint64_t points = 0;          // counted by the plan
+};
+
+struct Plan {
+  std::string id;                      // set by writePlan / readPlan
+  std::string command;                 // the build command the plan stands for (recorded in outputs)
+  std::vector<std::string> buildArgs;  // its arguments after "build"
+  std::vector<PlanInput> inputs;
+  GridSpec grid;
+  Bounds3 bounds;
+  std::uint64_t points = 0;
+  int regionLevel = 1;
+  std::vector<PlanPart> parts;
+  std::string path;  // where it was read from / written to
+
+  // PLAN.parts (PLAN without its .json).
+  std::string stateDir() const;
+  std::string partFile(int part, const std::string& extension) const;  // stateDir/part-NNNN.extension
+};
+
+// The input as it is now (size, modification time).  Throws DataError when it cannot be asked.
+PlanInput describeInput(const std::string& path);
+// Throws DataError naming the first input that changed since the plan (the plan is stale).
+void checkPlanInputs(const Plan& plan);
+
+// Computes the id and writes the plan atomically.
+void writePlan(Plan& plan, const std::string& path);
+// Throws DataError naming the file when it is not a plan or is damaged.
+Plan readPlan(const std::string& path);
+
+// What a finished part did (PLAN.parts/part-NNNN.json).
+struct PartDone {
+  std::string planId;
+  int part = 0;
+  std::uint64_t points = 0;           // triangulated here
+  std::uint64_t otherPartPoints = 0;  // read and left to other parts
+  std::uint64_t triangles = 0;        // certified, written here
+  std::uint64_t vertices = 0;         // written here (seam vertices among them)
+  std::uint64_t seamVertices = 0;
+  std::uint64_t seamBytes = 0, pieceBytes = 0;
+  std::uint64_t demPieces = 0;
+  std::string mesh;                   // the part's mesh file ("" = none)
+  std::vector<std::string> demTiles;  // tiles written whole
+  double seconds = 0;
+  std::uint64_t peakRssBytes = 0;
+};
+void writePartDone(const PartDone& done, const std::string& path);
+PartDone readPartDone(const std::string& path);
+
+// The manifest of a TIN written in parts: the parts' mesh files and the seam's, which together hold every
+// triangle once (`tinbuild verify` and `tinbuild info` read it as one TIN).
+struct MeshManifest {
+  std::string planId;
+  std::vector<std::string> parts;  // paths as written (relative to the manifest's directory when relative)
+  std::string seam;
+  std::uint64_t triangles = 0, vertices = 0;  // distinct vertices of the whole TIN
+};
+void writeMeshManifest(const MeshManifest& m, const std::string& path);
+MeshManifest readMeshManifest(const std::string& path);
+// Does the file start like a mesh manifest (a JSON object with "tinbuild_mesh_parts")?
+bool isMeshManifest(const std::string& path);
+
+// tin.smb -> tin.part-0003.smb, tin.seam.smb, tin.parts.json.
+std::string partMeshPath(const std::string& mesh, int part);
+std::string seamMeshPath(const std::string& mesh);
+std::string meshManifestPath(const std::string& mesh);
+
+}  // namespace tinbuild

@@ -1,0 +1,214 @@
+// DEM tiles across the processes of a plan (header).
+#include "formats/raster/dem_pieces.h"
+
+#include <bit>
+#include <cmath>
+#include <cstdio>
+#include <cstring>
+
+#include "formats/io/output_file.h"
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+static_assert(std::endian::native == std::endian::little, "piece files are written in the host's order");
+
+namespace {
+
+constexpr char kMagic[8] = {'T', 'B', 'D', 'E', 'M', 'P', '1', '\n'};
+
+template <class T>
+void put(OutputFile& f, T v) {
+  f.write(&v, sizeof v);
+}
+template <class T>
+void putArray(OutputFile& f, const std::vector<T>& a) {
+  f.write(a.data(), a.size() * sizeof(T));
+}
+
+struct File {
+  std::string path;
+  std::FILE* f = nullptr;
+  explicit File(const std::string& p) : path(p), f(std::fopen(p.c_str(), "rb")) {
+    if (!f) throw DataError(p, std::string("cannot open the DEM piece file: ") + std::strerror(errno));
+  }
+  ~File() { std::fclose(f); }
+  void bytes(void* p, std::size_t n) {
+    if (std::fread(p, 1, n, f) != n) throw DataError(path, "the DEM piece file is truncated (was its part killed?)");
+  }
+  template <class T>
+  T get() {
+    T v;
+    bytes(&v, sizeof v);
+    return v;
+  }
+  void seek(std::uint64_t offset) {
+    if (std::fseek(f, static_cast<long>(offset), SEEK_SET) != 0) throw DataError(path, "cannot seek");
+  }
+  std::uint64_t tell() { return static_cast<std::uint64_t>(std::ftell(f)); }
+};
+
+std::uint64_t pixels(const DemTile& t) {
+  return static_cast<std::uint64_t>(t.width) * static_cast<std::uint64_t>(t.height);
+}
+
+// Reads one tile record (after its 'T').
+DemTile readTile(File& in) {
+  DemTile t;
+  t.tx = in.get<std::int64_t>();
+  t.ty = in.get<std::int64_t>();
+  t.col0 = in.get<std::int64_t>();
+  t.row0 = in.get<std::int64_t>();
+  t.width = in.get<std::int32_t>();
+  t.height = in.get<std::int32_t>();
+  if (t.width <= 0 || t.height <= 0 || t.width > (1 << 16) || t.height > (1 << 16))
+    throw DataError(in.path, "corrupt DEM piece file (tile size)");
+  const std::uint8_t bands = in.get<std::uint8_t>();
+  const std::size_t n = pixels(t);
+  auto floats = [&](std::vector<float>& v, int bit) {
+    if (!(bands & bit)) return;
+    v.resize(n);
+    in.bytes(v.data(), n * sizeof(float));
+  };
+  floats(t.z, 1);
+  floats(t.slope, 2);
+  floats(t.aspect, 4);
+  floats(t.edgeLength, 8);
+  if (bands & 16) {
+    t.hillshade.resize(n);
+    in.bytes(t.hillshade.data(), n);
+  }
+  if (bands & 32) {
+    t.count.resize(n);
+    in.bytes(t.count.data(), n * 2);
+  }
+  t.partial = true;
+  return t;
+}
+
+}  // namespace
+
+DemPieceWriter::DemPieceWriter(const std::string& path) : file_(std::make_unique<OutputFile>(path)) {
+  file_->write(kMagic, sizeof kMagic);
+}
+DemPieceWriter::~DemPieceWriter() = default;
+
+void DemPieceWriter::write(const DemTile& t) {
+  OutputFile& f = *file_;
+  put(f, 'T');
+  put(f, t.tx);
+  put(f, t.ty);
+  put(f, t.col0);
+  put(f, t.row0);
+  put(f, static_cast<std::int32_t>(t.width));
+  put(f, static_cast<std::int32_t>(t.height));
+  const std::uint8_t bands = static_cast<std::uint8_t>((t.z.empty() ? 0 : 1) | (t.slope.empty() ? 0 : 2) |
+                                                       (t.aspect.empty() ? 0 : 4) | (t.edgeLength.empty() ? 0 : 8) |
+                                                       (t.hillshade.empty() ? 0 : 16) | (t.count.empty() ? 0 : 32));
+  put(f, bands);
+  putArray(f, t.z);
+  putArray(f, t.slope);
+  putArray(f, t.aspect);
+  putArray(f, t.edgeLength);
+  putArray(f, t.hillshade);
+  putArray(f, t.count);
+  ++tiles_;
+}
+
+void DemPieceWriter::commit() {
+  put(*file_, 'E');
+  put(*file_, tiles_);
+  file_->commit();
+}
+
+std::uint64_t DemPieceWriter::bytes() const {
+  return file_->bytesWritten();
+}
+
+void DemPieceIndex::add(const std::string& path) {
+  File in(path);
+  char magic[8];
+  in.bytes(magic, 8);
+  if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "not a tinbuild DEM piece file");
+  const std::size_t file = files_.size();
+  files_.push_back(path);
+  std::uint64_t count = 0;
+  for (;;) {
+    const std::uint64_t at = in.tell();
+    const char kind = in.get<char>();
+    if (kind == 'E') {
+      if (in.get<std::uint64_t>() != count) throw DataError(path, "corrupt DEM piece file (tile count)");
+      return;
+    }
+    if (kind != 'T') throw DataError(path, "corrupt DEM piece file");
+    const DemTile t = readTile(in);  // (reads the arrays too: piece files are small, read once here)
+    index_[{t.ty, t.tx}].push_back(Where{file, at + 1});
+    ++count;
+    ++pieces_;
+  }
+}
+
+std::vector<std::pair<std::int64_t, std::int64_t>> DemPieceIndex::keys() const {
+  std::vector<std::pair<std::int64_t, std::int64_t>> k;
+  for (const auto& [key, where] : index_) k.emplace_back(key.second, key.first);
+  return k;
+}
+
+int DemPieceIndex::addPieces(std::int64_t tx, std::int64_t ty, DemTile& tile, bool haveTile, float nodata) const {
+  const auto it = index_.find({ty, tx});
+  if (it == index_.end()) return 0;
+  int n = 0;
+  for (const Where& w : it->second) {
+    File in(files_[w.file]);
+    in.seek(w.offset);
+    DemTile piece = readTile(in);
+    if (!haveTile) {
+      tile = std::move(piece);
+      tile.validPixels = 0;
+      const bool nanNodata = std::isnan(nodata);
+      for (float v : tile.z) tile.validPixels += !(v == nodata || (nanNodata && std::isnan(v)));
+      haveTile = true;
+    } else {
+      combinePartialTile(tile, piece, nodata);
+    }
+    ++n;
+  }
+  return n;
+}
+
+void PartDemSink::tile(const DemTile& t) {
+  if (t.partial) {
+    pieces_.write(t);
+    return;
+  }
+  written_.emplace_back(t.tx, t.ty);
+  writer_.tile(t);
+}
+
+void MergeDemSink::begin(const DemLayout& layout, const MeshInfo& info) {
+  layout_ = layout;
+  writer_.begin(layout, info);
+}
+
+void MergeDemSink::tile(const DemTile& seamTile) {
+  DemTile t = seamTile;
+  parts_.addPieces(t.tx, t.ty, t, true, nodata_);
+  t.partial = false;
+  done_[{t.ty, t.tx}] = true;
+  writer_.tile(t);
+  ++written_;
+}
+
+void MergeDemSink::end() {
+  for (const auto& [tx, ty] : parts_.keys()) {
+    if (done_.count({ty, tx})) continue;
+    DemTile t;
+    parts_.addPieces(tx, ty, t, false, nodata_);
+    t.partial = false;
+    writer_.tile(t);
+    ++written_;
+  }
+  writer_.end();
+}
+
+}  // namespace tinbuild
