@@ -55,10 +55,46 @@ bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Boun
   return true;
 }
 
+// The rectangle holding a part's regions (grown a little: GridSpec puts a point up to a few ulps outside
+// its leaf's square; on the grid's border, unbounded, since GridSpec clamps there), within --clip.
+ClipRect windowRect(const PartWindow& w, const std::optional<ClipRect>& clip) {
+  const int shift = 2 * w.level;
+  std::uint32_t c0 = ~0u, r0 = ~0u, c1 = 0, r1 = 0;
+  for (std::uint64_t m = w.first; m < w.end && m < (std::uint64_t{1} << shift); ++m) {
+    std::uint32_t c = 0, r = 0;
+    for (int b = 0; b < w.level; ++b) {
+      c |= static_cast<std::uint32_t>((m >> (2 * b)) & 1u) << b;
+      r |= static_cast<std::uint32_t>((m >> (2 * b + 1)) & 1u) << b;
+    }
+    c0 = std::min(c0, c);
+    c1 = std::max(c1, c);
+    r0 = std::min(r0, r);
+    r1 = std::max(r1, r);
+  }
+  constexpr double inf = std::numeric_limits<double>::infinity();
+  ClipRect rect{inf, inf, -inf, -inf};
+  if (c0 > c1) return rect;  // no region: nothing
+  const double s = std::ldexp(w.grid.size, -w.level), margin = 1e-6 * w.grid.size;
+  const std::uint32_t last = (1u << w.level) - 1;
+  rect.minX = c0 == 0 ? -inf : w.grid.originX + c0 * s - margin;
+  rect.maxX = c1 == last ? inf : w.grid.originX + (c1 + 1.0) * s + margin;
+  rect.minY = r0 == 0 ? -inf : w.grid.originY + r0 * s - margin;
+  rect.maxY = r1 == last ? inf : w.grid.originY + (r1 + 1.0) * s + margin;
+  if (clip) {
+    rect.minX = std::max(rect.minX, clip->minX);
+    rect.minY = std::max(rect.minY, clip->minY);
+    rect.maxX = std::min(rect.maxX, clip->maxX);
+    rect.maxY = std::min(rect.maxY, clip->maxY);
+  }
+  return rect;
+}
+
 // Opened inputs with the finalizer options completed from them (CRS, trusted bounds, common scale), and,
 // when the run works in another CRS than the inputs', one PointTransform per input wrapping its reader.
 struct OpenedInputs {
   std::vector<std::unique_ptr<PointReader>> readers;
+  std::uint64_t filesOutsidePart = 0, pointsOutsidePart = 0;  // a part: LAS files left unread by header
+  bool windowed = false, clipped = false;                       // readers restricted to a part, to --clip
   std::vector<std::unique_ptr<PointTransform>> transforms;
   std::vector<std::unique_ptr<TransformingPointStream>> transformed;
   std::vector<PointStream*> streams;
@@ -187,6 +223,32 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
   if (fo.filter.clip)
     for (std::size_t i = 0; i < in.readers.size(); ++i)
       if (in.streams[i] == in.readers[i].get()) in.readers[i]->restrictTo(*fo.filter.clip);
+  // One part of a plan: COPC readers leave out the nodes outside the part's rectangle, and a LAS file
+  // whose header says it lies outside is not read at all (a header that lies shows in the part's count,
+  // which must equal the plan's: see runBuild).
+  in.clipped = fo.filter.clip.has_value();
+  in.windowed = fo.filter.window.has_value();
+  if (fo.filter.window) {
+    const ClipRect rect = windowRect(*fo.filter.window, fo.filter.clip);
+    std::vector<PointStream*> kept;
+    for (std::size_t i = 0; i < in.readers.size(); ++i) {
+      const bool own = in.streams[i] == in.readers[i].get();  // read in its own CRS
+      const SourceInfo& si = in.readers[i]->info();
+      if (own && !o.computeBounds && isLasFamily(si.format) && si.hasHeaderBounds && si.headerPointCount > 0 &&
+          (si.headerBounds.maxX < rect.minX || si.headerBounds.minX > rect.maxX ||
+           si.headerBounds.maxY < rect.minY || si.headerBounds.minY > rect.maxY)) {
+        ++in.filesOutsidePart;
+        in.pointsOutsidePart += si.headerPointCount;
+        continue;
+      }
+      if (own) in.readers[i]->restrictTo(rect);
+      kept.push_back(in.streams[i]);
+    }
+    if (kept.empty())
+      throw DataError(o.inputs.front(), "no input's header bounds meet this part of the plan, which counted points "
+                                        "in it: a LAS header is wrong; plan and run the parts with --compute-bounds");
+    in.streams = kept;
+  }
   auto zUnit = [](const CrsInfo& c) {
     if (c.empty()) return 1.0;
     if (!c.verticalUnit.empty() && c.verticalUnitToMetre > 0) return c.verticalUnitToMetre;
@@ -226,7 +288,11 @@ void countSkipped(const OpenedInputs& in, RunReport& report) {
   for (const auto& r : in.readers) {
     const std::uint64_t n = r->skippedOutside();
     report.finalizer.filter.read += n;
-    report.finalizer.filter.clipped += n;
+    // (A part's COPC nodes outside its rectangle are other parts', unless --clip left them out too.)
+    if (in.windowed && !in.clipped)
+      report.finalizer.filter.otherPart += n;
+    else
+      report.finalizer.filter.clipped += n;
     report.clipUndecoded += n;
   }
 }
@@ -514,13 +580,8 @@ class PlanGridCheck : public PointSink {
   void begin(const StreamInfo& info) override {
     const GridSpec& g = info.grid;
     const GridSpec& p = plan_.grid;
-    if (g.originX != p.originX || g.originY != p.originY || g.size != p.size || g.depth != p.depth ||
-        info.points != plan_.points)
-      throw DataError(plan_.path,
-                      "stale plan: the survey read now has another grid or point count than when it was "
-                      "planned (" +
-                          std::to_string(info.points) + " points now, " + std::to_string(plan_.points) +
-                          " then); make the plan again");
+    if (g.originX != p.originX || g.originY != p.originY || g.size != p.size || g.depth != p.depth)
+      throw Error("part of " + plan_.path + ": the finalizer did not lay the plan's grid");
     out_.begin(info);
   }
   void points(const PointRecord* p, std::size_t n) override { out_.points(p, n); }
@@ -571,7 +632,17 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
   const RunOutputs outputs = resolveOutputs(o);
   if (!plan) refuseExistingOutputs(o, outputs.all());
   FinalizerOptions fo = o.finalizer;
+  const PlanPart* part = plan ? &plan->parts[static_cast<std::size_t>(o.part)] : nullptr;
+  if (part) fo.filter.window = PartWindow{plan->grid, plan->regionLevel, part->first, part->end};
   OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
+  if (part) {
+    // The plan's grid and bounds, no block mode: the part reads its window only (see PartWindow).
+    fo.fixedGrid = plan->grid;
+    fo.fixedBounds = plan->bounds;
+    fo.knownBounds = plan->bounds;
+    fo.depth = plan->grid.depth;
+    fo.countBlocks = false;
+  }
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.memoryBudget = fo.memoryBudget;
@@ -635,6 +706,16 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
   r.haveFinalizer = true;
   r.delaunay = delaunay.stats();
   r.parallel = delaunay.parallelStats();
+  if (part) {
+    r.finalizer.filter.read += in.pointsOutsidePart;  // unread files: other parts' points, counted
+    r.finalizer.filter.otherPart += in.pointsOutsidePart;
+    if (r.delaunay.pointsIn != part->points)
+      throw DataError(plan->path, "part " + std::to_string(o.part) + " triangulated " +
+                                      std::to_string(r.delaunay.pointsIn) + " points, the plan counted " +
+                                      std::to_string(part->points) +
+                                      " in it: an input changed, or a LAS header's bounds are wrong (plan and "
+                                      "run the parts with --compute-bounds)");
+  }
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   const std::vector<ResolvedOutput> resolved = outputs.all();
@@ -721,26 +802,37 @@ class PlanCounter : public PointSink {
   void finalizeCell(const CellTag&) override {}
   void end() override {}
 
-  // Consecutive Morton ranges of about equal point counts, none empty of regions.
+  // Consecutive Morton ranges of about equal point counts, each with points.
   std::vector<PlanPart> split() const {
-    std::vector<PlanPart> parts;
     const std::size_t n = counts_.size();
-    std::uint64_t total = 0;
-    for (std::uint64_t c : counts_) total += c;
+    std::uint64_t total = 0, occupied = 0;
+    for (std::uint64_t c : counts_) {
+      total += c;
+      occupied += c > 0;
+    }
+    if (occupied < static_cast<std::uint64_t>(parts_))
+      throw DataError("", "only " + std::to_string(occupied) + " of the " + std::to_string(n) +
+                              " regions hold points: use --parts " + std::to_string(occupied) + " or fewer");
+    std::vector<PlanPart> parts;
     std::size_t m = 0;
+    std::uint64_t before = 0, occupiedLeft = occupied;
     for (int k = 0; k < parts_; ++k) {
       PlanPart part;
       part.first = m;
+      const int after = parts_ - 1 - k;  // parts still to come: each needs an occupied region
       const std::uint64_t target = total * static_cast<std::uint64_t>(k + 1) / static_cast<std::uint64_t>(parts_);
-      std::uint64_t sofar = 0;
-      for (const PlanPart& q : parts) sofar += q.points;
-      const std::size_t lastAllowed = n - static_cast<std::size_t>(parts_ - 1 - k);  // leave a region each
-      do {
+      for (;;) {
         part.points += counts_[m];
+        occupiedLeft -= counts_[m] > 0;
         ++m;
-      } while (m < lastAllowed && (k == parts_ - 1 || sofar + part.points + counts_[m] / 2 <= target));
-      if (k == parts_ - 1)
-        for (; m < n; ++m) part.points += counts_[m];
+        if (m == n) break;
+        if (after == 0) continue;  // the last part takes the rest
+        if (part.points == 0) continue;
+        if (occupiedLeft == static_cast<std::uint64_t>(after)) break;
+        // Stop where the cumulative count comes closest to this part's share.
+        if (before + part.points + counts_[m] / 2 > target) break;
+      }
+      before += part.points;
       part.end = m;
       parts.push_back(part);
     }

@@ -310,6 +310,13 @@ struct ParallelDelaunay::Impl {
   // The region of a point: that of its leaf, by the triangulators' own arrival rule (a point inside the
   // current leaf's square grown by h belongs to that leaf).
   std::uint32_t regionOfPoint(const PointRecord& q) {
+    // A part of a plan reads only its own window of the survey, so its stream differs from the other
+    // parts': the region must then be a function of the point alone, the leaf GridSpec gives it (the
+    // plan counted by it too).  Each point thus goes to exactly one part; the region's triangulator
+    // admits it (it lies in its own leaf's square).  Not for streams with points outside their leaf
+    // (COPC block mode), which a part never uses.
+    if (partMode())
+      return static_cast<std::uint32_t>(regionIndex(grid.column(q.x) >> shift, grid.row(q.y) >> shift));
     if (!(q.x >= curX0 && q.x <= curX1 && q.y >= curY0 && q.y <= curY1)) {
       const std::uint32_t col = grid.column(q.x), row = grid.row(q.y);
       curX0 = grid.originX + col * leafSize - h;

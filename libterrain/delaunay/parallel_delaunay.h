@@ -77,7 +77,9 @@ struct ParallelDelaunayOptions {
   // indices at regionLevel, which must then be set) are triangulated, the other regions' points are
   // dropped (counted), and the seam vertices and tags go to partSeam instead of an in-process seam step.
   // The MeshSink gets the certified triangles, and finalizeVertex for a seam vertex when it is handed
-  // over (the merge's seam output declares it again).  nullptr: the whole survey.
+  // over (the merge's seam output declares it again).  A point's region is then that of its GridSpec leaf
+  // (a function of the point: the parts' streams differ; not for block-mode streams).  nullptr: the
+  // whole survey.
   SeamSink* partSeam = nullptr;
   std::size_t partFirst = 0, partEnd = ~std::size_t{0};
 };

@@ -831,7 +831,11 @@ class Finalizer {
     // Pass 1 also runs when the header bounds are known but an input is costly to read again: it is
     // then the one pass that decodes that input (LAZ: each point decoded once per run), spooling it for
     // passes 2 and 3, and it checks the header bounds on the way.
-    blockMode_ = options_.countBlocks && haveHeader && rewindable && collectBlocks();
+    if (options_.fixedGrid) {  // a part of a plan: the plan's grid (never block mode, see the options)
+      frameGrid_ = *options_.fixedGrid;
+      forcedDepth_ = options_.fixedGrid->depth;
+    }
+    blockMode_ = !options_.fixedGrid && options_.countBlocks && haveHeader && rewindable && collectBlocks();
     // (Block mode reads each block once, in pass 3, by seeking: every input must allow it.)
     stats_.blockMode = blockMode_;
     stats_.pass1Run = !blockMode_ && (!haveHeader || !rewindable || sources_.anyCostly());
@@ -891,7 +895,11 @@ class Finalizer {
     std::uint64_t known = stats_.pass1Run ? expected : 0;  // the filtered count, once a pass has seen it
     for (;;) {
       progress_.stage(unit / units, (unit + 1) / units, expected, "pass 2: counting points per cell");
-      const GridSpec g = makeGrid(gridBounds, fine);
+      GridSpec g = makeGrid(gridBounds, fine);
+      if (options_.fixedGrid) {
+        g = *options_.fixedGrid;
+        g.depth = fine;
+      }
       // After pass 1 the bounds are known exactly (the same filtered points come again); without it,
       // pass 2 measures them, to check the header's.
       Bounds3 real = gridBounds;
@@ -903,7 +911,7 @@ class Finalizer {
         throw Error("finalizer: the inputs yielded " + withCommas(known) + " points in one pass and " +
                     withCommas(n) + " in the next (was a file modified while being read?)");
       known = n;
-      if (stats_.boundsFromHeader) {
+      if (stats_.boundsFromHeader && !options_.fixedGrid) {
         const double headerExtent =
             std::max(gridBounds.maxX - gridBounds.minX, gridBounds.maxY - gridBounds.minY);
         const double realExtent = std::max(real.maxX - real.minX, real.maxY - real.minY);
@@ -931,7 +939,7 @@ class Finalizer {
         }
       }
       stats_.points = n;
-      stats_.bounds = real;
+      stats_.bounds = options_.fixedBounds ? *options_.fixedBounds : real;
       break;
     }
     // FilterCounts of the first full pass; later passes must agree.
@@ -1655,6 +1663,7 @@ class Finalizer {
       f.byClass += c3.byClass;
       f.byReturn += c3.byReturn;
       f.clipped += c3.clipped;
+      f.otherPart += c3.otherPart;
       for (int i = 0; i < 256; ++i) f.droppedByClass[i] += c3.droppedByClass[i];
       firstCounts_ = f;
       if (released_ != leaves_.size()) throw changedInput(input);
@@ -1929,6 +1938,7 @@ class Finalizer {
     if (c.withheld) s += ", " + withCommas(c.withheld) + " withheld";
     if (c.byReturn) s += ", " + withCommas(c.byReturn) + " by return number";
     if (c.clipped) s += ", " + withCommas(c.clipped) + " outside the clip rectangle";
+    if (c.otherPart) s += ", " + withCommas(c.otherPart) + " outside this part (other parts')";
     return s;
   }
 

@@ -177,6 +177,12 @@ struct FinalizerOptions {
   // Count blocks from their description (see "Blocks" above) when every input describes its blocks (and
   // the header bounds are known): no pass reads points before the stream.
   bool countBlocks = true;
+  // One part of a plan (tinbuild plan): lay exactly this grid (its depth too) instead of one over the
+  // points' bounds, and announce `fixedBounds` (the whole survey's) in StreamInfo.  The points streamed
+  // are those the filter keeps (filter.window: the part's rectangle), so every part shares the grid and
+  // the DEM's layout while reading only its own points.  No bounds checks: the plan measured them.
+  std::optional<GridSpec> fixedGrid;
+  std::optional<Bounds3> fixedBounds;
 };
 
 struct FinalizerStats {

@@ -27,6 +27,7 @@
 #include <string>
 
 #include "libterrain/core/point.h"
+#include "libterrain/finalizer/grid.h"
 
 namespace tinbuild {
 
@@ -35,7 +36,25 @@ struct ClipRect {
   bool contains(double x, double y) const { return x >= minX && x <= maxX && y >= minY && y <= maxY; }
 };
 
-enum class FilterReason : std::uint8_t { kKept, kWithheld, kClass, kReturn, kClip };
+// One part of a plan: the regions [first, end) in Morton order at quadtree level `level` of `grid`.  A
+// point belongs to it when its GridSpec leaf lies in one of them -- the very rule by which the part's
+// triangulator (ParallelDelaunay's part mode) and the plan's count assign points, so every point is
+// some part's exactly once.
+struct PartWindow {
+  GridSpec grid;
+  int level = 1;
+  std::uint64_t first = 0, end = 0;
+  bool contains(double x, double y) const {
+    const int shift = grid.depth - level;
+    const std::uint32_t c = grid.column(x) >> shift, r = grid.row(y) >> shift;
+    std::uint64_t m = 0;
+    for (int b = 0; b < level; ++b)
+      m |= std::uint64_t{(c >> b) & 1u} << (2 * b) | std::uint64_t{(r >> b) & 1u} << (2 * b + 1);
+    return m >= first && m < end;
+  }
+};
+
+enum class FilterReason : std::uint8_t { kKept, kWithheld, kClass, kReturn, kClip, kOtherPart };
 
 struct FilterCounts {
   std::uint64_t read = 0;  // points offered to the filter
@@ -44,9 +63,10 @@ struct FilterCounts {
   std::uint64_t byClass = 0;               // dropped: class in dropClasses
   std::uint64_t byReturn = 0;              // dropped: --first-only / --last-only
   std::uint64_t clipped = 0;               // dropped: outside --clip
+  std::uint64_t otherPart = 0;             // left out: outside this part's window (other parts' points)
   std::uint64_t droppedByClass[256] = {};  // the byClass drops per class code
 
-  std::uint64_t dropped() const { return withheld + byClass + byReturn + clipped; }
+  std::uint64_t dropped() const { return withheld + byClass + byReturn + clipped + otherPart; }
   // Counts one point of class `cls` dropped for `reason` (not kKept).
   void drop(FilterReason reason, std::uint8_t cls) {
     switch (reason) {
@@ -65,6 +85,9 @@ struct FilterCounts {
       case FilterReason::kClip:
         ++clipped;
         break;
+      case FilterReason::kOtherPart:
+        ++otherPart;
+        break;
     }
   }
 };
@@ -75,6 +98,9 @@ struct PointFilter {
   bool firstOnly = false;
   bool lastOnly = false;
   std::optional<ClipRect> clip;
+  // One part of a plan: the rectangle around its regions; points outside it are other parts' (counted
+  // apart from the user's filters).  Applied last.
+  std::optional<PartWindow> window;
 
   // Classes 7 (low noise) and 18 (high noise).
   static std::bitset<256> defaultDropClasses() {
@@ -105,13 +131,14 @@ struct PointFilter {
       if (known && lastOnly && p.returnNumber != p.numberOfReturns) return FilterReason::kReturn;
     }
     if (clip && !clip->contains(p.x, p.y)) return FilterReason::kClip;
+    if (window && !window->contains(p.x, p.y)) return FilterReason::kOtherPart;
     return FilterReason::kKept;
   }
   bool accept(const PointRecord& p) const { return reason(p) == FilterReason::kKept; }
 
   // True when accept() is true for every possible record (apply() then only counts).
   bool keepsEverything() const {
-    return !dropWithheld && dropClasses.none() && !firstOnly && !lastOnly && !clip;
+    return !dropWithheld && dropClasses.none() && !firstOnly && !lastOnly && !clip && !window;
   }
 
   // Filters p[0..n) in place: kept records move to the front in their order; returns how many.
@@ -121,7 +148,7 @@ struct PointFilter {
       counts.kept += n;
       return n;
     }
-    if (!firstOnly && !lastOnly && !clip) return applyClassAndWithheld(p, n, counts);
+    if (!firstOnly && !lastOnly && !clip && !window) return applyClassAndWithheld(p, n, counts);
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
       const FilterReason r = reason(p[i]);
@@ -190,6 +217,7 @@ struct PointFilter {
     else if (lastOnly)
       add("all but last returns");
     if (clip) add("points outside the clip rectangle");
+    if (window) add("other parts' points (outside this part's window)");
     return s.empty() ? "nothing" : "dropping " + s;
   }
 };
