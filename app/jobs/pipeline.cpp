@@ -741,7 +741,7 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
       r.dem.layout = dem->layout();
       r.dem.stats = dem->stats();
       r.dem.files = files;
-      done.demTiles = files;
+      done.demTiles = out.tileFiles();
       if (r.dem.stats.tilesWritten == 0 && !plan)
         diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
     }
@@ -981,6 +981,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
       r.pieceBytes += fileSizeOrZero(path);
     }
     for (const PartDone& d : done) partTiles.insert(partTiles.end(), d.demTiles.begin(), d.demTiles.end());
+    r.demPartTiles = partTiles.size();
     context.demMerge = &pieces;
     context.demOtherTiles = partTiles;
   }
@@ -1034,6 +1035,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     r.dem.layout = dem->rasterizer()->layout();
     r.dem.stats = dem->rasterizer()->stats();
     r.dem.files = files;
+    r.demMergedTiles = dem->tileFiles().size();
   }
   r.haveDelaunay = true;
   r.delaunay.trianglesEmitted = triangles;
@@ -1268,6 +1270,8 @@ std::string formatRunSummary(const RunReport& r) {
     o += "tinbuild " + r.command + ": " + withCommas(f.read) + " points read from " +
          std::to_string(r.inputs.size()) + (r.inputs.size() == 1 ? " file" : " files") + ", " +
          withCommas(s.points) + " streamed";
+  } else if (r.command == "merge") {
+    o += "tinbuild merge: the " + std::to_string(r.parts) + " parts of " + r.planPath;
   } else {
     o += "tinbuild " + r.command + ": " + withCommas(r.delaunay.pointsIn) + " points read from " +
          r.inputs.front();
@@ -1305,6 +1309,7 @@ std::string formatRunSummary(const RunReport& r) {
         d += " " + withCommas(f.clipped) + " outside --clip" +
              (r.clipUndecoded ? " (" + withCommas(r.clipUndecoded) + " in COPC nodes left undecoded)" : "") +
              ";";
+      if (f.otherPart) d += " " + withCommas(f.otherPart) + " other parts' (outside this part);";
       d.pop_back();
       line("filter", d);
     }
@@ -1347,6 +1352,27 @@ std::string formatRunSummary(const RunReport& r) {
                     (d.duplicatesDropped ? ", " + withCommas(d.duplicatesDropped) +
                                                " xy duplicates dropped (kept the " + r.duplicateRule + ")"
                                          : std::string()));
+    if (r.parts > 0 && r.part < 0) {  // a merge (or an MPI run): the seam step's work
+      line("seam", withCommas(r.parallel.seamVertices) + " vertices handed over by " + std::to_string(r.parts) +
+                       " parts (" +
+                       formatDouble("%.2f", d.verticesOut ? 100.0 * static_cast<double>(r.parallel.seamVertices) /
+                                                                static_cast<double>(d.verticesOut)
+                                                          : 0.0) +
+                       "% of the vertices, " + bytesText(r.seamBytes) + " of seam files), " +
+                       withCommas(r.parallel.seamWritten) + " triangles settled; " + withCommas(r.demPieces) +
+                       " DEM tile pieces (" + bytesText(r.pieceBytes) + ")" +
+                       (r.exchangedBytes ? "; " + bytesText(r.exchangedBytes) + " sent between ranks" : std::string()));
+      if (!r.rankPeakRss.empty()) {
+        std::string peaks;
+        for (std::uint64_t b : r.rankPeakRss) peaks += (peaks.empty() ? "" : ", ") + bytesText(b);
+        line("ranks", "peak memory " + peaks);
+      }
+    } else {
+    if (r.part >= 0)
+      line("part", std::to_string(r.part) + " of " + std::to_string(r.parts) + " (" + r.planPath + "): " +
+                       withCommas(d.pointsIn) + " points triangulated here; left for the merge: " +
+                       withCommas(r.seamVertices) + " seam vertices (" + bytesText(r.seamBytes) + ")" +
+                       (r.pieceBytes ? ", DEM pieces (" + bytesText(r.pieceBytes) + ")" : std::string()));
     line("memory", "at most " + withCommas(d.maxActiveTriangles) + " active triangles and " +
                        withCommas(d.maxActiveVertices) + " active vertices (" + bytesText(d.peakBytes) +
                        " triangulator arrays)");
@@ -1362,8 +1388,12 @@ std::string formatRunSummary(const RunReport& r) {
                                                           : 0.0) +
                           "% of the points), " + withCommas(ps.seamWritten) + " triangles");
     }
+    }
   }
-  if (r.dem.present) {
+  if (r.dem.present && r.parts > 0 && r.part < 0) {
+    line("DEM", withCommas(r.demMergedTiles) + " tile files finished here from the parts' pieces and the seam's triangles, " +
+                    withCommas(r.demPartTiles) + " written whole by the parts; the mosaics cover them all");
+  } else if (r.dem.present) {
     const DemReport& d = r.dem;
     const std::string unit = d.unit.empty() ? std::string("units") : d.unit;
     line("DEM", withCommas(static_cast<std::uint64_t>(std::max<std::int64_t>(0, d.layout.width()))) + " x " +
@@ -1452,6 +1482,7 @@ std::string formatRunJson(const RunReport& r) {
     j.key("class").value(s.filter.byClass);
     j.key("return").value(s.filter.byReturn);
     j.key("clip").value(s.filter.clipped);
+    j.key("other_parts").value(s.filter.otherPart);
     j.key("clip_undecoded").value(r.clipUndecoded);
     j.key("by_class").beginObject();
     for (int c = 0; c < 256; ++c)
@@ -1582,6 +1613,27 @@ std::string formatRunJson(const RunReport& r) {
     j.key("peak_tile_bytes").value(d.stats.peakTileBytes);
     j.key("files").beginArray();
     for (const auto& f : d.files) j.value(f);
+    j.endArray();
+    j.endObject();
+  }
+  if (r.parts > 0) {
+    // A part of a plan, its merge, or an MPI run (rank 0's view).
+    j.key("plan").beginObject();
+    j.key("path").value(r.planPath);
+    j.key("parts").value(r.parts);
+    if (r.part >= 0)
+      j.key("part").value(r.part);
+    else
+      j.key("part").null();
+    j.key("other_part_points").value(r.otherPartPoints + (r.haveFinalizer ? r.finalizer.filter.otherPart : 0));
+    j.key("seam_vertices").value(r.seamVertices);
+    j.key("seam_triangles").value(r.seamTriangles);
+    j.key("seam_bytes").value(r.seamBytes);
+    j.key("dem_piece_bytes").value(r.pieceBytes);
+    j.key("dem_pieces").value(r.demPieces);
+    j.key("mpi_exchanged_bytes").value(r.exchangedBytes);
+    j.key("rank_peak_rss_bytes").beginArray();
+    for (std::uint64_t b : r.rankPeakRss) j.value(b);
     j.endArray();
     j.endObject();
   }

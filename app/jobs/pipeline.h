@@ -123,6 +123,8 @@ struct RunReport {
   std::uint64_t otherPartPoints = 0;  // a part: points of other parts it read and left
   std::uint64_t seamBytes = 0, pieceBytes = 0;  // a part: what it leaves for the merge; a merge: read
   std::uint64_t seamVertices = 0, seamTriangles = 0, demPieces = 0;
+  std::uint64_t demPartTiles = 0;    // a merge: tile files (all bands) the parts wrote whole
+  std::uint64_t demMergedTiles = 0;  // ... and those it finished itself
   // --mpi (rank 0): bytes sent between ranks (plan, seam files, DEM pieces, part records) and every
   // rank's peak resident set.
   std::uint64_t exchangedBytes = 0;

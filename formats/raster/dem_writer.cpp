@@ -367,6 +367,7 @@ std::vector<std::string> demOutputPaths(const DemWriterOptions& o) {
 void DemWriter::end() {
   Impl& m = *impl_;
   outputs_.clear();
+  tiles_.clear();
   QuietGdal quiet;
   if (m.target == DemTarget::TileDirectory) {
     std::set<std::string> written;  // file names, for --overwrite's clean-up
@@ -376,6 +377,7 @@ void DemWriter::end() {
         if (std::rename(staged.c_str(), final.c_str()) != 0)
           throw DataError(final, std::string("cannot move the tile into place: ") + std::strerror(errno));
         finals.push_back(final);
+        tiles_.push_back(final);
         written.insert(fs::path(final).filename().string());
         bytes_ += fs::file_size(final);
       }

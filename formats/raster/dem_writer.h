@@ -79,6 +79,8 @@ class DemWriter : public DemTileSink {
   // Files written (final names), after end().
   const std::vector<std::string>& outputs() const { return outputs_; }
   std::uint64_t bytesWritten() const { return bytes_; }
+  // DIR: the tile files written (final names, every band), after end().
+  const std::vector<std::string>& tiles() const { return tiles_; }
 
  private:
   struct Band;
@@ -86,6 +88,7 @@ class DemWriter : public DemTileSink {
   void removeStaleFiles(const std::string& dir, const std::set<std::string>& written);
   std::unique_ptr<Impl> impl_;
   std::vector<std::string> outputs_;
+  std::vector<std::string> tiles_;
   std::uint64_t bytes_ = 0;
 };
 

@@ -134,6 +134,7 @@ class DemOutput : public OpenedOutput {
   std::uint64_t bytes() const override { return writer_->bytesWritten() + (pieces_ ? pieces_->bytes() : 0); }
   const DemRasterizer* rasterizer() const override { return rasterizer_.get(); }
   TriangleSink* triangleSink() override { return rasterizer_.get(); }
+  std::vector<std::string> tileFiles() const override { return writer_->tiles(); }
   // A part's pieces are committed with its outputs (after the run).
   void commitPieces() override {
     if (pieces_) pieces_->commit();

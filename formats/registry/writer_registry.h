@@ -84,6 +84,8 @@ class OpenedOutput {
   // DEM outputs: the rasterizer as a sink of triangles, for a caller that feeds it without a tee (the
   // merge of a plan); nullptr otherwise.
   virtual TriangleSink* triangleSink() { return nullptr; }
+  // DEM tile directories: the tile files written (after the run); empty otherwise.
+  virtual std::vector<std::string> tileFiles() const { return {}; }
   // Contour outputs: the tracer's statistics (complete after the run); nullptr otherwise.
   virtual const ContourStats* contourStats() const { return nullptr; }
   // DEM outputs of a plan part: commits the file of unfinished tiles (after the run).  Default: nothing.
