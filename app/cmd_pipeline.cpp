@@ -208,6 +208,7 @@ int runWithReport(const cli::ParsedArgs& args, PipelineOptions& o, Run run) {
   }
   const RunReport report = run(o, diag);
   progress.finish();
+  if (report.secondaryRank) return 0;  // an MPI rank but the first: rank 0 reports for the run
   if (!quiet) std::cerr << formatRunSummary(report);
   if (reportFile) {
     reportFile->write(formatRunJson(report));
@@ -362,9 +363,9 @@ bool isRunOption(const std::string& name) {
   return name == "--parts" || name == "-o" || name == "--plan" || name == "--part" || name == "--mpi";
 }
 
-// A plan's build: the inputs as expanded, then every build option given, in the build table's order.
-std::vector<std::string> planBuildArgs(const cli::ParsedArgs& args, const PipelineOptions& o) {
-  std::vector<std::string> out = o.inputs;
+// The options that shape a build's outputs, as given, in the build table's order.
+std::vector<std::string> outputOptionWords(const cli::ParsedArgs& args) {
+  std::vector<std::string> out;
   for (const auto& spec : buildCommand().options) {
     if (isRunOption(spec.name) || !args.has(spec.name)) continue;
     for (const std::string& v : args.all(spec.name)) {
@@ -375,9 +376,25 @@ std::vector<std::string> planBuildArgs(const cli::ParsedArgs& args, const Pipeli
   return out;
 }
 
-std::string joinCommand(const std::vector<std::string>& words) {
+// A plan's build: the inputs as expanded (every part reads the same files), then the options.
+std::vector<std::string> planBuildArgs(const cli::ParsedArgs& args, const PipelineOptions& o) {
+  std::vector<std::string> out = o.inputs;
+  const std::vector<std::string> options = outputOptionWords(args);
+  out.insert(out.end(), options.begin(), options.end());
+  return out;
+}
+
+// The build as its outputs record it: "tinbuild build", the inputs as typed, then the options that shape
+// the outputs in the table's order -- not -q, --threads, --report and the like, which change how it runs,
+// not what it makes.  So one process, the parts of a plan and the ranks of an MPI run that make the same
+// DEM record the same command, and their files are the same bytes.
+std::string recordedCommand(const cli::ParsedArgs& args) {
+  std::vector<std::string> words = args.positional;
+  const std::vector<std::string> options = outputOptionWords(args);
+  words.insert(words.end(), options.begin(), options.end());
   std::string s = "tinbuild build";
-  for (const auto& w : words) s += " " + w;
+  for (const auto& w : words)
+    s += " " + (w.find_first_of(" \t'\"") == std::string::npos ? w : "'" + w + "'");
   return s;
 }
 
@@ -402,9 +419,10 @@ int runBuildCommand(const cli::ParsedArgs& args) {
   }
   if (args.has("--part")) throw UsageError("--part needs --plan PLAN.json");
   PipelineOptions o = parseBuildOptions(args);
+  o.commandLine = recordedCommand(args);
   if (args.has("--mpi")) {
     const std::vector<std::string> buildArgs = planBuildArgs(args, o);
-    const std::string command = joinCommand(buildArgs);
+    const std::string command = o.commandLine;
     return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
       return runMpiBuild(opts, buildArgs, command, diag);
     });
@@ -420,7 +438,7 @@ int runPlanCommand(const cli::ParsedArgs& args) {
   Plan plan;
   plan.path = args.get("-o");
   plan.buildArgs = planBuildArgs(args, o);
-  plan.command = joinCommand(plan.buildArgs);
+  plan.command = recordedCommand(args);
   return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
     RunReport r = runPlan(opts, parts, plan, diag);
     return r;

@@ -240,6 +240,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   MPI_Reduce(&exchanged, &exchangedAll, 1, MPI_UINT64_T, MPI_SUM, 0, MPI_COMM_WORLD);
   if (rank != 0) {
     partReport.command = "build --mpi";
+    partReport.secondaryRank = true;
     return partReport;
   }
   std::error_code ec;

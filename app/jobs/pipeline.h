@@ -129,6 +129,7 @@ struct RunReport {
   // rank's peak resident set.
   std::uint64_t exchangedBytes = 0;
   std::vector<std::uint64_t> rankPeakRss;
+  bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
 };
 
 RunReport runFinalize(const PipelineOptions& options, Diagnostics& diag);

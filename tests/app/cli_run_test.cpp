@@ -23,6 +23,7 @@
 
 #include "formats/pointcloud/las_writer.h"
 #include "libterrain/synthetic/synthetic_survey.h"
+#include "cli_support.h"
 #include "test_support.h"
 
 extern char** environ;
@@ -32,38 +33,10 @@ namespace {
 
 namespace fs = std::filesystem;
 
-struct Run {
-  int code;
-  std::string out, err;
-};
-
-std::string slurp(const fs::path& path) {
-  std::ifstream f(path, std::ios::binary);
-  std::stringstream s;
-  s << f.rdbuf();
-  return s.str();
-}
-
-// Runs `tinbuild ARGS` through the shell; stdout and stderr go to files beside the test's scratch dir.
-Run tinbuild(const std::string& args, const std::string& prefix = "") {
-  const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
-  const fs::path dir =
-      fs::path(TINBUILD_TEST_TMP) / (std::string(info->test_suite_name()) + "." + info->name() + ".io");
-  fs::create_directories(dir);
-  const std::string out = (dir / "stdout").string(), err = (dir / "stderr").string();
-  const std::string cmd = prefix + std::string(TINBUILD_EXE) + " " + args + " >" + out + " 2>" + err;
-  const int status = std::system(cmd.c_str());
-  return {WIFEXITED(status) ? WEXITSTATUS(status) : -1, slurp(out), slurp(err)};
-}
-
-// Every file below dir (relative names, sorted), hidden ones included.
-std::vector<std::string> listDir(const fs::path& dir) {
-  std::vector<std::string> names;
-  for (const auto& e : fs::recursive_directory_iterator(dir))
-    names.push_back(fs::relative(e.path(), dir).string());
-  std::sort(names.begin(), names.end());
-  return names;
-}
+using test::listDir;
+using test::Run;
+using test::slurp;
+using test::tinbuild;
 
 // Replaces every occurrence of `from` by `to` (same length: byte offsets stay).
 std::string replaceAll(std::string s, const std::string& from, const std::string& to) {

@@ -1,0 +1,198 @@
+// One survey split into parts (tinbuild plan / build --plan --part / merge, and build --mpi under
+// mpirun): the TIN, the DEM tiles and their mosaic must be what one process makes, whatever the number
+// of parts; a missing, stale or failed part is named, and re-running it completes the job.
+#include <gtest/gtest.h>
+
+#include <cstdlib>
+#include <filesystem>
+#include <string>
+#include <vector>
+
+#include "app/jobs/pipeline.h"
+#include "cli_support.h"
+#include "formats/mesh/streaming_mesh.h"
+#include "test_support.h"
+#include "triangle_sets.h"
+
+namespace tinbuild {
+namespace {
+
+namespace fs = std::filesystem;
+using test::listDir;
+using test::slurp;
+using test::tinbuild;
+
+// The TIN of a mesh file or of a manifest of parts, as sorted canonical triangles.
+std::vector<test::Tri> trianglesOf(const fs::path& mesh) {
+  test::TriangleCollector c;
+  if (isMeshManifest(mesh.string()))
+    readMeshParts(mesh.string(), c);
+  else
+    readStreamingMesh(mesh.string(), c);
+  return c.triangles;
+}
+
+// `dir` holds a DEM directory `dem` and a mesh (tin.smb or the parts' manifest tin.parts.json); `one` the
+// same from one process.  Same triangles, same tile files byte for byte, same mosaic.
+void expectSameAsOneProcess(const fs::path& dir, const fs::path& one, const std::string& what) {
+  const std::vector<test::Tri> a = trianglesOf(dir / "tin.parts.json"), b = trianglesOf(one / "tin.smb");
+  EXPECT_FALSE(b.empty()) << what;
+  EXPECT_TRUE(a == b) << what << ": " << a.size() << " triangles in parts, " << b.size() << " in one process";
+  const std::vector<std::string> tiles = listDir(one / "dem");
+  EXPECT_EQ(listDir(dir / "dem"), tiles) << what;
+  for (const std::string& f : tiles)
+    EXPECT_TRUE(slurp(dir / "dem" / f) == slurp(one / "dem" / f)) << what << ": dem/" << f << " differs";
+  // GDAL opens the mosaic and reads the same pixels through it.
+  auto gdal = [](const fs::path& vrt) {
+    const std::string out = (fs::path(TINBUILD_TEST_TMP) / "parts-gdalinfo.txt").string();
+    const int rc = std::system(("gdalinfo -checksum " + vrt.string() + " > " + out + " 2>&1").c_str());
+    const std::string text = slurp(out);
+    return rc == 0 ? text.substr(text.find("Checksum=")) : "gdalinfo failed: " + text;
+  };
+  EXPECT_EQ(gdal(dir / "dem" / "mosaic.vrt"), gdal(one / "dem" / "mosaic.vrt")) << what;
+  auto v = tinbuild("verify " + (dir / "tin.parts.json").string());
+  EXPECT_EQ(v.code, 0) << what << ": " << v.out << v.err;
+}
+
+// One process and a plan of 2, 3 and 7 parts, from the same directory depth so the recorded command
+// (the build's arguments) is the same text.
+void checkParts(const fs::path& out, const std::vector<std::string>& inputs, const std::string& options,
+                const std::string& what, const std::string& filters = "") {
+  std::string in, points;
+  for (const auto& i : inputs) {
+    in += " " + i;
+    points += " --points " + i;
+  }
+  const std::string build = in + " --mesh tin.smb --dem dem " + filters + " " + options;
+  fs::create_directories(out / "one");
+  auto r = tinbuild("build" + build + " -q", "cd " + (out / "one").string() + " && ");
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (const int parts : {2, 3, 7}) {
+    const fs::path d = out / ("p" + std::to_string(parts));
+    fs::create_directories(d);
+    const std::string cd = "cd " + d.string() + " && ";
+    auto p = tinbuild("plan" + build + " --parts " + std::to_string(parts) + " -o plan.json -q", cd);
+    ASSERT_EQ(p.code, 0) << what << ": " << p.err;
+    for (int i = 0; i < parts; ++i) {
+      // Parts run on any number of threads; their order does not matter.
+      const int part = (i * 5 + 1) % parts;
+      auto b = tinbuild("build --plan plan.json --part " + std::to_string(part) + " -q --threads " +
+                            std::to_string(1 + part % 2),
+                        cd);
+      ASSERT_EQ(b.code, 0) << what << ", part " << part << ": " << b.err;
+    }
+    auto m = tinbuild("merge plan.json -q --report merge.json", cd);
+    ASSERT_EQ(m.code, 0) << what << ": " << m.err;
+    expectSameAsOneProcess(d, out / "one", what + ", " + std::to_string(parts) + " parts");
+    auto v = tinbuild("verify " + (d / "tin.parts.json").string() + points + " " + filters, cd);
+    EXPECT_EQ(v.code, 0) << what << ": " << v.out << v.err;
+  }
+}
+
+TEST(Parts, RealSurveysEqualOneProcess) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  checkParts(out / "topo", {test::dataPath("las/Topography.las")}, "--step 1 --tile-size 32 --hillshade --count",
+             "Topography");
+  checkParts(out / "autzen", {test::dataPath("laz/autzen_trim.laz")}, "--step 3ft --tile-size 64 --slope",
+             "autzen LAZ");
+  checkParts(out / "copc", {test::dataPath("edge/lone-star.copc.laz")}, "--step 1 --tile-size 64", "COPC");
+  // Several files as one survey (tiles of different CRS would be refused; these share one).
+  checkParts(out / "two",
+             {test::dataPath("las/sample_lareunion_epsg2975.las"), test::dataPath("laz/sample_lareunion_epsg2975.laz")},
+             "--step 2 --tile-size 64 --duplicates highest", "two files, every point twice");
+}
+
+TEST(Parts, SyntheticStripSurveyEqualsOneProcess) {
+  const fs::path out = test::scratchDir();
+  auto d = tinbuild("demo " + (out / "s").string() + " --points 1 --swath 120 --survey-only --las --progress none");
+  ASSERT_EQ(d.code, 0) << d.err;
+  checkParts(out / "run", {(out / "s" / "survey.las").string()}, "--step 1 --tile-size 100 --edge-length", "strips",
+             "--keep-class 2,9");
+}
+
+// The batch-scheduler path when things go wrong: a part not run, a part of another plan, a changed input;
+// re-running the one part completes the job.
+TEST(Parts, MergeNamesMissingAndStaleParts) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  fs::copy_file(test::dataPath("las/Topography.las"), out / "t.las");
+  const std::string cd = "cd " + out.string() + " && ";
+  ASSERT_EQ(tinbuild("plan t.las --mesh tin.smb --dem dem --parts 3 -o plan.json -q", cd).code, 0);
+  ASSERT_EQ(tinbuild("build --plan plan.json --part 0 -q", cd).code, 0);
+  ASSERT_EQ(tinbuild("build --plan plan.json --part 2 -q", cd).code, 0);
+  auto m = tinbuild("merge plan.json", cd);
+  EXPECT_EQ(m.code, 1);
+  EXPECT_NE(m.err.find("parts not finished: 1"), std::string::npos) << m.err;
+  EXPECT_FALSE(fs::exists(out / "tin.parts.json"));
+  EXPECT_FALSE(fs::exists(out / "dem" / "mosaic.vrt"));
+  // A part number the plan does not have.
+  auto bad = tinbuild("build --plan plan.json --part 3", cd);
+  EXPECT_EQ(bad.code, 2) << bad.err;
+  // Part 1 runs, twice (idempotent), then the merge completes.
+  ASSERT_EQ(tinbuild("build --plan plan.json --part 1 -q", cd).code, 0);
+  ASSERT_EQ(tinbuild("build --plan plan.json --part 1 -q", cd).code, 0);
+  auto ok = tinbuild("merge plan.json -q", cd);
+  ASSERT_EQ(ok.code, 0) << ok.err;
+  EXPECT_EQ(tinbuild("verify tin.parts.json --points t.las", cd).code, 0);
+  // A new plan over the same state directory: the old parts are named as another plan's.
+  ASSERT_EQ(tinbuild("plan t.las --mesh tin.smb --dem dem --step 2 --parts 3 -o plan.json --overwrite -q", cd).code, 0);
+  ASSERT_EQ(tinbuild("build --plan plan.json --part 0 -q", cd).code, 0);
+  auto stale = tinbuild("merge plan.json", cd);
+  EXPECT_EQ(stale.code, 1);
+  EXPECT_NE(stale.err.find("parts left by another plan: 1, 2"), std::string::npos) << stale.err;
+  // An input changed since the plan: every part refuses, naming it.
+  fs::last_write_time(out / "t.las", fs::last_write_time(out / "t.las") + std::chrono::seconds(5));
+  auto changed = tinbuild("build --plan plan.json --part 1", cd);
+  EXPECT_EQ(changed.code, 1);
+  EXPECT_NE(changed.err.find("t.las: changed since the plan"), std::string::npos) << changed.err;
+  // A plan that was edited is refused.
+  std::string text = slurp(out / "plan.json");
+  const auto at = text.find("\"points\": ") + 10;
+  text.insert(at, "1");
+  std::ofstream(out / "edited.json") << text;
+  auto edited = tinbuild("build --plan edited.json --part 0", cd);
+  EXPECT_EQ(edited.code, 1);
+  EXPECT_NE(edited.err.find("edited or damaged"), std::string::npos) << edited.err;
+  // What cannot be split is said before any work.
+  auto gpkg = tinbuild("plan t.las --gpkg t.gpkg --parts 2 -o p2.json -q", cd);
+  ASSERT_EQ(gpkg.code, 0) << gpkg.err;  // planning is fine; the parts refuse
+  auto part = tinbuild("build --plan p2.json --part 0", cd);
+  EXPECT_EQ(part.code, 2);
+  EXPECT_NE(part.err.find("--gpkg"), std::string::npos) << part.err;
+}
+
+// Under mpirun: one part per rank, outputs as one process's.
+TEST(Parts, MpiRanksEqualOneProcess) {
+  TINBUILD_REQUIRE_DATA();
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
+  const fs::path out = test::scratchDir();
+  auto probe = tinbuild("build " + test::dataPath("las/simple.las") + " --mesh x.smb --mpi -q",
+                        "cd " + out.string() + " && ");
+  if (probe.err.find("built without MPI") != std::string::npos) GTEST_SKIP() << "tinbuild built without MPI";
+  const std::string las = test::dataPath("laz/autzen_trim.laz");
+  const std::string build = " " + las + " --mesh tin.smb --dem dem --step 3ft --tile-size 64";
+  fs::create_directories(out / "one");
+  ASSERT_EQ(tinbuild("build" + build + " -q", "cd " + (out / "one").string() + " && ").code, 0);
+  const std::string mpirun =
+      "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 "
+      "mpirun --oversubscribe --bind-to none -np 3 ";
+  fs::create_directories(out / "mpi");
+  auto m = tinbuild("build" + build + " --mpi -q --threads 1 --report r.json", "cd " + (out / "mpi").string() + " && " + mpirun);
+  ASSERT_EQ(m.code, 0) << m.out << m.err;
+  expectSameAsOneProcess(out / "mpi", out / "one", "mpirun -np 3");
+  const std::string report = slurp(out / "mpi" / "r.json");
+  EXPECT_NE(report.find("\"parts\": 3"), std::string::npos) << report;
+  EXPECT_EQ(report.find("\"mpi_exchanged_bytes\": 0,"), std::string::npos) << report;
+  // Nothing of the run's state is left behind.
+  for (const auto& f : listDir(out / "mpi")) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << f;
+  // A failing part stops every rank, naming it: an unreadable input.
+  fs::create_directories(out / "fail");
+  auto f = tinbuild("build " + (out / "missing.las").string() + " --mesh tin.smb --mpi -q",
+                    "cd " + (out / "fail").string() + " && " + mpirun);
+  EXPECT_NE(f.code, 0);
+  EXPECT_NE(f.err.find("missing.las"), std::string::npos) << f.err;
+}
+
+}  // namespace
+}  // namespace tinbuild
