@@ -34,7 +34,9 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--seed", "S", "generator seed (default 1)"},
       {"--input", "LAS", "threads: the survey to measure (default: the demo's four-strip survey of --points)"},
       {"--keep-class", "LIST", "threads: the classes triangulated (default for the demo survey: 2,9)"},
-      {"--list", "T,T,...", "threads: the thread counts measured, starting with 1 (default 1,2,4,8)"},
+      {"--list", "T,T,...",
+       "threads: the thread counts measured, starting with 1 (default 1,2,4,8); parts: the rank counts (1,2,4)"},
+      {"--step", "R", "parts: the DEM's pixel size (default 1)"},
       {"--no-cgal", "", "skip the CGAL runs"},
       {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
       {"--keep", "", "keep the generated files"},
@@ -147,6 +149,8 @@ Command benchCommand() {
       "                      [--dir DIR] [--keep]\n"
       "       tinbuild bench threads [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4,8]\n"
       "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
+      "       tinbuild bench parts [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4] [--step R]\n"
+      "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -165,6 +169,10 @@ Command benchCommand() {
       "median of R alternating rounds (default 5), with the ratios to one thread (time, peak RSS), the\n"
       "regions and seam share, CGAL on the same points, and a check that every count wrote the same\n"
       "bytes (input: --input LAS, else the demo's four-strip survey of N points, default 10M, bare earth).\n"
+      "bench parts: one survey across MPI ranks (`mpirun -np P tinbuild build --mpi`, P of --list) against\n"
+      "one process, median of R alternating rounds (default 3): wall time and ratio, plan, slowest part and\n"
+      "merge times, the largest rank's peak RSS, bytes sent between ranks, seam share, CGAL; checks that\n"
+      "every P wrote the same DEM tiles and triangle count (input as for threads).\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

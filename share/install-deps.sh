@@ -9,6 +9,7 @@ packages=(
   libgeographiclib-dev          # GeographicLib: UTM/UPS zones, geodesic areas
   libnetcdf-dev pkg-config      # NetCDF-4: the UGRID mesh writer (--mesh FILE.nc)
   libsqlite3-dev                # SQLite with R*Tree: the GeoPackage TIN writer writes its file directly
+  libopenmpi-dev openmpi-bin    # Open MPI: `build --mpi` under mpirun (optional at build time; tests use it)
   libgtest-dev libgmock-dev     # GoogleTest (tests only)
   libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
   clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)

@@ -108,6 +108,57 @@ std::string receiveBytes(int from, int tag) {
   return bytes;
 }
 
+// A private temporary directory for a rank's state (rank 0 keeps its state beside the outputs).
+std::string makeLocalDir(int rank) {
+  if (rank == 0) return "";
+  const char* tmp = std::getenv("TMPDIR");
+  std::string t = std::string(tmp && *tmp ? tmp : "/tmp") + "/tinbuild-mpi-XXXXXX";
+  std::vector<char> buf(t.begin(), t.end());
+  buf.push_back('\0');
+  if (!::mkdtemp(buf.data())) throw Error(t + ": cannot create a temporary directory: " + std::strerror(errno));
+  return buf.data();
+}
+
+// The sums of the plan's counts over the ranks.  A rank whose counting failed says so in counts.error;
+// then every rank throws, naming each failure (no rank is left waiting in a collective call).
+class MpiReducer : public PlanReducer {
+ public:
+  MpiReducer(int rank, int size) : rank_(rank), size_(size) {}
+  int slice() const override { return rank_; }
+  int slices() const override { return size_; }
+  std::uint64_t bytes() const { return bytes_; }
+  void reduce(PlanCounts& c) override {
+    const std::string error = c.error;
+    collective(rank_, size_, "plan on rank", [&] {
+      if (!error.empty()) throw Error(error);
+    });
+    double mins[3] = {c.bounds.minX, c.bounds.minY, c.bounds.minZ}, maxs[3] = {c.bounds.maxX, c.bounds.maxY, c.bounds.maxZ};
+    MPI_Allreduce(MPI_IN_PLACE, mins, 3, MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);
+    MPI_Allreduce(MPI_IN_PLACE, maxs, 3, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    c.bounds.minX = mins[0];
+    c.bounds.minY = mins[1];
+    c.bounds.minZ = mins[2];
+    c.bounds.maxX = maxs[0];
+    c.bounds.maxY = maxs[1];
+    c.bounds.maxZ = maxs[2];
+    FilterCounts& f = c.filter;
+    std::vector<std::uint64_t> v{c.points, f.read, f.kept, f.withheld, f.byClass, f.byReturn, f.clipped, f.otherPart};
+    v.insert(v.end(), std::begin(f.droppedByClass), std::end(f.droppedByClass));
+    v.insert(v.end(), c.regions.begin(), c.regions.end());
+    bytes_ += (v.size() + 6) * 8;
+    MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_UINT64_T, MPI_SUM, MPI_COMM_WORLD);
+    std::size_t k = 0;
+    for (std::uint64_t* x : {&c.points, &f.read, &f.kept, &f.withheld, &f.byClass, &f.byReturn, &f.clipped, &f.otherPart})
+      *x = v[k++];
+    for (std::uint64_t& x : f.droppedByClass) x = v[k++];
+    for (std::uint64_t& x : c.regions) x = v[k++];
+  }
+
+ private:
+  int rank_, size_;
+  std::uint64_t bytes_ = 0;  // this rank's contributions to the sums
+};
+
 // Finalizes MPI on the way out, whatever happens.
 struct MpiSession {
   int rank = 0, size = 1;
@@ -154,38 +205,53 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   RunReport planReport;
   std::uint64_t exchanged = 0;
 
-  // 1. The plan, on rank 0, to everyone.
+  using Clock = std::chrono::steady_clock;
+  auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
+  // 1. The plan.  Every rank counts a slice of the survey and the counts are summed (MPI_Allreduce), so
+  // the plan reads the survey once in all, not once on rank 0; a COPC survey is planned by rank 0's
+  // finalizer (one process lays its grid on the octree) and broadcast.
+  const auto tPlan = Clock::now();
+  bool sliced = false;
   collective(rank, size, "plan on rank", [&] {
-    if (rank != 0) return;
+    localDir = makeLocalDir(rank);
+    sliced = planInSlices(options, diag);
+  });
+  if (sliced) {
+    MpiReducer reducer(rank, size);
     PipelineOptions po = options;
     po.overwrite = true;
-    plan.path = rootPlanPath;
-    planReport = runPlan(po, size, plan, diag);
-  });
-  std::string planText = rank == 0 ? readWhole(rootPlanPath) : std::string();
-  std::uint64_t planBytes = planText.size();
-  MPI_Bcast(&planBytes, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
-  planText.resize(planBytes);
-  MPI_Bcast(planText.data(), static_cast<int>(planBytes), MPI_CHAR, 0, MPI_COMM_WORLD);
-  exchanged += planBytes * static_cast<std::uint64_t>(size - 1);
-  collective(rank, size, "plan copy on rank", [&] {
-    if (rank == 0) {
-      plan = readPlan(rootPlanPath);
-      return;
-    }
-    char tmpl[] = "/tmp/tinbuild-mpi-XXXXXX";
-    const char* tmp = std::getenv("TMPDIR");
-    std::string t = std::string(tmp && *tmp ? tmp : "/tmp") + "/tinbuild-mpi-XXXXXX";
-    std::vector<char> buf(t.begin(), t.end());
-    buf.push_back('\0');
-    if (!::mkdtemp(buf.data()) && !::mkdtemp(tmpl)) throw Error("cannot create a temporary directory");
-    localDir = buf.data();
-    const std::string path = localDir + "/plan.json";
-    writeWhole(path, planText);
-    plan = readPlan(path);
-  });
+    plan.path = rank == 0 ? rootPlanPath : localDir + "/plan.json";
+    planReport = runPlanInSlices(po, size, plan, diag, reducer);  // (its errors reach every rank)
+    exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
+    collective(rank, size, "plan on rank", [&] { writePlan(plan, plan.path); });
+  } else {
+    collective(rank, size, "plan on rank", [&] {
+      if (rank != 0) return;
+      PipelineOptions po = options;
+      po.overwrite = true;
+      plan.path = rootPlanPath;
+      planReport = runPlan(po, size, plan, diag);
+    });
+    std::string planText = rank == 0 ? readWhole(rootPlanPath) : std::string();
+    std::uint64_t planBytes = planText.size();
+    MPI_Bcast(&planBytes, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+    planText.resize(planBytes);
+    MPI_Bcast(planText.data(), static_cast<int>(planBytes), MPI_CHAR, 0, MPI_COMM_WORLD);
+    exchanged += planBytes * static_cast<std::uint64_t>(size - 1) * (rank == 0 ? 1 : 0) * 2;
+    collective(rank, size, "plan copy on rank", [&] {
+      if (rank == 0) {
+        plan = readPlan(rootPlanPath);
+        return;
+      }
+      const std::string path = localDir + "/plan.json";
+      writeWhole(path, planText);
+      plan = readPlan(path);
+    });
+  }
 
+  const double planSeconds = since(tPlan);
   // 2. Every rank its part.
+  const auto tPart = Clock::now();
   RunReport partReport;
   collective(rank, size, "part", [&] {
     PipelineOptions po = options;
@@ -195,6 +261,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     partReport = runBuild(po, diag);
   });
 
+  double partSeconds = since(tPart);
   // 3. Seam files, DEM pieces and part records to rank 0.
   const char* kinds[] = {"seam", "dem", "json"};
   collective(rank, size, "exchange from rank", [&] {
@@ -226,6 +293,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   }
 
   // 4. The merge on rank 0.
+  const auto tMerge = Clock::now();
   RunReport merged;
   collective(rank, size, "merge on rank", [&] {
     if (rank != 0) return;
@@ -233,6 +301,9 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     mo.commandLine = plan.command;  // the parts' tiles record the plan's command: so do the merge's
     merged = runMerge(mo, plan, diag);
   });
+  const double mergeSeconds = since(tMerge);
+  std::vector<double> partTimes(static_cast<std::size_t>(size));
+  MPI_Gather(&partSeconds, 1, MPI_DOUBLE, partTimes.data(), 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
   std::uint64_t peak = peakRssBytes();
   std::vector<std::uint64_t> peaks(static_cast<std::size_t>(size));
   MPI_Gather(&peak, 1, MPI_UINT64_T, peaks.data(), 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
@@ -251,6 +322,9 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   merged.finalizer = planReport.finalizer;
   merged.haveFinalizer = planReport.haveFinalizer;
   merged.rankPeakRss = peaks;
+  merged.rankPartSeconds = partTimes;
+  merged.planSeconds = planSeconds;
+  merged.mergeSeconds = mergeSeconds;
   merged.exchangedBytes = exchangedAll / 2;  // each byte was counted by its sender and its receiver
   merged.planPath.clear();
   // Rank 0's own part's outputs, then the merge's.

@@ -773,6 +773,60 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
 
 namespace {
 
+// The plan's region level: at least 4 regions a part (for balance), at least the regions one process
+// would use, at most 4^7, at most the grid's depth.
+int planLevel(std::uint64_t points, int depth, int parts) {
+  int level = 1;
+  while (level < 7 && (std::uint64_t{1} << (2 * level)) < 4 * static_cast<std::uint64_t>(parts)) ++level;
+  level = std::max(level, ParallelDelaunay::chooseRegionLevel(points, depth));
+  return std::min(level, depth);
+}
+
+// Consecutive Morton ranges of regions with about equal point counts, each with points.
+std::vector<PlanPart> splitRegions(const std::vector<std::uint64_t>& counts, int parts) {
+  const std::size_t n = counts.size();
+  std::uint64_t total = 0, occupied = 0;
+  for (std::uint64_t c : counts) {
+    total += c;
+    occupied += c > 0;
+  }
+  if (occupied < static_cast<std::uint64_t>(parts))
+    throw DataError("", "only " + std::to_string(occupied) + " of the " + std::to_string(n) +
+                            " regions hold points: use --parts " + std::to_string(occupied) + " or fewer");
+  std::vector<PlanPart> out;
+  std::size_t m = 0;
+  std::uint64_t before = 0, occupiedLeft = occupied;
+  for (int k = 0; k < parts; ++k) {
+    PlanPart part;
+    part.first = m;
+    const int after = parts - 1 - k;  // parts still to come: each needs an occupied region
+    const std::uint64_t target = total * static_cast<std::uint64_t>(k + 1) / static_cast<std::uint64_t>(parts);
+    for (;;) {
+      part.points += counts[m];
+      occupiedLeft -= counts[m] > 0;
+      ++m;
+      if (m == n) break;
+      if (after == 0) continue;  // the last part takes the rest
+      if (part.points == 0) continue;
+      if (occupiedLeft == static_cast<std::uint64_t>(after)) break;
+      // Stop where the cumulative count comes closest to this part's share.
+      if (before + part.points + counts[m] / 2 > target) break;
+    }
+    before += part.points;
+    part.end = m;
+    out.push_back(part);
+  }
+  return out;
+}
+
+// The Morton index of (col, row) at `level`.
+std::size_t mortonOf(std::uint32_t c, std::uint32_t r, int level) {
+  std::size_t m = 0;
+  for (int b = 0; b < level; ++b)
+    m |= static_cast<std::size_t>((c >> b) & 1u) << (2 * b) | static_cast<std::size_t>((r >> b) & 1u) << (2 * b + 1);
+  return m;
+}
+
 // The plan's counting pass: the finalizer's stream (its grid), counted per region of the plan's level.
 class PlanCounter : public PointSink {
  public:
@@ -782,62 +836,17 @@ class PlanCounter : public PointSink {
     if (info.grid.depth < 1)
       throw DataError("", "the survey is too small to split into parts (" + std::to_string(info.points) +
                               " points, one grid cell): run `tinbuild build` on it");
-    // At least 4 regions a part (for balance), at least the regions one process would use, at most 4^7.
-    int level = 1;
-    while (level < 7 && (std::uint64_t{1} << (2 * level)) < 4 * static_cast<std::uint64_t>(parts_)) ++level;
-    level = std::max(level, ParallelDelaunay::chooseRegionLevel(info.points, info.grid.depth));
-    level_ = std::min(level, info.grid.depth);
+    level_ = planLevel(info.points, info.grid.depth, parts_);
     shift_ = info.grid.depth - level_;
     counts_.assign(std::size_t{1} << (2 * level_), 0);
   }
   void points(const PointRecord* p, std::size_t n) override {
-    for (std::size_t i = 0; i < n; ++i) {
-      const std::uint32_t c = info_.grid.column(p[i].x) >> shift_, r = info_.grid.row(p[i].y) >> shift_;
-      std::size_t m = 0;
-      for (int b = 0; b < level_; ++b)
-        m |= static_cast<std::size_t>((c >> b) & 1u) << (2 * b) | static_cast<std::size_t>((r >> b) & 1u) << (2 * b + 1);
-      ++counts_[m];
-    }
+    for (std::size_t i = 0; i < n; ++i)
+      ++counts_[mortonOf(info_.grid.column(p[i].x) >> shift_, info_.grid.row(p[i].y) >> shift_, level_)];
   }
   void finalizeCell(const CellTag&) override {}
   void end() override {}
-
-  // Consecutive Morton ranges of about equal point counts, each with points.
-  std::vector<PlanPart> split() const {
-    const std::size_t n = counts_.size();
-    std::uint64_t total = 0, occupied = 0;
-    for (std::uint64_t c : counts_) {
-      total += c;
-      occupied += c > 0;
-    }
-    if (occupied < static_cast<std::uint64_t>(parts_))
-      throw DataError("", "only " + std::to_string(occupied) + " of the " + std::to_string(n) +
-                              " regions hold points: use --parts " + std::to_string(occupied) + " or fewer");
-    std::vector<PlanPart> parts;
-    std::size_t m = 0;
-    std::uint64_t before = 0, occupiedLeft = occupied;
-    for (int k = 0; k < parts_; ++k) {
-      PlanPart part;
-      part.first = m;
-      const int after = parts_ - 1 - k;  // parts still to come: each needs an occupied region
-      const std::uint64_t target = total * static_cast<std::uint64_t>(k + 1) / static_cast<std::uint64_t>(parts_);
-      for (;;) {
-        part.points += counts_[m];
-        occupiedLeft -= counts_[m] > 0;
-        ++m;
-        if (m == n) break;
-        if (after == 0) continue;  // the last part takes the rest
-        if (part.points == 0) continue;
-        if (occupiedLeft == static_cast<std::uint64_t>(after)) break;
-        // Stop where the cumulative count comes closest to this part's share.
-        if (before + part.points + counts_[m] / 2 > target) break;
-      }
-      before += part.points;
-      part.end = m;
-      parts.push_back(part);
-    }
-    return parts;
-  }
+  std::vector<PlanPart> split() const { return splitRegions(counts_, parts_); }
   const StreamInfo& info() const { return info_; }
   int level() const { return level_; }
 
@@ -883,6 +892,146 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   r.parts = parts;
   r.planPath = plan.path;
   reportTransform(in, r, diag);
+  finish(r, diag, t0);
+  return r;
+}
+
+bool planInSlices(const PipelineOptions& o, Diagnostics& diag) {
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
+  for (std::size_t i = 0; i < in.readers.size(); ++i) {
+    std::vector<PointStream::Block> blocks;
+    PointStream::BlockFrame frame;
+    // A COPC survey: one process counts it from the hierarchy and lays its grid on the octree's frame
+    // (block mode), which the slices would not reproduce; the finalizer plans it.
+    if (in.streams[i] == in.readers[i].get() && in.readers[i]->describeBlocks(blocks, frame)) return false;
+    if (o.inputs[i] == "-") return false;
+  }
+  return true;
+}
+
+namespace {
+
+// One slice's share of the survey: (input, first record, records) pieces; count 0 = the whole input.
+struct SlicePiece {
+  std::size_t input;
+  std::uint64_t first, count;
+};
+
+// The survey's records as one sequence cut into `slices` equal runs; inputs that can be read from any
+// record (LAS/LAZ read as themselves, of known count) are cut, others go whole to one slice.
+std::vector<SlicePiece> slicePieces(const OpenedInputs& in, int slice, int slices) {
+  std::vector<std::uint64_t> counts(in.streams.size(), 0);
+  std::vector<bool> cut(in.streams.size(), false);
+  std::uint64_t total = 0;
+  for (std::size_t i = 0; i < in.streams.size(); ++i) {
+    const SourceInfo& si = in.readers[i]->info();
+    cut[i] = in.streams[i] == in.readers[i].get() && si.pointCountKnown && in.streams[i]->seekable();
+    counts[i] = cut[i] ? si.pointCount : 0;
+    total += counts[i];
+  }
+  const std::uint64_t from = total * static_cast<std::uint64_t>(slice) / static_cast<std::uint64_t>(slices);
+  const std::uint64_t to = total * static_cast<std::uint64_t>(slice + 1) / static_cast<std::uint64_t>(slices);
+  std::vector<SlicePiece> pieces;
+  std::uint64_t at = 0;
+  std::size_t whole = 0;
+  for (std::size_t i = 0; i < in.streams.size(); ++i) {
+    if (!cut[i]) {
+      if (static_cast<int>(whole++ % static_cast<std::size_t>(slices)) == slice) pieces.push_back({i, 0, 0});
+      continue;
+    }
+    const std::uint64_t a = std::max(at, from), b = std::min(at + counts[i], to);
+    if (a < b) pieces.push_back({i, a - at, b - a});
+    at += counts[i];
+  }
+  return pieces;
+}
+
+// Reads this slice's pieces, filtered, and hands each kept batch to `use`.
+template <class Use>
+void readSlice(const OpenedInputs& in, const std::vector<SlicePiece>& pieces, const PointFilter& filter,
+               FilterCounts& counts, Use use) {
+  std::vector<PointRecord> buf(std::size_t{1} << 15);
+  for (const SlicePiece& p : pieces) {
+    PointStream& s = *in.streams[p.input];
+    s.rewind();
+    if (p.count) s.seek(p.first, p.count);
+    std::uint64_t left = p.count ? p.count : ~std::uint64_t{0};
+    while (left > 0) {
+      std::size_t n = s.read(buf.data(), static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), left)));
+      if (n == 0) break;
+      left -= p.count ? n : 0;
+      n = filter.apply(buf.data(), n, counts);
+      use(buf.data(), n);
+    }
+    s.suspend();
+  }
+}
+
+}  // namespace
+
+RunReport runPlanInSlices(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& diag, PlanReducer& reducer) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "plan";
+  r.inputs = o.inputs;
+  if (parts < 1) throw UsageError("--parts must be at least 1");
+  // Every slice reaches every reduce(), failed or not: a failure travels in PlanCounts::error.
+  FinalizerOptions fo = o.finalizer;
+  OpenedInputs in;
+  std::vector<SlicePiece> pieces;
+  PlanCounts bounds;
+  try {
+    in = openInputs(o, fo, diag, /*needIntensity=*/false);
+    r.crs = in.crs;
+    r.filter = fo.filter.describe();
+    pieces = slicePieces(in, reducer.slice(), reducer.slices());
+    // Pass 1: the bounds and count of the kept points (the bounds one process measures).
+    readSlice(in, pieces, fo.filter, bounds.filter, [&](const PointRecord* p, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i) bounds.bounds.add(p[i].x, p[i].y, p[i].z);
+      bounds.points += n;
+    });
+  } catch (const std::exception& e) {
+    bounds.error = e.what();
+  }
+  reducer.reduce(bounds);
+  if (bounds.points == 0) throw DataError(o.inputs.front(), "no points after the filters (" + r.filter + ")");
+  const int depth = fo.depth >= 0 ? fo.depth : chooseDepth(bounds.points);
+  if (depth < 1)
+    throw DataError("", "the survey is too small to split into parts (" + std::to_string(bounds.points) +
+                            " points, one grid cell): run `tinbuild build` on it");
+  const GridSpec grid = makeGrid(bounds.bounds, depth);
+  const int level = planLevel(bounds.points, depth, parts);
+  // Pass 2: points per region.
+  PlanCounts counts;
+  counts.regions.assign(std::size_t{1} << (2 * level), 0);
+  const int shift = depth - level;
+  try {
+    readSlice(in, pieces, fo.filter, counts.filter, [&](const PointRecord* p, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i)
+        ++counts.regions[mortonOf(grid.column(p[i].x) >> shift, grid.row(p[i].y) >> shift, level)];
+      counts.points += n;
+    });
+  } catch (const std::exception& e) {
+    counts.error = e.what();
+  }
+  reducer.reduce(counts);
+  if (counts.points != bounds.points)
+    throw DataError(o.inputs.front(), "the inputs yielded another number of points in the second read (was a file "
+                                      "modified while being read?)");
+  plan.inputs.clear();
+  for (const std::string& input : o.inputs) plan.inputs.push_back(describeInput(input));
+  plan.grid = grid;
+  plan.bounds = bounds.bounds;
+  plan.points = counts.points;
+  plan.regionLevel = level;
+  plan.parts = splitRegions(counts.regions, parts);
+  r.haveFinalizer = true;
+  r.finalizer.filter = counts.filter;
+  r.finalizer.points = counts.points;
+  r.finalizer.bounds = bounds.bounds;
+  r.finalizer.grid = grid;
+  r.parts = parts;
   finish(r, diag, t0);
   return r;
 }
@@ -1313,6 +1462,15 @@ std::string formatRunSummary(const RunReport& r) {
       d.pop_back();
       line("filter", d);
     }
+    if (r.parts > 0 && r.part < 0) {  // an MPI run: the plan's view of the survey, then the parts'
+      line("plan", std::to_string(r.parts) + " parts of regions at level " + std::to_string(r.parallel.regionLevel) +
+                       ", grid depth " + std::to_string(s.grid.depth) + "; planned in " +
+                       formatDouble("%.2f", r.planSeconds) + " s, slowest part " +
+                       formatDouble("%.2f", r.rankPartSeconds.empty()
+                                                ? 0.0
+                                                : *std::max_element(r.rankPartSeconds.begin(), r.rankPartSeconds.end())) +
+                       " s, merge " + formatDouble("%.2f", r.mergeSeconds) + " s");
+    } else {
     line("grid", "depth " + std::to_string(s.grid.depth) + " (" + std::to_string(s.grid.side()) + " x " +
                      std::to_string(s.grid.side()) + " cells of " + formatDouble("%.4g", s.grid.cellSize()) +
                      "), " + withCommas(s.occupiedCells) + " occupied, " +
@@ -1344,6 +1502,7 @@ std::string formatRunSummary(const RunReport& r) {
                                           rate(f.read * s.pass2Runs, s.pass2Seconds) + " M/s), 3: ") +
                        formatDouble("%.3f s", s.pass3Seconds) + " (" +
                        rate(f.read, s.pass3Seconds) + " M/s)");
+    }
   }
   if (r.haveDelaunay) {
     const DelaunayStats& d = r.delaunay;
@@ -1635,6 +1794,11 @@ std::string formatRunJson(const RunReport& r) {
     j.key("rank_peak_rss_bytes").beginArray();
     for (std::uint64_t b : r.rankPeakRss) j.value(b);
     j.endArray();
+    j.key("plan_seconds").value(r.planSeconds);
+    j.key("rank_part_seconds").beginArray();
+    for (double t : r.rankPartSeconds) j.value(t);
+    j.endArray();
+    j.key("merge_seconds").value(r.mergeSeconds);
     j.endObject();
   }
   if (!r.gpkgOutput.empty()) {

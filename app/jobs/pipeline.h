@@ -129,6 +129,8 @@ struct RunReport {
   // rank's peak resident set.
   std::uint64_t exchangedBytes = 0;
   std::vector<std::uint64_t> rankPeakRss;
+  double planSeconds = 0, mergeSeconds = 0;  // --mpi: rank 0's plan and merge
+  std::vector<double> rankPartSeconds;       // --mpi: each rank's part (its build)
   bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
 };
 
@@ -142,6 +144,30 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag);
 // (plan.path; plan.command and plan.buildArgs are the caller's).  Throws DataError for a survey too small
 // to split (a grid of depth 0) and UsageError for stdin (parts read the inputs again).
 RunReport runPlan(const PipelineOptions& options, int parts, Plan& plan, Diagnostics& diag);
+
+// Planning in slices (MPI): every process reads one slice of the survey (its share of the records;
+// LAS/LAZ inputs are cut by record, others go whole to one slice), counts what it keeps, and `reduce`
+// sums the counts over all slices.  The grid is laid over the kept points' bounds at the depth one process
+// would default to; the bounds (hence the DEM's layout) are exactly one process's.  Not for COPC surveys
+// (planInSlices says so): one process lays its grid on the octree and counts from the hierarchy.
+struct PlanCounts {
+  Bounds3 bounds;  // of the kept points (reduced by min/max)
+  std::uint64_t points = 0;
+  FilterCounts filter;
+  std::vector<std::uint64_t> regions;  // kept points per region, Morton order (empty in the bounds pass)
+  std::string error;                   // this slice failed: reduce() throws it on every slice
+};
+class PlanReducer {
+ public:
+  virtual ~PlanReducer() = default;
+  virtual int slice() const = 0;
+  virtual int slices() const = 0;
+  // Replaces `counts` by the sum over all slices (bounds: their union), on every slice.
+  virtual void reduce(PlanCounts& counts) = 0;
+};
+bool planInSlices(const PipelineOptions& options, Diagnostics& diag);
+RunReport runPlanInSlices(const PipelineOptions& options, int parts, Plan& plan, Diagnostics& diag,
+                          PlanReducer& reducer);
 
 // `tinbuild merge`: checks that every part of the plan finished (and for this plan), runs the seam step
 // over their seam files, writes the seam's triangles (mesh: the seam file and the manifest of the TIN's

@@ -44,7 +44,7 @@ void expectSameAsOneProcess(const fs::path& dir, const fs::path& one, const std:
     EXPECT_TRUE(slurp(dir / "dem" / f) == slurp(one / "dem" / f)) << what << ": dem/" << f << " differs";
   // GDAL opens the mosaic and reads the same pixels through it.
   auto gdal = [](const fs::path& vrt) {
-    const std::string out = (fs::path(TINBUILD_TEST_TMP) / "parts-gdalinfo.txt").string();
+    const std::string out = (vrt.parent_path().parent_path() / "gdalinfo.txt").string();  // beside dem/
     const int rc = std::system(("gdalinfo -checksum " + vrt.string() + " > " + out + " 2>&1").c_str());
     const std::string text = slurp(out);
     return rc == 0 ? text.substr(text.find("Checksum=")) : "gdalinfo failed: " + text;

@@ -127,6 +127,14 @@ const char* kUsage =
     "      every thread count wrote the same bytes.  Input: --input LAS, else the demo's four-strip\n"
     "      survey of N points (default 10M; `tinbuild demo --survey-only --las --point-format 6`) with\n"
     "      --keep-class 2,9 (bare earth) unless --keep-class says otherwise.\n"
+    "  tinbuild-bench parts [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4] [--step R]\n"
+    "                       [--repeat R] [--no-cgal] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "      One survey across processes: `tinbuild build --mesh --dem` in one process (all cores), then\n"
+    "      `mpirun -np P tinbuild build ... --mpi --threads cores/P` for each P of --list, in R rounds\n"
+    "      (default 3) alternating; prints the median wall time and its ratio to one process, the plan,\n"
+    "      slowest part and merge times, the peak RSS of the largest rank, the bytes sent between ranks,\n"
+    "      the seam share, and CGAL's insertion of the same points.  Checks that every P wrote the same\n"
+    "      DEM tiles (bytes) and as many triangles as one process.  Input as for `threads`.\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -1034,6 +1042,190 @@ int threadsMain(const std::vector<std::string>& argv) {
       "  2 threads on 2 cores: time <= 0.6, RSS <= 1.5).  Every thread count wrote the same bytes.\n");
   return 0;
 }
+
+// `parts`: one survey across MPI ranks against one process (and CGAL), median of alternating rounds.
+int partsMain(const std::vector<std::string>& argv) {
+  Args args("parts", argv);
+  Config cfg = makeConfig(args);
+  const std::string input = args.value("--input", "");
+  const std::uint64_t n = args.count("--points", 10000000, 1000000, std::uint64_t{1} << 36);
+  const std::string keepClass = args.value("--keep-class", input.empty() ? "2,9" : "");
+  const std::string listText = args.value("--list", "1,2,4");
+  const std::string step = args.value("--step", "1");
+  const int rounds = static_cast<int>(args.count("--repeat", 3, 1, 1000));
+  const std::string base = args.value("--dir", defaultTempDir());
+  args.finish();
+  std::vector<int> list;
+  {
+    std::stringstream in(listText);
+    for (std::string t; std::getline(in, t, ',');) list.push_back(static_cast<int>(parseCount(t, "--list")));
+  }
+  const std::string mpirun = "/usr/bin/mpirun";
+  if (::access(mpirun.c_str(), X_OK) != 0) throw BenchError("parts: no " + mpirun + " (apt-get install openmpi-bin)");
+  ::setenv("OMPI_ALLOW_RUN_AS_ROOT", "1", 1);
+  ::setenv("OMPI_ALLOW_RUN_AS_ROOT_CONFIRM", "1", 1);
+  const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+
+  TempDir dir(base, cfg.keep);
+  std::string las = input;
+  if (las.empty()) {
+    progress("writing the " + group(n) + "-point four-strip survey (untimed)");
+    runChild(cfg.tinbuild, {"demo", dir.path() + "/demo", "--points", fmt("%.6g", static_cast<double>(n) / 1e6),
+                            "--survey-only", "--las", "--point-format", "6"},
+             false);
+    las = dir.path() + "/demo/survey.las";
+  }
+  las = std::filesystem::absolute(las).string();  // the runs work in directories of their own
+  std::vector<std::string> options{"--step", step, "--tile-size", "512"};
+  if (!keepClass.empty()) options.insert(options.end(), {"--keep-class", keepClass});
+
+  struct Series {
+    std::vector<double> seconds, rssMiB, plan, part, merge;
+    std::string report;
+  };
+  Series one;
+  std::vector<Series> ranks(list.size());
+  auto median = [](std::vector<double> v) {
+    std::sort(v.begin(), v.end());
+    return v.empty() ? std::numeric_limits<double>::quiet_NaN()
+                     : (v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]));
+  };
+  auto numbers = [](const std::string& json, const std::string& key) {
+    std::vector<double> v;
+    const auto at = json.find("\"" + key + "\": [");
+    if (at == std::string::npos) return v;
+    std::stringstream in(json.substr(json.find('[', at) + 1, json.find(']', at) - json.find('[', at) - 1));
+    for (std::string t; std::getline(in, t, ',');) v.push_back(std::stod(t));
+    return v;
+  };
+  auto clean = [&](const std::string& d) { std::filesystem::remove_all(d); };
+  auto runIn = [](const std::string& d, const std::string& exe, const std::vector<std::string>& cmd) {
+    const std::filesystem::path back = std::filesystem::current_path();
+    std::filesystem::current_path(d);
+    try {
+      ChildRun r = runChild(exe, cmd, false);
+      std::filesystem::current_path(back);
+      return r;
+    } catch (...) {
+      std::filesystem::current_path(back);
+      throw;
+    }
+  };
+  auto sameTiles = [](const std::string& a, const std::string& b) {
+    std::vector<std::string> names;
+    for (const auto& e : std::filesystem::directory_iterator(a))
+      if (e.path().extension() == ".tif") names.push_back(e.path().filename().string());
+    std::size_t other = 0;
+    for (const auto& e : std::filesystem::directory_iterator(b)) other += e.path().extension() == ".tif";
+    if (names.size() != other || names.empty()) return false;
+    for (const auto& f : names)
+      if (readFile(a + "/" + f) != readFile(b + "/" + f)) return false;
+    return true;
+  };
+  for (int round = 0; round < rounds; ++round) {
+    {
+      const std::string d = dir.path() + "/one";
+      clean(d);
+      std::filesystem::create_directories(d);
+      // Each run in a directory of its own with the same relative output names: the outputs record the
+      // command, and the DEM tiles of every run must be the same bytes.
+      std::vector<std::string> cmd{"build", las, "--mesh", "tin.smb", "--dem", "dem", "-q", "--report", "r.json"};
+      cmd.insert(cmd.end(), options.begin(), options.end());
+      const ChildRun r = runIn(d, cfg.tinbuild, cmd);
+      one.seconds.push_back(r.seconds);
+      one.rssMiB.push_back(mib(r.maxRssKb));
+      one.report = readFile(d + "/r.json");
+      progress("  round " + std::to_string(round + 1) + ", one process: " + fmt("%.3f s", r.seconds) + " " +
+               fmt("%.1f MiB", mib(r.maxRssKb)));
+    }
+    for (std::size_t k = 0; k < list.size(); ++k) {
+      const std::string p = std::to_string(list[k]);
+      const std::string d = dir.path() + "/np" + p;
+      clean(d);
+      std::filesystem::create_directories(d);
+      std::vector<std::string> cmd{"--oversubscribe", "--bind-to", "none", "-np", p, cfg.tinbuild, "build", las,
+                                   "--mesh", "tin.smb", "--dem", "dem", "--mpi", "-q", "--threads",
+                                   std::to_string(std::max(1, cores / list[k])), "--report", "r.json"};
+      cmd.insert(cmd.end(), options.begin(), options.end());
+      const ChildRun r = runIn(d, mpirun, cmd);
+      Series& s = ranks[k];
+      s.report = readFile(d + "/r.json");
+      const std::vector<double> peaks = numbers(s.report, "rank_peak_rss_bytes"), parts = numbers(s.report, "rank_part_seconds");
+      s.seconds.push_back(r.seconds);
+      s.rssMiB.push_back(peaks.empty() ? 0 : *std::max_element(peaks.begin(), peaks.end()) / 1048576.0);
+      s.plan.push_back(jsonNumber(s.report, "plan_seconds", "plan").value_or(0));
+      s.part.push_back(parts.empty() ? 0 : *std::max_element(parts.begin(), parts.end()));
+      s.merge.push_back(jsonNumber(s.report, "merge_seconds", "plan").value_or(0));
+      progress("  round " + std::to_string(round + 1) + ", " + p + " rank(s): " + fmt("%.3f s", r.seconds) +
+               ", largest rank " + fmt("%.1f MiB", s.rssMiB.back()));
+      if (round == 0) {
+        if (!sameTiles(dir.path() + "/one/dem", d + "/dem"))
+          throw BenchError("parts: " + p + " ranks wrote other DEM tiles than one process");
+        const std::uint64_t a = jsonCount(one.report, "triangles", "triangulation"),
+                            b = jsonCount(s.report, "triangles", "triangulation");
+        if (a != b)
+          throw BenchError("parts: " + p + " ranks wrote " + group(b) + " triangles, one process " + group(a));
+      }
+    }
+  }
+  if (!cfg.keep) {
+    clean(dir.path() + "/one");
+    for (const int p : list) clean(dir.path() + "/np" + std::to_string(p));
+  }
+  double cgalSeconds = std::numeric_limits<double>::quiet_NaN(), cgalMiB = 0;
+  if (!cfg.noCgal) {
+    std::vector<std::string> cmd{"cgal-child", las};
+    if (!keepClass.empty()) cmd.push_back(keepClass);
+    std::vector<double> times;
+    for (int i = 0; i < std::min(rounds, 3); ++i) {
+      const ChildRun run = runChild(cfg.self, cmd, true);
+      std::istringstream in(run.output);
+      double insert = 0;
+      in >> insert;
+      times.push_back(insert);
+      cgalMiB = mib(run.maxRssKb);
+    }
+    cgalSeconds = median(times);
+  }
+  const std::uint64_t vertices = jsonCount(one.report, "vertices", "triangulation");
+  std::printf("tinbuild-bench parts: %s\n", las.c_str());
+  std::printf("  machine     %u cores (nproc), load average %s after; median of %d alternating rounds\n",
+              std::thread::hardware_concurrency(), loadAverage().c_str(), rounds);
+  std::printf("  survey      %s points streamed (%s), %s vertices; outputs: --mesh SMB, --dem DIR --step %s\n",
+              group(jsonCount(one.report, "points_streamed")).c_str(),
+              keepClass.empty() ? "default filter" : ("--keep-class " + keepClass).c_str(), group(vertices).c_str(),
+              step.c_str());
+  std::printf("\n  %-12s %9s %6s %8s %8s %8s %11s %8s %10s %7s %10s\n", "run", "wall s", "ratio", "plan s",
+              "part s", "merge s", "rank RSS", "ratio", "exchanged", "seam %", "build/CGAL");
+  std::printf("  %-12s %9s %6s %8s %8s %8s %11s %8s %10s %7s %10s\n", "1 process", fmt("%.3f", median(one.seconds)).c_str(),
+              "1.00", "-", "-", "-", (fmt("%.1f", median(one.rssMiB)) + " MiB").c_str(), "1.00", "-", "-",
+              fmt("%.2f", median(one.seconds) / cgalSeconds).c_str());
+  for (std::size_t k = 0; k < list.size(); ++k) {
+    const Series& s = ranks[k];
+    const double seam = vertices ? 100.0 * static_cast<double>(jsonCount(s.report, "seam_vertices", "plan")) /
+                                       static_cast<double>(vertices)
+                                 : 0;
+    std::printf("  %-12s %9s %6s %8s %8s %8s %11s %8s %10s %7s %10s\n",
+                (std::to_string(list[k]) + (list[k] == 1 ? " rank" : " ranks")).c_str(),
+                fmt("%.3f", median(s.seconds)).c_str(), fmt("%.2f", median(s.seconds) / median(one.seconds)).c_str(),
+                fmt("%.3f", median(s.plan)).c_str(), fmt("%.3f", median(s.part)).c_str(),
+                fmt("%.3f", median(s.merge)).c_str(), (fmt("%.1f", median(s.rssMiB)) + " MiB").c_str(),
+                fmt("%.2f", median(s.rssMiB) / median(one.rssMiB)).c_str(),
+                (fmt("%.2f", static_cast<double>(jsonCount(s.report, "mpi_exchanged_bytes", "plan")) / 1048576.0) +
+                 " MiB")
+                    .c_str(),
+                fmt("%.2f", seam).c_str(), fmt("%.2f", median(s.seconds) / cgalSeconds).c_str());
+  }
+  std::printf("\n  CGAL Delaunay_triangulation_2 range insertion of the same points: %s s, %s MiB.\n",
+              fmt("%.3f", cgalSeconds).c_str(), fmt("%.1f", cgalMiB).c_str());
+  std::printf(
+      "  1 process: `tinbuild build LAS --mesh --dem` on all cores.  P ranks: `mpirun -np P tinbuild build\n"
+      "  ... --mpi --threads cores/P`: rank 0 plans, every rank triangulates its part reading only its window,\n"
+      "  rank 0 merges.  wall: the whole mpirun; plan, part (the slowest rank) and merge: rank 0's report.\n"
+      "  rank RSS: the largest rank's peak.  exchanged: plan, seam files and DEM pieces sent between ranks.\n"
+      "  seam %%: seam vertices / TIN vertices.  Every P wrote the same DEM tiles and as many triangles.\n");
+  return 0;
+}
 }  // namespace
 
 }  // namespace tinbuild::bench
@@ -1063,6 +1255,7 @@ int main(int argc, char** argv) {
     if (command == "stream") return streamMain(rest);
     if (command == "finalize") return finalizeMain(rest);
     if (command == "threads") return threadsMain(rest);
+    if (command == "parts") return partsMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
     throw BenchError("unknown subcommand '" + command + "' (see tinbuild-bench --help)");
   } catch (const std::exception& e) {
