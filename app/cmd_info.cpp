@@ -3,7 +3,9 @@
 #include <thread>
 
 #include "app/commands.h"
+#include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
+#include "formats/io/plan_file.h"
 #include "formats/pointcloud/input_list.h"
 #include "libterrain/core/error.h"
 
@@ -12,6 +14,10 @@ namespace tinbuild::app {
 namespace {
 
 int runInfo(const cli::ParsedArgs& args) {
+  if (args.positional.size() == 1 && isMeshManifest(args.positional[0])) {  // a TIN in parts
+    std::cout << formatMeshManifestInfo(args.positional[0], args.has("--json"));
+    return 0;
+  }
   InfoOptions o;
   o.inputs = expandInputs(args.positional);
   if (o.inputs.empty()) throw UsageError("info: give at least one input file (or - for stdin)");

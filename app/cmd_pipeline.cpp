@@ -446,8 +446,20 @@ int runPlanCommand(const cli::ParsedArgs& args) {
 }
 
 int runMergeCommand(const cli::ParsedArgs& args) {
-  if (args.positional.size() != 1) throw UsageError("merge: give the plan: tinbuild merge PLAN.json");
-  const Plan plan = readPlan(args.positional[0]);
+  if (args.positional.size() != 1)
+    throw UsageError("merge: give the plan (tinbuild merge PLAN.json) or a TIN in parts (tinbuild merge "
+                     "FILE.parts.json -o MESH)");
+  const std::string what = args.positional[0];
+  if (isMeshManifest(what)) {  // a TIN in parts, written as one mesh
+    PipelineOptions o;
+    o.meshOutput = args.get("-o");
+    o.commandLine = "tinbuild merge " + what + " -o " + o.meshOutput;
+    return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
+      return runJoin(what, opts, diag);
+    });
+  }
+  if (args.has("-o")) throw UsageError("merge PLAN.json writes the plan's outputs; -o is for a TIN in parts");
+  const Plan plan = readPlan(what);
   PipelineOptions o = planOptions(plan);
   return runWithReport(args, o, [&](const PipelineOptions& opts, Diagnostics& diag) {
     return runMerge(opts, plan, diag);
@@ -622,13 +634,16 @@ Command planCommand() {
 Command mergeCommand() {
   return Command{
       "merge",
-      "tinbuild merge PLAN.json [--report FILE.json] [-q]",
+      "tinbuild merge PLAN.json [--report FILE.json] [-q]\n"
+      "       tinbuild merge FILE.parts.json -o MESH [--overwrite]",
       "settle the seams of a plan's finished parts and write the index files",
       "Checks that every part of the plan finished (and belongs to it: a part left by another plan, or\n"
       "missing, is named), triangulates the seam vertices the parts handed over and writes the triangles no\n"
       "part could certify: FILE.seam.smb and the manifest FILE.parts.json, which `tinbuild verify` reads as\n"
-      "one TIN; the DEM tiles the parts left unfinished, then mosaic.vrt over all tiles.",
-      reportOptions(),
+      "one TIN; the DEM tiles the parts left unfinished, then mosaic.vrt over all tiles.\n"
+      "Given a TIN in parts (FILE.parts.json) and -o MESH, writes it as one mesh file (.smb, .sma, .ply,\n"
+      ".obj or .nc, with its CRS).",
+      join({{"-o", "MESH", "merge FILE.parts.json: the joined mesh", "--output"}}, reportOptions()),
       runMergeCommand};
 }
 

@@ -1171,6 +1171,8 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     m.seam = seamMesh;
     m.triangles = triangles;
     m.vertices = vertices;
+    m.crsWkt = in.crs.wkt;
+    m.bounds = plan.bounds;
     const std::string manifest = meshManifestPath(o.meshOutput);
     writeMeshManifest(m, manifest);
     r.outputs.push_back(manifest);
@@ -1300,6 +1302,118 @@ void readMeshParts(const std::string& manifestPath, MeshSink& out) {
   out.end();
 }
 
+RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  RunReport r;
+  r.command = "merge";
+  r.inputs = {manifestPath};
+  const MeshManifest m = readMeshManifest(manifestPath);
+  if (o.meshOutput.empty()) throw UsageError("merge " + manifestPath + ": name the joined mesh: -o FILE");
+  const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
+  refuseExistingOutputs(o, {out});
+  WriterContext context = writerContext(o);
+  if (!m.crsWkt.empty()) {
+    try {
+      context.crs = crsFromUser(m.crsWkt);
+    } catch (const Error&) {
+      context.crs.wkt = m.crsWkt;
+    }
+  }
+  r.crs = context.crs;
+  const auto opened = out.row->open(out.path, context);
+  MeshTee tee;
+  opened->attach(tee);
+  // Counts what passes, to report it (and to check the manifest's totals).
+  struct Count : MeshSink {
+    MeshSink& to;
+    std::uint64_t vertices = 0, triangles = 0;
+    explicit Count(MeshSink& t) : to(t) {}
+    void begin(const MeshInfo& info) override { to.begin(info); }
+    void vertex(std::uint64_t id, double x, double y, double z) override {
+      ++vertices;
+      to.vertex(id, x, y, z);
+    }
+    void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+      ++triangles;
+      to.triangle(a, b, c);
+    }
+    void finalizeVertex(std::uint64_t id) override { to.finalizeVertex(id); }
+    void end() override { to.end(); }
+  };
+  MeshSink* direct = opened->meshSink();
+  Count count(direct ? *direct : static_cast<MeshSink&>(tee));
+  readMeshParts(manifestPath, count);
+  if (count.triangles != m.triangles || count.vertices != m.vertices)
+    throw DataError(manifestPath, "the files hold " + std::to_string(count.triangles) + " triangles and " +
+                                      std::to_string(count.vertices) + " vertices, the manifest says " +
+                                      std::to_string(m.triangles) + " and " + std::to_string(m.vertices));
+  r.haveDelaunay = true;
+  r.delaunay.trianglesEmitted = count.triangles;
+  r.delaunay.verticesOut = count.vertices;
+  r.outputs = opened->files();
+  r.outputBytes = opened->bytes();
+  finish(r, diag, t0);
+  return r;
+}
+
+std::string formatMeshManifestInfo(const std::string& manifestPath, bool json) {
+  const MeshManifest m = readMeshManifest(manifestPath);
+  std::vector<std::string> files = m.parts;
+  files.push_back(m.seam);
+  std::uint64_t bytes = 0;
+  for (const auto& f : files) {
+    std::error_code ec;
+    if (!std::filesystem::exists(f, ec)) throw DataError(f, "listed in " + manifestPath + " but missing");
+    bytes += fileSizeOrZero(f);
+  }
+  CrsInfo crs;
+  if (!m.crsWkt.empty()) {
+    try {
+      crs = crsFromUser(m.crsWkt);
+    } catch (const Error&) {
+      crs.wkt = m.crsWkt;
+    }
+  }
+  if (json) {
+    JsonWriter j;
+    j.beginObject();
+    j.key("tin_in_parts").value(manifestPath);
+    j.key("vertices").value(m.vertices);
+    j.key("triangles").value(m.triangles);
+    j.key("files").beginArray();
+    for (const auto& f : files) j.value(f);
+    j.endArray();
+    j.key("bytes").value(bytes);
+    j.key("bounds").beginArray();
+    for (double v : {m.bounds.minX, m.bounds.minY, m.bounds.minZ, m.bounds.maxX, m.bounds.maxY, m.bounds.maxZ})
+      j.value(v);
+    j.endArray();
+    j.key("crs").beginObject();
+    j.key("name").value(crs.name);
+    if (crs.epsg)
+      j.key("epsg").value(crs.epsg);
+    else
+      j.key("epsg").null();
+    j.key("wkt").value(crs.wkt);
+    j.endObject();
+    j.endObject();
+    return j.str() + "\n";
+  }
+  std::string o = manifestPath + ": a TIN in " + std::to_string(files.size()) + " streaming mesh files (" +
+                  std::to_string(m.parts.size()) + " parts and the seam), " + bytesText(bytes) + "\n";
+  o += "  TIN       " + withCommas(m.vertices) + " vertices, " + withCommas(m.triangles) + " triangles\n";
+  o += "  bounds    x " + formatDouble("%.3f", m.bounds.minX) + " .. " + formatDouble("%.3f", m.bounds.maxX) + ", y " +
+       formatDouble("%.3f", m.bounds.minY) + " .. " + formatDouble("%.3f", m.bounds.maxY) + ", z " +
+       formatDouble("%.3f", m.bounds.minZ) + " .. " + formatDouble("%.3f", m.bounds.maxZ) + "\n";
+  o += "  CRS       " +
+       (crs.empty() ? std::string("none") : crs.name + (crs.epsg ? " (EPSG:" + std::to_string(crs.epsg) + ")" : "")) +
+       "\n";
+  o += "  files     ";
+  for (std::size_t i = 0; i < files.size(); ++i) o += (i ? ", " : "") + std::filesystem::path(files[i]).filename().string();
+  o += "\n  (tinbuild verify checks it as one TIN; tinbuild merge " + manifestPath + " -o FILE writes it as one file)\n";
+  return o;
+}
+
 VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagnostics& diag) {
   const auto t0 = Clock::now();
   VerifyReport r;
@@ -1419,6 +1533,8 @@ std::string formatRunSummary(const RunReport& r) {
     o += "tinbuild " + r.command + ": " + withCommas(f.read) + " points read from " +
          std::to_string(r.inputs.size()) + (r.inputs.size() == 1 ? " file" : " files") + ", " +
          withCommas(s.points) + " streamed";
+  } else if (r.command == "merge" && r.parts == 0) {
+    o += "tinbuild merge: the TIN in parts " + r.inputs.front() + " as one mesh";
   } else if (r.command == "merge") {
     o += "tinbuild merge: the " + std::to_string(r.parts) + " parts of " + r.planPath;
   } else {
@@ -1526,7 +1642,7 @@ std::string formatRunSummary(const RunReport& r) {
         for (std::uint64_t b : r.rankPeakRss) peaks += (peaks.empty() ? "" : ", ") + bytesText(b);
         line("ranks", "peak memory " + peaks);
       }
-    } else {
+    } else if (r.command != "merge") {
     if (r.part >= 0)
       line("part", std::to_string(r.part) + " of " + std::to_string(r.parts) + " (" + r.planPath + "): " +
                        withCommas(d.pointsIn) + " points triangulated here; left for the merge: " +

@@ -179,6 +179,13 @@ RunReport runMerge(const PipelineOptions& options, const Plan& plan, Diagnostics
 // Memory: the seam's vertices plus each file's width.
 void readMeshParts(const std::string& manifest, MeshSink& out);
 
+// `tinbuild merge FILE.parts.json -o MESH`: the TIN in parts written as one mesh (options.meshOutput: any
+// mesh format of `build --mesh`), with the manifest's CRS.
+RunReport runJoin(const std::string& manifest, const PipelineOptions& options, Diagnostics& diag);
+
+// `tinbuild info FILE.parts.json`: the TIN in parts, described from its manifest and files' sizes.
+std::string formatMeshManifestInfo(const std::string& manifest, bool json);
+
 // `tinbuild verify`: checks a streaming mesh file independently (libterrain/delaunay/mesh_verifier.h) and,
 // when options.inputs is not empty, that its vertices are exactly the distinct (x, y) of those inputs after
 // options.finalizer.filter.  Memory is bounded by the mesh's and the survey's stream width.

@@ -245,6 +245,11 @@ void writeMeshManifest(const MeshManifest& m, const std::string& path) {
   for (const auto& p : m.parts) j.value(fs::path(p).filename().string());
   j.endArray();
   j.key("seam").value(fs::path(m.seam).filename().string());
+  j.key("bounds").beginArray();
+  for (double v : {m.bounds.minX, m.bounds.minY, m.bounds.minZ, m.bounds.maxX, m.bounds.maxY, m.bounds.maxZ})
+    j.value(hexDouble(v));
+  j.endArray();
+  j.key("crs_wkt").value(m.crsWkt);
   j.endObject();
   writeText(path, j.str());
 }
@@ -259,6 +264,16 @@ MeshManifest readMeshManifest(const std::string& path) {
   m.vertices = getU64(root, "vertices");
   for (const auto& p : root.GetArray("parts")) m.parts.push_back((dir / p.ToString()).string());
   m.seam = (dir / root.GetString("seam")).string();
+  m.crsWkt = root.GetString("crs_wkt");
+  const CPLJSONArray b = root.GetArray("bounds");
+  if (b.Size() == 6) {
+    m.bounds.minX = parseHexDouble(b[0].ToString(), path, "bounds");
+    m.bounds.minY = parseHexDouble(b[1].ToString(), path, "bounds");
+    m.bounds.minZ = parseHexDouble(b[2].ToString(), path, "bounds");
+    m.bounds.maxX = parseHexDouble(b[3].ToString(), path, "bounds");
+    m.bounds.maxY = parseHexDouble(b[4].ToString(), path, "bounds");
+    m.bounds.maxZ = parseHexDouble(b[5].ToString(), path, "bounds");
+  }
   if (m.parts.empty() || root.GetString("seam").empty()) throw DataError(path, "the mesh manifest lists no parts");
   return m;
 }

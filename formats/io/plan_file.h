@@ -84,6 +84,8 @@ struct MeshManifest {
   std::vector<std::string> parts;  // paths as written (relative to the manifest's directory when relative)
   std::string seam;
   std::uint64_t triangles = 0, vertices = 0;  // distinct vertices of the whole TIN
+  std::string crsWkt;                         // the TIN's CRS ("" = none)
+  Bounds3 bounds;                             // of the survey
 };
 void writeMeshManifest(const MeshManifest& m, const std::string& path);
 MeshManifest readMeshManifest(const std::string& path);

@@ -1,96 +1,58 @@
 // Seam files of plan parts (header).
 #include "formats/mesh/seam_file.h"
 
-#include <bit>
-#include <cstdio>
 #include <cstring>
-#include <vector>
 
-#include "formats/io/output_file.h"
-#include "libterrain/core/error.h"
+#include "formats/io/record_file.h"
 
 namespace tinbuild {
-
-static_assert(std::endian::native == std::endian::little, "seam files are written in the host's order");
 
 namespace {
 
 constexpr char kMagic[8] = {'T', 'B', 'S', 'E', 'A', 'M', '1', '\n'};
-
-template <class T>
-void put(OutputFile& f, T v) {
-  f.write(&v, sizeof v);
-}
-
-class Reader {
- public:
-  explicit Reader(const std::string& path) : path_(path), f_(std::fopen(path.c_str(), "rb")) {
-    if (!f_) throw DataError(path, std::string("cannot open the seam file: ") + std::strerror(errno));
-    std::setvbuf(f_, nullptr, _IOFBF, 1 << 20);
-  }
-  ~Reader() {
-    if (f_) std::fclose(f_);
-  }
-  void bytes(void* p, std::size_t n) {
-    if (std::fread(p, 1, n, f_) != n) throw DataError(path_, "the seam file is truncated (was its part killed?)");
-    read_ += n;
-  }
-  template <class T>
-  T get() {
-    T v;
-    bytes(&v, sizeof v);
-    return v;
-  }
-  std::uint64_t read() const { return read_; }
-
- private:
-  std::string path_;
-  std::FILE* f_;
-  std::uint64_t read_ = 0;
-};
 
 }  // namespace
 
 SeamFileWriter::SeamFileWriter(const std::string& path, const std::string& planId, std::uint32_t part)
     : file_(std::make_unique<OutputFile>(path)) {
   file_->write(kMagic, sizeof kMagic);
-  put(*file_, static_cast<std::uint32_t>(planId.size()));
+  putRecord(*file_, static_cast<std::uint32_t>(planId.size()));
   file_->write(planId);
-  put(*file_, part);
+  putRecord(*file_, part);
 }
 SeamFileWriter::~SeamFileWriter() = default;
 
 void SeamFileWriter::seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w,
                                 std::size_t n) {
   OutputFile& f = *file_;
-  put(f, 'V');
-  put(f, id);
-  put(f, x);
-  put(f, y);
-  put(f, z);
-  put(f, static_cast<std::uint8_t>(all));
-  put(f, static_cast<std::uint32_t>(n));
+  putRecord(f, 'V');
+  putRecord(f, id);
+  putRecord(f, x);
+  putRecord(f, y);
+  putRecord(f, z);
+  putRecord(f, static_cast<std::uint8_t>(all));
+  putRecord(f, static_cast<std::uint32_t>(n));
   for (std::size_t i = 0; i < n; ++i) {
-    put(f, w[i].from.x);
-    put(f, w[i].from.y);
-    put(f, w[i].to.x);
-    put(f, w[i].to.y);
+    putRecord(f, w[i].from.x);
+    putRecord(f, w[i].from.y);
+    putRecord(f, w[i].to.x);
+    putRecord(f, w[i].to.y);
   }
   ++vertices_;
 }
 
 void SeamFileWriter::seamTag(const CellTag& c) {
-  put(*file_, 'T');
-  put(*file_, c.level);
-  put(*file_, c.col);
-  put(*file_, c.row);
+  putRecord(*file_, 'T');
+  putRecord(*file_, c.level);
+  putRecord(*file_, c.col);
+  putRecord(*file_, c.row);
   ++tags_;
 }
 
 void SeamFileWriter::commit() {
-  put(*file_, 'E');
-  put(*file_, vertices_);
-  put(*file_, tags_);
+  putRecord(*file_, 'E');
+  putRecord(*file_, vertices_);
+  putRecord(*file_, tags_);
   file_->commit();
 }
 
@@ -100,7 +62,7 @@ std::uint64_t SeamFileWriter::bytes() const {
 
 SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
                             SeamStep& step) {
-  Reader in(path);
+  RecordReader in(path, "seam file");
   char magic[8];
   in.bytes(magic, 8);
   if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "not a tinbuild seam file");
@@ -142,7 +104,7 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
     } else if (kind == 'E') {
       const std::uint64_t v = in.get<std::uint64_t>(), t = in.get<std::uint64_t>();
       if (v != counts.vertices || t != counts.tags) throw DataError(path, "corrupt seam file (counts differ)");
-      counts.bytes = in.read();
+      counts.bytes = in.offset();
       return counts;
     } else {
       throw DataError(path, "corrupt seam file (unknown record)");

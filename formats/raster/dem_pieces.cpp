@@ -1,59 +1,24 @@
 // DEM tiles across the processes of a plan (header).
 #include "formats/raster/dem_pieces.h"
 
-#include <bit>
 #include <cmath>
-#include <cstdio>
 #include <cstring>
 
-#include "formats/io/output_file.h"
-#include "libterrain/core/error.h"
+#include "formats/io/record_file.h"
 
 namespace tinbuild {
-
-static_assert(std::endian::native == std::endian::little, "piece files are written in the host's order");
 
 namespace {
 
 constexpr char kMagic[8] = {'T', 'B', 'D', 'E', 'M', 'P', '1', '\n'};
-
-template <class T>
-void put(OutputFile& f, T v) {
-  f.write(&v, sizeof v);
-}
-template <class T>
-void putArray(OutputFile& f, const std::vector<T>& a) {
-  f.write(a.data(), a.size() * sizeof(T));
-}
-
-struct File {
-  std::string path;
-  std::FILE* f = nullptr;
-  explicit File(const std::string& p) : path(p), f(std::fopen(p.c_str(), "rb")) {
-    if (!f) throw DataError(p, std::string("cannot open the DEM piece file: ") + std::strerror(errno));
-  }
-  ~File() { std::fclose(f); }
-  void bytes(void* p, std::size_t n) {
-    if (std::fread(p, 1, n, f) != n) throw DataError(path, "the DEM piece file is truncated (was its part killed?)");
-  }
-  template <class T>
-  T get() {
-    T v;
-    bytes(&v, sizeof v);
-    return v;
-  }
-  void seek(std::uint64_t offset) {
-    if (std::fseek(f, static_cast<long>(offset), SEEK_SET) != 0) throw DataError(path, "cannot seek");
-  }
-  std::uint64_t tell() { return static_cast<std::uint64_t>(std::ftell(f)); }
-};
+constexpr const char* kWhat = "DEM piece file";
 
 std::uint64_t pixels(const DemTile& t) {
   return static_cast<std::uint64_t>(t.width) * static_cast<std::uint64_t>(t.height);
 }
 
 // Reads one tile record (after its 'T').
-DemTile readTile(File& in) {
+DemTile readTile(RecordReader& in) {
   DemTile t;
   t.tx = in.get<std::int64_t>();
   t.ty = in.get<std::int64_t>();
@@ -62,7 +27,7 @@ DemTile readTile(File& in) {
   t.width = in.get<std::int32_t>();
   t.height = in.get<std::int32_t>();
   if (t.width <= 0 || t.height <= 0 || t.width > (1 << 16) || t.height > (1 << 16))
-    throw DataError(in.path, "corrupt DEM piece file (tile size)");
+    throw DataError(in.path(), "corrupt DEM piece file (tile size)");
   const std::uint8_t bands = in.get<std::uint8_t>();
   const std::size_t n = pixels(t);
   auto floats = [&](std::vector<float>& v, int bit) {
@@ -95,29 +60,29 @@ DemPieceWriter::~DemPieceWriter() = default;
 
 void DemPieceWriter::write(const DemTile& t) {
   OutputFile& f = *file_;
-  put(f, 'T');
-  put(f, t.tx);
-  put(f, t.ty);
-  put(f, t.col0);
-  put(f, t.row0);
-  put(f, static_cast<std::int32_t>(t.width));
-  put(f, static_cast<std::int32_t>(t.height));
+  putRecord(f, 'T');
+  putRecord(f, t.tx);
+  putRecord(f, t.ty);
+  putRecord(f, t.col0);
+  putRecord(f, t.row0);
+  putRecord(f, static_cast<std::int32_t>(t.width));
+  putRecord(f, static_cast<std::int32_t>(t.height));
   const std::uint8_t bands = static_cast<std::uint8_t>((t.z.empty() ? 0 : 1) | (t.slope.empty() ? 0 : 2) |
                                                        (t.aspect.empty() ? 0 : 4) | (t.edgeLength.empty() ? 0 : 8) |
                                                        (t.hillshade.empty() ? 0 : 16) | (t.count.empty() ? 0 : 32));
-  put(f, bands);
-  putArray(f, t.z);
-  putArray(f, t.slope);
-  putArray(f, t.aspect);
-  putArray(f, t.edgeLength);
-  putArray(f, t.hillshade);
-  putArray(f, t.count);
+  putRecord(f, bands);
+  putRecords(f, t.z);
+  putRecords(f, t.slope);
+  putRecords(f, t.aspect);
+  putRecords(f, t.edgeLength);
+  putRecords(f, t.hillshade);
+  putRecords(f, t.count);
   ++tiles_;
 }
 
 void DemPieceWriter::commit() {
-  put(*file_, 'E');
-  put(*file_, tiles_);
+  putRecord(*file_, 'E');
+  putRecord(*file_, tiles_);
   file_->commit();
 }
 
@@ -126,7 +91,7 @@ std::uint64_t DemPieceWriter::bytes() const {
 }
 
 void DemPieceIndex::add(const std::string& path) {
-  File in(path);
+  RecordReader in(path, kWhat);
   char magic[8];
   in.bytes(magic, 8);
   if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "not a tinbuild DEM piece file");
@@ -134,7 +99,7 @@ void DemPieceIndex::add(const std::string& path) {
   files_.push_back(path);
   std::uint64_t count = 0;
   for (;;) {
-    const std::uint64_t at = in.tell();
+    const std::uint64_t at = in.offset();
     const char kind = in.get<char>();
     if (kind == 'E') {
       if (in.get<std::uint64_t>() != count) throw DataError(path, "corrupt DEM piece file (tile count)");
@@ -159,7 +124,7 @@ int DemPieceIndex::addPieces(std::int64_t tx, std::int64_t ty, DemTile& tile, bo
   if (it == index_.end()) return 0;
   int n = 0;
   for (const Where& w : it->second) {
-    File in(files_[w.file]);
+    RecordReader in(files_[w.file], kWhat);
     in.seek(w.offset);
     DemTile piece = readTile(in);
     if (!haveTile) {

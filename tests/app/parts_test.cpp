@@ -86,6 +86,17 @@ void checkParts(const fs::path& out, const std::vector<std::string>& inputs, con
     expectSameAsOneProcess(d, out / "one", what + ", " + std::to_string(parts) + " parts");
     auto v = tinbuild("verify " + (d / "tin.parts.json").string() + points + " " + filters, cd);
     EXPECT_EQ(v.code, 0) << what << ": " << v.out << v.err;
+    if (parts != 3) continue;
+    // The TIN in parts as one file, and described as one TIN.
+    auto j = tinbuild("merge tin.parts.json -o joined.smb -q", cd);
+    ASSERT_EQ(j.code, 0) << what << ": " << j.err;
+    EXPECT_TRUE(trianglesOf(d / "joined.smb") == trianglesOf(out / "one" / "tin.smb")) << what << ": joined";
+    EXPECT_EQ(tinbuild("verify joined.smb" + points + " " + filters, cd).code, 0) << what;
+    auto info = tinbuild("info tin.parts.json --json", cd);
+    ASSERT_EQ(info.code, 0) << info.err;
+    EXPECT_NE(info.out.find("\"triangles\": " + std::to_string(trianglesOf(out / "one" / "tin.smb").size())),
+              std::string::npos)
+        << info.out;
   }
 }
 

@@ -911,6 +911,53 @@ int finalizeMain(const std::vector<std::string>& argv) {
 }
 
 
+// ---- shared by `threads` and `parts` -----------------------------------------------------------------
+
+double medianOf(std::vector<double> v) {
+  std::sort(v.begin(), v.end());
+  return v.empty() ? std::numeric_limits<double>::quiet_NaN()
+                   : (v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]));
+}
+
+// "1,2,4" -> {1, 2, 4}.
+std::vector<int> parseList(const std::string& text) {
+  std::vector<int> list;
+  std::stringstream in(text);
+  for (std::string t; std::getline(in, t, ',');) list.push_back(static_cast<int>(parseCount(t, "--list")));
+  return list;
+}
+
+// The survey to measure: `input`, else the demo's four-strip survey of n points written into dir.
+std::string benchSurvey(const Config& cfg, const std::string& input, std::uint64_t n, const TempDir& dir) {
+  if (!input.empty()) return input;
+  progress("writing the " + group(n) + "-point four-strip survey (untimed)");
+  runChild(cfg.tinbuild, {"demo", dir.path() + "/demo", "--points", fmt("%.6g", static_cast<double>(n) / 1e6),
+                          "--survey-only", "--las", "--point-format", "6"},
+           false);
+  return dir.path() + "/demo/survey.las";
+}
+
+// CGAL's insertion of the survey's points (keepClass: the classes kept), median of up to 3 runs:
+// {seconds, MiB}; NaN seconds with --no-cgal.
+std::pair<double, double> cgalMedian(const Config& cfg, const std::string& las, const std::string& keepClass,
+                                     int rounds) {
+  if (cfg.noCgal) return {std::numeric_limits<double>::quiet_NaN(), 0};
+  std::vector<std::string> cmd{"cgal-child", las};
+  if (!keepClass.empty()) cmd.push_back(keepClass);
+  std::vector<double> times;
+  double miB = 0;
+  for (int i = 0; i < std::min(rounds, 3); ++i) {
+    const ChildRun run = runChild(cfg.self, cmd, true);
+    std::istringstream in(run.output);
+    double insert = 0;
+    in >> insert;
+    times.push_back(insert);
+    miB = mib(run.maxRssKb);
+    progress("  CGAL run " + std::to_string(i + 1) + ": " + fmt("%.3f s", insert));
+  }
+  return {medianOf(times), miB};
+}
+
 // `threads`: the multi-core triangulator against one thread (and CGAL), median of alternating rounds.
 int threadsMain(const std::vector<std::string>& argv) {
   Args args("threads", argv);
@@ -922,22 +969,11 @@ int threadsMain(const std::vector<std::string>& argv) {
   const int rounds = static_cast<int>(args.count("--repeat", 5, 1, 1000));
   const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
-  std::vector<int> list;
-  {
-    std::stringstream in(listText);
-    for (std::string t; std::getline(in, t, ',');) list.push_back(static_cast<int>(parseCount(t, "--list")));
-  }
+  const std::vector<int> list = parseList(listText);
   if (list.empty() || list[0] != 1) throw BenchError("threads: --list must start with 1 (the reference)");
 
   TempDir dir(base, cfg.keep);
-  std::string las = input;
-  if (las.empty()) {
-    progress("writing the " + group(n) + "-point four-strip survey (untimed)");
-    runChild(cfg.tinbuild, {"demo", dir.path() + "/demo", "--points", fmt("%.6g", static_cast<double>(n) / 1e6),
-                            "--survey-only", "--las", "--point-format", "6"},
-             false);
-    las = dir.path() + "/demo/survey.las";
-  }
+  const std::string las = benchSurvey(cfg, input, n, dir);
   std::vector<std::string> filter;
   if (!keepClass.empty()) filter = {"--keep-class", keepClass};
   const std::string tfs = dir.path() + "/survey.tfs";
@@ -954,11 +990,7 @@ int threadsMain(const std::vector<std::string>& argv) {
   };
   std::vector<Series> build(list.size()), tri(list.size());
   std::string firstReport;
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? std::numeric_limits<double>::quiet_NaN()
-                     : (v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]));
-  };
+  const auto median = medianOf;
   for (int round = 0; round < rounds; ++round)
     for (std::size_t k = 0; k < list.size(); ++k) {
       const std::string t = std::to_string(list[k]);
@@ -990,22 +1022,7 @@ int threadsMain(const std::vector<std::string>& argv) {
   if (!cfg.keep)
     for (const int t : list)
       removeFiles({dir.path() + "/build" + std::to_string(t) + ".smb", dir.path() + "/tri" + std::to_string(t) + ".smb"});
-  double cgalSeconds = std::numeric_limits<double>::quiet_NaN(), cgalMiB = 0;
-  if (!cfg.noCgal) {
-    std::vector<std::string> cmd{"cgal-child", las};
-    if (!keepClass.empty()) cmd.push_back(keepClass);
-    std::vector<double> times;
-    for (int i = 0; i < std::min(rounds, 3); ++i) {
-      const ChildRun run = runChild(cfg.self, cmd, true);
-      std::istringstream in(run.output);
-      double insert = 0;
-      in >> insert;
-      times.push_back(insert);
-      cgalMiB = mib(run.maxRssKb);
-      progress("  CGAL run " + std::to_string(i + 1) + ": " + fmt("%.3f s", insert));
-    }
-    cgalSeconds = median(times);
-  }
+  const auto [cgalSeconds, cgalMiB] = cgalMedian(cfg, las, keepClass, rounds);
 
   const std::string loadAfter = loadAverage();
   std::printf("tinbuild-bench threads: %s\n", las.c_str());
@@ -1055,11 +1072,7 @@ int partsMain(const std::vector<std::string>& argv) {
   const int rounds = static_cast<int>(args.count("--repeat", 3, 1, 1000));
   const std::string base = args.value("--dir", defaultTempDir());
   args.finish();
-  std::vector<int> list;
-  {
-    std::stringstream in(listText);
-    for (std::string t; std::getline(in, t, ',');) list.push_back(static_cast<int>(parseCount(t, "--list")));
-  }
+  const std::vector<int> list = parseList(listText);
   const std::string mpirun = "/usr/bin/mpirun";
   if (::access(mpirun.c_str(), X_OK) != 0) throw BenchError("parts: no " + mpirun + " (apt-get install openmpi-bin)");
   ::setenv("OMPI_ALLOW_RUN_AS_ROOT", "1", 1);
@@ -1067,15 +1080,8 @@ int partsMain(const std::vector<std::string>& argv) {
   const int cores = static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
 
   TempDir dir(base, cfg.keep);
-  std::string las = input;
-  if (las.empty()) {
-    progress("writing the " + group(n) + "-point four-strip survey (untimed)");
-    runChild(cfg.tinbuild, {"demo", dir.path() + "/demo", "--points", fmt("%.6g", static_cast<double>(n) / 1e6),
-                            "--survey-only", "--las", "--point-format", "6"},
-             false);
-    las = dir.path() + "/demo/survey.las";
-  }
-  las = std::filesystem::absolute(las).string();  // the runs work in directories of their own
+  // Absolute: the runs work in directories of their own.
+  const std::string las = std::filesystem::absolute(benchSurvey(cfg, input, n, dir)).string();
   std::vector<std::string> options{"--step", step, "--tile-size", "512"};
   if (!keepClass.empty()) options.insert(options.end(), {"--keep-class", keepClass});
 
@@ -1085,11 +1091,7 @@ int partsMain(const std::vector<std::string>& argv) {
   };
   Series one;
   std::vector<Series> ranks(list.size());
-  auto median = [](std::vector<double> v) {
-    std::sort(v.begin(), v.end());
-    return v.empty() ? std::numeric_limits<double>::quiet_NaN()
-                     : (v.size() % 2 ? v[v.size() / 2] : 0.5 * (v[v.size() / 2 - 1] + v[v.size() / 2]));
-  };
+  const auto median = medianOf;
   auto numbers = [](const std::string& json, const std::string& key) {
     std::vector<double> v;
     const auto at = json.find("\"" + key + "\": [");
@@ -1172,21 +1174,7 @@ int partsMain(const std::vector<std::string>& argv) {
     clean(dir.path() + "/one");
     for (const int p : list) clean(dir.path() + "/np" + std::to_string(p));
   }
-  double cgalSeconds = std::numeric_limits<double>::quiet_NaN(), cgalMiB = 0;
-  if (!cfg.noCgal) {
-    std::vector<std::string> cmd{"cgal-child", las};
-    if (!keepClass.empty()) cmd.push_back(keepClass);
-    std::vector<double> times;
-    for (int i = 0; i < std::min(rounds, 3); ++i) {
-      const ChildRun run = runChild(cfg.self, cmd, true);
-      std::istringstream in(run.output);
-      double insert = 0;
-      in >> insert;
-      times.push_back(insert);
-      cgalMiB = mib(run.maxRssKb);
-    }
-    cgalSeconds = median(times);
-  }
+  const auto [cgalSeconds, cgalMiB] = cgalMedian(cfg, las, keepClass, rounds);
   const std::uint64_t vertices = jsonCount(one.report, "vertices", "triangulation");
   std::printf("tinbuild-bench parts: %s\n", las.c_str());
   std::printf("  machine     %u cores (nproc), load average %s after; median of %d alternating rounds\n",
@@ -1220,8 +1208,9 @@ int partsMain(const std::vector<std::string>& argv) {
               fmt("%.3f", cgalSeconds).c_str(), fmt("%.1f", cgalMiB).c_str());
   std::printf(
       "  1 process: `tinbuild build LAS --mesh --dem` on all cores.  P ranks: `mpirun -np P tinbuild build\n"
-      "  ... --mpi --threads cores/P`: rank 0 plans, every rank triangulates its part reading only its window,\n"
-      "  rank 0 merges.  wall: the whole mpirun; plan, part (the slowest rank) and merge: rank 0's report.\n"
+      "  ... --mpi --threads cores/P`: the ranks plan together (each reads a slice), every rank triangulates\n"
+      "  its part reading only its window, rank 0 merges.  wall: the whole mpirun; plan, part (the slowest\n"
+      "  rank) and merge: rank 0's report.\n"
       "  rank RSS: the largest rank's peak.  exchanged: plan, seam files and DEM pieces sent between ranks.\n"
       "  seam %%: seam vertices / TIN vertices.  Every P wrote the same DEM tiles and as many triangles.\n");
   return 0;
