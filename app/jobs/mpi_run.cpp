@@ -185,8 +185,8 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   const auto t0 = std::chrono::steady_clock::now();
   MpiSession mpi;
   const int rank = mpi.rank, size = mpi.size;
-  if (!options.gpkgOutput.empty() || !options.contoursOutput.empty())
-    throw UsageError("--mpi writes --mesh FILE.smb|.sma and --dem DIR; run --gpkg and --contours in one process");
+  if ((!options.gpkgOutput.empty() || !options.contoursOutput.empty()) && options.meshOutput.empty())
+    throw UsageError("--mpi makes --gpkg and --contours at the merge from the TIN in parts: add --mesh FILE.smb");
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
   const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;

@@ -593,16 +593,25 @@ class PlanGridCheck : public PointSink {
   const Plan& plan_;
 };
 
-// A part's options: its own mesh file, no outputs that cannot be split (yet), the plan's regions.
+// A planned run's outputs: the GeoPackage TIN and the contours are made by the merge from the TIN in parts,
+// so they need --mesh.
+void checkPlannedOutputs(const PipelineOptions& o) {
+  if ((!o.gpkgOutput.empty() || !o.contoursOutput.empty()) && o.meshOutput.empty())
+    throw UsageError("a planned or MPI run makes --gpkg and --contours at the merge from the TIN in parts: add "
+                     "--mesh FILE.smb");
+}
+
+// A part's options: its own mesh file, the plan's regions; the GeoPackage TIN and contours wait for the
+// merge.
 PipelineOptions partOptions(const PipelineOptions& o) {
   const Plan& plan = *o.plan;
   if (o.part < 0 || o.part >= static_cast<int>(plan.parts.size()))
     throw UsageError("--part " + std::to_string(o.part) + ": the plan " + plan.path + " has parts 0 to " +
                      std::to_string(plan.parts.size() - 1));
-  if (!o.gpkgOutput.empty() || !o.contoursOutput.empty())
-    throw UsageError("a planned or MPI run writes --mesh FILE.smb|.sma and --dem DIR; run --gpkg and --contours "
-                     "in one process (or from the merged TIN)");
+  checkPlannedOutputs(o);
   PipelineOptions po = o;
+  po.gpkgOutput.clear();  // made by the merge, from the TIN in parts
+  po.contoursOutput.clear();
   if (!o.meshOutput.empty()) {
     const ResolvedOutput mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
     if (!mesh.is(WriterKind::StreamingMeshBinary) && !mesh.is(WriterKind::StreamingMeshAscii))
@@ -867,6 +876,7 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   if (parts < 1) throw UsageError("--parts must be at least 1");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
+  checkPlannedOutputs(o);
   if (!o.overwrite) refuseExistingFile(plan.path);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);
@@ -1112,6 +1122,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
                                    " (run each with `tinbuild build --plan " + plan.path +
                                    " --part I`, then merge again)");
   checkPlanInputs(plan);
+  checkPlannedOutputs(o);
   const RunOutputs outputs = resolveOutputs(o);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);  // headers only: the CRS
@@ -1178,6 +1189,32 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     r.outputs.push_back(manifest);
     r.outputs.push_back(seamMesh);
     r.outputBytes += mesh->bytes() + fileSizeOrZero(manifest);
+    // The GeoPackage TIN and the contours, from the TIN in parts read as one.  The contour tracer's
+    // crossings depend on positions only, so its lines are one process's (feature order and the first
+    // point of closed loops aside).  One pass over the whole TIN, on this process.
+    if (outputs.gpkg || outputs.contours) {
+      std::vector<std::unique_ptr<OpenedOutput>> whole;
+      for (const ResolvedOutput* out : {&outputs.gpkg, &outputs.contours})
+        if (*out) whole.push_back(out->row->open(out->path, context));
+      MeshTee tee;
+      for (auto& w : whole) w->attach(tee);
+      readMeshParts(manifest, tee);
+      for (std::size_t i = 0; i < whole.size(); ++i) {
+        const OpenedOutput& w = *whole[i];
+        const std::vector<std::string> files = w.files();
+        r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+        r.outputBytes += w.bytes();
+        if (const ContourStats* cs = w.contourStats()) {
+          r.contoursOutput = outputs.contours.path;
+          r.contours = o.contours;
+          r.contourStats = *cs;
+        } else {
+          r.gpkgOutput = outputs.gpkg.path;
+          r.gpkgTriangles = triangles;
+          r.gpkgBytes = w.bytes();
+        }
+      }
+    }
   }
   if (dem) {
     const std::vector<std::string> files = dem->files();

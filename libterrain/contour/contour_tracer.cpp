@@ -257,11 +257,13 @@ struct ContourTracer::Impl {
     v.keys = node;
   }
 
-  // The crossing of level L on edge (a, b): computed from the endpoints ordered by id so both triangles
-  // sharing the edge get the same bits.
-  static Pt crossing(std::uint64_t ia, const Vert& a, std::uint64_t ib, const Vert& b, double L) {
-    const Vert& lo = ia < ib ? a : b;
-    const Vert& hi = ia < ib ? b : a;
+  // The crossing of level L on edge (a, b): computed from the endpoints ordered by position (x, then y;
+  // the two differ), so both triangles sharing the edge get the same bits, and so does any numbering of
+  // the same TIN (a TIN in parts, joined).
+  static Pt crossing(std::uint64_t, const Vert& a, std::uint64_t, const Vert& b, double L) {
+    const bool aFirst = a.x < b.x || (a.x == b.x && a.y < b.y);
+    const Vert& lo = aFirst ? a : b;
+    const Vert& hi = aFirst ? b : a;
     if (lo.z == L) return {lo.x, lo.y};
     if (hi.z == L) return {hi.x, hi.y};
     const double t = (L - lo.z) / (hi.z - lo.z);

@@ -15,7 +15,8 @@
 // line may touch another (or itself) at such a vertex, and a line that collapses to a single point
 // (a local maximum exactly at L) is dropped (counted in droppedShort).
 //
-// Exact, consistent crossing points.  On edge (u, v) the endpoints are ordered by vertex id (lo < hi)
+// Exact, consistent crossing points.  On edge (u, v) the endpoints are ordered by position (lo: the
+// smaller x, then y)
 // and the point is lo + t * (hi - lo), t = (L - z_lo) / (z_hi - z_lo), clamped to the edge's xy box; when
 // an endpoint is exactly at L the point is that vertex's xy.  Both triangles of an edge thus compute the
 // same bits, so chained pieces meet exactly (the joining point is stored once).  z of every point is L.

@@ -1,8 +1,12 @@
 // One survey split into parts (tinbuild plan / build --plan --part / merge, and build --mpi under
 // mpirun): the TIN, the DEM tiles and their mosaic must be what one process makes, whatever the number
 // of parts; a missing, stale or failed part is named, and re-running it completes the job.
+#include <gdal.h>
 #include <gtest/gtest.h>
+#include <ogr_api.h>
 
+#include <algorithm>
+#include <array>
 #include <cstdlib>
 #include <filesystem>
 #include <string>
@@ -30,6 +34,33 @@ std::vector<test::Tri> trianglesOf(const fs::path& mesh) {
   else
     readStreamingMesh(mesh.string(), c);
   return c.triangles;
+}
+
+// The contour lines of a vector file as (elev, points) with closed loops started at their smallest point
+// (where a loop starts depends on the order the triangles came in), sorted.
+std::vector<std::pair<double, std::vector<std::array<double, 3>>>> contourLines(const fs::path& path) {
+  std::vector<std::pair<double, std::vector<std::array<double, 3>>>> lines;
+  GDALAllRegister();
+  GDALDatasetH ds = GDALOpenEx(path.string().c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr);
+  EXPECT_NE(ds, nullptr) << path;
+  if (!ds) return lines;
+  OGRLayerH layer = GDALDatasetGetLayer(ds, 0);
+  OGR_L_ResetReading(layer);
+  for (OGRFeatureH f; (f = OGR_L_GetNextFeature(layer)) != nullptr; OGR_F_Destroy(f)) {
+    OGRGeometryH g = OGR_F_GetGeometryRef(f);
+    std::vector<std::array<double, 3>> pts;
+    for (int i = 0; i < OGR_G_GetPointCount(g); ++i)
+      pts.push_back({OGR_G_GetX(g, i), OGR_G_GetY(g, i), OGR_G_GetZ(g, i)});
+    if (pts.size() > 2 && pts.front() == pts.back()) {
+      pts.pop_back();
+      std::rotate(pts.begin(), std::min_element(pts.begin(), pts.end()), pts.end());
+      pts.push_back(pts.front());
+    }
+    lines.emplace_back(OGR_F_GetFieldAsDouble(f, OGR_F_GetFieldIndex(f, "elev")), std::move(pts));
+  }
+  GDALClose(ds);
+  std::sort(lines.begin(), lines.end());
+  return lines;
 }
 
 // `dir` holds a DEM directory `dem` and a mesh (tin.smb or the parts' manifest tin.parts.json); `one` the
@@ -86,6 +117,22 @@ void checkParts(const fs::path& out, const std::vector<std::string>& inputs, con
     expectSameAsOneProcess(d, out / "one", what + ", " + std::to_string(parts) + " parts");
     auto v = tinbuild("verify " + (d / "tin.parts.json").string() + points + " " + filters, cd);
     EXPECT_EQ(v.code, 0) << what << ": " << v.out << v.err;
+    // Contours and the GeoPackage TIN, made by the merge from the TIN in parts: one process's lines and
+    // triangles.
+    if (fs::exists(out / "one" / "c.gpkg")) {
+      const auto a = contourLines(d / "c.gpkg"), b = contourLines(out / "one" / "c.gpkg");
+      EXPECT_FALSE(b.empty()) << what;
+      EXPECT_TRUE(a == b) << what << ": " << a.size() << " contour lines in parts, " << b.size() << " in one process";
+      auto count = [](const fs::path& gpkg) {
+        GDALDatasetH ds = GDALOpenEx(gpkg.string().c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr);
+        if (!ds) return GIntBig{-1};
+        const GIntBig n = OGR_L_GetFeatureCount(GDALDatasetGetLayerByName(ds, "tin"), TRUE);
+        GDALClose(ds);
+        return n;
+      };
+      EXPECT_EQ(count(d / "t.gpkg"), count(out / "one" / "t.gpkg")) << what;
+      EXPECT_EQ(count(d / "t.gpkg"), static_cast<GIntBig>(trianglesOf(out / "one" / "tin.smb").size())) << what;
+    }
     if (parts != 3) continue;
     // The TIN in parts as one file, and described as one TIN.
     auto j = tinbuild("merge tin.parts.json -o joined.smb -q", cd);
@@ -103,8 +150,8 @@ void checkParts(const fs::path& out, const std::vector<std::string>& inputs, con
 TEST(Parts, RealSurveysEqualOneProcess) {
   TINBUILD_REQUIRE_DATA();
   const fs::path out = test::scratchDir();
-  checkParts(out / "topo", {test::dataPath("las/Topography.las")}, "--step 1 --tile-size 32 --hillshade --count",
-             "Topography");
+  checkParts(out / "topo", {test::dataPath("las/Topography.las")},
+             "--gpkg t.gpkg --contours c.gpkg --interval 2 --step 1 --tile-size 32 --hillshade --count", "Topography");
   checkParts(out / "autzen", {test::dataPath("laz/autzen_trim.laz")}, "--step 3ft --tile-size 64 --slope",
              "autzen LAZ");
   checkParts(out / "copc", {test::dataPath("edge/lone-star.copc.laz")}, "--step 1 --tile-size 64", "COPC");
@@ -165,12 +212,11 @@ TEST(Parts, MergeNamesMissingAndStaleParts) {
   auto edited = tinbuild("build --plan edited.json --part 0", cd);
   EXPECT_EQ(edited.code, 1);
   EXPECT_NE(edited.err.find("edited or damaged"), std::string::npos) << edited.err;
-  // What cannot be split is said before any work.
+  // The GeoPackage TIN and contours come from the TIN in parts: without --mesh, refused before any work.
   auto gpkg = tinbuild("plan t.las --gpkg t.gpkg --parts 2 -o p2.json -q", cd);
-  ASSERT_EQ(gpkg.code, 0) << gpkg.err;  // planning is fine; the parts refuse
-  auto part = tinbuild("build --plan p2.json --part 0", cd);
-  EXPECT_EQ(part.code, 2);
-  EXPECT_NE(part.err.find("--gpkg"), std::string::npos) << part.err;
+  EXPECT_EQ(gpkg.code, 2);
+  EXPECT_NE(gpkg.err.find("--mesh"), std::string::npos) << gpkg.err;
+  EXPECT_FALSE(fs::exists(out / "p2.json"));
 }
 
 // Under mpirun: one part per rank, outputs as one process's.

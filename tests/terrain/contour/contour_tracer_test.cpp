@@ -109,9 +109,13 @@ using Seg = std::tuple<std::int64_t, P2, P2>;  // k, the smaller point, the larg
 
 double levelOf(const ContourOptions& o, std::int64_t k) { return o.base + static_cast<double>(k) * o.interval; }
 
+// The documented rule: from the endpoint with the smaller position (x, then y).
 P2 refCrossing(const Recorder& rec, std::uint64_t u, std::uint64_t v, double L) {
-  const auto& lo = rec.coords[std::min(u, v)];
-  const auto& hi = rec.coords[std::max(u, v)];
+  const auto& a = rec.coords[u];
+  const auto& b = rec.coords[v];
+  const bool aFirst = a[0] < b[0] || (a[0] == b[0] && a[1] < b[1]);
+  const auto& lo = aFirst ? a : b;
+  const auto& hi = aFirst ? b : a;
   if (lo[2] == L) return {lo[0], lo[1]};
   if (hi[2] == L) return {hi[0], hi[1]};
   const double t = (L - lo[2]) / (hi[2] - lo[2]);
