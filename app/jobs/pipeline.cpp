@@ -718,7 +718,7 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
   if (part) {
     r.finalizer.filter.read += in.pointsOutsidePart;  // unread files: other parts' points, counted
     r.finalizer.filter.otherPart += in.pointsOutsidePart;
-    if (r.delaunay.pointsIn != part->points)
+    if (plan->exactCounts && r.delaunay.pointsIn != part->points)
       throw DataError(plan->path, "part " + std::to_string(o.part) + " triangulated " +
                                       std::to_string(r.delaunay.pointsIn) + " points, the plan counted " +
                                       std::to_string(part->points) +
@@ -839,7 +839,9 @@ std::size_t mortonOf(std::uint32_t c, std::uint32_t r, int level) {
 // The plan's counting pass: the finalizer's stream (its grid), counted per region of the plan's level.
 class PlanCounter : public PointSink {
  public:
+  struct Stop {};  // thrown from begin() to stop the finalizer there (stopAtBegin)
   explicit PlanCounter(int parts) : parts_(parts) {}
+  void stopAtBegin(bool stop) { stop_ = stop; }
   void begin(const StreamInfo& info) override {
     info_ = info;
     if (info.grid.depth < 1)
@@ -848,6 +850,20 @@ class PlanCounter : public PointSink {
     level_ = planLevel(info.points, info.grid.depth, parts_);
     shift_ = info.grid.depth - level_;
     counts_.assign(std::size_t{1} << (2 * level_), 0);
+    if (stop_) throw Stop{};
+  }
+  // A block's points (before the filters), spread evenly over the regions its box meets: an estimate,
+  // good for balance.
+  void addBlocks(const std::vector<PointStream::Block>& blocks) {
+    const GridSpec& g = info_.grid;
+    for (const PointStream::Block& b : blocks) {
+      const std::uint32_t c0 = g.column(b.minX) >> shift_, c1 = g.column(b.maxX) >> shift_;
+      const std::uint32_t r0 = g.row(b.minY) >> shift_, r1 = g.row(b.maxY) >> shift_;
+      const std::uint64_t cells = std::uint64_t{c1 - c0 + 1} * (r1 - r0 + 1);
+      for (std::uint32_t r = r0; r <= r1; ++r)
+        for (std::uint32_t c = c0; c <= c1; ++c)
+          counts_[mortonOf(c, r, level_)] += b.count / cells + (r == r0 && c == c0 ? b.count % cells : 0);
+    }
   }
   void points(const PointRecord* p, std::size_t n) override {
     for (std::size_t i = 0; i < n; ++i)
@@ -861,6 +877,7 @@ class PlanCounter : public PointSink {
 
  private:
   int parts_;
+  bool stop_ = false;
   StreamInfo info_;
   int level_ = 1, shift_ = 0;
   std::vector<std::uint64_t> counts_;
@@ -885,8 +902,26 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   r.memoryBudget = fo.memoryBudget;
   r.threads = effectiveThreads(o.threads);
   setFinalizerThreads(fo, r.threads, o.reader);
+  // A COPC survey: one process counts it from the octree's hierarchy (block mode) and decodes no point
+  // before its stream; so does the plan.  It stops the finalizer when the stream begins (the grid and
+  // bounds are then known) and spreads each node's count over the regions its box meets.
+  std::vector<std::vector<PointStream::Block>> blocks(in.streams.size());
+  bool fromHierarchy = true;
+  for (std::size_t i = 0; i < in.streams.size() && fromHierarchy; ++i) {
+    PointStream::BlockFrame frame;
+    fromHierarchy = in.streams[i] == in.readers[i].get() && in.readers[i]->describeBlocks(blocks[i], frame);
+  }
   PlanCounter counter(parts);
-  r.finalizer = finalizePoints(in.streams, fo, counter, diag);
+  counter.stopAtBegin(fromHierarchy);
+  try {
+    r.finalizer = finalizePoints(in.streams, fo, counter, diag);
+  } catch (const PlanCounter::Stop&) {
+    r.finalizer.grid = counter.info().grid;
+    r.finalizer.bounds = counter.info().bounds;
+    r.finalizer.points = counter.info().points;
+    r.finalizer.blockMode = true;
+    for (const auto& b : blocks) counter.addBlocks(b);
+  }
   r.haveFinalizer = true;
   countSkipped(in, r);
   plan.inputs.clear();
@@ -896,6 +931,8 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   plan.points = counter.info().points;
   plan.regionLevel = counter.level();
   plan.parts = counter.split();
+  plan.exactCounts = !fromHierarchy;
+  r.parallel.regionLevel = plan.regionLevel;
   writePlan(plan, plan.path);
   r.outputs = {plan.path};
   r.outputBytes = fileSizeOrZero(plan.path);
@@ -1041,6 +1078,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, int parts, Plan& plan, Diagn
   r.finalizer.points = counts.points;
   r.finalizer.bounds = bounds.bounds;
   r.finalizer.grid = grid;
+  r.parallel.regionLevel = level;
   r.parts = parts;
   finish(r, diag, t0);
   return r;
@@ -1615,7 +1653,13 @@ std::string formatRunSummary(const RunReport& r) {
       d.pop_back();
       line("filter", d);
     }
-    if (r.parts > 0 && r.part < 0) {  // an MPI run: the plan's view of the survey, then the parts'
+    if (r.command == "plan") {
+      line("plan", std::to_string(r.parts) + " parts of the " + std::to_string(std::uint64_t{1} << (2 * r.parallel.regionLevel)) +
+                       " regions at level " + std::to_string(r.parallel.regionLevel) + ", grid depth " +
+                       std::to_string(s.grid.depth) +
+                       (s.blockMode ? "; counts estimated from the COPC hierarchy (no point decoded)"
+                                    : "; counts exact (every part must triangulate its count)"));
+    } else if (r.parts > 0 && r.part < 0) {  // an MPI run: the plan's view of the survey, then the parts'
       line("plan", std::to_string(r.parts) + " parts of regions at level " + std::to_string(r.parallel.regionLevel) +
                        ", grid depth " + std::to_string(s.grid.depth) + "; planned in " +
                        formatDouble("%.2f", r.planSeconds) + " s, slowest part " +

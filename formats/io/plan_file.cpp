@@ -97,6 +97,7 @@ std::string planBody(const Plan& p) {
   j.endArray();
   j.key("points").value(p.points);
   j.key("region_level").value(p.regionLevel);
+  j.key("exact_counts").value(p.exactCounts);
   j.key("parts").beginArray();
   for (const auto& part : p.parts) {
     j.beginObject();
@@ -178,6 +179,7 @@ Plan readPlan(const std::string& path) {
   p.bounds.maxZ = parseHexDouble(b[5].ToString(), path, "bounds");
   p.points = getU64(root, "points");
   p.regionLevel = root.GetInteger("region_level", -1);
+  p.exactCounts = root.GetBool("exact_counts", true);
   for (const auto& o : root.GetArray("parts"))
     p.parts.push_back(PlanPart{getU64(o, "first_region"), getU64(o, "end_region"), getU64(o, "points")});
   if (p.grid.depth < 0 || p.grid.depth > 15 || p.regionLevel < 1 || p.regionLevel > p.grid.depth ||

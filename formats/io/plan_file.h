@@ -41,6 +41,9 @@ struct Plan {
   std::uint64_t points = 0;
   int regionLevel = 1;
   std::vector<PlanPart> parts;
+  // The parts' counts are exact (the points were read), so each part must triangulate exactly as many;
+  // false when they were estimated from a COPC hierarchy (no point read).
+  bool exactCounts = true;
   std::string path;  // where it was read from / written to
 
   // PLAN.parts (PLAN without its .json).

@@ -219,6 +219,26 @@ TEST(Parts, MergeNamesMissingAndStaleParts) {
   EXPECT_FALSE(fs::exists(out / "p2.json"));
 }
 
+// A COPC survey is planned from its hierarchy, as one process counts it: no point is decoded, and the
+// parts' counts are estimates (so the parts do not check them); the outputs are still one process's
+// (RealSurveysEqualOneProcess runs this file through parts).
+TEST(Parts, CopcPlanReadsOnlyTheHierarchy) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  auto p = tinbuild("plan " + test::dataPath("edge/lone-star.copc.laz") + " --mesh tin.smb --parts 3 -o plan.json -q "
+                    "--report r.json",
+                    "cd " + out.string() + " && ");
+  ASSERT_EQ(p.code, 0) << p.err;
+  const std::string report = slurp(out / "r.json");
+  EXPECT_NE(report.find("\"points_read\": 0,"), std::string::npos) << report;
+  EXPECT_NE(slurp(out / "plan.json").find("\"exact_counts\": false"), std::string::npos);
+  // A LAS survey's plan reads its points and its counts are exact.
+  auto las = tinbuild("plan " + test::dataPath("las/Topography.las") + " --mesh t.smb --parts 3 -o las.json -q",
+                      "cd " + out.string() + " && ");
+  ASSERT_EQ(las.code, 0) << las.err;
+  EXPECT_NE(slurp(out / "las.json").find("\"exact_counts\": true"), std::string::npos);
+}
+
 // Under mpirun: one part per rank, outputs as one process's.
 TEST(Parts, MpiRanksEqualOneProcess) {
   TINBUILD_REQUIRE_DATA();
