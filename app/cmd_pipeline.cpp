@@ -435,6 +435,8 @@ int runPlanCommand(const cli::ParsedArgs& args) {
   if (!args.has("--parts")) throw UsageError("plan: say how many parts: --parts N");
   PipelineOptions o = parseBuildOptions(args);
   const int parts = args.getInt("--parts", 1, 1, 1 << 20);
+  if (args.has("--segment-records"))
+    o.planSegmentRecords = static_cast<std::uint64_t>(args.getInt("--segment-records", 1 << 20, 1024, 1 << 30));
   Plan plan;
   plan.path = args.get("-o");
   plan.buildArgs = planBuildArgs(args, o);
@@ -626,6 +628,9 @@ Command planCommand() {
                                  }),
                   c.options.end());
   c.options.push_back({"--parts", "N", "how many parts"});
+  c.options.push_back({"--segment-records", "N",
+                       "a LAS/LAZ file is planned in runs of N records, each with the box of its points: a part "
+                       "reads only the runs that meet it (default 1048576)"});
   c.options.push_back({"-o", "PLAN.json", "the plan file", "--output"});
   c.run = runPlanCommand;
   return c;

@@ -141,6 +141,11 @@ class MpiReducer : public PlanReducer {
     c.bounds.maxX = maxs[0];
     c.bounds.maxY = maxs[1];
     c.bounds.maxZ = maxs[2];
+    if (!c.segMin.empty()) {
+      MPI_Allreduce(MPI_IN_PLACE, c.segMin.data(), static_cast<int>(c.segMin.size()), MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);
+      MPI_Allreduce(MPI_IN_PLACE, c.segMax.data(), static_cast<int>(c.segMax.size()), MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+      bytes_ += (c.segMin.size() + c.segMax.size()) * 8;
+    }
     FilterCounts& f = c.filter;
     std::vector<std::uint64_t> v{c.points, f.read, f.kept, f.withheld, f.byClass, f.byReturn, f.clipped, f.otherPart};
     v.insert(v.end(), std::begin(f.droppedByClass), std::end(f.droppedByClass));

@@ -55,6 +55,46 @@ bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Boun
   return true;
 }
 
+// An input read only in some runs of its records (a part's segments of a LAS/LAZ file): each pass seeks to
+// every run in turn and reads it.  Not seekable itself (the finalizer then reads it in this order).
+class SegmentStream : public PointStream {
+ public:
+  SegmentStream(PointStream& inner, std::vector<std::pair<std::uint64_t, std::uint64_t>> runs)
+      : inner_(inner), runs_(std::move(runs)) {}
+  std::size_t read(PointRecord* out, std::size_t max) override {
+    while (next_ < runs_.size()) {
+      if (left_ == 0) {
+        inner_.seek(runs_[next_].first, runs_[next_].second);
+        left_ = runs_[next_].second;
+      }
+      const std::size_t n = inner_.read(out, static_cast<std::size_t>(std::min<std::uint64_t>(max, left_)));
+      left_ -= n;
+      if (n == 0 || left_ == 0) {
+        if (n == 0 && left_ != 0) throw Error("an input ended inside a run of records the plan counted");
+        left_ = 0;
+        ++next_;
+      }
+      if (n > 0) return n;
+    }
+    return 0;
+  }
+  bool rewindable() const override { return inner_.rewindable(); }
+  void rewind() override {
+    inner_.rewind();
+    next_ = 0;
+    left_ = 0;
+  }
+  bool cheapToReread() const override { return inner_.cheapToReread(); }
+  void setDecodeThreads(int threads) override { inner_.setDecodeThreads(threads); }
+  void suspend() override { inner_.suspend(); }
+
+ private:
+  PointStream& inner_;
+  std::vector<std::pair<std::uint64_t, std::uint64_t>> runs_;  // (first record, count)
+  std::size_t next_ = 0;
+  std::uint64_t left_ = 0;
+};
+
 // The rectangle holding a part's regions (grown a little: GridSpec puts a point up to a few ulps outside
 // its leaf's square; on the grid's border, unbounded, since GridSpec clamps there), within --clip.
 ClipRect windowRect(const PartWindow& w, const std::optional<ClipRect>& clip) {
@@ -93,8 +133,10 @@ ClipRect windowRect(const PartWindow& w, const std::optional<ClipRect>& clip) {
 // when the run works in another CRS than the inputs', one PointTransform per input wrapping its reader.
 struct OpenedInputs {
   std::vector<std::unique_ptr<PointReader>> readers;
-  std::uint64_t filesOutsidePart = 0, pointsOutsidePart = 0;  // a part: LAS files left unread by header
+  std::uint64_t filesOutsidePart = 0, pointsOutsidePart = 0;  // a part: records left unread (files, segments)
+  std::vector<std::unique_ptr<PointStream>> segmented;         // a part: inputs read by segments
   bool windowed = false, clipped = false;                       // readers restricted to a part, to --clip
+  std::vector<std::string> streamNames;                         // a part: the names of `streams` (fewer)
   std::vector<std::unique_ptr<PointTransform>> transforms;
   std::vector<std::unique_ptr<TransformingPointStream>> transformed;
   std::vector<PointStream*> streams;
@@ -242,7 +284,35 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
         continue;
       }
       if (own) in.readers[i]->restrictTo(rect);
+      // A file the plan cut into segments: only the segments whose kept points meet the rectangle.
+      std::vector<std::pair<std::uint64_t, std::uint64_t>> runs;
+      std::uint64_t segments = 0, skipped = 0;
+      if (o.plan && own && in.streams[i]->seekable())
+        for (const PlanSegment& g : o.plan->segments) {
+          if (g.input != i) continue;
+          ++segments;
+          if (g.empty() || g.maxX < rect.minX || g.minX > rect.maxX || g.maxY < rect.minY || g.minY > rect.maxY) {
+            skipped += g.count;
+            continue;
+          }
+          if (!runs.empty() && runs.back().first + runs.back().second == g.first)
+            runs.back().second += g.count;  // consecutive segments: one run
+          else
+            runs.emplace_back(g.first, g.count);
+        }
+      if (segments > 0 && skipped > 0) {
+        in.pointsOutsidePart += skipped;
+        if (runs.empty()) {
+          ++in.filesOutsidePart;
+          continue;
+        }
+        in.segmented.push_back(std::make_unique<SegmentStream>(*in.streams[i], std::move(runs)));
+        kept.push_back(in.segmented.back().get());
+        in.streamNames.push_back(o.inputs[i]);
+        continue;
+      }
       kept.push_back(in.streams[i]);
+      in.streamNames.push_back(o.inputs[i]);
     }
     if (kept.empty())
       throw DataError(o.inputs.front(), "no input's header bounds meet this part of the plan, which counted points "
@@ -260,7 +330,7 @@ OpenedInputs openInputs(const PipelineOptions& o, FinalizerOptions& fo, Diagnost
     diag.warn("crs.none", "",
               "the survey has no CRS: outputs are written without one (use --a_srs to assign it)");
   fo.crsWkt = in.crs.wkt;
-  fo.inputNames = o.inputs;
+  fo.inputNames = in.windowed ? in.streamNames : o.inputs;
   Bounds3 hb;
   std::uint64_t headerPoints = 0;
   // Header bounds are in the inputs' CRS: of no use once the points are transformed.
@@ -911,8 +981,26 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
     PointStream::BlockFrame frame;
     fromHierarchy = in.streams[i] == in.readers[i].get() && in.readers[i]->describeBlocks(blocks[i], frame);
   }
+  if (!fromHierarchy) {
+    // Any other survey: read in one slice, the same code as the ranks of an MPI run.
+    struct OneSlice : PlanReducer {
+      int slice() const override { return 0; }
+      int slices() const override { return 1; }
+      void reduce(PlanCounts& c) override {
+        if (!c.error.empty()) throw Error(c.error);
+      }
+    } one;
+    RunReport sliced = runPlanInSlices(o, parts, plan, diag, one);
+    writePlan(plan, plan.path);
+    sliced.outputs = {plan.path};
+    sliced.outputBytes = fileSizeOrZero(plan.path);
+    sliced.planPath = plan.path;
+    sliced.threads = r.threads;
+    finish(sliced, diag, t0);
+    return sliced;
+  }
   PlanCounter counter(parts);
-  counter.stopAtBegin(fromHierarchy);
+  counter.stopAtBegin(true);
   try {
     r.finalizer = finalizePoints(in.streams, fo, counter, diag);
   } catch (const PlanCounter::Stop&) {
@@ -959,6 +1047,7 @@ bool planInSlices(const PipelineOptions& o, Diagnostics& diag) {
 
 namespace {
 
+
 // One slice's share of the survey: (input, first record, records) pieces; count 0 = the whole input.
 struct SlicePiece {
   std::size_t input;
@@ -994,25 +1083,42 @@ std::vector<SlicePiece> slicePieces(const OpenedInputs& in, int slice, int slice
   return pieces;
 }
 
-// Reads this slice's pieces, filtered, and hands each kept batch to `use`.
+// Reads this slice's pieces, filtered, and hands each kept batch to use(input, segment, points, n): a
+// batch of a cut input never straddles a segment (kSegmentRecords records, aligned); segment is ~0 for
+// inputs read whole.
 template <class Use>
 void readSlice(const OpenedInputs& in, const std::vector<SlicePiece>& pieces, const PointFilter& filter,
-               FilterCounts& counts, Use use) {
+               std::uint64_t kSegmentRecords, FilterCounts& counts, Use use) {
   std::vector<PointRecord> buf(std::size_t{1} << 15);
   for (const SlicePiece& p : pieces) {
     PointStream& s = *in.streams[p.input];
     s.rewind();
     if (p.count) s.seek(p.first, p.count);
-    std::uint64_t left = p.count ? p.count : ~std::uint64_t{0};
+    std::uint64_t left = p.count ? p.count : ~std::uint64_t{0}, at = p.first;
     while (left > 0) {
-      std::size_t n = s.read(buf.data(), static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), left)));
+      std::uint64_t want = std::min<std::uint64_t>(buf.size(), left);
+      if (p.count) want = std::min(want, kSegmentRecords - at % kSegmentRecords);
+      std::size_t n = s.read(buf.data(), static_cast<std::size_t>(want));
       if (n == 0) break;
+      const std::uint64_t segment = p.count ? at / kSegmentRecords : ~std::uint64_t{0};
       left -= p.count ? n : 0;
+      at += n;
       n = filter.apply(buf.data(), n, counts);
-      use(buf.data(), n);
+      use(p.input, segment, buf.data(), n);
     }
     s.suspend();
   }
+}
+
+// Per cut input, the index of its first segment in the survey's list (and the total at the end).
+std::vector<std::uint64_t> segmentOffsets(const OpenedInputs& in, std::uint64_t kSegmentRecords) {
+  std::vector<std::uint64_t> first(in.streams.size() + 1, 0);
+  for (std::size_t i = 0; i < in.streams.size(); ++i) {
+    const SourceInfo& si = in.readers[i]->info();
+    const bool cut = in.streams[i] == in.readers[i].get() && si.pointCountKnown && in.streams[i]->seekable();
+    first[i + 1] = first[i] + (cut ? (si.pointCount + kSegmentRecords - 1) / kSegmentRecords : 0);
+  }
+  return first;
 }
 
 }  // namespace
@@ -1024,20 +1130,36 @@ RunReport runPlanInSlices(const PipelineOptions& o, int parts, Plan& plan, Diagn
   r.inputs = o.inputs;
   if (parts < 1) throw UsageError("--parts must be at least 1");
   // Every slice reaches every reduce(), failed or not: a failure travels in PlanCounts::error.
+  const std::uint64_t kSegmentRecords = std::max<std::uint64_t>(1024, o.planSegmentRecords);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in;
   std::vector<SlicePiece> pieces;
+  std::vector<std::uint64_t> segmentFirst;
   PlanCounts bounds;
   try {
     in = openInputs(o, fo, diag, /*needIntensity=*/false);
     r.crs = in.crs;
     r.filter = fo.filter.describe();
     pieces = slicePieces(in, reducer.slice(), reducer.slices());
-    // Pass 1: the bounds and count of the kept points (the bounds one process measures).
-    readSlice(in, pieces, fo.filter, bounds.filter, [&](const PointRecord* p, std::size_t n) {
-      for (std::size_t i = 0; i < n; ++i) bounds.bounds.add(p[i].x, p[i].y, p[i].z);
-      bounds.points += n;
-    });
+    // Pass 1: the bounds and count of the kept points (the bounds one process measures), and the box of
+    // each segment's kept points.
+    segmentFirst = segmentOffsets(in, kSegmentRecords);
+    constexpr double inf = std::numeric_limits<double>::infinity();
+    bounds.segMin.assign(2 * segmentFirst.back(), inf);
+    bounds.segMax.assign(2 * segmentFirst.back(), -inf);
+    readSlice(in, pieces, fo.filter, kSegmentRecords, bounds.filter,
+              [&](std::size_t input, std::uint64_t segment, const PointRecord* p, std::size_t n) {
+                Bounds3 b;
+                for (std::size_t i = 0; i < n; ++i) b.add(p[i].x, p[i].y, p[i].z);
+                bounds.bounds.add(b);
+                bounds.points += n;
+                if (segment == ~std::uint64_t{0} || n == 0) return;
+                const std::size_t g = static_cast<std::size_t>(segmentFirst[input] + segment);
+                bounds.segMin[2 * g] = std::min(bounds.segMin[2 * g], b.minX);
+                bounds.segMin[2 * g + 1] = std::min(bounds.segMin[2 * g + 1], b.minY);
+                bounds.segMax[2 * g] = std::max(bounds.segMax[2 * g], b.maxX);
+                bounds.segMax[2 * g + 1] = std::max(bounds.segMax[2 * g + 1], b.maxY);
+              });
   } catch (const std::exception& e) {
     bounds.error = e.what();
   }
@@ -1054,7 +1176,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, int parts, Plan& plan, Diagn
   counts.regions.assign(std::size_t{1} << (2 * level), 0);
   const int shift = depth - level;
   try {
-    readSlice(in, pieces, fo.filter, counts.filter, [&](const PointRecord* p, std::size_t n) {
+    readSlice(in, pieces, fo.filter, kSegmentRecords, counts.filter, [&](std::size_t, std::uint64_t, const PointRecord* p, std::size_t n) {
       for (std::size_t i = 0; i < n; ++i)
         ++counts.regions[mortonOf(grid.column(p[i].x) >> shift, grid.row(p[i].y) >> shift, level)];
       counts.points += n;
@@ -1073,6 +1195,24 @@ RunReport runPlanInSlices(const PipelineOptions& o, int parts, Plan& plan, Diagn
   plan.points = counts.points;
   plan.regionLevel = level;
   plan.parts = splitRegions(counts.regions, parts);
+  plan.exactCounts = true;
+  // The segments' boxes, for inputs of more than one segment.
+  plan.segments.clear();
+  for (std::size_t i = 0; i + 1 < segmentFirst.size(); ++i) {
+    if (segmentFirst[i + 1] - segmentFirst[i] < 2) continue;
+    const std::uint64_t records = in.readers[i]->info().pointCount;
+    for (std::uint64_t g = segmentFirst[i]; g < segmentFirst[i + 1]; ++g) {
+      PlanSegment seg;
+      seg.input = static_cast<std::uint32_t>(i);
+      seg.first = (g - segmentFirst[i]) * kSegmentRecords;
+      seg.count = std::min(kSegmentRecords, records - seg.first);
+      seg.minX = bounds.segMin[2 * g];
+      seg.minY = bounds.segMin[2 * g + 1];
+      seg.maxX = bounds.segMax[2 * g];
+      seg.maxY = bounds.segMax[2 * g + 1];
+      plan.segments.push_back(seg);
+    }
+  }
   r.haveFinalizer = true;
   r.finalizer.filter = counts.filter;
   r.finalizer.points = counts.points;

@@ -71,6 +71,9 @@ struct PipelineOptions {
   // directory and the rest of its tiles as pieces; runMerge settles the rest.
   const Plan* plan = nullptr;
   int part = -1;
+  // tinbuild plan --segment-records: a LAS/LAZ input is recorded in runs of this many records, each with
+  // the box of its points, so that a part reads only the runs that meet its window.
+  std::uint64_t planSegmentRecords = std::uint64_t{1} << 20;
 };
 
 // --threads 0 -> the number of cores (at least 1).
@@ -155,6 +158,7 @@ struct PlanCounts {
   std::uint64_t points = 0;
   FilterCounts filter;
   std::vector<std::uint64_t> regions;  // kept points per region, Morton order (empty in the bounds pass)
+  std::vector<double> segMin, segMax;  // per segment of the cut inputs: (x, y) of its kept points' box
   std::string error;                   // this slice failed: reduce() throws it on every slice
 };
 class PlanReducer {

@@ -98,6 +98,16 @@ std::string planBody(const Plan& p) {
   j.key("points").value(p.points);
   j.key("region_level").value(p.regionLevel);
   j.key("exact_counts").value(p.exactCounts);
+  j.key("segments").beginArray();
+  for (const auto& g : p.segments) {
+    j.beginObject();
+    j.key("input").value(static_cast<std::uint64_t>(g.input)).key("first").value(g.first).key("count").value(g.count);
+    j.key("box").beginArray();
+    for (double v : {g.minX, g.minY, g.maxX, g.maxY}) j.value(hexDouble(v));
+    j.endArray();
+    j.endObject();
+  }
+  j.endArray();
   j.key("parts").beginArray();
   for (const auto& part : p.parts) {
     j.beginObject();
@@ -180,6 +190,19 @@ Plan readPlan(const std::string& path) {
   p.points = getU64(root, "points");
   p.regionLevel = root.GetInteger("region_level", -1);
   p.exactCounts = root.GetBool("exact_counts", true);
+  for (const auto& o : root.GetArray("segments")) {
+    PlanSegment seg;
+    seg.input = static_cast<std::uint32_t>(getU64(o, "input"));
+    seg.first = getU64(o, "first");
+    seg.count = getU64(o, "count");
+    const CPLJSONArray box = o.GetArray("box");
+    if (box.Size() != 4 || seg.input >= p.inputs.size()) throw DataError(path, "the plan's segments are damaged");
+    seg.minX = parseHexDouble(box[0].ToString(), path, "segment box");
+    seg.minY = parseHexDouble(box[1].ToString(), path, "segment box");
+    seg.maxX = parseHexDouble(box[2].ToString(), path, "segment box");
+    seg.maxY = parseHexDouble(box[3].ToString(), path, "segment box");
+    p.segments.push_back(seg);
+  }
   for (const auto& o : root.GetArray("parts"))
     p.parts.push_back(PlanPart{getU64(o, "first_region"), getU64(o, "end_region"), getU64(o, "points")});
   if (p.grid.depth < 0 || p.grid.depth > 15 || p.regionLevel < 1 || p.regionLevel > p.grid.depth ||

@@ -31,6 +31,15 @@ struct PlanPart {
   std::uint64_t points = 0;          // counted by the plan
 };
 
+// A run of records of an input and the box of its points after the filters (empty: none kept).  A part
+// reads only the segments whose box meets its window.
+struct PlanSegment {
+  std::uint32_t input = 0;
+  std::uint64_t first = 0, count = 0;
+  double minX = 0, minY = 0, maxX = 0, maxY = 0;
+  bool empty() const { return !(minX <= maxX); }
+};
+
 struct Plan {
   std::string id;                      // set by writePlan / readPlan
   std::string command;                 // the build command the plan stands for (recorded in outputs)
@@ -44,6 +53,7 @@ struct Plan {
   // The parts' counts are exact (the points were read), so each part must triangulate exactly as many;
   // false when they were estimated from a COPC hierarchy (no point read).
   bool exactCounts = true;
+  std::vector<PlanSegment> segments;  // of the inputs cut into several (LAS/LAZ read in their own CRS)
   std::string path;  // where it was read from / written to
 
   // PLAN.parts (PLAN without its .json).
