@@ -786,7 +786,8 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
   r.delaunay = delaunay.stats();
   r.parallel = delaunay.parallelStats();
   if (part) {
-    r.finalizer.filter.read += in.pointsOutsidePart;  // unread files: other parts' points, counted
+    r.finalizer.filter.read += in.pointsOutsidePart;  // unread files and runs: other parts' points, counted
+    r.unreadRecords = in.pointsOutsidePart;
     r.finalizer.filter.otherPart += in.pointsOutsidePart;
     if (plan->exactCounts && r.delaunay.pointsIn != part->points)
       throw DataError(plan->path, "part " + std::to_string(o.part) + " triangulated " +
@@ -1866,7 +1867,10 @@ std::string formatRunSummary(const RunReport& r) {
     } else if (r.command != "merge") {
     if (r.part >= 0)
       line("part", std::to_string(r.part) + " of " + std::to_string(r.parts) + " (" + r.planPath + "): " +
-                       withCommas(d.pointsIn) + " points triangulated here; left for the merge: " +
+                       withCommas(d.pointsIn) + " points triangulated here" +
+                       (r.unreadRecords ? " (" + withCommas(r.unreadRecords) + " records of other parts not read)"
+                                        : std::string()) +
+                       "; left for the merge: " +
                        withCommas(r.seamVertices) + " seam vertices (" + bytesText(r.seamBytes) + ")" +
                        (r.pieceBytes ? ", DEM pieces (" + bytesText(r.pieceBytes) + ")" : std::string()));
     line("memory", "at most " + withCommas(d.maxActiveTriangles) + " active triangles and " +
@@ -2122,6 +2126,7 @@ std::string formatRunJson(const RunReport& r) {
     else
       j.key("part").null();
     j.key("other_part_points").value(r.otherPartPoints + (r.haveFinalizer ? r.finalizer.filter.otherPart : 0));
+    j.key("unread_records").value(r.unreadRecords);
     j.key("seam_vertices").value(r.seamVertices);
     j.key("seam_triangles").value(r.seamTriangles);
     j.key("seam_bytes").value(r.seamBytes);

@@ -124,6 +124,7 @@ struct RunReport {
   int part = -1, parts = 0;
   std::string planPath;
   std::uint64_t otherPartPoints = 0;  // a part: points of other parts it read and left
+  std::uint64_t unreadRecords = 0;    // a part: records it did not read at all (files, runs outside it)
   std::uint64_t seamBytes = 0, pieceBytes = 0;  // a part: what it leaves for the merge; a merge: read
   std::uint64_t seamVertices = 0, seamTriangles = 0, demPieces = 0;
   std::uint64_t demPartTiles = 0;    // a merge: tile files (all bands) the parts wrote whole
