@@ -35,6 +35,26 @@ double parseHexDouble(const std::string& s, const std::string& file, const std::
   return v;
 }
 
+// Bounds as six exact strings (minX, minY, minZ, maxX, maxY, maxZ), and back.
+void writeBounds(JsonWriter& j, const Bounds3& b) {
+  j.beginArray();
+  for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ}) j.value(hexDouble(v));
+  j.endArray();
+}
+Bounds3 readBounds(const CPLJSONArray& a, const std::string& file) {
+  if (a.Size() != 6) throw DataError(file, "damaged bounds");
+  double v[6];
+  for (int i = 0; i < 6; ++i) v[i] = parseHexDouble(a[i].ToString(), file, "bounds");
+  Bounds3 b;
+  b.minX = v[0];
+  b.minY = v[1];
+  b.minZ = v[2];
+  b.maxX = v[3];
+  b.maxY = v[4];
+  b.maxZ = v[5];
+  return b;
+}
+
 // FNV-1a, 64 bits, as 16 hex digits.
 std::string hashText(const std::string& s) {
   std::uint64_t h = 0xcbf29ce484222325ull;
@@ -91,10 +111,8 @@ std::string planBody(const Plan& p) {
   j.key("origin_y_exact").value(hexDouble(p.grid.originY));
   j.key("size_exact").value(hexDouble(p.grid.size));
   j.endObject();
-  j.key("bounds").beginArray();
-  for (double v : {p.bounds.minX, p.bounds.minY, p.bounds.minZ, p.bounds.maxX, p.bounds.maxY, p.bounds.maxZ})
-    j.value(hexDouble(v));
-  j.endArray();
+  j.key("bounds");
+  writeBounds(j, p.bounds);
   j.key("points").value(p.points);
   j.key("region_level").value(p.regionLevel);
   j.key("exact_counts").value(p.exactCounts);
@@ -179,14 +197,7 @@ Plan readPlan(const std::string& path) {
   p.grid.originY = parseHexDouble(g.GetString("origin_y_exact"), path, "grid origin");
   p.grid.size = parseHexDouble(g.GetString("size_exact"), path, "grid size");
   p.grid.depth = g.GetInteger("depth", -1);
-  const CPLJSONArray b = root.GetArray("bounds");
-  if (b.Size() != 6) throw DataError(path, "the plan's bounds are damaged");
-  p.bounds.minX = parseHexDouble(b[0].ToString(), path, "bounds");
-  p.bounds.minY = parseHexDouble(b[1].ToString(), path, "bounds");
-  p.bounds.minZ = parseHexDouble(b[2].ToString(), path, "bounds");
-  p.bounds.maxX = parseHexDouble(b[3].ToString(), path, "bounds");
-  p.bounds.maxY = parseHexDouble(b[4].ToString(), path, "bounds");
-  p.bounds.maxZ = parseHexDouble(b[5].ToString(), path, "bounds");
+  p.bounds = readBounds(root.GetArray("bounds"), path);
   p.points = getU64(root, "points");
   p.regionLevel = root.GetInteger("region_level", -1);
   p.exactCounts = root.GetBool("exact_counts", true);
@@ -270,10 +281,8 @@ void writeMeshManifest(const MeshManifest& m, const std::string& path) {
   for (const auto& p : m.parts) j.value(fs::path(p).filename().string());
   j.endArray();
   j.key("seam").value(fs::path(m.seam).filename().string());
-  j.key("bounds").beginArray();
-  for (double v : {m.bounds.minX, m.bounds.minY, m.bounds.minZ, m.bounds.maxX, m.bounds.maxY, m.bounds.maxZ})
-    j.value(hexDouble(v));
-  j.endArray();
+  j.key("bounds");
+  writeBounds(j, m.bounds);
   j.key("crs_wkt").value(m.crsWkt);
   j.endObject();
   writeText(path, j.str());
@@ -290,15 +299,7 @@ MeshManifest readMeshManifest(const std::string& path) {
   for (const auto& p : root.GetArray("parts")) m.parts.push_back((dir / p.ToString()).string());
   m.seam = (dir / root.GetString("seam")).string();
   m.crsWkt = root.GetString("crs_wkt");
-  const CPLJSONArray b = root.GetArray("bounds");
-  if (b.Size() == 6) {
-    m.bounds.minX = parseHexDouble(b[0].ToString(), path, "bounds");
-    m.bounds.minY = parseHexDouble(b[1].ToString(), path, "bounds");
-    m.bounds.minZ = parseHexDouble(b[2].ToString(), path, "bounds");
-    m.bounds.maxX = parseHexDouble(b[3].ToString(), path, "bounds");
-    m.bounds.maxY = parseHexDouble(b[4].ToString(), path, "bounds");
-    m.bounds.maxZ = parseHexDouble(b[5].ToString(), path, "bounds");
-  }
+  m.bounds = readBounds(root.GetArray("bounds"), path);
   if (m.parts.empty() || root.GetString("seam").empty()) throw DataError(path, "the mesh manifest lists no parts");
   return m;
 }
