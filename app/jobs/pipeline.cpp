@@ -721,6 +721,7 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag) {
     fo.knownBounds = plan->bounds;
     fo.depth = plan->grid.depth;
     fo.countBlocks = false;
+    fo.allowEmpty = true;  // (an exact plan still checks the count below)
   }
   r.crs = in.crs;
   r.filter = fo.filter.describe();
@@ -1302,6 +1303,10 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
                                    " --part I`, then merge again)");
   checkPlanInputs(plan);
   checkPlannedOutputs(o);
+  std::uint64_t keptPoints = 0;
+  for (const PartDone& d : done) keptPoints += d.points;
+  if (keptPoints == 0)
+    throw DataError(plan.path, "no part kept a point after the filters: there is nothing to merge");
   const RunOutputs outputs = resolveOutputs(o);
   FinalizerOptions fo = o.finalizer;
   OpenedInputs in = openInputs(o, fo, diag, /*needIntensity=*/false);  // headers only: the CRS

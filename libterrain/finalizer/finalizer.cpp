@@ -865,7 +865,10 @@ class Finalizer {
       stats_.pass1Seconds = std::chrono::duration<double>(Clock::now() - t0).count();
       firstCounts_ = stats_.filter;
       firstCountsTaken_ = true;
-      if (n == 0) throw Error(noPointsMessage());
+      if (n == 0) {
+        if (options_.allowEmpty) return emptyStream();
+        throw Error(noPointsMessage());
+      }
       expected = n;
       gridBounds = b;
       unit = 1;
@@ -906,7 +909,10 @@ class Finalizer {
       std::uint64_t n = 0;
       cells = countCells(g, real, n, !stats_.pass1Run);
       ++stats_.pass2Runs;
-      if (n == 0) throw Error(noPointsMessage());
+      if (n == 0) {
+        if (options_.allowEmpty) return emptyStream();
+        throw Error(noPointsMessage());
+      }
       if (known != 0 && n != known)
         throw Error("finalizer: the inputs yielded " + withCommas(known) + " points in one pass and " +
                     withCommas(n) + " in the next (was a file modified while being read?)");
@@ -1601,6 +1607,22 @@ class Finalizer {
                          " lies outside the box the file gives them (x " + num(b.box.minX) + " .. " +
                          num(b.box.maxX) + ", y " + num(b.box.minY) + " .. " + num(b.box.maxY) +
                          "; a COPC node holding a point outside its cube)");
+  }
+
+  // options.allowEmpty and no point kept: a stream of nothing (begin, then end) over the fixed grid.
+  FinalizerStats emptyStream() {
+    StreamInfo info;
+    info.grid = options_.fixedGrid ? *options_.fixedGrid : GridSpec{};
+    if (options_.fixedBounds) info.bounds = *options_.fixedBounds;
+    info.crsWkt = options_.crsWkt;
+    stats_.points = 0;
+    stats_.grid = info.grid;
+    stats_.bounds = info.bounds;
+    stats_.filter = firstCountsTaken_ ? firstCounts_ : stats_.filter;
+    out_.begin(info);
+    out_.end();
+    progress_.finish();
+    return stats_;
   }
 
   // ---- pass 3 -----------------------------------------------------------------------------------

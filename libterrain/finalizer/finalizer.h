@@ -183,6 +183,9 @@ struct FinalizerOptions {
   // the DEM's layout while reading only its own points.  No bounds checks: the plan measured them.
   std::optional<GridSpec> fixedGrid;
   std::optional<Bounds3> fixedBounds;
+  // No point left after the filters is an empty stream (begin, then end), not an error: a part of a
+  // plan whose window holds no kept point (a COPC plan counts before the filters).
+  bool allowEmpty = false;
 };
 
 struct FinalizerStats {
