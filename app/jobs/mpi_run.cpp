@@ -217,16 +217,20 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   // finalizer (one process lays its grid on the octree) and broadcast.
   const auto tPlan = Clock::now();
   bool sliced = false;
+  // Each rank opens the survey once to plan (its part, read through the part's window, opens it again:
+  // a reader restricted to a window is another reader).
+  Survey survey;
   collective(rank, size, "plan on rank", [&] {
     localDir = makeLocalDir(rank);
-    sliced = planInSlices(options, diag);
+    survey = openSurvey(options, diag, /*needIntensity=*/false);
+    sliced = planInSlices(survey);
   });
   if (sliced) {
     MpiReducer reducer(rank, size);
     PipelineOptions po = options;
     po.overwrite = true;
     plan.path = rank == 0 ? rootPlanPath : localDir + "/plan.json";
-    planReport = runPlanInSlices(po, size, plan, diag, reducer);  // (its errors reach every rank)
+    planReport = runPlanInSlices(po, survey, size, plan, diag, reducer);  // (its errors reach every rank)
     exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
     collective(rank, size, "plan on rank", [&] { writePlan(plan, plan.path); });
   } else {
@@ -235,7 +239,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       PipelineOptions po = options;
       po.overwrite = true;
       plan.path = rootPlanPath;
-      planReport = runPlan(po, size, plan, diag);
+      planReport = runPlan(po, survey, size, plan, diag);
     });
     std::string planText = rank == 0 ? readWhole(rootPlanPath) : std::string();
     std::uint64_t planBytes = planText.size();
@@ -254,6 +258,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     });
   }
 
+  survey = Survey();  // (its readers are done with)
   const double planSeconds = since(tPlan);
   // 2. Every rank its part.
   const auto tPart = Clock::now();

@@ -491,6 +491,16 @@ CrsInfo crsFromWkt(const std::string& wktIn, const std::string& file, Diagnostic
   return describe(srs, "wkt");
 }
 
+CrsInfo crsFromRecordedWkt(const std::string& wkt) {
+  try {
+    return crsFromUser(wkt);
+  } catch (const Error&) {
+    CrsInfo c;
+    c.wkt = wkt;
+    return c;
+  }
+}
+
 CrsInfo crsFromUser(const std::string& text) {
   ensureGdal();
   OGRSpatialReference srs;

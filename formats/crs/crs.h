@@ -68,6 +68,10 @@ CrsInfo crsFromWkt(const std::string& wkt, const std::string& file, Diagnostics&
 // Throws UsageError when it cannot be understood.
 CrsInfo crsFromUser(const std::string& text);
 
+// A CRS recorded as WKT by tinbuild itself (a finalized stream's header, a mesh manifest): described as
+// crsFromUser does; WKT that GDAL cannot read is kept as it is, with nothing else known.
+CrsInfo crsFromRecordedWkt(const std::string& wkt);
+
 // Warns (crs.coordinates_not_degrees) when a geographic CRS is given to coordinates that cannot be
 // degrees (|x| > 360 or |y| > 90): the CRS metadata contradicts the data.
 void checkCoordinatesPlausible(const CrsInfo& crs, double minX, double minY, double maxX, double maxY,

@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "formats/crs/crs.h"
 #include "libterrain/core/point.h"
 #include "libterrain/finalizer/grid.h"
 
@@ -86,6 +87,10 @@ struct PartDone {
   std::vector<std::string> demTiles;  // tiles written whole
   double seconds = 0;
   std::uint64_t peakRssBytes = 0;
+  // The run's working CRS as the part's survey chose it, every field exactly, and the unit of z in metres:
+  // the merge labels its outputs with it and converts the DEM's lengths by it, without opening an input.
+  CrsInfo crs;
+  double zUnitToMetre = 1;
 };
 void writePartDone(const PartDone& done, const std::string& path);
 PartDone readPartDone(const std::string& path);

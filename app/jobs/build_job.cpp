@@ -1,0 +1,252 @@
+#include "app/jobs/build_job.h"
+
+#include <algorithm>
+#include <thread>
+
+#include "app/jobs/part_job.h"
+#include "formats/pointcloud/finalized_stream.h"
+#include "libterrain/core/error.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+// Forwards a point stream and reports its progress (points passed on / points announced), GDAL-style;
+// the callback returning 0 cancels (CancelledError).
+class ProgressPointSink : public PointSink {
+ public:
+  ProgressPointSink(PointSink& out, ProgressFunc f, void* data, ProgressCounts* counts)
+      : out_(out), f_(f), data_(data), counts_(counts) {}
+  void begin(const StreamInfo& info) override {
+    total_ = info.points;
+    report();
+    out_.begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    out_.points(p, n);
+    done_ += n;
+    if (done_ - reported_ >= 65536) report();
+  }
+  void finalizeCell(const CellTag& cell) override { out_.finalizeCell(cell); }
+  void end() override {
+    report();
+    out_.end();
+  }
+
+ private:
+  void report() {
+    reported_ = done_;
+    if (!f_) return;
+    if (counts_) *counts_ = ProgressCounts{done_, total_};
+    const double c = total_ ? std::min(1.0, static_cast<double>(done_) / static_cast<double>(total_)) : 0.0;
+    if (!f_(c, "triangulating", data_)) throw CancelledError();
+  }
+  PointSink& out_;
+  ProgressFunc f_;
+  void* data_;
+  ProgressCounts* counts_;
+  std::uint64_t total_ = 0, done_ = 0, reported_ = 0;
+};
+
+
+// The finalizer's sink with two threads or more: the triangulator on a thread of its own behind a queue,
+// unless it triangulates regions on threads of its own; then the finalizer's thread splits the batches
+// and merges the output itself (one copy and one hand-over less per batch, one thread less).
+class TriangulatorFeed : public PointSink {
+ public:
+  explicit TriangulatorFeed(ParallelDelaunay& d) : delaunay_(d) {}
+  void begin(const StreamInfo& info) override {
+    if (delaunay_.runsThreads(info)) {
+      to_ = &delaunay_;
+    } else {
+      queue_ = std::make_unique<ConcurrentPointSink>(delaunay_);
+      to_ = queue_.get();
+    }
+    to_->begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override { to_->points(p, n); }
+  void finalizeCell(const CellTag& cell) override { to_->finalizeCell(cell); }
+  void end() override { to_->end(); }
+
+ private:
+  ParallelDelaunay& delaunay_;
+  std::unique_ptr<ConcurrentPointSink> queue_;
+  PointSink* to_ = nullptr;
+};
+
+}  // namespace
+
+ParallelDelaunayOptions triangulatorOptions(const PipelineOptions& o, const DelaunayOptions& dopt, int threads) {
+  ParallelDelaunayOptions p;
+  p.delaunay = dopt;
+  p.threads = threads;
+  p.regionLevel = o.regionLevel;
+  return p;
+}
+
+int effectiveThreads(int requested) {
+  if (requested > 0) return requested;
+  return static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+}
+
+RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  RunReport r;
+  r.command = "finalize";
+  r.inputs = o.inputs;
+  if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  refuseExistingOutputs(o, {}, writerContext(o));
+  Survey in = openSurvey(o, diag);
+  r.threads = effectiveThreads(o.threads);
+  FinalizerOptions fo = finalizerOptions(o, in, r.threads);
+  // The stream's header states its exact point count before the first point: COPC nodes are not
+  // counted from the hierarchy here (they are spooled in pass 1 like other LAZ).
+  fo.countBlocks = false;
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+  FinalizedStreamWriter writer(o.finalizedOutput);
+  // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
+  r.finalizer = finalizePoints(in.streams, fo, writer, diag);
+  in.countSkipped(r);
+  r.haveFinalizer = true;
+  r.outputs = {o.finalizedOutput};
+  r.outputBytes = writer.bytesWritten();
+  in.reportTransform(r, diag);
+  finishReport(r, diag, t0);
+  return r;
+}
+
+RunReport runTriangulate(const std::string& finalizedInput, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  RunReport r;
+  r.command = "triangulate";
+  r.inputs = {finalizedInput};
+  if (o.meshOutput.empty()) throw UsageError("triangulate: give the output mesh: -o FILE.smb|FILE.sma|-");
+  const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
+  if (!out.is(WriterKind::StreamingMeshBinary) && !out.is(WriterKind::StreamingMeshAscii))
+    throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use .sma or .smb)");
+  const WriterContext context = writerContext(o);
+  refuseExistingOutputs(o, {out}, context);
+  const auto opened = out.row->open(out.path, context);
+  MeshSink* mesh = opened->meshSink();
+  MeshTee tee;
+  opened->attach(tee);
+  r.threads = effectiveThreads(o.threads);
+  // SMB encoding is a copy, cheaper than handing the events to another thread; ASCII is not.
+  const bool threaded = r.threads >= 2 && !out.row->cheapInline;
+  tee.setThreaded(threaded);
+  tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  // Without a writer thread the one mesh writer is fed directly (the tee would only add a call).
+  ParallelDelaunay delaunay(threaded ? static_cast<MeshSink&>(tee) : *mesh, triangulatorOptions(o, dopt, r.threads));
+  ProgressPointSink progress(delaunay, o.finalizer.progress, o.finalizer.progressData,
+                             o.finalizer.progressCounts);
+  const StreamInfo info = readFinalizedStream(finalizedInput, progress);
+  if (!info.crsWkt.empty()) r.crs = crsFromRecordedWkt(info.crsWkt);
+  r.delaunay = delaunay.stats();
+  r.parallel = delaunay.parallelStats();
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  r.outputs = {o.meshOutput};
+  r.outputBytes = opened->bytes();
+  finishReport(r, diag, t0);
+  return r;
+}
+
+RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
+  if (o.plan) return runPart(o, diag);
+  const auto t0 = JobClock::now();
+  if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty() && o.contoursOutput.empty())
+    throw UsageError(
+        "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, --contours "
+        "FILE");
+  RunOutputs outputs = resolveOutputs(o);
+  refuseExistingOutputs(o, outputs.all(), outputs.context);
+  Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
+  return runBuildWith(o, survey, outputs, nullptr, diag, t0);
+}
+
+RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs, BuildHooks* hooks,
+                       Diagnostics& diag, JobClock::time_point t0) {
+  RunReport r;
+  r.command = "build";
+  r.inputs = o.inputs;
+  const int threads = effectiveThreads(o.threads);
+  FinalizerOptions fo = finalizerOptions(o, in, threads);
+  r.crs = in.crs;
+  r.filter = fo.filter.describe();
+  r.memoryBudget = fo.memoryBudget;
+
+  // Open every output before any work, so an unwritable target or a bad length fails at once.
+  completeOutputs(outputs, o, in.crs, in.zUnitToMetre, r.dem, diag);
+  if (hooks) hooks->outputs(outputs, r);
+  const std::vector<ResolvedOutput> resolved = outputs.all();
+  std::vector<std::unique_ptr<OpenedOutput>> opened;
+  for (const ResolvedOutput& out : resolved) opened.push_back(out.row->open(out.path, outputs.context));
+
+  // Declared after the outputs, so a writer thread still running when the run fails is stopped before
+  // any output is destroyed.
+  MeshTee tee;
+  for (auto& out : opened) out->attach(tee);
+  // With two threads or more: the reader runs ahead of the finalizer, the triangulator has a thread
+  // and the outputs (the tee's consumers) another, all behind bounded queues -- except one output that
+  // is cheaper to encode than to queue (SMB).  Every stage sees the same sequence of events as on one
+  // thread, so the outputs are byte-identical for any count.
+  const bool threadedOutputs = threads >= 2 && !(opened.size() == 1 && resolved[0].row->cheapInline);
+  tee.setThreaded(threadedOutputs);
+  tee.setProgress(fo.progress, fo.progressData);
+  DelaunayOptions dopt = o.delaunay;
+  dopt.diagnostics = &diag;
+  // One mesh writer and no writer thread: fed directly (the finalizer checks for a cancellation just
+  // before it ends the stream).
+  MeshSink* direct = opened.size() == 1 && !threadedOutputs ? opened[0]->meshSink() : nullptr;
+  ParallelDelaunayOptions popt = triangulatorOptions(o, dopt, threads);
+  if (hooks) hooks->triangulator(popt);
+  ParallelDelaunay delaunay(direct ? *direct : static_cast<MeshSink&>(tee), popt);
+  {
+    TriangulatorFeed feed(delaunay);
+    PointSink& sink = threads >= 2 ? static_cast<PointSink&>(feed) : delaunay;
+    r.finalizer = finalizePoints(in.streams, fo, hooks ? hooks->pointSink(sink) : sink, diag);
+  }
+  in.countSkipped(r);
+  r.threads = threads;
+  r.haveFinalizer = true;
+  r.delaunay = delaunay.stats();
+  r.parallel = delaunay.parallelStats();
+  if (hooks) hooks->triangulated(r);
+  r.haveDelaunay = true;
+  r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  for (std::size_t i = 0; i < opened.size(); ++i) {
+    OpenedOutput& out = *opened[i];
+    out.commitPieces();
+    const std::vector<std::string> files = out.files();
+    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+    r.outputBytes += out.bytes();
+    if (resolved[i].row->option == OutputOption::Gpkg) {
+      r.gpkgOutput = resolved[i].path;
+      r.gpkgTriangles = r.delaunay.trianglesEmitted;
+      r.gpkgBytes = out.bytes();
+    }
+    if (const ContourStats* cs = out.contourStats()) {
+      r.contoursOutput = resolved[i].path;
+      r.contours = o.contours;
+      r.contourStats = *cs;
+    }
+    if (const DemRasterizer* dem = out.rasterizer()) {
+      r.dem.layout = dem->layout();
+      r.dem.stats = dem->stats();
+      r.dem.files = files;
+      if (r.dem.stats.tilesWritten == 0 && !hooks)
+        diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
+    }
+  }
+  if (hooks) hooks->finished(r, outputs, opened);
+  in.reportTransform(r, diag);
+  finishReport(r, diag, t0);
+  return r;
+}
+
+}  // namespace tinbuild

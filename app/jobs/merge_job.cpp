@@ -1,0 +1,217 @@
+#include "app/jobs/merge_job.h"
+
+#include <filesystem>
+#include <memory>
+
+#include "app/jobs/run_outputs.h"
+#include "app/jobs/tin_parts.h"
+#include "formats/io/output_file.h"
+#include "formats/mesh/seam_file.h"
+#include "formats/raster/dem_pieces.h"
+#include "libterrain/core/error.h"
+#include "libterrain/delaunay/seam_step.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+// The merge's seam output: the seam's own streaming mesh file (every vertex it uses declared again, so
+// the file stands alone) and the DEM rasterizer (a vertex counted only where it was first written).
+class MergeSeamOutput : public SeamOutput {
+ public:
+  MergeSeamOutput(MeshSink* mesh, TriangleSink* dem) : mesh_(mesh), dem_(dem) {}
+  void begin(const MeshInfo& info) override {
+    if (mesh_) mesh_->begin(info);
+    if (dem_) dem_->begin(info);
+  }
+  void triangle(SeamRecord& a, SeamRecord& b, SeamRecord& c) override {
+    declare(a);
+    declare(b);
+    declare(c);
+    if (mesh_) mesh_->triangle(a.out, b.out, c.out);
+    if (dem_) dem_->triangle(vertexOf(a), vertexOf(b), vertexOf(c));
+    ++triangles_;
+  }
+  void finalize(SeamRecord& r) override {
+    declare(r);
+    if (mesh_) mesh_->finalizeVertex(r.out);
+  }
+  void end() override {
+    if (mesh_) mesh_->end();
+    if (dem_) dem_->end();
+  }
+  std::uint64_t triangles() const { return triangles_; }
+  std::uint64_t newVertices() const { return newVertices_; }
+
+ private:
+  static MeshVertex vertexOf(const SeamRecord& r) { return MeshVertex{r.out, r.x, r.y, r.z}; }
+  void declare(SeamRecord& r) {
+    if (r.out != kNoSeamId) return;
+    r.out = next_++;
+    if (mesh_) mesh_->vertex(r.out, r.x, r.y, r.z);
+    if (r.id == kNoSeamId) {  // no part wrote it (nor counted it in the DEM)
+      ++newVertices_;
+      if (dem_) dem_->vertex(vertexOf(r));
+    }
+  }
+  MeshSink* mesh_;
+  TriangleSink* dem_;
+  std::uint64_t next_ = 0, triangles_ = 0, newVertices_ = 0;
+};
+
+}  // namespace
+
+RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  RunReport r;
+  r.command = "merge";
+  r.inputs = {plan.path};
+  r.planPath = plan.path;
+  r.parts = static_cast<int>(plan.parts.size());
+  // Every part, finished, for this plan: else say which to run again.
+  std::vector<PartDone> done;
+  std::string missing, stale;
+  for (int i = 0; i < r.parts; ++i) {
+    const std::string path = plan.partFile(i, "json");
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec)) {
+      missing += (missing.empty() ? "" : ", ") + std::to_string(i);
+      continue;
+    }
+    PartDone d = readPartDone(path);
+    if (d.planId != plan.id || d.part != i) stale += (stale.empty() ? "" : ", ") + std::to_string(i);
+    done.push_back(std::move(d));
+  }
+  if (!missing.empty() || !stale.empty())
+    throw DataError(plan.path, (missing.empty() ? "" : "parts not finished: " + missing) +
+                                   (missing.empty() || stale.empty() ? "" : "; ") +
+                                   (stale.empty() ? "" : "parts left by another plan: " + stale) +
+                                   " (run each with `tinbuild build --plan " + plan.path +
+                                   " --part I`, then merge again)");
+  checkPlanInputs(plan);
+  checkPlannedOutputs(o);
+  std::uint64_t keptPoints = 0;
+  for (const PartDone& d : done) keptPoints += d.points;
+  if (keptPoints == 0)
+    throw DataError(plan.path, "no part kept a point after the filters: there is nothing to merge");
+  // The survey's CRS as the parts recorded it: the merge opens no input.
+  const CrsInfo& crs = done.front().crs;
+  for (const PartDone& d : done)
+    if (d.crs.wkt != crs.wkt)
+      throw DataError(plan.partFile(d.part, "json"), "part " + std::to_string(d.part) +
+                                                          " worked in another CRS than part 0 (" + d.crs.name + ", " +
+                                                          crs.name + "): run the parts again");
+  RunOutputs outputs = resolveOutputs(o);
+  completeOutputs(outputs, o, crs, done.front().zUnitToMetre, r.dem, diag);
+  r.crs = crs;
+  WriterContext& context = outputs.context;
+  context.overwrite = true;
+  DemPieceIndex pieces;
+  std::vector<std::string> partTiles;
+  if (outputs.dem) {
+    for (int i = 0; i < r.parts; ++i) {
+      const std::string path = plan.partFile(i, "dem");
+      std::error_code ec;
+      if (std::filesystem::exists(path, ec)) pieces.add(path);
+      r.pieceBytes += fileSizeOrZero(path);
+    }
+    for (const PartDone& d : done) partTiles.insert(partTiles.end(), d.demTiles.begin(), d.demTiles.end());
+    r.demPartTiles = partTiles.size();
+    context.demMerge = &pieces;
+    context.demOtherTiles = partTiles;
+  }
+  std::unique_ptr<OpenedOutput> mesh, dem;
+  std::string seamMesh;
+  if (outputs.mesh) {
+    seamMesh = seamMeshPath(o.meshOutput);
+    mesh = outputs.mesh.row->open(seamMesh, context);  // (the seam file has the mesh's format)
+  }
+  if (outputs.dem) dem = outputs.dem.row->open(outputs.dem.path, context);
+  MergeSeamOutput seamOut(mesh ? mesh->meshSink() : nullptr, dem ? dem->triangleSink() : nullptr);
+  SeamStep step(seamOut, o.delaunay);
+  StreamInfo info;
+  info.grid = plan.grid;
+  info.bounds = plan.bounds;
+  info.crsWkt = crs.wkt;
+  step.begin(info);
+  for (int i = 0; i < r.parts; ++i) {
+    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step);
+    r.seamBytes += c.bytes;
+  }
+  step.end();
+  const SeamStats& ss = step.stats();
+  r.seamVertices = ss.vertices;
+  r.seamTriangles = ss.written;
+  r.demPieces = pieces.pieces();
+  std::uint64_t triangles = seamOut.triangles(), vertices = seamOut.newVertices();
+  for (const PartDone& d : done) {
+    triangles += d.triangles;
+    vertices += d.vertices;
+    r.otherPartPoints += d.otherPartPoints;
+  }
+  if (mesh) {
+    MeshManifest m;
+    m.planId = plan.id;
+    for (const PartDone& d : done) m.parts.push_back(d.mesh);
+    m.seam = seamMesh;
+    m.triangles = triangles;
+    m.vertices = vertices;
+    m.crsWkt = crs.wkt;
+    m.bounds = plan.bounds;
+    const std::string manifest = meshManifestPath(o.meshOutput);
+    writeMeshManifest(m, manifest);
+    r.outputs.push_back(manifest);
+    r.outputs.push_back(seamMesh);
+    r.outputBytes += mesh->bytes() + fileSizeOrZero(manifest);
+    // The GeoPackage TIN and the contours, from the TIN in parts read as one.  The contour tracer's
+    // crossings depend on positions only, so its lines are one process's (feature order and the first
+    // point of closed loops aside).  One pass over the whole TIN, on this process.
+    if (outputs.gpkg || outputs.contours) {
+      std::vector<std::unique_ptr<OpenedOutput>> whole;
+      for (const ResolvedOutput* out : {&outputs.gpkg, &outputs.contours})
+        if (*out) whole.push_back(out->row->open(out->path, context));
+      MeshTee tee;
+      for (auto& w : whole) w->attach(tee);
+      readMeshParts(manifest, tee);
+      for (std::size_t i = 0; i < whole.size(); ++i) {
+        const OpenedOutput& w = *whole[i];
+        const std::vector<std::string> files = w.files();
+        r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+        r.outputBytes += w.bytes();
+        if (const ContourStats* cs = w.contourStats()) {
+          r.contoursOutput = outputs.contours.path;
+          r.contours = o.contours;
+          r.contourStats = *cs;
+        } else {
+          r.gpkgOutput = outputs.gpkg.path;
+          r.gpkgTriangles = triangles;
+          r.gpkgBytes = w.bytes();
+        }
+      }
+    }
+  }
+  if (dem) {
+    const std::vector<std::string> files = dem->files();
+    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
+    r.outputBytes += dem->bytes();
+    r.dem.layout = dem->rasterizer()->layout();
+    r.dem.stats = dem->rasterizer()->stats();
+    r.dem.files = files;
+    r.demMergedTiles = dem->tileFiles().size();
+  }
+  r.haveDelaunay = true;
+  r.delaunay.trianglesEmitted = triangles;
+  r.delaunay.verticesOut = vertices;
+  r.delaunay.peakBytes = ss.triangulator.peakBytes;
+  r.parallel.regionLevel = plan.regionLevel;
+  r.parallel.seam = ss.triangulator;
+  r.parallel.seamVertices = ss.vertices;
+  r.parallel.seamWritten = ss.written;
+  r.parallel.seamDropped = ss.dropped;
+  r.duplicateRule = duplicateRuleName(o.delaunay.duplicates);
+  finishReport(r, diag, t0);
+  return r;
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,158 @@
+#include "app/jobs/part_job.h"
+
+#include <filesystem>
+#include <memory>
+
+#include "app/jobs/build_job.h"
+#include "formats/io/output_file.h"
+#include "formats/io/plan_file.h"
+#include "formats/mesh/seam_file.h"
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+namespace {
+
+// A part checks, before anything is triangulated, that the finalizer laid the plan's very grid over the
+// survey (same inputs, same options): otherwise its regions would not be the plan's.
+class PlanGridCheck : public PointSink {
+ public:
+  PlanGridCheck(PointSink& out, const Plan& plan) : out_(out), plan_(plan) {}
+  void begin(const StreamInfo& info) override {
+    const GridSpec& g = info.grid;
+    const GridSpec& p = plan_.grid;
+    if (g.originX != p.originX || g.originY != p.originY || g.size != p.size || g.depth != p.depth)
+      throw Error("part of " + plan_.path + ": the finalizer did not lay the plan's grid");
+    out_.begin(info);
+  }
+  void points(const PointRecord* p, std::size_t n) override { out_.points(p, n); }
+  void finalizeCell(const CellTag& cell) override { out_.finalizeCell(cell); }
+  void end() override { out_.end(); }
+
+ private:
+  PointSink& out_;
+  const Plan& plan_;
+};
+
+// A part's options: its own mesh file, the plan's regions; the GeoPackage TIN and contours wait for the
+// merge.
+PipelineOptions partOptions(const PipelineOptions& o) {
+  const Plan& plan = *o.plan;
+  if (o.part < 0 || o.part >= static_cast<int>(plan.parts.size()))
+    throw UsageError("--part " + std::to_string(o.part) + ": the plan " + plan.path + " has parts 0 to " +
+                     std::to_string(plan.parts.size() - 1));
+  checkPlannedOutputs(o);
+  PipelineOptions po = o;
+  po.gpkgOutput.clear();  // made by the merge, from the TIN in parts
+  po.contoursOutput.clear();
+  if (!o.meshOutput.empty()) {
+    const ResolvedOutput mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
+    if (!mesh.is(WriterKind::StreamingMeshBinary) && !mesh.is(WriterKind::StreamingMeshAscii))
+      throw UsageError("--mesh " + o.meshOutput + ": a planned or MPI run writes the TIN as streaming mesh parts "
+                       "(.smb or .sma)");
+    po.meshOutput = partMeshPath(o.meshOutput, o.part);
+  }
+  po.overwrite = true;  // a part's files are its own: a re-run replaces them
+  po.regionLevel = plan.regionLevel;
+  return po;
+}
+
+// The part's additions to the one-process build.
+class PartHooks : public BuildHooks {
+ public:
+  PartHooks(const PipelineOptions& o, const Plan& plan, const Survey& survey, JobClock::time_point t0)
+      : o_(o), plan_(plan), survey_(survey), part_(plan.parts[static_cast<std::size_t>(o.part)]), t0_(t0) {}
+
+  void outputs(RunOutputs& outputs, RunReport& r) override {
+    std::error_code ec;
+    std::filesystem::create_directories(plan_.stateDir(), ec);
+    if (ec) throw DataError(plan_.stateDir(), "cannot create the plan's state directory: " + ec.message());
+    if (outputs.dem) outputs.context.demPieces = plan_.partFile(o_.part, "dem");
+    seamFile_ = std::make_unique<SeamFileWriter>(plan_.partFile(o_.part, "seam"), plan_.id,
+                                                 static_cast<std::uint32_t>(o_.part));
+    r.part = o_.part;
+    r.parts = static_cast<int>(plan_.parts.size());
+    r.planPath = plan_.path;
+  }
+
+  void triangulator(ParallelDelaunayOptions& popt) override {
+    popt.partSeam = seamFile_.get();
+    popt.partFirst = part_.first;
+    popt.partEnd = part_.end;
+  }
+
+  PointSink& pointSink(PointSink& sink) override {
+    check_ = std::make_unique<PlanGridCheck>(sink, plan_);
+    return *check_;
+  }
+
+  void triangulated(RunReport& r) override {
+    r.finalizer.filter.read += survey_.pointsOutsidePart;  // unread files and runs: other parts' points, counted
+    r.unreadRecords = survey_.pointsOutsidePart;
+    r.finalizer.filter.otherPart += survey_.pointsOutsidePart;
+    if (plan_.exactCounts && r.delaunay.pointsIn != part_.points)
+      throw DataError(plan_.path, "part " + std::to_string(o_.part) + " triangulated " +
+                                      std::to_string(r.delaunay.pointsIn) + " points, the plan counted " +
+                                      std::to_string(part_.points) +
+                                      " in it: an input changed, or a LAS header's bounds are wrong (plan and "
+                                      "run the parts with --compute-bounds)");
+  }
+
+  void finished(RunReport& r, const RunOutputs& outputs,
+                const std::vector<std::unique_ptr<OpenedOutput>>& opened) override {
+    PartDone done;
+    const std::vector<ResolvedOutput> resolved = outputs.all();
+    for (std::size_t i = 0; i < opened.size(); ++i) {
+      if (resolved[i].row->option == OutputOption::Mesh) done.mesh = resolved[i].path;
+      if (opened[i]->rasterizer()) done.demTiles = opened[i]->tileFiles();
+    }
+    // The seam file, then the record that the part is done (the merge trusts nothing without it).
+    seamFile_->commit();
+    r.seamBytes = seamFile_->bytes();
+    r.seamVertices = seamFile_->vertices();
+    r.otherPartPoints = r.parallel.otherPartPoints;
+    r.pieceBytes = fileSizeOrZero(plan_.partFile(o_.part, "dem"));
+    done.planId = plan_.id;
+    done.part = o_.part;
+    done.points = r.delaunay.pointsIn;
+    done.otherPartPoints = r.otherPartPoints;
+    done.triangles = r.delaunay.trianglesEmitted;
+    done.vertices = r.delaunay.verticesOut;
+    done.seamVertices = r.seamVertices;
+    done.seamBytes = r.seamBytes;
+    done.pieceBytes = r.pieceBytes;
+    done.seconds = std::chrono::duration<double>(JobClock::now() - t0_).count();
+    done.peakRssBytes = peakRssBytes();
+    done.crs = survey_.crs;
+    done.zUnitToMetre = survey_.zUnitToMetre;
+    writePartDone(done, plan_.partFile(o_.part, "json"));
+  }
+
+ private:
+  const PipelineOptions& o_;
+  const Plan& plan_;
+  const Survey& survey_;
+  const PlanPart& part_;
+  JobClock::time_point t0_;
+  std::unique_ptr<SeamFileWriter> seamFile_;
+  std::unique_ptr<PlanGridCheck> check_;
+};
+
+}  // namespace
+
+RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  const Plan& plan = *options.plan;
+  checkPlanInputs(plan);
+  const PipelineOptions o = partOptions(options);
+  if (o.meshOutput.empty() && o.dem.path.empty())
+    throw UsageError("build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, "
+                     "--contours FILE");
+  RunOutputs outputs = resolveOutputs(o);  // (a part's files are its own: no refusal, see partOptions)
+  Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
+  survey.restrictToPart(plan, o.part, o.computeBounds);
+  PartHooks hooks(o, plan, survey, t0);
+  return runBuildWith(o, survey, outputs, &hooks, diag, t0);
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,49 @@
+// The outputs of a run: each resolved once to its row of the writer table (formats/registry), with one
+// writer context for all of them.
+//
+// resolveOutputs() resolves every output option once and builds the context from the user's options;
+// refuseExistingOutputs() checks, before any work, that no target exists (without --overwrite);
+// completeOutputs() completes the same context once the survey is known (the working CRS, the DEM's
+// lengths in CRS units).  The rows then open their writers from it.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "app/jobs/job_options.h"
+#include "app/jobs/run_report.h"
+#include "formats/crs/crs.h"
+#include "formats/registry/writer_registry.h"
+
+namespace tinbuild {
+
+struct RunOutputs {
+  ResolvedOutput mesh, gpkg, dem, contours;
+  WriterContext context;
+  // The resolved outputs in the order the tee feeds them: mesh, GeoPackage TIN, DEM, contours.
+  std::vector<ResolvedOutput> all() const;
+};
+
+// Resolves --mesh, --gpkg, --dem and --contours (UsageError for a path no writer takes, and for options
+// that do not apply to the chosen writer).
+RunOutputs resolveOutputs(const PipelineOptions& o);
+
+// The writer context of `o` (the CRS and the DEM's lengths are completed by completeOutputs).
+WriterContext writerContext(const PipelineOptions& o);
+
+// Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
+// previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
+// Also checks o.finalizedOutput.
+void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedOutput>& outputs,
+                           const WriterContext& context);
+
+// Completes the context once the run's CRS is known: the CRS the outputs are labelled with, and the DEM's
+// lengths (typed in metres or with a unit) in CRS units, recorded in `dem`.
+void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,
+                     DemReport& dem, Diagnostics& diag);
+
+// A planned run's outputs: the GeoPackage TIN and the contours are made by the merge from the TIN in parts,
+// so they need --mesh.
+void checkPlannedOutputs(const PipelineOptions& o);
+
+}  // namespace tinbuild

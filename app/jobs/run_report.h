@@ -1,0 +1,90 @@
+// What a job did: the RunReport every job of app/jobs returns, its human summary for stderr and its
+// JSON form for `--report` (stable keys, docs/usage.md).
+#pragma once
+
+#include <chrono>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "formats/crs/crs.h"
+#include "libterrain/contour/contour_tracer.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/parallel_delaunay.h"
+#include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
+#include "libterrain/raster/dem_rasterizer.h"
+
+namespace tinbuild {
+
+// What the DEM part of a run did (RunReport::dem).
+struct DemReport {
+  bool present = false;
+  std::string path;
+  DemLayout layout;
+  DemStats stats;
+  double step = 0, maxEdge = 0;  // in CRS units, as used
+  std::string unit;              // the CRS's horizontal unit ("metre", "US survey foot", "" = no CRS)
+  std::vector<std::string> files;
+};
+
+struct RunReport {
+  std::string command;
+  std::vector<std::string> inputs;
+  std::vector<std::string> outputs;
+  std::uint64_t outputBytes = 0;
+  CrsInfo crs;                        // the working CRS (outputs carry it)
+  std::string crsReason;              // why the points were transformed ("" = they were not)
+  std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
+  std::uint64_t transformFailed = 0;  // points PROJ could not transform (dropped, counted)
+  std::uint64_t transformations = 0;  // distinct transformations prepared (one per source CRS)
+  std::uint64_t clipUndecoded = 0;    // of the points outside --clip: those in COPC nodes never decoded
+  std::string filter;                 // what the filter drops, in words
+  bool haveFinalizer = false;
+  FinalizerStats finalizer;
+  std::size_t memoryBudget = 0;
+  bool haveDelaunay = false;
+  DelaunayStats delaunay;
+  ParallelDelaunayStats parallel;  // the regions and the seam step
+  std::string duplicateRule;
+  DemReport dem;
+  std::string gpkgOutput;
+  std::uint64_t gpkgTriangles = 0;
+  std::uint64_t gpkgBytes = 0;  // the GeoPackage's file size
+  std::string contoursOutput;   // "" = no contours
+  ContourOptions contours;
+  ContourStats contourStats;
+  std::vector<Diagnostics::Entry> warnings;
+  double seconds = 0;
+  std::uint64_t peakRssBytes = 0;
+  int threads = 1;
+  // A part or a merge of a plan.
+  int part = -1, parts = 0;
+  std::string planPath;
+  std::uint64_t otherPartPoints = 0;  // a part: points of other parts it read and left
+  std::uint64_t unreadRecords = 0;    // a part: records it did not read at all (files, runs outside it)
+  std::uint64_t seamBytes = 0, pieceBytes = 0;  // a part: what it leaves for the merge; a merge: read
+  std::uint64_t seamVertices = 0, seamTriangles = 0, demPieces = 0;
+  std::uint64_t demPartTiles = 0;    // a merge: tile files (all bands) the parts wrote whole
+  std::uint64_t demMergedTiles = 0;  // ... and those it finished itself
+  // --mpi (rank 0): bytes sent between ranks (plan, seam files, DEM pieces, part records) and every
+  // rank's peak resident set.
+  std::uint64_t exchangedBytes = 0;
+  std::vector<std::uint64_t> rankPeakRss;
+  double planSeconds = 0, mergeSeconds = 0;  // --mpi: rank 0's plan and merge
+  std::vector<double> rankPartSeconds;       // --mpi: each rank's part (its build)
+  bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
+};
+
+// The human summary (a few lines for stderr) and the JSON report (stable keys, see docs/usage.md).
+std::string formatRunSummary(const RunReport& report);
+std::string formatRunJson(const RunReport& report);
+
+// This process's peak resident set size so far (VmHWM), in bytes; 0 when unknown.
+std::uint64_t peakRssBytes();
+
+// Closes a report: the warnings so far, the wall time since t0 and the peak resident set.
+using JobClock = std::chrono::steady_clock;
+void finishReport(RunReport& report, const Diagnostics& diag, JobClock::time_point t0);
+
+}  // namespace tinbuild

@@ -1,0 +1,84 @@
+// The survey of a job: its inputs, opened once, and what every stage after them needs to know.
+//
+// A job opens its survey once (openSurvey) and hands it on: the readers and the point streams the
+// finalizer reads (wrapped in a PROJ transformation when the run works in another CRS), the working CRS
+// every output is labelled with, the unit of z, and what the LAS headers say about bounds, counts and
+// scale.  Every input is checked while it is opened; the CRSs must agree (a mismatch is an error, or a
+// warning naming both when --t_srs reprojects them all); geographic input works in its UTM zone.
+//
+// A part of a plan is the same survey seen through the part's window (restrictToPart): COPC readers skip
+// the octree nodes outside it, LAS/LAZ files whose header bounds miss it are not opened, and files the
+// plan cut into runs of records are read only in the runs that meet it.
+//
+// The finalizer's options are a function of the user's options and the survey (finalizerOptions): no
+// stage writes into the user's options.  The merge of a plan needs only the CRS, which the parts record
+// (formats/io/plan_file.h: PartDone::crs), so it opens no input.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "app/jobs/job_options.h"
+#include "app/jobs/run_report.h"
+#include "formats/crs/crs.h"
+#include "formats/crs/reprojection.h"
+#include "formats/pointcloud/point_reader.h"
+
+namespace tinbuild {
+
+struct Survey {
+  std::vector<std::string> inputs;  // as given (expanded)
+  std::vector<std::unique_ptr<PointReader>> readers;
+  std::vector<std::unique_ptr<PointTransform>> transforms;  // one per distinct source CRS
+  std::vector<std::unique_ptr<TransformingPointStream>> transformed;
+  std::vector<PointStream*> streams;  // what the finalizer reads, one per input (a part: those it reads)
+  std::vector<std::string> names;     // the names of `streams`
+  CrsInfo crs;                        // the working CRS (what every output is labelled with)
+  std::string crsReason;              // why the points are transformed ("" = they are not)
+  std::vector<std::string> crsNotes;  // vertical handling, accuracy, PROJ's operation
+  // The unit z is in, in metres: the vertical CRS's unit when there is one (after a vertical
+  // transformation, the target's), else the input's horizontal unit (LAS convention for a 2D CRS);
+  // 1 when unknown.
+  double zUnitToMetre = 1;
+  // The LAS headers' bounds and counts, when every input is LAS read in its own CRS and every header looks
+  // sane (the finalizer verifies them); the inputs' common scale when they share one.
+  std::optional<Bounds3> headerBounds;
+  std::uint64_t headerPoints = 0;
+  bool haveScale = false;
+  double scale[3] = {0, 0, 0};
+  std::optional<ClipRect> clip;  // --clip: readers in their own CRS are restricted to it
+
+  // A part of a plan (restrictToPart): its window and what it leaves unread.
+  const Plan* plan = nullptr;
+  std::optional<PartWindow> window;
+  std::uint64_t filesOutsidePart = 0, pointsOutsidePart = 0;  // records left unread (files, runs)
+  std::vector<std::unique_ptr<PointStream>> segmented;         // inputs read by runs of records
+
+  // Points PROJ could not transform (dropped, counted).
+  std::uint64_t transformFailed() const;
+  // Inputs that stand for themselves (no transformation, no part's runs): readers[i] is streams[i].
+  bool readsItself(std::size_t i) const { return i < streams.size() && streams[i] == readers[i].get(); }
+  // Restricts the survey to one part of `plan` (`part` 0-based): see the header.
+  void restrictToPart(const Plan& plan, int part, bool computeBounds);
+  // After a run: points the readers left out whole (COPC nodes outside --clip or the part) are counted as
+  // read and dropped, and what the transformation dropped is reported (a counted warning).
+  void countSkipped(RunReport& report) const;
+  void reportTransform(RunReport& report, Diagnostics& diag) const;
+};
+
+// Opens the inputs of `o` (see the header).  `needIntensity` false: a job whose outputs use no intensity
+// (a TIN, a DEM) lets LAZ readers skip it.
+Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensity = true);
+
+// The finalizer's options for the survey: the user's (depth, memory, filter, progress), the survey's CRS,
+// header bounds and scale, the stage threads for `threads`; a part's window, and the plan's grid and
+// bounds.
+FinalizerOptions finalizerOptions(const PipelineOptions& o, const Survey& survey, int threads);
+
+// The LAS headers' bounds and point count, when every input is LAS and every header looks sane.
+bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Bounds3& out, std::uint64_t& points);
+
+}  // namespace tinbuild

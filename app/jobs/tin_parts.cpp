@@ -1,0 +1,219 @@
+#include "app/jobs/tin_parts.h"
+
+#include <filesystem>
+#include <map>
+#include <unordered_map>
+
+#include "app/jobs/run_outputs.h"
+#include "formats/io/output_file.h"
+#include "formats/io/plan_file.h"
+#include "formats/mesh/seam_file.h"
+#include "formats/mesh/streaming_mesh.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/mesh/mesh_tee.h"
+
+namespace tinbuild {
+
+namespace {
+
+// readMeshParts' adapter for one file: local ids to the TIN's ids.  A seam vertex (its xy in `seam`) gets
+// one id for all files and is finalized only by the seam file.
+class PartRenumber : public MeshSink {
+ public:
+  struct Shared {
+    MeshSink& out;
+    std::uint64_t next = 0;
+    std::map<std::pair<double, double>, std::uint64_t> seamIds;  // seam xy -> TIN id (kNoSeamId: not yet)
+  };
+  PartRenumber(Shared& s, bool seamFile) : s_(s), seamFile_(seamFile) {}
+  void begin(const MeshInfo& info) override { s_.out.begin(info); }
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    std::uint64_t global;
+    bool shared = false;
+    const auto it = s_.seamIds.find({x, y});
+    if (it != s_.seamIds.end()) {
+      shared = true;
+      if (it->second == kNoSeamId) {
+        it->second = s_.next++;
+        s_.out.vertex(it->second, x, y, z);
+      }
+      global = it->second;
+    } else {
+      global = s_.next++;
+      s_.out.vertex(global, x, y, z);
+    }
+    local_[id] = {global, shared};
+  }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+    s_.out.triangle(at(a).first, at(b).first, at(c).first);
+  }
+  void finalizeVertex(std::uint64_t id) override {
+    const auto it = local_.find(id);
+    if (it == local_.end()) throw Error("mesh parts: a vertex finalized twice");
+    if (!it->second.second || seamFile_) s_.out.finalizeVertex(it->second.first);
+    local_.erase(it);
+  }
+  void end() override {}
+
+ private:
+  const std::pair<std::uint64_t, bool>& at(std::uint64_t id) const {
+    const auto it = local_.find(id);
+    if (it == local_.end()) throw Error("mesh parts: a triangle uses an unknown vertex");
+    return it->second;
+  }
+  Shared& s_;
+  bool seamFile_;
+  std::unordered_map<std::uint64_t, std::pair<std::uint64_t, bool>> local_;
+};
+
+// Collects the xy of the seam file's vertices.
+class SeamVertices : public MeshSink {
+ public:
+  std::map<std::pair<double, double>, std::uint64_t>& ids;
+  explicit SeamVertices(std::map<std::pair<double, double>, std::uint64_t>& m) : ids(m) {}
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t, double x, double y, double) override { ids.emplace(std::make_pair(x, y), kNoSeamId); }
+  void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override {}
+  void finalizeVertex(std::uint64_t) override {}
+  void end() override {}
+};
+
+// Forwards everything but begin() and end(): one TIN over several files.
+class Inner : public MeshSink {
+ public:
+  explicit Inner(MeshSink& out) : out_(out) {}
+  void begin(const MeshInfo& info) override {
+    if (!begun_) out_.begin(info);
+    begun_ = true;
+  }
+  void vertex(std::uint64_t id, double x, double y, double z) override { out_.vertex(id, x, y, z); }
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override { out_.triangle(a, b, c); }
+  void finalizeVertex(std::uint64_t id) override { out_.finalizeVertex(id); }
+  void end() override {}
+
+ private:
+  MeshSink& out_;
+  bool begun_ = false;
+};
+
+}  // namespace
+
+void readMeshParts(const std::string& manifestPath, MeshSink& out) {
+  const MeshManifest m = readMeshManifest(manifestPath);
+  Inner inner(out);
+  PartRenumber::Shared shared{inner, 0, {}};
+  SeamVertices collect(shared.seamIds);
+  readStreamingMesh(m.seam, collect);
+  // The first file's header starts the TIN; later begin() calls are swallowed by Inner.
+  for (const std::string& part : m.parts) {
+    PartRenumber renumber(shared, false);
+    readStreamingMesh(part, renumber);
+  }
+  PartRenumber seam(shared, true);
+  readStreamingMesh(m.seam, seam);
+  out.end();
+}
+
+RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  RunReport r;
+  r.command = "merge";
+  r.inputs = {manifestPath};
+  const MeshManifest m = readMeshManifest(manifestPath);
+  if (o.meshOutput.empty()) throw UsageError("merge " + manifestPath + ": name the joined mesh: -o FILE");
+  const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
+  WriterContext context = writerContext(o);
+  refuseExistingOutputs(o, {out}, context);
+  if (!m.crsWkt.empty()) context.crs = crsFromRecordedWkt(m.crsWkt);
+  r.crs = context.crs;
+  const auto opened = out.row->open(out.path, context);
+  MeshTee tee;
+  opened->attach(tee);
+  // Counts what passes, to report it (and to check the manifest's totals).
+  struct Count : MeshSink {
+    MeshSink& to;
+    std::uint64_t vertices = 0, triangles = 0;
+    explicit Count(MeshSink& t) : to(t) {}
+    void begin(const MeshInfo& info) override { to.begin(info); }
+    void vertex(std::uint64_t id, double x, double y, double z) override {
+      ++vertices;
+      to.vertex(id, x, y, z);
+    }
+    void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+      ++triangles;
+      to.triangle(a, b, c);
+    }
+    void finalizeVertex(std::uint64_t id) override { to.finalizeVertex(id); }
+    void end() override { to.end(); }
+  };
+  MeshSink* direct = opened->meshSink();
+  Count count(direct ? *direct : static_cast<MeshSink&>(tee));
+  readMeshParts(manifestPath, count);
+  if (count.triangles != m.triangles || count.vertices != m.vertices)
+    throw DataError(manifestPath, "the files hold " + std::to_string(count.triangles) + " triangles and " +
+                                      std::to_string(count.vertices) + " vertices, the manifest says " +
+                                      std::to_string(m.triangles) + " and " + std::to_string(m.vertices));
+  r.haveDelaunay = true;
+  r.delaunay.trianglesEmitted = count.triangles;
+  r.delaunay.verticesOut = count.vertices;
+  r.outputs = opened->files();
+  r.outputBytes = opened->bytes();
+  finishReport(r, diag, t0);
+  return r;
+}
+
+std::string formatMeshManifestInfo(const std::string& manifestPath, bool json) {
+  const MeshManifest m = readMeshManifest(manifestPath);
+  std::vector<std::string> files = m.parts;
+  files.push_back(m.seam);
+  std::uint64_t bytes = 0;
+  for (const auto& f : files) {
+    std::error_code ec;
+    if (!std::filesystem::exists(f, ec)) throw DataError(f, "listed in " + manifestPath + " but missing");
+    bytes += fileSizeOrZero(f);
+  }
+  CrsInfo crs;
+  if (!m.crsWkt.empty()) crs = crsFromRecordedWkt(m.crsWkt);
+  if (json) {
+    JsonWriter j;
+    j.beginObject();
+    j.key("tin_in_parts").value(manifestPath);
+    j.key("vertices").value(m.vertices);
+    j.key("triangles").value(m.triangles);
+    j.key("files").beginArray();
+    for (const auto& f : files) j.value(f);
+    j.endArray();
+    j.key("bytes").value(bytes);
+    j.key("bounds").beginArray();
+    for (double v : {m.bounds.minX, m.bounds.minY, m.bounds.minZ, m.bounds.maxX, m.bounds.maxY, m.bounds.maxZ})
+      j.value(v);
+    j.endArray();
+    j.key("crs").beginObject();
+    j.key("name").value(crs.name);
+    if (crs.epsg)
+      j.key("epsg").value(crs.epsg);
+    else
+      j.key("epsg").null();
+    j.key("wkt").value(crs.wkt);
+    j.endObject();
+    j.endObject();
+    return j.str() + "\n";
+  }
+  std::string o = manifestPath + ": a TIN in " + std::to_string(files.size()) + " streaming mesh files (" +
+                  std::to_string(m.parts.size()) + " parts and the seam), " + bytesText(bytes) + "\n";
+  o += "  TIN       " + withCommas(m.vertices) + " vertices, " + withCommas(m.triangles) + " triangles\n";
+  o += "  bounds    x " + formatDouble("%.3f", m.bounds.minX) + " .. " + formatDouble("%.3f", m.bounds.maxX) + ", y " +
+       formatDouble("%.3f", m.bounds.minY) + " .. " + formatDouble("%.3f", m.bounds.maxY) + ", z " +
+       formatDouble("%.3f", m.bounds.minZ) + " .. " + formatDouble("%.3f", m.bounds.maxZ) + "\n";
+  o += "  CRS       " +
+       (crs.empty() ? std::string("none") : crs.name + (crs.epsg ? " (EPSG:" + std::to_string(crs.epsg) + ")" : "")) +
+       "\n";
+  o += "  files     ";
+  for (std::size_t i = 0; i < files.size(); ++i) o += (i ? ", " : "") + std::filesystem::path(files[i]).filename().string();
+  o += "\n  (tinbuild verify checks it as one TIN; tinbuild merge " + manifestPath + " -o FILE writes it as one file)\n";
+  return o;
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,116 @@
+#include "app/jobs/verify_job.h"
+
+#include "app/jobs/survey.h"
+#include "app/jobs/tin_parts.h"
+#include "formats/io/plan_file.h"
+#include "formats/mesh/streaming_mesh.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/finalizer/survey_stats.h"
+
+namespace tinbuild {
+
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagnostics& diag) {
+  const auto t0 = JobClock::now();
+  VerifyReport r;
+  r.mesh = mesh;
+  MeshVerifier verifier;
+  if (isMeshManifest(mesh))
+    readMeshParts(mesh, verifier);  // a TIN written in parts (tinbuild merge)
+  else
+    readStreamingMesh(mesh, verifier);
+  r.check = verifier.report();
+  if (!o.inputs.empty()) {
+    // The same inputs, CRS handling (--t_srs, UTM for geographic input) and filters as `build`.
+    Survey in = openSurvey(o, diag);
+    ConcatPointStream stream(in.streams);
+    if (!stream.rewindable())
+      throw UsageError("verify --points: the inputs must be files (they are read several times)");
+    SurveyStatsOptions so;
+    so.filter = &o.finalizer.filter;
+    so.memoryBudget = o.finalizer.memoryBudget;
+    const SurveyStats stats = analyzeSurvey(stream, so);
+    r.pointsChecked = true;
+    r.inputPoints = stats.counts.points;
+    r.pointsCountable = stats.duplicatesKnown || stats.counts.points == 0;
+    r.inputDuplicates = stats.duplicatesXY;
+    r.inputDistinct = stats.distinctXY.count;
+    r.pointsMatch = r.pointsCountable && stats.distinctXY == r.check.fingerprint;
+  }
+  r.seconds = std::chrono::duration<double>(JobClock::now() - t0).count();
+  return r;
+}
+
+std::string formatVerifyText(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  std::string o = r.mesh + ": " + withCommas(c.vertices) + " vertices, " + withCommas(c.triangles) +
+                  " triangles, " + withCommas(c.interiorEdges) +
+                  " interior edges checked locally Delaunay (exact), " + withCommas(c.hullEdges) +
+                  " hull edges; at most " + withCommas(c.maxLiveVertices) + " live vertices and " +
+                  withCommas(c.maxOpenEdges) + " open edges; " + formatDouble("%.2f s", r.seconds) + "\n";
+  if (c.ok()) {
+    o += "  mesh: valid streaming mesh, counter-clockwise, Delaunay, convex hull covered (hull area " +
+         formatDouble("%.6g", c.hullArea) + " = sum of triangle areas)\n";
+  } else {
+    for (const auto& p : c.problems)
+      o += "  problem: " + p.kind + " (" + withCommas(p.count) + "x): " + p.first + "\n";
+  }
+  if (r.pointsChecked) {
+    if (!r.pointsCountable)
+      o += "  points: could not be compared (the inputs are too incoherent for the memory budget; raise "
+           "--memory)\n";
+    else if (r.pointsMatch)
+      o += "  points: every input point is used: the " + withCommas(r.inputDistinct) + " distinct xy of " +
+           withCommas(r.inputPoints) + " input points (after filters; " + withCommas(r.inputDuplicates) +
+           " duplicates) are exactly the mesh's vertices\n";
+    else
+      o += "  points: MISMATCH: the inputs have " + withCommas(r.inputDistinct) + " distinct xy (of " +
+           withCommas(r.inputPoints) + " points after filters), the mesh has " + withCommas(c.vertices) +
+           " vertices, and the sets differ\n";
+  }
+  o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
+  return o;
+}
+
+std::string formatVerifyJson(const VerifyReport& r) {
+  const MeshCheckReport& c = r.check;
+  JsonWriter j;
+  j.beginObject();
+  j.key("mesh").value(r.mesh);
+  j.key("ok").value(r.ok());
+  j.key("vertices").value(c.vertices);
+  j.key("triangles").value(c.triangles);
+  j.key("interior_edges").value(c.interiorEdges);
+  j.key("hull_edges").value(c.hullEdges);
+  j.key("hull_area").value(c.hullArea);
+  j.key("triangle_area").value(c.triangleArea);
+  j.key("max_live_vertices").value(c.maxLiveVertices);
+  j.key("max_open_edges").value(c.maxOpenEdges);
+  j.key("problems").beginArray();
+  for (const auto& p : c.problems) {
+    j.beginObject();
+    j.key("kind").value(p.kind);
+    j.key("first").value(p.first);
+    j.key("count").value(p.count);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("points");
+  if (!r.pointsChecked) {
+    j.null();
+  } else {
+    j.beginObject();
+    j.key("input_points").value(r.inputPoints);
+    j.key("input_distinct_xy").value(r.inputDistinct);
+    j.key("input_duplicates").value(r.inputDuplicates);
+    j.key("comparable").value(r.pointsCountable);
+    j.key("match").value(r.pointsMatch);
+    j.endObject();
+  }
+  j.key("seconds").value(r.seconds);
+  j.endObject();
+  return j.str() + "\n";
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,31 @@
+// tinbuild verify: an independent check of a TIN (libterrain/delaunay/mesh_verifier.h), and of its vertices
+// against the survey it was built from.
+#pragma once
+
+#include <cstdint>
+#include <string>
+
+#include "app/jobs/job_options.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay/mesh_verifier.h"
+
+namespace tinbuild {
+
+// `tinbuild verify`: checks a streaming mesh file independently (libterrain/delaunay/mesh_verifier.h) and,
+// when options.inputs is not empty, that its vertices are exactly the distinct (x, y) of those inputs after
+// options.finalizer.filter.  Memory is bounded by the mesh's and the survey's stream width.
+struct VerifyReport {
+  std::string mesh;
+  MeshCheckReport check;
+  bool pointsChecked = false;
+  bool pointsCountable = true;  // false: the inputs were too incoherent for the memory budget
+  std::uint64_t inputPoints = 0, inputDistinct = 0, inputDuplicates = 0;
+  bool pointsMatch = false;
+  double seconds = 0;
+  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch); }
+};
+VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);
+std::string formatVerifyText(const VerifyReport& report);
+std::string formatVerifyJson(const VerifyReport& report);
+
+}  // namespace tinbuild
