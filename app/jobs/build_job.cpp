@@ -105,6 +105,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   fo.countBlocks = false;
   r.crs = in.crs;
   r.filter = fo.filter.describe();
+  r.stages = stageNames(fo.filter);
   r.memoryBudget = fo.memoryBudget;
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
@@ -178,6 +179,7 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   FinalizerOptions fo = finalizerOptions(o, in, threads);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
+  r.stages = stageNames(fo.filter);
   r.memoryBudget = fo.memoryBudget;
 
   // Open every output before any work, so an unwritable target or a bad length fails at once.

@@ -147,15 +147,14 @@ class MpiReducer : public PlanReducer {
       bytes_ += (c.segMin.size() + c.segMax.size()) * 8;
     }
     FilterCounts& f = c.filter;
-    std::vector<std::uint64_t> v{c.points, f.read, f.kept, f.withheld, f.byClass, f.byReturn, f.clipped, f.otherPart};
-    v.insert(v.end(), std::begin(f.droppedByClass), std::end(f.droppedByClass));
+    std::vector<std::uint64_t> v{c.points};
+    f.forEachCounter([&v](std::uint64_t& x) { v.push_back(x); });
     v.insert(v.end(), c.regions.begin(), c.regions.end());
     bytes_ += (v.size() + 6) * 8;
     MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_UINT64_T, MPI_SUM, MPI_COMM_WORLD);
     std::size_t k = 0;
-    for (std::uint64_t* x : {&c.points, &f.read, &f.kept, &f.withheld, &f.byClass, &f.byReturn, &f.clipped, &f.otherPart})
-      *x = v[k++];
-    for (std::uint64_t& x : f.droppedByClass) x = v[k++];
+    c.points = v[k++];
+    f.forEachCounter([&](std::uint64_t& x) { x = v[k++]; });
     for (std::uint64_t& x : c.regions) x = v[k++];
   }
 

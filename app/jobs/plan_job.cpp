@@ -138,6 +138,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   const FinalizerOptions fo = finalizerOptions(o, in, r.threads);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
+  r.stages = stageNames(fo.filter);
   r.memoryBudget = fo.memoryBudget;
   // A COPC survey: one process counts it from the octree's hierarchy (block mode) and decodes no point
   // before its stream; so does the plan.  It stops the finalizer when the stream begins (the grid and
@@ -304,6 +305,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   try {
     r.crs = in.crs;
     r.filter = fo.filter.describe();
+    r.stages = stageNames(fo.filter);
     pieces = slicePieces(in, reducer.slice(), reducer.slices());
     // Pass 1: the bounds and count of the kept points (the bounds one process measures), and the box of
     // each segment's kept points.

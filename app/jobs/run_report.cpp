@@ -89,6 +89,8 @@ std::string formatRunSummary(const RunReport& r) {
         d += ");";
       }
       if (f.byReturn) d += " " + withCommas(f.byReturn) + " by return;";
+      for (std::size_t i = 0; i < r.stages.size() && i < kMaxPointStages; ++i)
+        if (f.byStage[i]) d += " " + withCommas(f.byStage[i]) + " by the " + r.stages[i] + " stage;";
       if (f.clipped)
         d += " " + withCommas(f.clipped) + " outside --clip" +
              (r.clipUndecoded ? " (" + withCommas(r.clipUndecoded) + " in COPC nodes left undecoded)" : "") +
@@ -291,6 +293,12 @@ std::string formatRunJson(const RunReport& r) {
     for (int c = 0; c < 256; ++c)
       if (s.filter.droppedByClass[c]) j.key(std::to_string(c)).value(s.filter.droppedByClass[c]);
     j.endObject();
+    if (!r.stages.empty()) {
+      j.key("by_stage").beginObject();
+      for (std::size_t i = 0; i < r.stages.size() && i < kMaxPointStages; ++i)
+        j.key(r.stages[i]).value(s.filter.byStage[i]);
+      j.endObject();
+    }
     j.endObject();
     j.key("bounds");
     writeBoundsJson(j, s.bounds);

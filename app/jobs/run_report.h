@@ -40,6 +40,7 @@ struct RunReport {
   std::uint64_t transformations = 0;  // distinct transformations prepared (one per source CRS)
   std::uint64_t clipUndecoded = 0;    // of the points outside --clip: those in COPC nodes never decoded
   std::string filter;                 // what the filter drops, in words
+  std::vector<std::string> stages;    // the point stages' names (FilterCounts::byStage, in order)
   bool haveFinalizer = false;
   FinalizerStats finalizer;
   std::size_t memoryBudget = 0;

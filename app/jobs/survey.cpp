@@ -348,7 +348,15 @@ void Survey::reportTransform(RunReport& r, Diagnostics& diag) const {
   }
 }
 
+std::vector<std::string> stageNames(const PointFilter& filter) {
+  std::vector<std::string> names;
+  for (const auto& stage : filter.stages) names.push_back(stage->name());
+  return names;
+}
+
 FinalizerOptions finalizerOptions(const PipelineOptions& o, const Survey& s, int threads) {
+  if (o.finalizer.filter.stages.size() > kMaxPointStages)
+    throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
   FinalizerOptions fo = o.finalizer;
   fo.crsWkt = s.crs.wkt;
   fo.inputNames = s.names;

@@ -78,6 +78,9 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
 // bounds.
 FinalizerOptions finalizerOptions(const PipelineOptions& o, const Survey& survey, int threads);
 
+// The names of the filter's point stages, in order (RunReport::stages).
+std::vector<std::string> stageNames(const PointFilter& filter);
+
 // The LAS headers' bounds and point count, when every input is LAS and every header looks sane.
 bool headerBounds(const std::vector<std::unique_ptr<PointReader>>& readers, Bounds3& out, std::uint64_t& points);
 

@@ -1679,14 +1679,7 @@ class Finalizer {
       // The filters saw the counted blocks' points only now.
       const FilterCounts& c3 = reader.counts();
       FilterCounts& f = stats_.filter;
-      f.read += c3.read;
-      f.kept += c3.kept;
-      f.withheld += c3.withheld;
-      f.byClass += c3.byClass;
-      f.byReturn += c3.byReturn;
-      f.clipped += c3.clipped;
-      f.otherPart += c3.otherPart;
-      for (int i = 0; i < 256; ++i) f.droppedByClass[i] += c3.droppedByClass[i];
+      f.add(c3);
       firstCounts_ = f;
       if (released_ != leaves_.size()) throw changedInput(input);
       if (done == 0) throw Error(noPointsMessage());

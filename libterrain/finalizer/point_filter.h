@@ -10,23 +10,28 @@
 //               returns only).  A point whose input does not give returns (returnNumber 0 or
 //               numberOfReturns 0, e.g. plain XYZ) is kept: it is treated as a single return;
 //     clip      x or y outside the closed rectangle [minX, maxX] x [minY, maxY].
+//   A point that survives goes through the run's point stages (libterrain/finalizer/point_stage.h), in
+//   order; a point a stage leaves out is counted under that stage (byStage[i]).
 //   apply() filters a batch in place (kept points compacted to the front, order preserved) and counts.
 //
 // Invariants
 //   - Pure function of the record: the same point gets the same verdict in every pass, so a multi-pass
 //     consumer (the finalizer) sees the same filtered sequence each time it re-reads its inputs.
-//   - FilterCounts::read == kept + dropped(), and dropped() is the sum of the per-reason counts;
-//     droppedByClass[c] sums to FilterCounts::byClass.
+//   - FilterCounts::read == kept + dropped(), and dropped() is the sum of the per-reason and per-stage
+//     counts; droppedByClass[c] sums to FilterCounts::byClass.
 #pragma once
 
 #include <bitset>
 #include <cstddef>
 #include <cstdint>
 #include <initializer_list>
+#include <memory>
 #include <optional>
 #include <string>
+#include <vector>
 
 #include "libterrain/core/point.h"
+#include "libterrain/finalizer/point_stage.h"
 #include "libterrain/finalizer/grid.h"
 
 namespace tinbuild {
@@ -65,8 +70,28 @@ struct FilterCounts {
   std::uint64_t clipped = 0;               // dropped: outside --clip
   std::uint64_t otherPart = 0;             // left out: outside this part's window (other parts' points)
   std::uint64_t droppedByClass[256] = {};  // the byClass drops per class code
+  std::uint64_t byStage[kMaxPointStages] = {};  // dropped by the run's point stages, in their order
 
-  std::uint64_t dropped() const { return withheld + byClass + byReturn + clipped + otherPart; }
+  std::uint64_t dropped() const {
+    std::uint64_t n = withheld + byClass + byReturn + clipped + otherPart;
+    for (std::uint64_t s : byStage) n += s;
+    return n;
+  }
+  // Visits every counter (to sum counts over passes, slices or processes without naming each field).
+  template <class F>
+  void forEachCounter(F f) {
+    for (std::uint64_t* c : {&read, &kept, &withheld, &byClass, &byReturn, &clipped, &otherPart}) f(*c);
+    for (std::uint64_t& c : droppedByClass) f(c);
+    for (std::uint64_t& c : byStage) f(c);
+  }
+  // Adds another count's every counter to this one's.
+  void add(const FilterCounts& other) {
+    FilterCounts o = other;
+    std::vector<std::uint64_t*> mine;
+    forEachCounter([&mine](std::uint64_t& c) { mine.push_back(&c); });
+    std::size_t i = 0;
+    o.forEachCounter([&](std::uint64_t& c) { *mine[i++] += c; });
+  }
   // Counts one point of class `cls` dropped for `reason` (not kKept).
   void drop(FilterReason reason, std::uint8_t cls) {
     switch (reason) {
@@ -99,8 +124,11 @@ struct PointFilter {
   bool lastOnly = false;
   std::optional<ClipRect> clip;
   // One part of a plan: the rectangle around its regions; points outside it are other parts' (counted
-  // apart from the user's filters).  Applied last.
+  // apart from the user's filters).  Applied last of the filters.
   std::optional<PartWindow> window;
+  // The point stages after the filters (point_stage.h), at most kMaxPointStages; shared, so options stay
+  // copyable.
+  std::vector<std::shared_ptr<const PointStage>> stages;
 
   // Classes 7 (low noise) and 18 (high noise).
   static std::bitset<256> defaultDropClasses() {
@@ -137,14 +165,30 @@ struct PointFilter {
   bool accept(const PointRecord& p) const { return reason(p) == FilterReason::kKept; }
 
   // True when accept() is true for every possible record (apply() then only counts).
-  bool keepsEverything() const {
+  bool keepsEverything() const { return filtersKeepEverything() && stages.empty(); }
+  bool filtersKeepEverything() const {
     return !dropWithheld && dropClasses.none() && !firstOnly && !lastOnly && !clip && !window;
   }
 
-  // Filters p[0..n) in place: kept records move to the front in their order; returns how many.
+  // Filters p[0..n) in place, then runs the stages: kept records move to the front in their order;
+  // returns how many.
   std::size_t apply(PointRecord* p, std::size_t n, FilterCounts& counts) const {
+    if (stages.empty()) return applyFilters(p, n, counts);
+    std::size_t kept = applyFilters(p, n, counts);
+    counts.kept -= kept;
+    for (std::size_t s = 0; s < stages.size() && s < kMaxPointStages; ++s) {
+      const std::size_t after = stages[s]->apply(p, kept);
+      counts.byStage[s] += kept - after;
+      kept = after;
+    }
+    counts.kept += kept;
+    return kept;
+  }
+
+  // The filters alone (no stages).
+  std::size_t applyFilters(PointRecord* p, std::size_t n, FilterCounts& counts) const {
     counts.read += n;
-    if (keepsEverything()) {
+    if (filtersKeepEverything()) {
       counts.kept += n;
       return n;
     }
@@ -218,6 +262,7 @@ struct PointFilter {
       add("all but last returns");
     if (clip) add("points outside the clip rectangle");
     if (window) add("other parts' points (outside this part's window)");
+    for (const auto& stage : stages) add(stage->describe());
     return s.empty() ? "nothing" : "dropping " + s;
   }
 };
