@@ -10,9 +10,10 @@
 //   core/       errors (Error, DataError, UsageError, CancelledError), Diagnostics (warn once per kind,
 //               count every time), JSON and report text, the GDAL-style progress convention, WorkCrew
 //               (decode threads), TempFile (spill and spool files, unlinked at once), points and boxes.
-//   finalizer/  the spatial finalizer: the 2^k grid (CellMap, bit-exact membership), PointStream and
-//               PointSink, point filters, chunking with a memory budget and spill, BRIO, sprinkles, the
-//               read order of pass 3, survey statistics.
+//   finalizer/  the spatial finalizer: the 2^k grid (CellMap, bit-exact membership), its quadtree regions
+//               in Morton order (one rule for the plan, its parts and the parallel triangulator),
+//               PointStream and PointSink, point filters, chunking with a memory budget and spill, BRIO,
+//               sprinkles, the read order of pass 3, survey statistics.
 //   delaunay/   exact predicates (floating-point filter, exact fallback, symbolic perturbation), the
 //               streaming Delaunay triangulator (certification against finalized space), the parallel
 //               one (quadtree regions on threads, certified seams, the same bytes for any thread

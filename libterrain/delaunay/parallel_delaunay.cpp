@@ -16,6 +16,7 @@
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
 #include "libterrain/delaunay/seam_step.h"
+#include "libterrain/finalizer/regions.h"
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
@@ -136,9 +137,8 @@ struct ParallelDelaunay::Impl {
   };
   std::vector<Region> regions;
   int level = 0;
-  std::uint32_t regionSide = 1;
-  int shift = 0;  // leaf index >> shift = region index per axis
   GridSpec grid;
+  RegionGrid regionGrid;  // the regions: `grid` at `level`
   double h = 0, leafSize = 0;
 
   // Dispatcher: the current leaf's grown square and its region (the triangulators' own arrival rule).
@@ -152,7 +152,7 @@ struct ParallelDelaunay::Impl {
   std::size_t mergeRegion = 0;
   // The regions each dispatched but unmerged item goes to (a Morton range), from mergeSeq on.  Only the
   // dispatching thread touches it (it also merges), so it needs no lock.
-  std::deque<std::pair<std::size_t, std::size_t>> targets;
+  std::deque<RegionRange> targets;
   bool endDispatched = false;
   std::uint64_t pointsSinceCheckpoint = 0;
   bool wantsCheckpoints = false;  // out.wantsCheckpoints(): else no pauses for them
@@ -239,8 +239,7 @@ struct ParallelDelaunay::Impl {
       single->begin(info);
       return;
     }
-    regionSide = 1u << level;
-    shift = grid.depth - level;
+    regionGrid = RegionGrid{grid, level};
     h = cellGrowth(grid);  // the triangulators' own arrival slack
     leafSize = std::ldexp(grid.size, -grid.depth);
     curX0 = curY0 = 1;
@@ -254,19 +253,13 @@ struct ParallelDelaunay::Impl {
     failure = nullptr;
     queuedPoints = bufferedBytes = 0;
 
-    const std::size_t count = std::size_t{regionSide} * regionSide;
+    const std::size_t count = regionGrid.count();
     partFirst = partMode() ? std::min(options.partFirst, count) : 0;
     partEnd = partMode() ? std::min(options.partEnd, count) : count;
     regions = std::vector<Region>(count);
     for (std::size_t m = 0; m < count; ++m) {
       Region& r = regions[m];
-      // Morton order: bits of m alternate column (even) and row (odd).
-      std::uint32_t c = 0, rw = 0;
-      for (int b = 0; b < level; ++b) {
-        c |= static_cast<std::uint32_t>((m >> (2 * b)) & 1u) << b;
-        rw |= static_cast<std::uint32_t>((m >> (2 * b + 1)) & 1u) << b;
-      }
-      r.cell = CellTag{static_cast<std::uint8_t>(level), c, rw};
+      r.cell = regionGrid.cell(m);
       if (m < partFirst || m >= partEnd) {  // another part's: its points are dropped, its tags ignored
         r.ended = true;
         continue;
@@ -315,38 +308,16 @@ struct ParallelDelaunay::Impl {
     // plan counted by it too).  Each point thus goes to exactly one part; the region's triangulator
     // admits it (it lies in its own leaf's square).  Not for streams with points outside their leaf
     // (COPC block mode), which a part never uses.
-    if (partMode())
-      return static_cast<std::uint32_t>(regionIndex(grid.column(q.x) >> shift, grid.row(q.y) >> shift));
+    if (partMode()) return static_cast<std::uint32_t>(regionGrid.ofPoint(q.x, q.y));
     if (!(q.x >= curX0 && q.x <= curX1 && q.y >= curY0 && q.y <= curY1)) {
       const std::uint32_t col = grid.column(q.x), row = grid.row(q.y);
       curX0 = grid.originX + col * leafSize - h;
       curX1 = grid.originX + (col + 1.0) * leafSize + h;
       curY0 = grid.originY + row * leafSize - h;
       curY1 = grid.originY + (row + 1.0) * leafSize + h;
-      curRegion = static_cast<std::uint32_t>(regionIndex(col >> shift, row >> shift));
+      curRegion = static_cast<std::uint32_t>(regionGrid.ofLeaf(col, row));
     }
     return curRegion;
-  }
-
-  std::size_t regionIndex(std::uint32_t col, std::uint32_t row) const {
-    std::size_t m = 0;
-    for (int b = 0; b < level; ++b) {
-      m |= static_cast<std::size_t>((col >> b) & 1u) << (2 * b);
-      m |= static_cast<std::size_t>((row >> b) & 1u) << (2 * b + 1);
-    }
-    return m;
-  }
-
-  // The regions a tag concerns: the one holding it, or the Morton range of those inside it.
-  std::pair<std::size_t, std::size_t> regionsOf(const CellTag& t) const {
-    if (t.level >= level) {
-      const int k = t.level - level;
-      const std::size_t m = regionIndex(t.col >> k, t.row >> k);
-      return {m, m + 1};
-    }
-    const int k = level - t.level;
-    const std::size_t m = regionIndex(t.col << k, t.row << k);
-    return {m, m + (std::size_t{1} << (2 * k))};
   }
 
   void points(const PointRecord* p, std::size_t n) {
@@ -414,9 +385,10 @@ struct ParallelDelaunay::Impl {
                   std::to_string(grid.depth));
     const std::uint64_t seq = tagsDispatched++;
     const bool barrier = wantsCheckpoints && pointsSinceCheckpoint >= options.checkpointEvery;
-    const auto range = regionsOf(tag);
+    // The regions the tag concerns: the one holding it, or the Morton range of those inside it.
+    const RegionRange range = regionGrid.ofTag(tag);
     if (!threaded()) {
-      for (std::size_t m = range.first; m < range.second; ++m) {
+      for (std::size_t m = range.first; m < range.end; ++m) {
         Region& r = regions[m];
         runTag(r, tag);
         drain(r);
@@ -426,7 +398,7 @@ struct ParallelDelaunay::Impl {
       {
         std::lock_guard<std::mutex> lock(mutex);
         targets.push_back(range);
-        for (std::size_t m = range.first; m < range.second; ++m) {
+        for (std::size_t m = range.first; m < range.end; ++m) {
           Region& r = regions[m];
           InItem item;
           item.kind = InItem::kTag;
@@ -461,7 +433,7 @@ struct ParallelDelaunay::Impl {
       const std::uint64_t seq = tagsDispatched;
       {
         std::lock_guard<std::mutex> lock(mutex);
-        targets.emplace_back(0, regions.size());
+        targets.push_back(RegionRange{0, regions.size()});
         for (Region& r : regions) {
           InItem item;
           item.kind = InItem::kEnd;
@@ -619,7 +591,7 @@ struct ParallelDelaunay::Impl {
   bool merge(std::uint64_t until, bool blocking) {
     bool progressed = false;
     while (mergeSeq < until) {
-      const std::pair<std::size_t, std::size_t> range = targets.front();
+      const RegionRange range = targets.front();
       if (mergeRegion < range.first) mergeRegion = range.first;
       Region& r = regions[mergeRegion];
       // The region's chunks for this item (published as it goes), until it says it is done with it.
@@ -660,7 +632,7 @@ struct ParallelDelaunay::Impl {
         if (finished) break;
       }
       progressed = true;
-      if (++mergeRegion == range.second) {
+      if (++mergeRegion == range.end) {
         mergeRegion = 0;
         ++mergeSeq;
         targets.pop_front();

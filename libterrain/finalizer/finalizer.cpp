@@ -27,6 +27,7 @@
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/temp_file.h"
+#include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
 
@@ -45,35 +46,6 @@ std::uint64_t mix64(std::uint64_t z) {
   z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
   z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
   return z ^ (z >> 31);
-}
-
-// Morton (Z-order) code of a cell: bit 2i = column bit i, bit 2i + 1 = row bit i.
-std::uint64_t spreadBits(std::uint64_t v) {
-  v &= 0xffffffffULL;
-  v = (v | (v << 16)) & 0x0000ffff0000ffffULL;
-  v = (v | (v << 8)) & 0x00ff00ff00ff00ffULL;
-  v = (v | (v << 4)) & 0x0f0f0f0f0f0f0f0fULL;
-  v = (v | (v << 2)) & 0x3333333333333333ULL;
-  v = (v | (v << 1)) & 0x5555555555555555ULL;
-  return v;
-}
-std::uint32_t compactBits(std::uint64_t v) {
-  v &= 0x5555555555555555ULL;
-  v = (v | (v >> 1)) & 0x3333333333333333ULL;
-  v = (v | (v >> 2)) & 0x0f0f0f0f0f0f0f0fULL;
-  v = (v | (v >> 4)) & 0x00ff00ff00ff00ffULL;
-  v = (v | (v >> 8)) & 0x0000ffff0000ffffULL;
-  v = (v | (v >> 16)) & 0x00000000ffffffffULL;
-  return static_cast<std::uint32_t>(v);
-}
-std::uint64_t morton(std::uint32_t col, std::uint32_t row) {
-  return spreadBits(col) | (spreadBits(row) << 1);
-}
-std::uint32_t mortonCol(std::uint64_t m) {
-  return compactBits(m);
-}
-std::uint32_t mortonRow(std::uint64_t m) {
-  return compactBits(m >> 1);
 }
 
 // Hilbert index of each cell of a 16 x 16 grid, table[y * 16 + x].
@@ -1127,7 +1099,7 @@ class Finalizer {
       const std::uint64_t key = cells[i].key;
       const auto col = static_cast<std::uint32_t>(key & ((std::uint64_t{1} << fine) - 1));
       const auto row = static_cast<std::uint32_t>(key >> fine);
-      order[i] = {morton(col, row), static_cast<std::uint32_t>(i)};
+      order[i] = {mortonIndex(col, row), static_cast<std::uint32_t>(i)};
     }
     std::sort(order.begin(), order.end());
 
@@ -1164,7 +1136,7 @@ class Finalizer {
     std::vector<Node>& leafNodes = levels_[static_cast<std::size_t>(depth)];
     for (std::size_t i = 0; i < order.size();) {
       const std::uint64_t m = order[i].first >> shift;
-      const double cx = grid_.originX + (mortonCol(m) + 0.5) * cs;
+      const double cx = grid_.originX + (mortonColumn(m) + 0.5) * cs;
       const double cy = grid_.originY + (mortonRow(m) + 0.5) * cs;
       Leaf leaf;
       PointRecord best;
@@ -1207,7 +1179,7 @@ class Finalizer {
         Node node;
         node.morton = m;
         node.firstChild = static_cast<std::uint32_t>(i);
-        const double cx = grid_.originX + (mortonCol(m) + 0.5) * size;
+        const double cx = grid_.originX + (mortonColumn(m) + 0.5) * size;
         const double cy = grid_.originY + (mortonRow(m) + 0.5) * size;
         double bestDist = std::numeric_limits<double>::infinity();
         for (; i < below.size() && (below[i].morton >> 2) == m; ++i) {
@@ -1237,7 +1209,7 @@ class Finalizer {
     for (std::size_t i = 0; i < leafNodes.size(); ++i) {
       bool inserted = false;
       const std::uint64_t key =
-          (std::uint64_t{mortonRow(leafNodes[i].morton)} << depth) | mortonCol(leafNodes[i].morton);
+          (std::uint64_t{mortonRow(leafNodes[i].morton)} << depth) | mortonColumn(leafNodes[i].morton);
       if (denseLeaves_)
         leafDense_[key] = static_cast<std::uint32_t>(i);
       else
@@ -1535,7 +1507,7 @@ class Finalizer {
         for (std::uint64_t c = b.c0; c <= b.c1; ++c) ++leaves_[leafAt(c, r)].remaining;
       int up = 0;
       while ((b.c0 >> up) != (b.c1 >> up) || (b.r0 >> up) != (b.r1 >> up)) ++up;
-      items.push_back({morton(b.c0 >> up, b.r0 >> up) << (2 * up), depth_ - up, i});
+      items.push_back({mortonIndex(b.c0 >> up, b.r0 >> up) << (2 * up), depth_ - up, i});
     }
     std::sort(items.begin(), items.end(), [](const Item& a, const Item& b) {
       return std::tie(a.start, a.level, a.index) < std::tie(b.start, b.level, b.index);
@@ -1594,7 +1566,9 @@ class Finalizer {
       for (std::uint64_t c = b.c0; c <= b.c1; ++c) {
         const std::uint32_t l = leafAt(c, r);
         if (leaves_[l].remaining == 0) throw Error("finalizer: internal error: a leaf completed twice");
-        if (--leaves_[l].remaining == 0) completed_.push_back({morton(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)), l});
+        if (--leaves_[l].remaining == 0)
+          completed_.push_back(
+              {mortonIndex(static_cast<std::uint32_t>(c), static_cast<std::uint32_t>(r)), l});
       }
     std::sort(completed_.begin(), completed_.end());
     for (const auto& [m, l] : completed_) release(l);
@@ -1712,7 +1686,7 @@ class Finalizer {
   void tag(int level, std::uint64_t m) {
     CellTag t;
     t.level = static_cast<std::uint8_t>(level);
-    t.col = mortonCol(m);
+    t.col = mortonColumn(m);
     t.row = mortonRow(m);
     out_.finalizeCell(t);
     ++stats_.tags;

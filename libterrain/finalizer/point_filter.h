@@ -33,6 +33,7 @@
 #include "libterrain/core/point.h"
 #include "libterrain/finalizer/point_stage.h"
 #include "libterrain/finalizer/grid.h"
+#include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
 
@@ -42,19 +43,16 @@ struct ClipRect {
 };
 
 // One part of a plan: the regions [first, end) in Morton order at quadtree level `level` of `grid`.  A
-// point belongs to it when its GridSpec leaf lies in one of them -- the very rule by which the part's
-// triangulator (ParallelDelaunay's part mode) and the plan's count assign points, so every point is
-// some part's exactly once.
+// point belongs to it when its GridSpec leaf lies in one of them -- RegionGrid::ofPoint, the very rule by
+// which the part's triangulator (ParallelDelaunay's part mode) and the plan's count assign points, so
+// every point is some part's exactly once.
 struct PartWindow {
   GridSpec grid;
   int level = 1;
   std::uint64_t first = 0, end = 0;
+  RegionGrid regions() const { return RegionGrid{grid, level}; }
   bool contains(double x, double y) const {
-    const int shift = grid.depth - level;
-    const std::uint32_t c = grid.column(x) >> shift, r = grid.row(y) >> shift;
-    std::uint64_t m = 0;
-    for (int b = 0; b < level; ++b)
-      m |= std::uint64_t{(c >> b) & 1u} << (2 * b) | std::uint64_t{(r >> b) & 1u} << (2 * b + 1);
+    const std::uint64_t m = regions().ofPoint(x, y);
     return m >= first && m < end;
   }
 };
