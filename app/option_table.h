@@ -5,8 +5,9 @@
 // (recordedWords()), so none of them can forget an option.
 //
 //   OptionTable<Job> t;
-//   t.option("--depth", "K", "finalizer grid depth 0..15").integer(0, 15, [](Job& j, int v) { j.depth = v;
-//   }); t.option("--step", "R", "DEM pixel size").needs(cli::appliesTo("--dem", "a DEM", "--dem DIR"))
+//   t.option("--depth", "K", "grid depth 0..15").integer(0, 15, [](Job& j, int v) { j.depth = v; });
+//   t.option("--step", "R", "DEM pixel size")
+//       .needs(cli::appliesTo("--dem", "a DEM", "--dem DIR"))
 //       .text([](Job& j, const std::string& v) { j.step = v; });
 //   t.flag("-q", "no summary", "--quiet").runOnly().set([](Job& j) { j.quiet = true; });
 //
