@@ -19,24 +19,34 @@ const std::vector<std::string>& ParsedArgs::all(const std::string& name) const {
 }
 
 int ParsedArgs::getInt(const std::string& name, int fallback, int lo, int hi) const {
-  if (!has(name)) return fallback;
-  const std::string v = get(name);
-  int x = 0;
-  auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), x);
-  if (ec != std::errc() || p != v.data() + v.size() || x < lo || x > hi)
-    throw UsageError(name + " expects a whole number from " + std::to_string(lo) + " to " +
-                     std::to_string(hi) + ", got '" + v + "'");
-  return x;
+  return has(name) ? parseInt(name, get(name), lo, hi) : fallback;
 }
 
 double ParsedArgs::getDouble(const std::string& name, double fallback) const {
-  if (!has(name)) return fallback;
-  const std::string v = get(name);
-  double x = 0;
-  auto [p, ec] = std::from_chars(v.data(), v.data() + v.size(), x);
-  if (ec != std::errc() || p != v.data() + v.size())
-    throw UsageError(name + " expects a number, got '" + v + "'");
+  return has(name) ? parseNumber(name, get(name)) : fallback;
+}
+
+int parseInt(const std::string& name, const std::string& value, int lo, int hi) {
+  int x = 0;
+  auto [p, ec] = std::from_chars(value.data(), value.data() + value.size(), x);
+  if (ec != std::errc() || p != value.data() + value.size() || x < lo || x > hi)
+    throw UsageError(name + " expects a whole number from " + std::to_string(lo) + " to " +
+                     std::to_string(hi) + ", got '" + value + "'");
   return x;
+}
+
+double parseNumber(const std::string& name, const std::string& value) {
+  double x = 0;
+  auto [p, ec] = std::from_chars(value.data(), value.data() + value.size(), x);
+  if (ec != std::errc() || p != value.data() + value.size())
+    throw UsageError(name + " expects a number, got '" + value + "'");
+  return x;
+}
+
+std::string commandText(const std::string& command, const std::vector<std::string>& words) {
+  std::string s = command;
+  for (const auto& w : words) s += " " + (w.find_first_of(" \t'\"") == std::string::npos ? w : "'" + w + "'");
+  return s;
 }
 
 ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<OptionSpec>& specs,
@@ -47,6 +57,7 @@ ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<Opt
     const std::string& a = args[i];
     if (optionsEnded || a == "-" || a.empty() || a[0] != '-') {
       out.positional.push_back(a);
+      out.words.push_back({"", a});
       continue;
     }
     if (a == "--") {
@@ -68,6 +79,7 @@ ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<Opt
     if (spec->metavar.empty()) {
       if (hasInline) throw UsageError(command + ": option " + spec->name + " takes no value");
       out.values_[spec->name].push_back("");
+      out.words.push_back({spec->name, ""});
       continue;
     }
     if (!hasInline) {
@@ -76,6 +88,7 @@ ParsedArgs parseArgs(const std::vector<std::string>& args, const std::vector<Opt
       value = args[++i];
     }
     out.values_[spec->name].push_back(value);
+    out.words.push_back({spec->name, value});
   }
   return out;
 }

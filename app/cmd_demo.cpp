@@ -2,10 +2,14 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <optional>
 
 #include "app/commands.h"
+#include "app/demo_build.h"
 #include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
+#include "app/option_table.h"
+#include "app/pipeline_options.h"
 #include "app/progress.h"
 #include "formats/crs/crs.h"
 #include "formats/pointcloud/copc_writer.h"
@@ -18,11 +22,50 @@ namespace tinbuild::app {
 
 namespace {
 
+// What the demo's own options bind to.
+struct DemoSettings {
+  int millions = 2;
+  double swath = 500;
+  bool homeStrip = false, las = false, copc = false, surveyOnly = false;
+  std::optional<int> pointFormat;
+  std::string progress;
+};
+
+// The demo's options, declared once (app/option_table.h).
+const cli::OptionTable<DemoSettings>& demoTable() {
+  using D = DemoSettings;
+  static const cli::OptionTable<DemoSettings> table = [] {
+    cli::OptionTable<DemoSettings> t;
+    t.option("--points", "MILLIONS", "survey size in millions of points (default 2)")
+        .integer(1, 1000, [](D& d, int m) { d.millions = m; });
+    t.option("--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)")
+        .real(cli::Range::Any, [](D& d, double w) { d.swath = w; });
+    t.flag("--home-strip", "add a last strip flown diagonally across the area (incoherent stream)")
+        .set([](D& d) { d.homeStrip = true; });
+    t.flag("--las", "write the survey as uncompressed LAS (survey.las) instead of LAZ (survey.laz)")
+        .set([](D& d) { d.las = true; });
+    t.option("--point-format", "N", "LAS point format of the survey: 0-3 or 6-8 (default 1; 6 with --copc)")
+        .integer(0, 8, [](D& d, int f) { d.pointFormat = f; });
+    t.flag("--copc", "write the survey as COPC (survey.copc.laz: an octree of LAZ chunks) instead of LAZ")
+        .set([](D& d) { d.copc = true; });
+    t.flag("--survey-only", "write the survey and stop (benchmark inputs)").set([](D& d) {
+      d.surveyOnly = true;
+    });
+    t.option("--progress", "MODE", "auto (default), lines, json or none")
+        .runOnly()
+        .choice({"auto", "lines", "json", "none"}, [](D& d, const std::string& m) { d.progress = m; },
+                {"plain", ""});  // as parseProgressMode
+    return t;
+  }();
+  return table;
+}
+
 int runDemo(const cli::ParsedArgs& args) {
   if (args.positional.size() > 1) throw UsageError("demo: at most one output directory");
   const std::filesystem::path dir = args.positional.empty() ? "tinbuild-demo" : args.positional[0];
-  const int millions = args.getInt("--points", 2, 1, 1000);
-  const double swath = args.getDouble("--swath", 500.0);
+  DemoSettings d;
+  demoTable().bind(args, d);
+  const int millions = d.millions;
   std::error_code ec;
   std::filesystem::create_directories(dir, ec);
   if (ec) throw DataError(dir.string(), "cannot create the demo directory: " + ec.message());
@@ -33,18 +76,18 @@ int runDemo(const cli::ParsedArgs& args) {
   spec.kind = SurveySpec::Kind::FlightStrips;
   spec.points = static_cast<std::uint64_t>(millions) * 1000000u;
   spec.seed = 2006;
-  spec.swath = swath;
-  spec.homeStrip = args.has("--home-strip");
+  spec.swath = d.swath;
+  spec.homeStrip = d.homeStrip;
   // Real surveys are delivered as LAZ, so the demo's is too (--las writes it uncompressed).
-  const bool writeLaz = !args.has("--las");
+  const bool writeLaz = !d.las;
   // --copc: the survey as a COPC file (an octree of LAZ chunks), point format 6 unless told otherwise.
-  const bool writeCopcFile = args.has("--copc");
+  const bool writeCopcFile = d.copc;
   if (writeCopcFile && !writeLaz) throw UsageError("demo: --copc and --las exclude each other");
   const std::string las = (dir / (writeCopcFile ? "survey.copc.laz"
                                   : writeLaz    ? "survey.laz"
                                                 : "survey.las"))
                               .string();
-  ProgressDisplay progress(parseProgressMode(args.get("--progress"), false));
+  ProgressDisplay progress(parseProgressMode(d.progress, false));
   installCancelHandlers();
   std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << std::endl;
   LasWriterOptions lo;
@@ -53,7 +96,7 @@ int runDemo(const cli::ParsedArgs& args) {
   lo.horizontalEpsg = 32610;
   lo.verticalEpsg = 5703;
   lo.laz = writeLaz;
-  lo.pointFormat = args.getInt("--point-format", writeCopcFile ? 6 : 1, 0, 8);
+  lo.pointFormat = d.pointFormat.value_or(writeCopcFile ? 6 : 1);
   if (lo.pointFormat >= 4 && lo.pointFormat <= 5)
     throw UsageError("demo: --point-format takes 0-3 or 6-8 (formats with waveforms are not synthesized)");
   if (writeCopcFile && lo.pointFormat < 6) throw UsageError("demo: COPC holds point formats 6-8 only");
@@ -85,7 +128,7 @@ int runDemo(const cli::ParsedArgs& args) {
     writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   }
   progress.finish();
-  if (args.has("--survey-only")) {
+  if (d.surveyOnly) {
     std::cout << "tinbuild demo: wrote " << las << " (--survey-only: nothing else)" << std::endl;
     return 0;
   }
@@ -99,36 +142,21 @@ int runDemo(const cli::ParsedArgs& args) {
   std::cout << formatInfoText(report) << "\n";
 
   // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
-  PipelineOptions build;
-  build.inputs = {las};
-  build.meshOutput = (dir / "tin.smb").string();
-  build.gpkgOutput = (dir / "tin.gpkg").string();
-  build.contoursOutput = (dir / "contours.gpkg").string();  // 1 m contours, every 5th an index contour
-  build.contours.interval = 1;
-  build.contours.indexEvery = 5;
-  build.dem.path = (dir / "dem").string();
-  build.dem.step = "1";
-  build.dem.tileSize = 512;
-  build.dem.bands.hillshade = true;
-  build.overwrite = true;  // the demo directory is the demo's own: a second run replaces its outputs
+  // Parsed from the words of a `tinbuild build` command line by the build's own table.
+  PipelineArgs parsed = parseBuildWords(demoBuildWords(las, dir));
+  PipelineOptions& build = parsed.options;
+  build.overwrite = parsed.run.overwrite;
   build.finalizer.progress = ProgressDisplay::callback;
   build.finalizer.progressData = &progress;
   build.finalizer.progressCounts = progress.counts();
-  // A bare-earth model: ground and water returns only (what floodplain mapping wants).
-  build.finalizer.filter.dropClasses.set();
-  build.finalizer.filter.dropClasses.reset(2);
-  build.finalizer.filter.dropClasses.reset(9);
-  build.commandLine = "tinbuild build " + las + " --keep-class 2,9 --mesh " + build.meshOutput + " --gpkg " +
-                      build.gpkgOutput + " --dem " + build.dem.path + " --step 1 --tile-size 512 --hillshade" +
-                      " --contours " + build.contoursOutput + " --interval 1 --index-every 5";
   std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")" << std::endl;
   const RunReport run = runBuild(build, diag);
   progress.finish();
   std::cout << formatRunSummary(run);
   std::ofstream((dir / "build-report.json").string()) << formatRunJson(run);
   const std::string png = (dir / "dem.png").string();
-  writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png, 1024,
-                    build.contoursOutput);
+  writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png,
+                    1024, build.contoursOutput);
   std::cout << "\ntinbuild demo: verifying the TIN (tinbuild verify " << build.meshOutput << " --points "
             << las << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
@@ -161,15 +189,9 @@ Command demoCommand() {
       "Synthesizes a realistic airborne survey (flight strips with overlap over a river valley, ground,\n"
       "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAZ in\n"
       "DIR (default ./tinbuild-demo), reports on it with `info`, runs `build` to a TIN (streaming mesh\n"
-      "and GeoPackage), 1 m contours and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the TIN.",
-      {{"--points", "MILLIONS", "survey size in millions of points (default 2)"},
-       {"--swath", "METRES", "flight strip swath width (default 500; narrower = more strips)"},
-       {"--home-strip", "", "add a last strip flown diagonally across the area (incoherent stream)"},
-       {"--las", "", "write the survey as uncompressed LAS (survey.las) instead of LAZ (survey.laz)"},
-       {"--point-format", "N", "LAS point format of the survey: 0-3 or 6-8 (default 1; 6 with --copc)"},
-       {"--copc", "", "write the survey as COPC (survey.copc.laz: an octree of LAZ chunks) instead of LAZ"},
-       {"--survey-only", "", "write the survey and stop (benchmark inputs)"},
-       {"--progress", "MODE", "auto (default), lines, json or none"}},
+      "and GeoPackage), 1 m contours and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the "
+      "TIN.",
+      demoTable().specs(),
       runDemo};
 }
 
