@@ -7,6 +7,7 @@
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
+#include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
 
@@ -58,13 +59,6 @@ std::vector<PlanPart> splitRegions(const std::vector<std::uint64_t>& counts, int
   return out;
 }
 
-// The Morton index of (col, row) at `level`.
-std::size_t mortonOf(std::uint32_t c, std::uint32_t r, int level) {
-  std::size_t m = 0;
-  for (int b = 0; b < level; ++b)
-    m |= static_cast<std::size_t>((c >> b) & 1u) << (2 * b) | static_cast<std::size_t>((r >> b) & 1u) << (2 * b + 1);
-  return m;
-}
 
 // The plan's counting pass: the finalizer's stream (its grid), counted per region of the plan's level.
 class PlanCounter : public PointSink {
@@ -78,7 +72,7 @@ class PlanCounter : public PointSink {
       throw DataError("", "the survey is too small to split into parts (" + std::to_string(info.points) +
                               " points, one grid cell): run `tinbuild build` on it");
     level_ = planLevel(info.points, info.grid.depth, parts_);
-    shift_ = info.grid.depth - level_;
+    regions_ = RegionGrid{info.grid, level_};
     counts_.assign(std::size_t{1} << (2 * level_), 0);
     if (stop_) throw Stop{};
   }
@@ -87,17 +81,18 @@ class PlanCounter : public PointSink {
   void addBlocks(const std::vector<PointStream::Block>& blocks) {
     const GridSpec& g = info_.grid;
     for (const PointStream::Block& b : blocks) {
-      const std::uint32_t c0 = g.column(b.minX) >> shift_, c1 = g.column(b.maxX) >> shift_;
-      const std::uint32_t r0 = g.row(b.minY) >> shift_, r1 = g.row(b.maxY) >> shift_;
+      const int shift = regions_.shift();
+      const std::uint32_t c0 = g.column(b.minX) >> shift, c1 = g.column(b.maxX) >> shift;
+      const std::uint32_t r0 = g.row(b.minY) >> shift, r1 = g.row(b.maxY) >> shift;
       const std::uint64_t cells = std::uint64_t{c1 - c0 + 1} * (r1 - r0 + 1);
       for (std::uint32_t r = r0; r <= r1; ++r)
         for (std::uint32_t c = c0; c <= c1; ++c)
-          counts_[mortonOf(c, r, level_)] += b.count / cells + (r == r0 && c == c0 ? b.count % cells : 0);
+          counts_[regions_.ofRegion(c, r)] += b.count / cells + (r == r0 && c == c0 ? b.count % cells : 0);
     }
   }
   void points(const PointRecord* p, std::size_t n) override {
     for (std::size_t i = 0; i < n; ++i)
-      ++counts_[mortonOf(info_.grid.column(p[i].x) >> shift_, info_.grid.row(p[i].y) >> shift_, level_)];
+      ++counts_[regions_.ofPoint(p[i].x, p[i].y)];
   }
   void finalizeCell(const CellTag&) override {}
   void end() override {}
@@ -109,7 +104,8 @@ class PlanCounter : public PointSink {
   int parts_;
   bool stop_ = false;
   StreamInfo info_;
-  int level_ = 1, shift_ = 0;
+  int level_ = 1;
+  RegionGrid regions_;
   std::vector<std::uint64_t> counts_;
 };
 
@@ -340,11 +336,11 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   // Pass 2: points per region.
   PlanCounts counts;
   counts.regions.assign(std::size_t{1} << (2 * level), 0);
-  const int shift = depth - level;
+  const RegionGrid regions{grid, level};
   try {
     readSlice(in, pieces, fo.filter, kSegmentRecords, counts.filter, [&](std::size_t, std::uint64_t, const PointRecord* p, std::size_t n) {
       for (std::size_t i = 0; i < n; ++i)
-        ++counts.regions[mortonOf(grid.column(p[i].x) >> shift, grid.row(p[i].y) >> shift, level)];
+        ++counts.regions[regions.ofPoint(p[i].x, p[i].y)];
       counts.points += n;
     });
   } catch (const std::exception& e) {

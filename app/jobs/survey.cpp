@@ -6,6 +6,7 @@
 
 #include "formats/registry/reader_registry.h"
 #include "libterrain/core/error.h"
+#include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
 
@@ -77,23 +78,13 @@ class SegmentStream : public PointStream {
 // The rectangle holding a part's regions (grown a little: GridSpec puts a point up to a few ulps outside
 // its leaf's square; on the grid's border, unbounded, since GridSpec clamps there), within --clip.
 ClipRect windowRect(const PartWindow& w, const std::optional<ClipRect>& clip) {
-  const int shift = 2 * w.level;
-  std::uint32_t c0 = ~0u, r0 = ~0u, c1 = 0, r1 = 0;
-  for (std::uint64_t m = w.first; m < w.end && m < (std::uint64_t{1} << shift); ++m) {
-    std::uint32_t c = 0, r = 0;
-    for (int b = 0; b < w.level; ++b) {
-      c |= static_cast<std::uint32_t>((m >> (2 * b)) & 1u) << b;
-      r |= static_cast<std::uint32_t>((m >> (2 * b + 1)) & 1u) << b;
-    }
-    c0 = std::min(c0, c);
-    c1 = std::max(c1, c);
-    r0 = std::min(r0, r);
-    r1 = std::max(r1, r);
-  }
+  const RegionGrid regions = w.regions();
+  const RegionBox box = regions.boxOfRange(w.first, w.end);
   constexpr double inf = std::numeric_limits<double>::infinity();
   ClipRect rect{inf, inf, -inf, -inf};
-  if (c0 > c1) return rect;  // no region: nothing
-  const double s = std::ldexp(w.grid.size, -w.level), margin = 1e-6 * w.grid.size;
+  if (box.empty) return rect;  // no region: nothing
+  const std::uint32_t c0 = box.c0, c1 = box.c1, r0 = box.r0, r1 = box.r1;
+  const double s = regions.regionSize(), margin = 1e-6 * w.grid.size;
   const std::uint32_t last = (1u << w.level) - 1;
   rect.minX = c0 == 0 ? -inf : w.grid.originX + c0 * s - margin;
   rect.maxX = c1 == last ? inf : w.grid.originX + (c1 + 1.0) * s + margin;

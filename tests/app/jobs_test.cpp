@@ -1,6 +1,7 @@
 // The job layer (app/jobs): a point stage plugged into the point path, the survey opened once and the
 // finalizer's options derived from it, the part record carrying the survey's CRS to the merge.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <filesystem>
@@ -48,14 +49,23 @@ struct VertexCollector : MeshSink {
   void end() override {}
 };
 
-// A small synthetic flight-strip survey as LAS (written by `tinbuild demo`), once per test binary.
+// A small synthetic flight-strip survey as LAS (written by `tinbuild demo`), once per test (ctest runs each
+// test in a process of its own, side by side: each writes its own).
 std::string survey() {
+  struct Dir {
+    fs::path path = fs::path(TINBUILD_TEST_TMP) / ("jobs-survey-" + std::to_string(::getpid()));
+    ~Dir() {
+      std::error_code ec;
+      fs::remove_all(path, ec);
+    }
+  };
+  static const Dir dir;
   static const std::string path = [] {
-    const fs::path dir = fs::path(TINBUILD_TEST_TMP) / "jobs-survey";
-    fs::remove_all(dir);
-    const auto d = test::tinbuild("demo " + dir.string() + " --points 1 --swath 150 --survey-only --las --progress none");
+    fs::remove_all(dir.path);
+    const auto d =
+        test::tinbuild("demo " + dir.path.string() + " --points 1 --swath 150 --survey-only --las --progress none");
     EXPECT_EQ(d.code, 0) << d.err;
-    return (dir / "survey.las").string();
+    return (dir.path / "survey.las").string();
   }();
   return path;
 }
