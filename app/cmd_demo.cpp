@@ -10,7 +10,7 @@
 #include "app/jobs/survey_info.h"
 #include "app/option_table.h"
 #include "app/pipeline_options.h"
-#include "app/progress.h"
+#include "app/progress_display.h"
 #include "formats/crs/crs.h"
 #include "formats/pointcloud/copc_writer.h"
 #include "formats/pointcloud/las_writer.h"

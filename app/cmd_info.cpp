@@ -6,7 +6,7 @@
 #include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
 #include "formats/io/plan_file.h"
-#include "formats/pointcloud/input_list.h"
+#include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild::app {

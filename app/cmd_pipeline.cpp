@@ -13,9 +13,9 @@
 #include "app/jobs/mpi_run.h"
 #include "app/jobs/pipeline.h"
 #include "app/pipeline_options.h"
-#include "app/progress.h"
+#include "app/progress_display.h"
 #include "formats/io/output_file.h"
-#include "formats/pointcloud/input_list.h"
+#include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild::app {

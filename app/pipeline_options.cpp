@@ -6,7 +6,7 @@
 #include <cmath>
 #include <utility>
 
-#include "formats/pointcloud/input_list.h"
+#include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild::app {

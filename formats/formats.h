@@ -2,11 +2,13 @@
 //
 // The folders, by role (docs/design.md, "The tree"):
 //   registry/    the two tables.  readerTable(): an input is recognised once, by its first bytes (COPC,
-//                LAZ, LAS, XYZ text), never by its name, and opened by its row.  writerTable(): an output
-//                (--mesh, --gpkg, --dem, --contours and a path) is resolved once, at start, to a row that names the
-//                files it will write and opens it.  A new format is one row and one file.
+//                LAZ, LAS, XYZ text), never by its name, and opened by its row; a row also lists the
+//                extensions a survey directory offers it (input_list: directories and patterns).
+//                writerTable(): an output (--mesh, --gpkg, --dem, --contours and a path) is resolved once,
+//                at start, to a row that owns everything about it: its capabilities, the options of its own
+//                it accepts, the files it will write, how it opens.  A new format is one row and one file.
 //   pointcloud/  everything that yields points: LAS 1.0-1.4 reader and writer, XYZ text, the finalized
-//                point stream (our own format), directory and pattern input lists; laz/ the LAZ codec.
+//                point stream (our own format); laz/ the LAZ codec.
 //   mesh/        triangle outputs: SMB/SMA streaming meshes (and reading them back), PLY/OBJ, GeoPackage TIN
 //                (written with SQLite), UGRID mesh on NetCDF-4.
 //   raster/      DEM outputs through GDAL: GeoTIFF tiles + VRT mosaics, one GeoTIFF or COG, GeoPackage

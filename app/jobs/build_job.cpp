@@ -126,8 +126,9 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   r.inputs = {finalizedInput};
   if (o.meshOutput.empty()) throw UsageError("triangulate: give the output mesh: -o FILE.smb|FILE.sma|-");
   const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
-  if (!out.is(WriterKind::StreamingMeshBinary) && !out.is(WriterKind::StreamingMeshAscii))
-    throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use .sma or .smb)");
+  if (!out.has(kStreamingMesh))
+    throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use " +
+                     extensionsWith(OutputOption::Mesh, kStreamingMesh) + ")");
   const WriterContext context = writerContext(o);
   refuseExistingOutputs(o, {out}, context);
   const auto opened = out.row->open(out.path, context);
@@ -136,7 +137,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   opened->attach(tee);
   r.threads = effectiveThreads(o.threads);
   // SMB encoding is a copy, cheaper than handing the events to another thread; ASCII is not.
-  const bool threaded = r.threads >= 2 && !out.row->cheapInline;
+  const bool threaded = r.threads >= 2 && !out.has(kCheapInline);
   tee.setThreaded(threaded);
   tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
   DelaunayOptions dopt = o.delaunay;
@@ -152,7 +153,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   r.outputs = {o.meshOutput};
-  r.outputBytes = opened->bytes();
+  r.outputBytes = opened->results().bytes;
   finishReport(r, diag, t0);
   return r;
 }
@@ -197,7 +198,7 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   // and the outputs (the tee's consumers) another, all behind bounded queues -- except one output that
   // is cheaper to encode than to queue (SMB).  Every stage sees the same sequence of events as on one
   // thread, so the outputs are byte-identical for any count.
-  const bool threadedOutputs = threads >= 2 && !(opened.size() == 1 && resolved[0].row->cheapInline);
+  const bool threadedOutputs = threads >= 2 && !(opened.size() == 1 && resolved[0].has(kCheapInline));
   tee.setThreaded(threadedOutputs);
   tee.setProgress(fo.progress, fo.progressData);
   DelaunayOptions dopt = o.delaunay;
@@ -222,28 +223,11 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
   for (std::size_t i = 0; i < opened.size(); ++i) {
-    OpenedOutput& out = *opened[i];
-    out.commitPieces();
-    const std::vector<std::string> files = out.files();
-    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
-    r.outputBytes += out.bytes();
-    if (resolved[i].row->option == OutputOption::Gpkg) {
-      r.gpkgOutput = resolved[i].path;
-      r.gpkgTriangles = r.delaunay.trianglesEmitted;
-      r.gpkgBytes = out.bytes();
-    }
-    if (const ContourStats* cs = out.contourStats()) {
-      r.contoursOutput = resolved[i].path;
-      r.contours = o.contours;
-      r.contourStats = *cs;
-    }
-    if (const DemRasterizer* dem = out.rasterizer()) {
-      r.dem.layout = dem->layout();
-      r.dem.stats = dem->stats();
-      r.dem.files = files;
-      if (r.dem.stats.tilesWritten == 0 && !hooks)
-        diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
-    }
+    opened[i]->commitPartState();
+    const OutputResults res = opened[i]->results();
+    addOutputResults(r, o, resolved[i], res);
+    if (res.dem && r.dem.stats.tilesWritten == 0 && !hooks)
+      diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
   }
   if (hooks) hooks->finished(r, outputs, opened);
   in.reportTransform(r, diag);

@@ -90,7 +90,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
                                    " (run each with `tinbuild build --plan " + plan.path +
                                    " --part I`, then merge again)");
   checkPlanInputs(plan);
-  checkPlannedOutputs(o);
+  checkPlannedOutputs(resolveOutputs(o));
   std::uint64_t keptPoints = 0;
   for (const PartDone& d : done) keptPoints += d.points;
   if (keptPoints == 0)
@@ -150,6 +150,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     vertices += d.vertices;
     r.otherPartPoints += d.otherPartPoints;
   }
+  r.delaunay.trianglesEmitted = triangles;  // (the GeoPackage TIN's count in the report)
   if (mesh) {
     MeshManifest m;
     m.planId = plan.id;
@@ -163,7 +164,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     writeMeshManifest(m, manifest);
     r.outputs.push_back(manifest);
     r.outputs.push_back(seamMesh);
-    r.outputBytes += mesh->bytes() + fileSizeOrZero(manifest);
+    r.outputBytes += mesh->results().bytes + fileSizeOrZero(manifest);
     // The GeoPackage TIN and the contours, from the TIN in parts read as one.  The contour tracer's
     // crossings depend on positions only, so its lines are one process's (feature order and the first
     // point of closed loops aside).  One pass over the whole TIN, on this process.
@@ -176,29 +177,14 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
       readMeshParts(manifest, tee);
       for (std::size_t i = 0; i < whole.size(); ++i) {
         const OpenedOutput& w = *whole[i];
-        const std::vector<std::string> files = w.files();
-        r.outputs.insert(r.outputs.end(), files.begin(), files.end());
-        r.outputBytes += w.bytes();
-        if (const ContourStats* cs = w.contourStats()) {
-          r.contoursOutput = outputs.contours.path;
-          r.contours = o.contours;
-          r.contourStats = *cs;
-        } else {
-          r.gpkgOutput = outputs.gpkg.path;
-          r.gpkgTriangles = triangles;
-          r.gpkgBytes = w.bytes();
-        }
+        addOutputResults(r, o, w.results().contours ? outputs.contours : outputs.gpkg, w.results());
       }
     }
   }
   if (dem) {
-    const std::vector<std::string> files = dem->files();
-    r.outputs.insert(r.outputs.end(), files.begin(), files.end());
-    r.outputBytes += dem->bytes();
-    r.dem.layout = dem->rasterizer()->layout();
-    r.dem.stats = dem->rasterizer()->stats();
-    r.dem.files = files;
-    r.demMergedTiles = dem->tileFiles().size();
+    const OutputResults res = dem->results();
+    addOutputResults(r, o, outputs.dem, res);
+    r.demMergedTiles = res.demTiles.size();
   }
   r.haveDelaunay = true;
   r.delaunay.trianglesEmitted = triangles;

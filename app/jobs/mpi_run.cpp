@@ -8,6 +8,7 @@
 #include <fstream>
 #include <sstream>
 
+#include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
 
@@ -189,8 +190,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   const auto t0 = std::chrono::steady_clock::now();
   MpiSession mpi;
   const int rank = mpi.rank, size = mpi.size;
-  if ((!options.gpkgOutput.empty() || !options.contoursOutput.empty()) && options.meshOutput.empty())
-    throw UsageError("--mpi makes --gpkg and --contours at the merge from the TIN in parts: add --mesh FILE.smb");
+  checkPlannedOutputs(resolveOutputs(options));
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
   const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;

@@ -41,17 +41,11 @@ PipelineOptions partOptions(const PipelineOptions& o) {
   if (o.part < 0 || o.part >= static_cast<int>(plan.parts.size()))
     throw UsageError("--part " + std::to_string(o.part) + ": the plan " + plan.path + " has parts 0 to " +
                      std::to_string(plan.parts.size() - 1));
-  checkPlannedOutputs(o);
+  checkPlannedOutputs(resolveOutputs(o));
   PipelineOptions po = o;
   po.gpkgOutput.clear();  // made by the merge, from the TIN in parts
   po.contoursOutput.clear();
-  if (!o.meshOutput.empty()) {
-    const ResolvedOutput mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
-    if (!mesh.is(WriterKind::StreamingMeshBinary) && !mesh.is(WriterKind::StreamingMeshAscii))
-      throw UsageError("--mesh " + o.meshOutput + ": a planned or MPI run writes the TIN as streaming mesh parts "
-                       "(.smb or .sma)");
-    po.meshOutput = partMeshPath(o.meshOutput, o.part);
-  }
+  if (!o.meshOutput.empty()) po.meshOutput = partMeshPath(o.meshOutput, o.part);
   po.overwrite = true;  // a part's files are its own: a re-run replaces them
   po.regionLevel = plan.regionLevel;
   return po;
@@ -104,7 +98,8 @@ class PartHooks : public BuildHooks {
     const std::vector<ResolvedOutput> resolved = outputs.all();
     for (std::size_t i = 0; i < opened.size(); ++i) {
       if (resolved[i].row->option == OutputOption::Mesh) done.mesh = resolved[i].path;
-      if (opened[i]->rasterizer()) done.demTiles = opened[i]->tileFiles();
+      const OutputResults res = opened[i]->results();
+      if (res.dem) done.demTiles = res.demTiles;
     }
     // The seam file, then the record that the part is done (the merge trusts nothing without it).
     seamFile_->commit();

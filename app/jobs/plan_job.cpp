@@ -114,7 +114,7 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   if (parts < 1) throw UsageError("--parts must be at least 1");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
-  checkPlannedOutputs(o);
+  checkPlannedOutputs(resolveOutputs(o));
   if (!o.overwrite) refuseExistingFile(plan.path);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runPlan(o, survey, parts, plan, diag);
@@ -128,7 +128,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   if (parts < 1) throw UsageError("--parts must be at least 1");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
-  checkPlannedOutputs(o);
+  checkPlannedOutputs(resolveOutputs(o));
   if (!o.overwrite) refuseExistingFile(plan.path);
   r.threads = effectiveThreads(o.threads);
   const FinalizerOptions fo = finalizerOptions(o, in, r.threads);

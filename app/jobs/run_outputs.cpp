@@ -21,8 +21,7 @@ RunOutputs resolveOutputs(const PipelineOptions& o) {
   out.gpkg = resolveOutput(OutputOption::Gpkg, o.gpkgOutput);
   out.dem = resolveOutput(OutputOption::Dem, o.dem.path);
   out.contours = resolveOutput(OutputOption::Contours, o.contoursOutput);
-  if (o.meshLocal && !(out.mesh.is(WriterKind::Ply) || out.mesh.is(WriterKind::Obj)))
-    throw UsageError("--local applies to --mesh FILE.ply or FILE.obj");
+  if (o.meshLocal) requireAccepted(out.mesh, "--local");
   out.context = writerContext(o);
   return out;
 }
@@ -44,7 +43,7 @@ void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedO
   if (o.overwrite) return;
   refuseExistingFile(o.finalizedOutput);
   for (const ResolvedOutput& r : outputs)
-    for (const std::string& path : r.row->targets(r.path, context)) refuseExistingFile(path);
+    for (const std::string& path : r.targets(context)) refuseExistingFile(path);
 }
 
 void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,
@@ -74,10 +73,44 @@ void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInf
   dr.unit = crs.empty() ? "" : crs.linearUnit;
 }
 
-void checkPlannedOutputs(const PipelineOptions& o) {
-  if ((!o.gpkgOutput.empty() || !o.contoursOutput.empty()) && o.meshOutput.empty())
-    throw UsageError("a planned or MPI run makes --gpkg and --contours at the merge from the TIN in parts: add "
-                     "--mesh FILE.smb");
+void checkPlannedOutputs(const RunOutputs& outputs) {
+  std::string atMerge;
+  for (const ResolvedOutput& out : outputs.all()) {
+    if (out.has(kMadeAtMerge)) {
+      atMerge += std::string(atMerge.empty() ? "" : " and ") + optionName(out.row->option);
+    } else if (!out.has(kWrittenByParts)) {
+      const std::string what = out.row->option == OutputOption::Mesh
+                                   ? "the TIN as streaming mesh parts (" +
+                                         extensionsWith(OutputOption::Mesh, kWrittenByParts) + ")"
+                                   : std::string("a DEM as tiles: give a directory");
+      throw UsageError(std::string(optionName(out.row->option)) + " " + out.path +
+                       ": a planned or MPI run writes " + what);
+    }
+  }
+  if (!atMerge.empty() && !outputs.mesh)
+    throw UsageError("a planned or MPI run makes " + atMerge +
+                     " at the merge from the TIN in parts: add --mesh FILE.smb");
+}
+
+void addOutputResults(RunReport& r, const PipelineOptions& o, const ResolvedOutput& out,
+                      const OutputResults& res) {
+  r.outputs.insert(r.outputs.end(), res.files.begin(), res.files.end());
+  r.outputBytes += res.bytes;
+  if (out.row->option == OutputOption::Gpkg) {
+    r.gpkgOutput = out.path;
+    r.gpkgTriangles = r.delaunay.trianglesEmitted;
+    r.gpkgBytes = res.bytes;
+  }
+  if (res.contours) {
+    r.contoursOutput = out.path;
+    r.contours = o.contours;
+    r.contourStats = *res.contours;
+  }
+  if (res.dem) {
+    r.dem.layout = res.demLayout;
+    r.dem.stats = res.demStats;
+    r.dem.files = res.files;
+  }
 }
 
 }  // namespace tinbuild

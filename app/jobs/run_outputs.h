@@ -42,8 +42,14 @@ void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedO
 void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,
                      DemReport& dem, Diagnostics& diag);
 
-// A planned run's outputs: the GeoPackage TIN and the contours are made by the merge from the TIN in parts,
-// so they need --mesh.
-void checkPlannedOutputs(const PipelineOptions& o);
+// A planned or MPI run's outputs, by the rows' capabilities: each is written by the parts (a streaming
+// mesh, a DEM tile directory) or made at the merge from the TIN in parts (the GeoPackage TIN, contours:
+// they need --mesh).  UsageError otherwise, naming the option and what a planned run writes.
+void checkPlannedOutputs(const RunOutputs& outputs);
+
+// Adds what one output wrote (OpenedOutput::results) to the report: its files and bytes, and its kind's
+// figures (the GeoPackage TIN's triangles, the DEM's layout and statistics, the contours' statistics).
+void addOutputResults(RunReport& report, const PipelineOptions& o, const ResolvedOutput& out,
+                      const OutputResults& results);
 
 }  // namespace tinbuild

@@ -250,25 +250,8 @@ std::string formatRunJson(const RunReport& r) {
   j.endArray();
   j.key("output_bytes").value(r.outputBytes);
   j.key("crs").beginObject();
-  if (r.crs.empty()) {
-    j.key("name").null();
-    j.key("epsg").null();
-    j.key("wkt").null();
-  } else {
-    j.key("name").value(r.crs.name);
-    if (r.crs.epsg)
-      j.key("epsg").value(r.crs.epsg);
-    else
-      j.key("epsg").null();
-    j.key("units").value(r.crs.linearUnit);
-    j.key("vertical").value(r.crs.verticalName);
-    if (r.crs.verticalEpsg)
-      j.key("vertical_epsg").value(r.crs.verticalEpsg);
-    else
-      j.key("vertical_epsg").null();
-    j.key("vertical_units").value(r.crs.verticalUnit);
-    j.key("wkt").value(r.crs.wkt);
-  }
+  writeCrsFields(j, r.crs);
+  if (!r.crs.empty()) j.key("vertical").value(r.crs.verticalName);  // (vertical_name's earlier key)
   j.key("transformed").value(!r.crsReason.empty());
   j.key("reason").value(r.crsReason);
   j.key("notes").beginArray();

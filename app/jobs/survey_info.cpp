@@ -62,33 +62,7 @@ double bboxAreaKm2(const Bounds3& b, const CrsInfo& crs, bool& known) {
 
 void writeCrs(JsonWriter& j, const CrsInfo& c) {
   j.beginObject();
-  if (c.empty()) {
-    j.key("name").null();
-    j.key("epsg").null();
-    j.key("vertical_epsg").null();
-    j.key("wkt").null();
-  } else {
-    j.key("name").value(c.name);
-    if (c.epsg)
-      j.key("epsg").value(c.epsg);
-    else
-      j.key("epsg").null();
-    if (c.declaredEpsg)
-      j.key("declared_epsg").value(c.declaredEpsg);
-    else
-      j.key("declared_epsg").null();
-    if (c.verticalEpsg)
-      j.key("vertical_epsg").value(c.verticalEpsg);
-    else
-      j.key("vertical_epsg").null();
-    j.key("vertical_name").value(c.verticalName);
-    j.key("geographic").value(c.geographic);
-    j.key("units").value(c.linearUnit);
-    j.key("unit_to_metre").value(c.linearUnitToMetre);
-    j.key("vertical_units").value(c.verticalUnit);
-    j.key("source").value(c.source);
-    j.key("wkt").value(c.wkt);
-  }
+  writeCrsFields(j, c);
   j.endObject();
 }
 

@@ -158,8 +158,9 @@ RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Dia
   r.haveDelaunay = true;
   r.delaunay.trianglesEmitted = count.triangles;
   r.delaunay.verticesOut = count.vertices;
-  r.outputs = opened->files();
-  r.outputBytes = opened->bytes();
+  const OutputResults res = opened->results();
+  r.outputs = res.files;
+  r.outputBytes = res.bytes;
   finishReport(r, diag, t0);
   return r;
 }
@@ -191,12 +192,7 @@ std::string formatMeshManifestInfo(const std::string& manifestPath, bool json) {
       j.value(v);
     j.endArray();
     j.key("crs").beginObject();
-    j.key("name").value(crs.name);
-    if (crs.epsg)
-      j.key("epsg").value(crs.epsg);
-    else
-      j.key("epsg").null();
-    j.key("wkt").value(crs.wkt);
+    writeCrsFields(j, crs);
     j.endObject();
     j.endObject();
     return j.str() + "\n";

@@ -17,6 +17,7 @@
 
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
 
 namespace tinbuild {
 
@@ -489,6 +490,34 @@ CrsInfo crsFromWkt(const std::string& wktIn, const std::string& file, Diagnostic
     return {};
   }
   return describe(srs, "wkt");
+}
+
+void writeCrsFields(JsonWriter& j, const CrsInfo& c) {
+  auto code = [&j](const char* key, int v) {
+    if (v)
+      j.key(key).value(v);
+    else
+      j.key(key).null();
+  };
+  if (c.empty()) {
+    j.key("name").null();
+    j.key("epsg").null();
+    j.key("vertical_epsg").null();
+    j.key("wkt").null();
+    return;
+  }
+  j.key("name").value(c.name);
+  code("epsg", c.epsg);
+  code("declared_epsg", c.declaredEpsg);
+  code("vertical_epsg", c.verticalEpsg);
+  j.key("vertical_name").value(c.verticalName);
+  j.key("geographic").value(c.geographic);
+  j.key("units").value(c.linearUnit);
+  j.key("unit_to_metre").value(c.linearUnitToMetre);
+  j.key("vertical_units").value(c.verticalUnit);
+  j.key("vertical_unit_to_metre").value(c.verticalUnitToMetre);
+  j.key("source").value(c.source);
+  j.key("wkt").value(c.wkt);
 }
 
 CrsInfo crsFromRecordedWkt(const std::string& wkt) {

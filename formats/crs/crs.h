@@ -16,6 +16,8 @@
 
 namespace tinbuild {
 
+class JsonWriter;
+
 class Diagnostics;
 
 struct CrsInfo {
@@ -67,6 +69,13 @@ CrsInfo crsFromWkt(const std::string& wkt, const std::string& file, Diagnostics&
 // Builds a CrsInfo from a user string: "EPSG:n", WKT, PROJ string, or a file holding WKT.
 // Throws UsageError when it cannot be understood.
 CrsInfo crsFromUser(const std::string& text);
+
+// The one JSON form of a CRS, as fields of an object the caller opened: `name`, `epsg`, `declared_epsg`,
+// `vertical_epsg`, `vertical_name`, `geographic`, `units`, `unit_to_metre`, `vertical_units`,
+// `vertical_unit_to_metre`, `source`, `wkt` (absent values null; no CRS: name, epsg, vertical_epsg and
+// wkt null).  `info --json`, the run report, a TIN in parts' description and a part's record all write
+// it (docs/usage.md lists the keys); doubles are written to round-trip exactly.
+void writeCrsFields(JsonWriter& j, const CrsInfo& crs);
 
 // A CRS recorded as WKT by tinbuild itself (a finalized stream's header, a mesh manifest): described as
 // crsFromUser does; WKT that GDAL cannot read is kept as it is, with nothing else known.

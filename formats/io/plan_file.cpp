@@ -246,20 +246,9 @@ void writePartDone(const PartDone& d, const std::string& path) {
   j.key("seconds").value(d.seconds);
   j.key("peak_rss_bytes").value(d.peakRssBytes);
   j.key("crs").beginObject();
-  j.key("wkt").value(d.crs.wkt);
-  j.key("name").value(d.crs.name);
-  j.key("epsg").value(d.crs.epsg);
-  j.key("declared_epsg").value(d.crs.declaredEpsg);
-  j.key("vertical_epsg").value(d.crs.verticalEpsg);
-  j.key("vertical_name").value(d.crs.verticalName);
-  j.key("geographic").value(d.crs.geographic);
-  j.key("linear_unit").value(d.crs.linearUnit);
-  j.key("linear_unit_to_metre").value(hexDouble(d.crs.linearUnitToMetre));
-  j.key("vertical_unit").value(d.crs.verticalUnit);
-  j.key("vertical_unit_to_metre").value(hexDouble(d.crs.verticalUnitToMetre));
-  j.key("source").value(d.crs.source);
-  j.key("z_unit_to_metre").value(hexDouble(d.zUnitToMetre));
+  writeCrsFields(j, d.crs);
   j.endObject();
+  j.key("z_unit_to_metre").value(hexDouble(d.zUnitToMetre));
   j.endObject();
   writeText(path, j.str());
 }
@@ -284,20 +273,22 @@ PartDone readPartDone(const std::string& path) {
   d.peakRssBytes = getU64(root, "peak_rss_bytes");
   const CPLJSONObject crs = root.GetObj("crs");
   if (!crs.IsValid()) throw DataError(path, "the part record has no CRS (written by an older tinbuild: run the part again)");
-  d.crs.wkt = crs.GetString("wkt");
-  d.crs.name = crs.GetString("name");
-  d.crs.epsg = crs.GetInteger("epsg", 0);
-  d.crs.declaredEpsg = crs.GetInteger("declared_epsg", 0);
-  d.crs.verticalEpsg = crs.GetInteger("vertical_epsg", 0);
-  d.crs.verticalName = crs.GetString("vertical_name");
-  d.crs.geographic = crs.GetBool("geographic", false);
-  d.crs.linearUnit = crs.GetString("linear_unit");
-  d.crs.linearUnitToMetre = parseHexDouble(crs.GetString("linear_unit_to_metre"), path, "crs.linear_unit_to_metre");
-  d.crs.verticalUnit = crs.GetString("vertical_unit");
-  d.crs.verticalUnitToMetre =
-      parseHexDouble(crs.GetString("vertical_unit_to_metre"), path, "crs.vertical_unit_to_metre");
-  d.crs.source = crs.GetString("source");
-  d.zUnitToMetre = parseHexDouble(crs.GetString("z_unit_to_metre"), path, "crs.z_unit_to_metre");
+  // The one JSON form of a CRS (formats/crs/crs.h: writeCrsFields), read back field by field.
+  if (crs.GetType() == CPLJSONObject::Type::Object && crs.GetObj("wkt").GetType() == CPLJSONObject::Type::String) {
+    d.crs.wkt = crs.GetString("wkt");
+    d.crs.name = crs.GetString("name");
+    d.crs.epsg = crs.GetInteger("epsg", 0);
+    d.crs.declaredEpsg = crs.GetInteger("declared_epsg", 0);
+    d.crs.verticalEpsg = crs.GetInteger("vertical_epsg", 0);
+    d.crs.verticalName = crs.GetString("vertical_name");
+    d.crs.geographic = crs.GetBool("geographic", false);
+    d.crs.linearUnit = crs.GetString("units");
+    d.crs.linearUnitToMetre = crs.GetDouble("unit_to_metre", 1.0);
+    d.crs.verticalUnit = crs.GetString("vertical_units");
+    d.crs.verticalUnitToMetre = crs.GetDouble("vertical_unit_to_metre", 1.0);
+    d.crs.source = crs.GetString("source");
+  }
+  d.zUnitToMetre = parseHexDouble(root.GetString("z_unit_to_metre"), path, "z_unit_to_metre");
   return d;
 }
 

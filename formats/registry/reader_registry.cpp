@@ -3,6 +3,8 @@
 #include <fcntl.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <cctype>
 #include <cerrno>
 #include <cstdlib>
 #include <cstring>
@@ -193,12 +195,48 @@ std::size_t sniff(const std::string& path, std::uint8_t* head) {
 
 const std::vector<ReaderRow>& readerTable() {
   static const std::vector<ReaderRow> table = {
-      {"COPC", recognisesCopc, openLaz},
-      {"LAZ", recognisesLaz, openLaz},
-      {"LAS", looksLikeLas, openLas},
-      {"XYZ", recognisesAnything, openXyz},
+      {"COPC", "laz", recognisesCopc, openLaz},  // (name.copc.laz)
+      {"LAZ", "laz", recognisesLaz, openLaz},
+      {"LAS", "las", looksLikeLas, openLas},
+      {"XYZ", "xyz", recognisesAnything, openXyz},
   };
   return table;
+}
+
+namespace {
+
+// Every row's extensions, sorted, once each.
+std::vector<std::string> surveyExtensions() {
+  std::vector<std::string> out;
+  for (const ReaderRow& row : readerTable()) {
+    const std::string list = row.extensions;
+    for (std::size_t at = 0; at <= list.size();) {
+      const std::size_t bar = std::min(list.find('|', at), list.size());
+      const std::string e = list.substr(at, bar - at);
+      if (!e.empty() && std::find(out.begin(), out.end(), e) == out.end()) out.push_back(e);
+      at = bar + 1;
+    }
+  }
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+}  // namespace
+
+bool isSurveyFileName(const std::string& name) {
+  const auto dot = name.rfind('.');
+  if (dot == std::string::npos) return false;
+  std::string ext = name.substr(dot + 1);
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  static const std::vector<std::string> known = surveyExtensions();
+  return std::find(known.begin(), known.end(), ext) != known.end();
+}
+
+std::string surveyExtensionsText() {
+  const std::vector<std::string> e = surveyExtensions();
+  std::string s;
+  for (std::size_t i = 0; i < e.size(); ++i) s += (i == 0 ? "" : i + 1 == e.size() ? " or " : ", ") + ("." + e[i]);
+  return s;
 }
 
 const ReaderRow& recogniseInput(const std::uint8_t* head, std::size_t size) {

@@ -26,7 +26,8 @@ namespace tinbuild {
 class Diagnostics;
 
 struct ReaderRow {
-  const char* format;  // "COPC", "LAZ", "LAS", "XYZ"
+  const char* format;      // "COPC", "LAZ", "LAS", "XYZ"
+  const char* extensions;  // the file name endings a survey directory lists for it, "|"-separated ("laz")
   // True when an input starting with `head` (its first `size` bytes, at most kSniffBytes) is this format.
   bool (*recognises)(const std::uint8_t* head, std::size_t size);
   std::unique_ptr<PointReader> (*open)(const std::string& path, const ReaderOptions& options,
@@ -38,6 +39,13 @@ constexpr std::size_t kSniffBytes = 512;
 
 // Every reader, in the order they are tried.
 const std::vector<ReaderRow>& readerTable();
+
+// Whether a directory listing takes this file name as a survey file: its extension (any case) is one of a
+// row's (formats/registry/input_list.h).  Recognition itself never looks at the name.
+bool isSurveyFileName(const std::string& name);
+
+// The rows' extensions for messages: ".las, .laz or .xyz".
+std::string surveyExtensionsText();
 
 // The row that recognises these first bytes (the last row, XYZ, takes anything).
 const ReaderRow& recogniseInput(const std::uint8_t* head, std::size_t size);

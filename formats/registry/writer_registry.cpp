@@ -18,6 +18,13 @@ namespace tinbuild {
 
 namespace {
 
+OutputResults oneFileResults(const std::string& path) {
+  OutputResults r;
+  r.files = {path};
+  r.bytes = fileSizeOrZero(path);
+  return r;
+}
+
 // ---- meshes: streaming (SMB, SMA), conventional (PLY, OBJ), UGRID (NetCDF) ----
 
 class MeshOutput : public OpenedOutput {
@@ -26,8 +33,7 @@ class MeshOutput : public OpenedOutput {
       : path_(std::move(path)), sink_(std::move(sink)) {}
   void attach(MeshTee& tee) override { tee.add(*sink_); }
   MeshSink* meshSink() override { return sink_.get(); }
-  std::vector<std::string> files() const override { return {path_}; }
-  std::uint64_t bytes() const override { return fileSizeOrZero(path_); }
+  OutputResults results() const override { return oneFileResults(path_); }
 
  private:
   std::string path_;
@@ -57,10 +63,6 @@ bool matchesObj(const std::string& path) {
 
 std::vector<std::string> oneFile(const std::string& path, const WriterContext&) {
   return {path};
-}
-// PLY and OBJ carry their CRS in a .prj sidecar.
-std::vector<std::string> fileAndPrj(const std::string& path, const WriterContext&) {
-  return {path, prjPathFor(path)};
 }
 
 template <MeshFileFormat F>
@@ -92,8 +94,7 @@ class TriangleOutput : public OpenedOutput {
   TriangleOutput(std::string path, std::unique_ptr<TriangleSink> sink)
       : path_(std::move(path)), sink_(std::move(sink)) {}
   void attach(MeshTee& tee) override { tee.add(*sink_); }
-  std::vector<std::string> files() const override { return {path_}; }
-  std::uint64_t bytes() const override { return fileSizeOrZero(path_); }
+  OutputResults results() const override { return oneFileResults(path_); }
 
  private:
   std::string path_;
@@ -130,13 +131,19 @@ class DemOutput : public OpenedOutput {
     rasterizer_ = std::make_unique<DemRasterizer>(d, *sink);
   }
   void attach(MeshTee& tee) override { tee.add(*rasterizer_); }
-  std::vector<std::string> files() const override { return writer_->outputs(); }
-  std::uint64_t bytes() const override { return writer_->bytesWritten() + (pieces_ ? pieces_->bytes() : 0); }
-  const DemRasterizer* rasterizer() const override { return rasterizer_.get(); }
   TriangleSink* triangleSink() override { return rasterizer_.get(); }
-  std::vector<std::string> tileFiles() const override { return writer_->tiles(); }
+  OutputResults results() const override {
+    OutputResults r;
+    r.files = writer_->outputs();
+    r.bytes = writer_->bytesWritten() + (pieces_ ? pieces_->bytes() : 0);
+    r.dem = true;
+    r.demLayout = rasterizer_->layout();
+    r.demStats = rasterizer_->stats();
+    r.demTiles = writer_->tiles();
+    return r;
+  }
   // A part's pieces are committed with its outputs (after the run).
-  void commitPieces() override {
+  void commitPartState() override {
     if (pieces_) pieces_->commit();
   }
 
@@ -197,9 +204,7 @@ std::unique_ptr<OpenedOutput> openDem(const std::string& path, const WriterConte
     d.tileSize = std::max(256, (d.tileSize + 255) / 256 * 256);
   }
   DemWriterOptions wo = demWriterOptions(path, T, c);
-  if (!c.demPieces.empty() || c.demMerge) {
-    if (T != DemTarget::TileDirectory)
-      throw UsageError("--dem " + path + ": a planned or MPI run writes a DEM as tiles: give a directory");
+  if (!c.demPieces.empty() || c.demMerge) {  // (only a tile directory is kWrittenByParts: the job checked)
     d.partial = true;  // tiles not full here are pieces (dem_pieces.h)
     wo.replace = false;  // the directory holds other processes' tiles
     wo.mosaic = c.demMerge != nullptr;
@@ -217,18 +222,16 @@ class ContourOutput : public OpenedOutput {
         writer_(std::move(writer)),
         tracer_(std::make_unique<ContourTracer>(o, *writer_)) {}
   void attach(MeshTee& tee) override { tee.add(*tracer_); }
-  std::vector<std::string> files() const override {
-    std::vector<std::string> out;
+  OutputResults results() const override {
+    OutputResults r;
     for (const std::string& f : contourOutputPaths(path_))
-      if (std::filesystem::exists(f)) out.push_back(f);
-    return out;
+      if (std::filesystem::exists(f)) {
+        r.files.push_back(f);
+        r.bytes += fileSizeOrZero(f);
+      }
+    r.contours = tracer_->stats();
+    return r;
   }
-  std::uint64_t bytes() const override {
-    std::uint64_t n = 0;
-    for (const std::string& f : files()) n += fileSizeOrZero(f);
-    return n;
-  }
-  const ContourStats* contourStats() const override { return &tracer_->stats(); }
 
  private:
   std::string path_;
@@ -249,30 +252,106 @@ std::unique_ptr<OpenedOutput> openContours(const std::string& path, const Writer
 
 }  // namespace
 
+bool WriterRow::accepts(const std::string& opt) const {
+  const std::string list = std::string(" ") + options + " ";
+  return !opt.empty() && list.find(" " + opt + " ") != std::string::npos;
+}
+
 const std::vector<WriterRow>& writerTable() {
   // Matched in this order: PLY and OBJ before SMB, so a named pipe called out.ply carries PLY.
   static const std::vector<WriterRow> table = {
-      {WriterKind::Ply, OutputOption::Mesh, "PLY", matchesPly, false, fileAndPrj,
+      {WriterKind::Ply, OutputOption::Mesh, "PLY", ".ply", matchesPly, kSidecarCrs, "--local", oneFile,
        openConventionalMesh<ConventionalMeshFormat::Ply>},
-      {WriterKind::Obj, OutputOption::Mesh, "OBJ", matchesObj, false, fileAndPrj,
+      {WriterKind::Obj, OutputOption::Mesh, "OBJ", ".obj", matchesObj, kSidecarCrs, "--local", oneFile,
        openConventionalMesh<ConventionalMeshFormat::Obj>},
-      {WriterKind::UgridNetcdf, OutputOption::Mesh, "UGRID NetCDF", isUgridPath, false, oneFile, openUgrid},
-      {WriterKind::StreamingMeshAscii, OutputOption::Mesh, "SMA", matchesSma, false, oneFile,
-       openStreamingMesh<MeshFileFormat::Sma>},
-      {WriterKind::StreamingMeshBinary, OutputOption::Mesh, "SMB", matchesSmb, true, oneFile,
-       openStreamingMesh<MeshFileFormat::Smb>},
-      {WriterKind::GpkgTin, OutputOption::Gpkg, "GeoPackage TIN", matchesAnyPath, false, oneFile,
-       openGpkgTin},
-      {WriterKind::DemGeoTiff, OutputOption::Dem, "GeoTIFF", matchesDemTiff, false,
+      {WriterKind::UgridNetcdf, OutputOption::Mesh, "UGRID NetCDF", ".nc", isUgridPath, 0, "", oneFile, openUgrid},
+      {WriterKind::StreamingMeshAscii, OutputOption::Mesh, "SMA", ".sma", matchesSma,
+       kStreamingMesh | kWrittenByParts, "", oneFile, openStreamingMesh<MeshFileFormat::Sma>},
+      {WriterKind::StreamingMeshBinary, OutputOption::Mesh, "SMB", ".smb", matchesSmb,
+       kCheapInline | kStreamingMesh | kWrittenByParts, "", oneFile, openStreamingMesh<MeshFileFormat::Smb>},
+      {WriterKind::GpkgTin, OutputOption::Gpkg, "GeoPackage TIN", ".gpkg", matchesAnyPath, kMadeAtMerge,
+       "--gpkg-points", oneFile, openGpkgTin},
+      {WriterKind::DemGeoTiff, OutputOption::Dem, "GeoTIFF", ".tif", matchesDemTiff, 0, "",
        demFileTargets<DemTarget::SingleTiff>, openDem<DemTarget::SingleTiff>},
-      {WriterKind::DemGeoPackage, OutputOption::Dem, "GeoPackage raster", matchesDemGpkg, false,
+      {WriterKind::DemGeoPackage, OutputOption::Dem, "GeoPackage raster", ".gpkg", matchesDemGpkg, 0, "",
        demFileTargets<DemTarget::GeoPackage>, openDem<DemTarget::GeoPackage>},
-      {WriterKind::DemTileDirectory, OutputOption::Dem, "GeoTIFF tiles + VRT", matchesDemDirectory, false,
-       demDirectoryTargets, openDem<DemTarget::TileDirectory>},
-      {WriterKind::Contours, OutputOption::Contours, "contour lines", isContourPath, false, contourTargets,
-       openContours},
+      {WriterKind::DemTileDirectory, OutputOption::Dem, "GeoTIFF tiles + VRT", "", matchesDemDirectory,
+       kWrittenByParts, "", demDirectoryTargets, openDem<DemTarget::TileDirectory>},
+      {WriterKind::Contours, OutputOption::Contours, "contour lines", ".gpkg|.geojson|.json|.fgb|.shp",
+       isContourPath, kMadeAtMerge, "", contourTargets, openContours},
   };
   return table;
+}
+
+const char* optionName(OutputOption option) {
+  switch (option) {
+    case OutputOption::Mesh:
+      return "--mesh";
+    case OutputOption::Gpkg:
+      return "--gpkg";
+    case OutputOption::Dem:
+      return "--dem";
+    case OutputOption::Contours:
+      return "--contours";
+  }
+  return "";
+}
+
+namespace {
+
+// "a, b or c".
+std::string orList(const std::vector<std::string>& items) {
+  std::string s;
+  for (std::size_t i = 0; i < items.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == items.size() ? " or " : ", ") + items[i];
+  return s;
+}
+
+std::vector<std::string> splitExtensions(const char* list) {
+  std::vector<std::string> out;
+  std::string s = list;
+  for (std::size_t at = 0; at < s.size();) {
+    const std::size_t bar = s.find('|', at);
+    out.push_back(s.substr(at, bar == std::string::npos ? std::string::npos : bar - at));
+    if (bar == std::string::npos) break;
+    at = bar + 1;
+  }
+  return out;
+}
+
+}  // namespace
+
+std::vector<std::string> ResolvedOutput::targets(const WriterContext& context) const {
+  std::vector<std::string> files = row->targets(path, context);
+  if (row->has(kSidecarCrs)) {
+    const std::size_t n = files.size();
+    for (std::size_t i = 0; i < n; ++i) files.push_back(prjPathFor(files[i]));
+  }
+  return files;
+}
+
+std::string extensionsWith(OutputOption option, unsigned caps) {
+  std::vector<std::string> exts;
+  for (const WriterRow& row : writerTable())
+    if (row.option == option && row.has(caps))
+      for (const std::string& e : splitExtensions(row.extensions))
+        if (!e.empty() && std::find(exts.begin(), exts.end(), e) == exts.end()) exts.push_back(e);
+  return orList(exts);
+}
+
+std::string outputsAccepting(const std::string& opt) {
+  std::vector<std::string> names;
+  OutputOption option = OutputOption::Mesh;
+  for (const WriterRow& row : writerTable())
+    if (row.accepts(opt)) {
+      option = row.option;
+      for (const std::string& e : splitExtensions(row.extensions)) names.push_back("FILE" + e);
+    }
+  return std::string(optionName(option)) + " " + orList(names);
+}
+
+void requireAccepted(const ResolvedOutput& out, const std::string& opt) {
+  if (!out || !out.row->accepts(opt)) throw UsageError(opt + " applies to " + outputsAccepting(opt));
 }
 
 ResolvedOutput resolveOutput(OutputOption option, const std::string& path) {
@@ -280,10 +359,10 @@ ResolvedOutput resolveOutput(OutputOption option, const std::string& path) {
   for (const WriterRow& row : writerTable())
     if (row.option == option && row.matches(path)) return {&row, path};
   if (option == OutputOption::Mesh)
-    throw UsageError("cannot tell the mesh format of '" + path + "' (use .smb, .sma, .ply, .obj or .nc)");
+    throw UsageError("cannot tell the mesh format of '" + path + "' (use " + extensionsWith(option, 0) + ")");
   if (option == OutputOption::Contours)
-    throw UsageError("cannot tell the vector format of '" + path +
-                     "' for --contours (use .gpkg, .geojson, .json, .fgb or .shp)");
+    throw UsageError("cannot tell the vector format of '" + path + "' for --contours (use " +
+                     extensionsWith(option, 0) + ")");
   throw UsageError("no writer for '" + path + "'");
 }
 

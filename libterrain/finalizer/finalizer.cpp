@@ -26,6 +26,7 @@
 
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/core/temp_file.h"
 #include "libterrain/finalizer/regions.h"
 
@@ -141,12 +142,6 @@ std::string num(double v) {
   char buf[32];
   const auto r = std::to_chars(buf, buf + sizeof buf, v);
   return std::string(buf, r.ptr);
-}
-
-std::string withCommas(std::uint64_t n) {
-  std::string s = std::to_string(n);
-  for (int i = static_cast<int>(s.size()) - 3; i > 0; i -= 3) s.insert(static_cast<std::size_t>(i), ",");
-  return s;
 }
 
 // ---------------------------------------------------------------------------------------------------

@@ -201,5 +201,31 @@ TEST(Jobs, PartRecordCarriesTheSurveysCrsToTheMerge) {
   EXPECT_EQ(r.zUnitToMetre, 0.3048006096012192);
 }
 
+// A planned or MPI run's outputs are checked by the rows' capabilities, before any work.
+TEST(Jobs, PlannedOutputsFollowTheRowsCapabilities) {
+  auto message = [](const PipelineOptions& o) -> std::string {
+    try {
+      checkPlannedOutputs(resolveOutputs(o));
+    } catch (const UsageError& e) {
+      return e.what();
+    }
+    return "";
+  };
+  PipelineOptions o;
+  o.meshOutput = "tin.smb";
+  o.dem.path = "dem/";
+  o.gpkgOutput = "tin.gpkg";
+  o.contoursOutput = "c.gpkg";
+  EXPECT_EQ(message(o), "");
+  o.meshOutput = "tin.ply";
+  EXPECT_EQ(message(o), "--mesh tin.ply: a planned or MPI run writes the TIN as streaming mesh parts (.sma or .smb)");
+  o.meshOutput.clear();
+  EXPECT_EQ(message(o), "a planned or MPI run makes --gpkg and --contours at the merge from the TIN in parts: add "
+                        "--mesh FILE.smb");
+  o.meshOutput = "tin.sma";
+  o.dem.path = "dem.tif";
+  EXPECT_EQ(message(o), "--dem dem.tif: a planned or MPI run writes a DEM as tiles: give a directory");
+}
+
 }  // namespace
 }  // namespace tinbuild

@@ -320,7 +320,7 @@ TEST(UgridWriter, RegistryRow) {
   for (const char* p : {"tin.nc", "dir/TIN.NC", "a.b.Nc"}) {
     const ResolvedOutput r = resolveOutput(OutputOption::Mesh, p);
     EXPECT_TRUE(r.is(WriterKind::UgridNetcdf)) << p;
-    EXPECT_FALSE(r.row->cheapInline);
+    EXPECT_FALSE(r.has(kCheapInline));
     EXPECT_EQ(r.row->targets(p, WriterContext{}), std::vector<std::string>{p});
   }
   EXPECT_THROW(resolveOutput(OutputOption::Mesh, "tin.ncx"), UsageError);
@@ -342,8 +342,8 @@ TEST(UgridWriter, RegistryRow) {
   auto out = r.row->open(path, c);
   ASSERT_NE(out->meshSink(), nullptr);
   writeSquare(*out->meshSink(), MeshInfo{});
-  EXPECT_EQ(out->files(), std::vector<std::string>{path});
-  EXPECT_GT(out->bytes(), 0u);
+  EXPECT_EQ(out->results().files, std::vector<std::string>{path});
+  EXPECT_GT(out->results().bytes, 0u);
   NcFile nc(path);
   ASSERT_TRUE(nc.ok());
   EXPECT_EQ(nc.text("crs", "EPSG_code"), "EPSG:32642");

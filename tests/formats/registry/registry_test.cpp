@@ -105,15 +105,60 @@ TEST(WriterRegistry, EveryRowIsDistinctAndNamesItsFiles) {
   EXPECT_EQ(kinds.size(), writerTable().size());
   const WriterContext c;
   const auto ply = resolveOutput(OutputOption::Mesh, "out/tin.ply");
-  EXPECT_EQ(ply.row->targets(ply.path, c), (std::vector<std::string>{"out/tin.ply", "out/tin.prj"}));
+  EXPECT_EQ(ply.targets(c), (std::vector<std::string>{"out/tin.ply", "out/tin.prj"}));
   WriterContext slope;
   slope.dem.slope = true;
   const auto tif = resolveOutput(OutputOption::Dem, "out/dem.tif");
-  EXPECT_EQ(tif.row->targets(tif.path, slope),
+  EXPECT_EQ(tif.targets(slope),
             (std::vector<std::string>{"out/dem.tif", "out/dem_slope.tif"}));
   // Only the binary streaming mesh is cheaper to encode than to queue.
   for (const WriterRow& row : writerTable())
-    EXPECT_EQ(row.cheapInline, row.kind == WriterKind::StreamingMeshBinary) << row.name;
+    EXPECT_EQ(row.has(kCheapInline), row.kind == WriterKind::StreamingMeshBinary) << row.name;
+}
+
+// The rows own their capabilities, options and the extensions messages name: nothing is typed twice.
+TEST(WriterRegistry, RowsOwnCapabilitiesOptionsAndMessages) {
+  EXPECT_EQ(extensionsWith(OutputOption::Mesh, kStreamingMesh), ".sma or .smb");
+  EXPECT_EQ(extensionsWith(OutputOption::Mesh, kWrittenByParts), ".sma or .smb");
+  EXPECT_EQ(extensionsWith(OutputOption::Mesh, 0), ".ply, .obj, .nc, .sma or .smb");
+  EXPECT_EQ(outputsAccepting("--local"), "--mesh FILE.ply or FILE.obj");
+  EXPECT_TRUE(resolveOutput(OutputOption::Mesh, "t.ply").row->accepts("--local"));
+  EXPECT_FALSE(resolveOutput(OutputOption::Mesh, "t.smb").row->accepts("--local"));
+  EXPECT_FALSE(resolveOutput(OutputOption::Mesh, "t.ply").row->accepts("--loc"));
+  try {
+    requireAccepted(resolveOutput(OutputOption::Mesh, "t.nc"), "--local");
+    ADD_FAILURE() << "--local with a UGRID mesh";
+  } catch (const UsageError& e) {
+    EXPECT_EQ(std::string(e.what()), "--local applies to --mesh FILE.ply or FILE.obj");
+  }
+  EXPECT_THROW(requireAccepted(ResolvedOutput{}, "--local"), UsageError);
+  EXPECT_NO_THROW(requireAccepted(resolveOutput(OutputOption::Mesh, "t.obj"), "--local"));
+  // A sidecar CRS names its .prj as a target; a plan's parts write streaming meshes and DEM tile
+  // directories, and the merge makes the GeoPackage TIN and the contours.
+  for (const WriterRow& row : writerTable()) {
+    EXPECT_EQ(row.has(kSidecarCrs), row.kind == WriterKind::Ply || row.kind == WriterKind::Obj) << row.name;
+    EXPECT_EQ(row.has(kStreamingMesh),
+              row.kind == WriterKind::StreamingMeshBinary || row.kind == WriterKind::StreamingMeshAscii)
+        << row.name;
+    EXPECT_EQ(row.has(kWrittenByParts), row.has(kStreamingMesh) || row.kind == WriterKind::DemTileDirectory)
+        << row.name;
+    EXPECT_EQ(row.has(kMadeAtMerge), row.kind == WriterKind::GpkgTin || row.kind == WriterKind::Contours)
+        << row.name;
+  }
+  try {
+    resolveOutput(OutputOption::Mesh, "t.xyz");
+    ADD_FAILURE();
+  } catch (const UsageError& e) {
+    EXPECT_NE(std::string(e.what()).find("(use .ply, .obj, .nc, .sma or .smb)"), std::string::npos) << e.what();
+  }
+}
+
+// A reader row carries the extensions a survey directory lists for it.
+TEST(ReaderRegistry, RowsCarryTheExtensionsADirectoryLists) {
+  EXPECT_EQ(surveyExtensionsText(), ".las, .laz or .xyz");
+  for (const char* name : {"a.las", "B.LAZ", "c.copc.laz", "d.XyZ"}) EXPECT_TRUE(isSurveyFileName(name)) << name;
+  for (const char* name : {"a.tif", "las", "a.las.bak", "README"}) EXPECT_FALSE(isSurveyFileName(name)) << name;
+  for (const ReaderRow& row : readerTable()) EXPECT_NE(std::string(row.extensions), "") << row.format;
 }
 
 }  // namespace

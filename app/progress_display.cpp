@@ -1,4 +1,4 @@
-#include "app/progress.h"
+#include "app/progress_display.h"
 
 #include <signal.h>
 #include <unistd.h>

@@ -5,7 +5,8 @@
 // deterministic order (the order of the words; within a directory or pattern, by name in byte order), so
 // the same command always reads the same sequence:
 //   -            stdin, as it is;
-//   DIR          every regular file in DIR (not recursive) named *.las, *.laz or *.xyz (any case);
+//   DIR          every regular file in DIR (not recursive) whose extension a reader row lists
+//                (formats/registry/reader_registry.h: *.las, *.laz, *.xyz, any case);
 //   PATTERN      a word with * ? or [ that is not an existing file: glob(3); a matched directory is
 //                expanded as DIR;
 //   FILE         as it is (a missing file is reported by the reader, naming it).

@@ -1,4 +1,4 @@
-#include "formats/pointcloud/input_list.h"
+#include "formats/registry/input_list.h"
 
 #include <glob.h>
 
@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <map>
 
+#include "formats/registry/reader_registry.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -15,24 +16,16 @@ namespace fs = std::filesystem;
 
 namespace {
 
-bool isSurveyName(const std::string& name) {
-  const auto dot = name.rfind('.');
-  if (dot == std::string::npos) return false;
-  std::string ext = name.substr(dot + 1);
-  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
-  return ext == "las" || ext == "laz" || ext == "xyz";
-}
-
 void addDirectory(const std::string& dir, std::vector<std::string>& out) {
   std::error_code ec;
   std::vector<std::string> files;
   for (fs::directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec)) {
     std::error_code fe;
-    if (it->is_regular_file(fe) && isSurveyName(it->path().filename().string()))
+    if (it->is_regular_file(fe) && isSurveyFileName(it->path().filename().string()))
       files.push_back(it->path().string());
   }
   if (ec) throw DataError(dir, "cannot list the directory: " + ec.message());
-  if (files.empty()) throw DataError(dir, "no .las, .laz or .xyz file in this directory");
+  if (files.empty()) throw DataError(dir, "no " + surveyExtensionsText() + " file in this directory");
   std::sort(files.begin(), files.end());
   out.insert(out.end(), files.begin(), files.end());
 }
