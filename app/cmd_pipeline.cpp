@@ -47,6 +47,7 @@ int runWithReport(PipelineArgs& a, Run run) {
   // The report's temporary file is created before the run, so an unwritable --report fails before any
   // output is written (and a failed run removes it).
   o.overwrite = rs.overwrite;
+  o.reportPath = rs.report;
   std::unique_ptr<OutputFile> reportFile;
   if (!rs.report.empty()) {
     if (!o.overwrite) refuseExistingFile(rs.report);

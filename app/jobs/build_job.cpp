@@ -96,6 +96,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.command = "finalize";
   r.inputs = o.inputs;
   if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
+  checkOutputOwnership(o, RunOutputs{});
   refuseExistingOutputs(o, {}, writerContext(o));
   Survey in = openSurvey(o, diag);
   r.threads = effectiveThreads(o.threads);
@@ -130,6 +131,14 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
     throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use " +
                      extensionsWith(OutputOption::Mesh, kStreamingMesh) + ")");
   const WriterContext context = writerContext(o);
+  {
+    RunOutputs owned;
+    owned.mesh = out;
+    owned.context = context;
+    PipelineOptions withInput = o;
+    withInput.inputs = {finalizedInput};
+    checkOutputOwnership(withInput, owned);
+  }
   refuseExistingOutputs(o, {out}, context);
   const auto opened = out.row->open(out.path, context);
   MeshSink* mesh = opened->meshSink();
@@ -166,6 +175,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
         "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, --contours "
         "FILE");
   RunOutputs outputs = resolveOutputs(o);
+  checkOutputOwnership(o, outputs);
   refuseExistingOutputs(o, outputs.all(), outputs.context);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runBuildWith(o, survey, outputs, nullptr, diag, t0);

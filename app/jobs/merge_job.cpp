@@ -91,6 +91,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
                                    " --part I`, then merge again)");
   checkPlanInputs(plan);
   checkPlannedOutputs(resolveOutputs(o));
+  checkOutputOwnership(o, resolveOutputs(o), {{"(the plan)", plan.path}});
   std::uint64_t keptPoints = 0;
   for (const PartDone& d : done) keptPoints += d.points;
   if (keptPoints == 0)

@@ -190,7 +190,12 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   const auto t0 = std::chrono::steady_clock::now();
   MpiSession mpi;
   const int rank = mpi.rank, size = mpi.size;
-  checkPlannedOutputs(resolveOutputs(options));
+  {
+    const RunOutputs outputs = resolveOutputs(options);
+    checkPlannedOutputs(outputs);
+    checkOutputOwnership(options, outputs);
+    refusePlannedOutputs(options, outputs, size);  // (every rank sees the same files: all refuse alike)
+  }
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
   const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;

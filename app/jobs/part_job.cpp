@@ -144,6 +144,7 @@ RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
     throw UsageError("build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, "
                      "--contours FILE");
   RunOutputs outputs = resolveOutputs(o);  // (a part's files are its own: no refusal, see partOptions)
+  checkOutputOwnership(o, outputs, {{"--plan", plan.path}});
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   survey.restrictToPart(plan, o.part, o.computeBounds);
   PartHooks hooks(o, plan, survey, t0);

@@ -114,8 +114,11 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   if (parts < 1) throw UsageError("--parts must be at least 1");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
-  checkPlannedOutputs(resolveOutputs(o));
+  const RunOutputs outputs = resolveOutputs(o);
+  checkPlannedOutputs(outputs);
+  checkOutputOwnership(o, outputs, {{"-o", plan.path}, {"(the plan's state)", plan.stateDir()}});
   if (!o.overwrite) refuseExistingFile(plan.path);
+  refusePlannedOutputs(o, outputs, parts);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runPlan(o, survey, parts, plan, diag);
 }

@@ -1,9 +1,13 @@
 #include "app/jobs/run_outputs.h"
 
+#include <sys/stat.h>
+
 #include <cmath>
+#include <filesystem>
 
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
+#include "formats/io/plan_file.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -44,6 +48,100 @@ void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedO
   refuseExistingFile(o.finalizedOutput);
   for (const ResolvedOutput& r : outputs)
     for (const std::string& path : r.targets(context)) refuseExistingFile(path);
+}
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// A path as the file system resolves it (symbolic links of its existing part followed), for comparison.
+fs::path resolved(const std::string& p) {
+  std::error_code ec;
+  fs::path r = fs::weakly_canonical(fs::absolute(p, ec), ec);
+  if (ec) r = fs::absolute(p).lexically_normal();
+  return r;
+}
+
+bool isDevice(const std::string& p) {
+  struct stat st {};
+  return p == "-" || (::stat(p.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
+}
+
+// Whether `inner` lies inside the directory `dir` (both resolved).
+bool inside(const fs::path& inner, const fs::path& dir) {
+  auto d = dir.begin(), i = inner.begin();
+  for (; d != dir.end(); ++d, ++i)
+    if (i == inner.end() || *i != *d) return false;
+  return i != inner.end();
+}
+
+bool sameFile(const std::string& a, const std::string& b) {
+  struct stat sa {}, sb {};
+  return ::stat(a.c_str(), &sa) == 0 && ::stat(b.c_str(), &sb) == 0 && sa.st_dev == sb.st_dev &&
+         sa.st_ino == sb.st_ino;
+}
+
+}  // namespace
+
+void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
+                          const std::vector<std::pair<std::string, std::string>>& extra) {
+  struct Owned {
+    std::string label, path;
+    fs::path at;
+    bool directory;
+  };
+  std::vector<Owned> owned;
+  auto add = [&](const std::string& option, const std::string& path, bool directory) {
+    if (path.empty() || isDevice(path)) return;
+    owned.push_back({option + " " + path, path, resolved(path), directory});
+  };
+  for (const ResolvedOutput& out : outputs.all()) {
+    const std::string option = optionName(out.row->option);
+    const bool directory = out.is(WriterKind::DemTileDirectory);
+    add(option, out.path, directory);
+    if (!directory)
+      for (const std::string& t : out.targets(outputs.context))
+        if (t != out.path) add(option, t, false);
+  }
+  add("--report", o.reportPath, false);
+  add("-o", o.finalizedOutput, false);
+  for (const auto& [option, path] : extra) add(option, path, false);
+  for (std::size_t i = 0; i < owned.size(); ++i)
+    for (std::size_t j = i + 1; j < owned.size(); ++j) {
+      const Owned& a = owned[i];
+      const Owned& b = owned[j];
+      if (a.at == b.at || sameFile(a.path, b.path))
+        throw UsageError(a.label + " and " + b.label + " name the same file: give each output its own path");
+      if (a.directory && inside(b.at, a.at))
+        throw UsageError(b.label + " lies inside the DEM directory " + a.path + ": put it elsewhere");
+      if (b.directory && inside(a.at, b.at))
+        throw UsageError(a.label + " lies inside the DEM directory " + b.path + ": put it elsewhere");
+    }
+  for (const std::string& input : o.inputs) {
+    if (input == "-") continue;
+    const fs::path at = resolved(input);
+    for (const Owned& out : owned) {
+      if (out.at == at || sameFile(out.path, input))
+        throw UsageError(out.label + " is an input of this run (" + input +
+                         "): an output never replaces an input; name another path");
+      if (out.directory && inside(at, out.at))
+        throw UsageError("the input " + input + " lies inside the DEM directory " + out.path +
+                         ": the DEM directory holds the DEM only");
+    }
+  }
+}
+
+void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, int parts) {
+  if (o.overwrite) return;
+  for (const ResolvedOutput& out : outputs.all()) {
+    if (out.row->option != OutputOption::Mesh) {
+      for (const std::string& path : out.targets(outputs.context)) refuseExistingFile(path);
+      continue;
+    }
+    refuseExistingFile(meshManifestPath(out.path));
+    refuseExistingFile(seamMeshPath(out.path));
+    for (int i = 0; i < parts; ++i) refuseExistingFile(partMeshPath(out.path, i));
+  }
 }
 
 void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,

@@ -37,6 +37,20 @@ WriterContext writerContext(const PipelineOptions& o);
 void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedOutput>& outputs,
                            const WriterContext& context);
 
+// A planned or MPI run of `parts` parts: without --overwrite, any file it will write under its final
+// name -- the mesh's parts, seam and manifest, the DEM directory's tiles, the GeoPackage TIN, the contours
+// -- that exists already is an error before any work (the parts and the merge then write only their own
+// plan's files).
+void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, int parts);
+
+// Before any work: every path a run writes is owned once.  Its outputs' targets (and a DEM directory
+// itself), the report, the finalized stream and `extra` ((option, path): a plan file) must be distinct
+// files, none may be one of the run's inputs (the same path, or the same device and inode: a hard link),
+// and none may lie inside an output directory (a DEM tile directory, whose stale files --overwrite
+// removes), nor may an input.  UsageError naming both sides.  "-" and devices are never owned.
+void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
+                          const std::vector<std::pair<std::string, std::string>>& extra = {});
+
 // Completes the context once the run's CRS is known: the CRS the outputs are labelled with, and the DEM's
 // lengths (typed in metres or with a unit) in CRS units, recorded in `dem`.
 void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,

@@ -125,6 +125,16 @@ RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Dia
   if (o.meshOutput.empty()) throw UsageError("merge " + manifestPath + ": name the joined mesh: -o FILE");
   const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
   WriterContext context = writerContext(o);
+  {
+    RunOutputs owned;
+    owned.mesh = out;
+    owned.context = context;
+    PipelineOptions withInputs = o;  // the manifest and every file it lists are this run's inputs
+    withInputs.inputs = m.parts;
+    withInputs.inputs.push_back(m.seam);
+    withInputs.inputs.push_back(manifestPath);
+    checkOutputOwnership(withInputs, owned);
+  }
   refuseExistingOutputs(o, {out}, context);
   if (!m.crsWkt.empty()) context.crs = crsFromRecordedWkt(m.crsWkt);
   r.crs = context.crs;

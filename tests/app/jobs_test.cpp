@@ -5,6 +5,7 @@
 
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <string>
 #include <vector>
 
@@ -225,6 +226,60 @@ TEST(Jobs, PlannedOutputsFollowTheRowsCapabilities) {
   o.meshOutput = "tin.sma";
   o.dem.path = "dem.tif";
   EXPECT_EQ(message(o), "--dem dem.tif: a planned or MPI run writes a DEM as tiles: give a directory");
+}
+
+// Every path a run writes is owned once, before any work: no two outputs on one file, no output on an
+// input (by path or by hard link), nothing inside a DEM directory.  The survey is never touched.
+TEST(Jobs, OutputsAreOwnedOnceAndNeverAnInput) {
+  const fs::path out = test::scratchDir();
+  const fs::path las = out / "s.las";
+  fs::copy_file(survey(), las);
+  const std::string before = test::slurp(las);
+  fs::create_hard_link(las, out / "link.las");
+  const std::string in = las.string() + " ";
+  struct Case {
+    std::string args, message;
+  };
+  const std::vector<Case> cases = {
+      {"--gpkg " + (out / "t.gpkg").string() + " --contours " + (out / "t.gpkg").string() + " --interval 1",
+       "name the same file"},
+      {"--mesh " + (out / "x.smb").string() + " --report " + (out / "x.smb").string(), "name the same file"},
+      {"--mesh " + (out / "t.ply").string() + " --report " + (out / "t.prj").string(), "name the same file"},
+      {"--mesh " + (out / "t.smb").string() + " --report " + las.string() + " --overwrite", "is an input of this run"},
+      {"--mesh " + (out / "t.smb").string() + " --report " + (out / "link.las").string() + " --overwrite",
+       "is an input of this run"},
+      {"--dem " + (out / "dem").string() + " --mesh " + (out / "dem" / "tin.smb").string(),
+       "lies inside the DEM directory"},
+      {"--dem " + out.string() + " --overwrite", "lies inside the DEM directory"},
+  };
+  for (const Case& c : cases) {
+    const auto r = test::tinbuild("build " + in + c.args + " -q");
+    EXPECT_EQ(r.code, 2) << c.args << "\n" << r.err;
+    EXPECT_NE(r.err.find(c.message), std::string::npos) << c.args << "\n" << r.err;
+  }
+  EXPECT_EQ(test::slurp(las), before) << "an input was touched";
+  EXPECT_FALSE(fs::exists(out / "t.gpkg"));
+  EXPECT_FALSE(fs::exists(out / "x.smb"));
+}
+
+// A planned or MPI run refuses an existing result without --overwrite, in every mode.
+TEST(Jobs, PlannedRunsRefuseAnExistingResult) {
+  const fs::path out = test::scratchDir();
+  const std::string plan = "plan " + survey() + " --mesh " + (out / "tin.smb").string() + " --dem " +
+                           (out / "dem").string() + " --parts 2 -o " + (out / "plan.json").string() + " -q";
+  std::ofstream(out / "tin.parts.json") << "{}";
+  auto r = test::tinbuild(plan);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("tin.parts.json"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(out / "plan.json"));
+  fs::remove(out / "tin.parts.json");
+  fs::create_directories(out / "dem");
+  std::ofstream(out / "dem" / "other-survey.tif") << "x";
+  r = test::tinbuild(plan);
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("not empty"), std::string::npos) << r.err;
+  r = test::tinbuild(plan + " --overwrite");
+  EXPECT_EQ(r.code, 0) << r.err;
 }
 
 }  // namespace
