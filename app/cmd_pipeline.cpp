@@ -15,6 +15,8 @@
 #include "app/pipeline_options.h"
 #include "app/progress_display.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
+#include "formats/io/run_lock.h"
 #include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
 
@@ -44,23 +46,36 @@ int runWithReport(PipelineArgs& a, Run run) {
   o.finalizer.progressData = &progress;
   o.finalizer.progressCounts = progress.counts();
   installCancelHandlers();
+  // The run's outputs are one transaction (formats/io/output_transaction.h): every writer stages its file,
+  // and nothing appears under its final name until the run has succeeded and no cancellation is pending;
+  // then all of them are renamed in one short step, the report last.  An error, Ctrl-C or SIGTERM
+  // before that leaves no final-named output.
+  OutputTransaction transaction;
   // The report's temporary file is created before the run, so an unwritable --report fails before any
   // output is written (and a failed run removes it).
   o.overwrite = rs.overwrite;
   o.reportPath = rs.report;
   std::unique_ptr<OutputFile> reportFile;
-  if (!rs.report.empty()) {
+  // (Under --mpi only rank 0 reports for the run: the other ranks neither lock nor write the report.)
+  if (!rs.report.empty() && !(rs.mpi && mpiRankFromEnvironment() > 0)) {
+    RunLock reportLock({rs.report});
+    rollForwardJournal(rs.report);
+    removeStaleTemporaries(rs.report);
+    transaction.adopt(std::move(reportLock), {rs.report});
     if (!o.overwrite) refuseExistingFile(rs.report);
     reportFile = std::make_unique<OutputFile>(rs.report);
   }
   const RunReport report = run(o, diag);
+  if (reportFile && !report.secondaryRank) {
+    reportFile->write(formatRunJson(report));
+    reportFile->commit();  // (staged: renamed with the outputs, last)
+  }
+  // The last moment a cancellation stops the run: from here the commit is a few renames.
+  if (!ProgressDisplay::callback(1.0, "committing outputs", &progress)) throw CancelledError();
+  transaction.commit();
   progress.finish();
   if (report.secondaryRank) return 0;  // an MPI rank but the first: rank 0 reports for the run
   if (!quiet) std::cerr << formatRunSummary(report);
-  if (reportFile) {
-    reportFile->write(formatRunJson(report));
-    reportFile->commit();
-  }
   return 0;
 }
 

@@ -6,6 +6,7 @@
 #include <new>
 
 #include "app/commands.h"
+#include "app/progress_display.h"
 #include "app/version.h"
 #include "libterrain/core/error.h"
 
@@ -33,6 +34,9 @@ const tinbuild::app::Command* findCommand(const std::string& name) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // First of all: a SIGTERM from a batch system that arrives while the process starts (GDAL and PROJ load)
+  // is a cancellation like any other (exit 3), not the default action's death.
+  tinbuild::app::installCancelHandlers();
   std::vector<std::string> args(argv + 1, argv + argc);
   try {
     if (args.empty()) {

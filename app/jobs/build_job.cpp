@@ -97,6 +97,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.inputs = o.inputs;
   if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
   checkOutputOwnership(o, RunOutputs{});
+  const RunLock lock = lockOutputs(o, RunOutputs{});
   refuseExistingOutputs(o, {}, writerContext(o));
   Survey in = openSurvey(o, diag);
   r.threads = effectiveThreads(o.threads);
@@ -131,14 +132,15 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
     throw UsageError("cannot tell the streaming mesh format of '" + o.meshOutput + "' (use " +
                      extensionsWith(OutputOption::Mesh, kStreamingMesh) + ")");
   const WriterContext context = writerContext(o);
+  RunOutputs owned;
+  owned.mesh = out;
+  owned.context = context;
   {
-    RunOutputs owned;
-    owned.mesh = out;
-    owned.context = context;
     PipelineOptions withInput = o;
     withInput.inputs = {finalizedInput};
     checkOutputOwnership(withInput, owned);
   }
+  const RunLock lock = lockOutputs(o, owned);
   refuseExistingOutputs(o, {out}, context);
   const auto opened = out.row->open(out.path, context);
   MeshSink* mesh = opened->meshSink();
@@ -176,6 +178,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
         "FILE");
   RunOutputs outputs = resolveOutputs(o);
   checkOutputOwnership(o, outputs);
+  const RunLock lock = lockOutputs(o, outputs);
   refuseExistingOutputs(o, outputs.all(), outputs.context);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runBuildWith(o, survey, outputs, nullptr, diag, t0);
@@ -193,6 +196,19 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   r.stages = stageNames(fo.filter);
   r.memoryBudget = fo.memoryBudget;
 
+  // Contours of a TIN that keeps vegetation or buildings are isolines of every tree and roof: millions of
+  // tiny loops, a file many times the mesh's size.  Say so before the work, with the usual cure.
+  if (outputs.contours) {
+    std::string kept;
+    for (int c : {3, 4, 5, 6})
+      if (!fo.filter.dropClasses[static_cast<std::size_t>(c)]) kept += (kept.empty() ? "" : ",") + std::to_string(c);
+    if (!kept.empty())
+      diag.warn("contours.not_ground", o.contoursOutput,
+                "the TIN keeps classes " + kept +
+                    " (vegetation, buildings): contours of it ring every tree and roof (millions of small "
+                    "loops on a large survey); for terrain contours keep the ground classes: --keep-class 2,9 "
+                    "(or --contour-class 2 when contours are the only output)");
+  }
   // Open every output before any work, so an unwritable target or a bad length fails at once.
   completeOutputs(outputs, o, in.crs, in.zUnitToMetre, r.dem, diag);
   if (hooks) hooks->outputs(outputs, r);

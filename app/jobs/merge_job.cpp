@@ -90,8 +90,12 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
                                    " (run each with `tinbuild build --plan " + plan.path +
                                    " --part I`, then merge again)");
   checkPlanInputs(plan);
+  // Every file the parts left, as they left it: missing, cut short or altered is an error naming the part
+  // and the file, before any output is touched.
+  for (const PartDone& d : done) checkPartFiles(d, plan);
   checkPlannedOutputs(resolveOutputs(o));
   checkOutputOwnership(o, resolveOutputs(o), {{"(the plan)", plan.path}});
+  const RunLock lock = lockOutputs(o, resolveOutputs(o));
   std::uint64_t keptPoints = 0;
   for (const PartDone& d : done) keptPoints += d.points;
   if (keptPoints == 0)

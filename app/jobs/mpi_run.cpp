@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cstdlib>
 #include <cstdio>
 #include <filesystem>
 #include <fstream>
@@ -10,6 +11,7 @@
 
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 
 #ifdef TINBUILD_HAVE_MPI
@@ -18,6 +20,13 @@
 #endif
 
 namespace tinbuild {
+
+int mpiRankFromEnvironment() {
+  for (const char* name : {"OMPI_COMM_WORLD_RANK", "PMIX_RANK", "PMI_RANK", "MV2_COMM_WORLD_RANK", "SLURM_PROCID"})
+    if (const char* v = std::getenv(name))
+      if (*v) return std::atoi(v);
+  return -1;
+}
 
 namespace fs = std::filesystem;
 
@@ -55,16 +64,24 @@ void writeWhole(const std::string& path, const std::string& bytes) {
 }
 
 // Runs `step` on every rank; if it failed anywhere, every rank throws an Error naming each failure (the
-// ranks' messages are gathered), so all of them stop together and exit non-zero.
+// ranks' messages are gathered), so all of them stop together and exit non-zero.  A cancellation
+// (SIGTERM or SIGINT, which mpirun forwards to every rank) anywhere is a cancellation everywhere: every
+// rank throws CancelledError, so the run exits 3 as a single process does.
 template <class Step>
 void collective(int rank, int size, const std::string& what, Step step) {
   std::string message;
+  int cancelled = 0;
   try {
     step();
+  } catch (const CancelledError&) {
+    cancelled = 1;
+    message = "cancelled";
   } catch (const std::exception& e) {
     message = e.what();
     if (message.empty()) message = "failed";
   }
+  MPI_Allreduce(MPI_IN_PLACE, &cancelled, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  if (cancelled) throw CancelledError();
   int length = static_cast<int>(message.size());
   std::vector<int> lengths(static_cast<std::size_t>(size));
   MPI_Allgather(&length, 1, MPI_INT, lengths.data(), 1, MPI_INT, MPI_COMM_WORLD);
@@ -88,6 +105,13 @@ void collective(int rank, int size, const std::string& what, Step step) {
   }
   (void)rank;
   throw Error(report);
+}
+
+// An MPI run's steps read what the step before wrote, under its final name: the output transaction (if
+// any) commits each step's files.  A run stopped later keeps the part files and the plan state it
+// committed (a re-run replaces them); the merge's outputs still appear all at once, at the end.
+void commitStep() {
+  if (OutputTransaction* t = OutputTransaction::current()) t->commit();
 }
 
 constexpr std::uint64_t kChunk = std::uint64_t{1} << 28;
@@ -236,7 +260,10 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     plan.path = rank == 0 ? rootPlanPath : localDir + "/plan.json";
     planReport = runPlanInSlices(po, survey, size, plan, diag, reducer);  // (its errors reach every rank)
     exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
-    collective(rank, size, "plan on rank", [&] { writePlan(plan, plan.path); });
+    collective(rank, size, "plan on rank", [&] {
+      writePlan(plan, plan.path);
+      commitStep();
+    });
   } else {
     collective(rank, size, "plan on rank", [&] {
       if (rank != 0) return;
@@ -244,6 +271,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       po.overwrite = true;
       plan.path = rootPlanPath;
       planReport = runPlan(po, survey, size, plan, diag);
+      commitStep();
     });
     std::string planText = rank == 0 ? readWhole(rootPlanPath) : std::string();
     std::uint64_t planBytes = planText.size();
@@ -258,10 +286,12 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       }
       const std::string path = localDir + "/plan.json";
       writeWhole(path, planText);
+      commitStep();
       plan = readPlan(path);
     });
   }
 
+  commitStep();  // (the plan's files, for the next step to read)
   survey = Survey();  // (its readers are done with)
   const double planSeconds = since(tPlan);
   // 2. Every rank its part.
@@ -273,6 +303,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     po.part = rank;
     po.commandLine = plan.command;
     partReport = runBuild(po, diag);
+    commitStep();  // the part's files, which the exchange and the merge read
   });
 
   double partSeconds = since(tPart);
@@ -301,6 +332,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
         }
       }
   });
+  collective(rank, size, "commit on rank", [&] { commitStep(); });  // rank 0: the files it received
   if (!localDir.empty()) {
     std::error_code ec;
     fs::remove_all(localDir, ec);

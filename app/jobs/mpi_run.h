@@ -22,6 +22,11 @@ namespace tinbuild {
 // Was this tinbuild built with MPI?
 bool mpiAvailable();
 
+// This process's rank as the MPI launcher announced it in the environment (Open MPI, PMI, PMIx, MVAPICH,
+// srun), before MPI is initialised; -1 when none says.  The CLI uses it so that only rank 0 takes and
+// writes the --report (rank 0 reports for the run).
+int mpiRankFromEnvironment();
+
 // The run of this rank (rank 0: the merge's report, with the parts' totals).  buildArgs/command: the
 // build as a plan stores it.
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,

@@ -5,6 +5,7 @@
 
 #include "app/jobs/build_job.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "formats/io/plan_file.h"
 #include "formats/mesh/seam_file.h"
 #include "libterrain/core/error.h"
@@ -120,6 +121,20 @@ class PartHooks : public BuildHooks {
     done.peakRssBytes = peakRssBytes();
     done.crs = survey_.crs;
     done.zUnitToMetre = survey_.zUnitToMetre;
+    // What the merge will read, as it is now: it checks each file's size and bytes before it writes.
+    auto record = [&done](const std::string& role, const std::string& path, bool whole) {
+      const std::string now = readablePath(path);  // (still staged in the run's transaction)
+      PartFile f;
+      f.role = role;
+      f.path = path;
+      f.size = fileSizeOrZero(now);
+      f.fingerprint = fileFingerprint(now, whole);
+      f.whole = whole;
+      done.files.push_back(f);
+    };
+    record("seam", plan_.partFile(o_.part, "seam"), true);
+    if (outputExists(plan_.partFile(o_.part, "dem"))) record("dem-pieces", plan_.partFile(o_.part, "dem"), true);
+    if (!done.mesh.empty()) record("mesh", done.mesh, false);
     writePartDone(done, plan_.partFile(o_.part, "json"));
   }
 
@@ -145,6 +160,12 @@ RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
                      "--contours FILE");
   RunOutputs outputs = resolveOutputs(o);  // (a part's files are its own: no refusal, see partOptions)
   checkOutputOwnership(o, outputs, {{"--plan", plan.path}});
+  // A part locks its own files only: the parts of a plan write into one DEM directory side by side.
+  RunOutputs own;
+  own.mesh = outputs.mesh;
+  own.context = outputs.context;
+  const RunLock lock = lockOutputs(o, own, {plan.partFile(o.part, "seam"), plan.partFile(o.part, "dem"),
+                                            plan.partFile(o.part, "json")});
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   survey.restrictToPart(plan, o.part, o.computeBounds);
   PartHooks hooks(o, plan, survey, t0);

@@ -117,6 +117,7 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   const RunOutputs outputs = resolveOutputs(o);
   checkPlannedOutputs(outputs);
   checkOutputOwnership(o, outputs, {{"-o", plan.path}, {"(the plan's state)", plan.stateDir()}});
+  const RunLock lock = lockOutputs(o, RunOutputs{}, {plan.path});
   if (!o.overwrite) refuseExistingFile(plan.path);
   refusePlannedOutputs(o, outputs, parts);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);

@@ -7,6 +7,7 @@
 
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "formats/io/plan_file.h"
 #include "libterrain/core/error.h"
 
@@ -129,6 +130,39 @@ void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
                          ": the DEM directory holds the DEM only");
     }
   }
+}
+
+RunLock lockOutputs(const PipelineOptions& o, const RunOutputs& outputs, const std::vector<std::string>& extra) {
+  std::vector<std::string> paths, sidecars;
+  for (const ResolvedOutput& out : outputs.all()) {
+    paths.push_back(out.path);
+    if (out.is(WriterKind::DemTileDirectory)) continue;
+    for (const std::string& t : out.targets(outputs.context))
+      if (t != out.path) sidecars.push_back(t);
+  }
+  if (!o.finalizedOutput.empty()) paths.push_back(o.finalizedOutput);
+  paths.insert(paths.end(), extra.begin(), extra.end());
+  RunLock lock(paths, o.commandLine);
+  for (const std::string& p : paths) {
+    if (p.empty() || p == "-") continue;
+    rollForwardJournal(p);
+    removeStaleTemporaries(p);
+  }
+  for (const std::string& p : sidecars) removeStaleTemporaries(p);
+  // A DEM directory: the staging folders (.tinbuild-*) of runs that died inside it.
+  if (outputs.dem.is(WriterKind::DemTileDirectory)) {
+    std::error_code ec;
+    for (fs::directory_iterator it(outputs.dem.path, ec), end; !ec && it != end; it.increment(ec))
+      if (it->path().filename().string().rfind(".tinbuild-", 0) == 0) {
+        std::error_code re;
+        fs::remove_all(it->path(), re);
+      }
+  }
+  if (OutputTransaction* t = OutputTransaction::current()) {
+    t->adopt(std::move(lock), paths);
+    return RunLock();
+  }
+  return lock;
 }
 
 void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, int parts) {

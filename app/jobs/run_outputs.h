@@ -13,6 +13,7 @@
 #include "app/jobs/job_options.h"
 #include "app/jobs/run_report.h"
 #include "formats/crs/crs.h"
+#include "formats/io/run_lock.h"
 #include "formats/registry/writer_registry.h"
 
 namespace tinbuild {
@@ -50,6 +51,14 @@ void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, i
 // removes), nor may an input.  UsageError naming both sides.  "-" and devices are never owned.
 void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
                           const std::vector<std::pair<std::string, std::string>>& extra = {});
+
+// Takes the run's lock on every output (formats/io/run_lock.h): its outputs' paths, the finalized stream and
+// `extra` (the report is the CLI's to lock).  Then, holding them: finishes the commit of a run that died
+// inside one (its journal), and removes the temporaries dead runs left beside them (and a DEM directory's
+// staging folders).  Call it after checkOutputOwnership and before refusing existing outputs.  While an
+// output transaction is current it holds the lock (the returned one is empty); otherwise the caller
+// holds it for the run.
+RunLock lockOutputs(const PipelineOptions& o, const RunOutputs& outputs, const std::vector<std::string>& extra = {});
 
 // Completes the context once the run's CRS is known: the CRS the outputs are labelled with, and the DEM's
 // lengths (typed in metres or with a unit) in CRS units, recorded in `dem`.

@@ -6,6 +6,7 @@
 
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "formats/io/plan_file.h"
 #include "formats/mesh/seam_file.h"
 #include "formats/mesh/streaming_mesh.h"
@@ -101,7 +102,10 @@ class Inner : public MeshSink {
 }  // namespace
 
 void readMeshParts(const std::string& manifestPath, MeshSink& out) {
-  const MeshManifest m = readMeshManifest(manifestPath);
+  // (Inside a merge's transaction the manifest and the seam mesh are still staged: read them there.)
+  MeshManifest m = readMeshManifest(readablePath(manifestPath));
+  m.seam = readablePath(m.seam);
+  for (std::string& part : m.parts) part = readablePath(part);
   Inner inner(out);
   PartRenumber::Shared shared{inner, 0, {}};
   SeamVertices collect(shared.seamIds);
@@ -125,16 +129,17 @@ RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Dia
   if (o.meshOutput.empty()) throw UsageError("merge " + manifestPath + ": name the joined mesh: -o FILE");
   const ResolvedOutput out = resolveOutput(OutputOption::Mesh, o.meshOutput);
   WriterContext context = writerContext(o);
+  RunOutputs owned;
+  owned.mesh = out;
+  owned.context = context;
   {
-    RunOutputs owned;
-    owned.mesh = out;
-    owned.context = context;
     PipelineOptions withInputs = o;  // the manifest and every file it lists are this run's inputs
     withInputs.inputs = m.parts;
     withInputs.inputs.push_back(m.seam);
     withInputs.inputs.push_back(manifestPath);
     checkOutputOwnership(withInputs, owned);
   }
+  const RunLock lock = lockOutputs(o, owned);
   refuseExistingOutputs(o, {out}, context);
   if (!m.crsWkt.empty()) context.crs = crsFromRecordedWkt(m.crsWkt);
   r.crs = context.crs;

@@ -12,6 +12,7 @@
 #include <ctime>
 
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild::gpkg {
 
@@ -320,8 +321,7 @@ void File::commit(const std::string& metadataLayer,
   layers_.clear();
   db.close();
   db_.reset();
-  if (::rename(tempPath_.c_str(), path_.c_str()) != 0)
-    throw DataError(path_, std::string("cannot rename the finished output into place: ") + std::strerror(errno));
+  commitRename(tempPath_, path_);
   committed_ = true;
 }
 

@@ -11,6 +11,7 @@
 #include <cstring>
 #include <filesystem>
 
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -32,7 +33,17 @@ std::string temporaryName(const std::string& path, unsigned attempt) {
 
 }  // namespace
 
+void createParentDirectories(const std::string& path) {
+  const std::filesystem::path parent = std::filesystem::path(path).parent_path();
+  if (parent.empty()) return;
+  std::error_code ec;
+  if (std::filesystem::is_directory(parent, ec)) return;
+  std::filesystem::create_directories(parent, ec);
+  if (ec) throw DataError(path, "cannot create its folder " + parent.string() + ": " + ec.message());
+}
+
 int createTemporaryBeside(const std::string& path, std::string& tempPath) {
+  createParentDirectories(path);
   for (unsigned attempt = 0;; ++attempt) {
     tempPath = temporaryName(path, attempt);
     const int fd = ::open(tempPath.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
@@ -125,11 +136,12 @@ void OutputFile::commit() {
     throw DataError(path_, std::string("cannot write: ") + std::strerror(e));
   }
   fd_ = -1;
-  if (::rename(tempPath_.c_str(), path_.c_str()) != 0) {
-    const int e = errno;
+  try {
+    commitRename(tempPath_, path_);
+  } catch (...) {
     discard();
     committed_ = true;
-    throw DataError(path_, std::string("cannot rename the finished output into place: ") + std::strerror(e));
+    throw;
   }
   committed_ = true;
 }

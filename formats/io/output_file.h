@@ -16,9 +16,13 @@
 namespace tinbuild {
 
 // Creates a new, empty file beside PATH under a unique temporary name (PATH.tmp-XXXXXXXX, created with
-// O_EXCL and mode 0666 less the umask) and returns its descriptor; `tempPath` receives the name.
-// Throws DataError naming PATH when it cannot.  Every writer that renames on success starts here.
+// O_EXCL and mode 0666 less the umask) and returns its descriptor; `tempPath` receives the name.  PATH's
+// parent directories are created when missing (every output, as --dem always did).  Throws DataError
+// naming PATH when it cannot.  Every writer that renames on success starts here.
 int createTemporaryBeside(const std::string& path, std::string& tempPath);
+
+// Creates PATH's parent directories when they are missing; DataError naming PATH when it cannot.
+void createParentDirectories(const std::string& path);
 
 // Throws DataError("PATH: exists; pass --overwrite ...") when PATH is an existing regular file (devices,
 // pipes and "-" are always writable).  Every output is checked before any work unless --overwrite.

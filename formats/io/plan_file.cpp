@@ -2,14 +2,18 @@
 #include "formats/io/plan_file.h"
 
 #include <cpl_json.h>
+#include <fcntl.h>
+#include <unistd.h>
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <cerrno>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <vector>
 
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
@@ -66,6 +70,74 @@ std::string hashText(const std::string& s) {
   std::snprintf(buf, sizeof buf, "%016llx", static_cast<unsigned long long>(h));
   return buf;
 }
+
+}  // namespace
+
+std::string fileFingerprint(const std::string& path, bool whole) {
+  const int fd = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
+  if (fd < 0) throw DataError(path, std::string("cannot read: ") + std::strerror(errno));
+  struct stat st {};
+  ::fstat(fd, &st);
+  const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
+  // 64-bit words mixed in as they come (a multiply-xorshift per word), the tail bytes one by one.
+  std::uint64_t h = 0x9e3779b97f4a7c15ull ^ size;
+  auto mix = [&h](std::uint64_t w) {
+    h ^= w + 0x9e3779b97f4a7c15ull + (h << 6) + (h >> 2);
+    h *= 0xbf58476d1ce4e5b9ull;
+    h ^= h >> 31;
+  };
+  std::vector<unsigned char> buf(std::size_t{1} << 20);
+  auto hashRange = [&](std::uint64_t from, std::uint64_t to) {
+    for (std::uint64_t at = from; at < to;) {
+      const std::size_t want = static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), to - at));
+      const ssize_t n = ::pread(fd, buf.data(), want, static_cast<off_t>(at));
+      if (n <= 0) {
+        ::close(fd);
+        throw DataError(path, "cannot read (the file changed while it was read?)");
+      }
+      std::size_t i = 0;
+      for (; i + 8 <= static_cast<std::size_t>(n); i += 8) {
+        std::uint64_t w;
+        std::memcpy(&w, buf.data() + i, 8);
+        mix(w);
+      }
+      for (; i < static_cast<std::size_t>(n); ++i) mix(buf[i]);
+      at += static_cast<std::uint64_t>(n);
+    }
+  };
+  const std::uint64_t mib = buf.size();
+  if (whole || size <= 2 * mib) {
+    hashRange(0, size);
+  } else {
+    hashRange(0, mib);
+    hashRange(size - mib, size);
+  }
+  ::close(fd);
+  char out[17];
+  std::snprintf(out, sizeof out, "%016llx", static_cast<unsigned long long>(h));
+  return out;
+}
+
+void checkPartFiles(const PartDone& d, const Plan& plan) {
+  const std::string redo = ": run the part again (tinbuild build --plan " + plan.path + " --part " +
+                           std::to_string(d.part) + "), then merge";
+  for (const PartFile& f : d.files) {
+    const std::string path = f.role == "seam"         ? plan.partFile(d.part, "seam")
+                             : f.role == "dem-pieces" ? plan.partFile(d.part, "dem")
+                                                      : f.path;
+    const std::string what = "part " + std::to_string(d.part) + "'s " + f.role + " file";
+    struct stat st {};
+    if (::stat(path.c_str(), &st) != 0) throw DataError(path, what + " is missing" + redo);
+    const std::uint64_t size = static_cast<std::uint64_t>(st.st_size);
+    if (size != f.size)
+      throw DataError(path, what + " has " + std::to_string(size) + " bytes, the part wrote " +
+                                std::to_string(f.size) + (size < f.size ? " (cut short)" : " (altered)") + redo);
+    if (fileFingerprint(path, f.whole) != f.fingerprint)
+      throw DataError(path, what + " was altered after the part wrote it (its bytes differ)" + redo);
+  }
+}
+
+namespace {
 
 void writeText(const std::string& path, const std::string& text) {
   OutputFile f(path, text.size() + 16);
@@ -249,6 +321,17 @@ void writePartDone(const PartDone& d, const std::string& path) {
   writeCrsFields(j, d.crs);
   j.endObject();
   j.key("z_unit_to_metre").value(hexDouble(d.zUnitToMetre));
+  j.key("files").beginArray();
+  for (const PartFile& f : d.files) {
+    j.beginObject();
+    j.key("role").value(f.role);
+    j.key("path").value(f.path);
+    j.key("size").value(f.size);
+    j.key("fingerprint").value(f.fingerprint);
+    j.key("whole").value(f.whole);
+    j.endObject();
+  }
+  j.endArray();
   j.endObject();
   writeText(path, j.str());
 }
@@ -289,6 +372,20 @@ PartDone readPartDone(const std::string& path) {
     d.crs.source = crs.GetString("source");
   }
   d.zUnitToMetre = parseHexDouble(root.GetString("z_unit_to_metre"), path, "z_unit_to_metre");
+  const CPLJSONArray files = root.GetArray("files");
+  if (!files.IsValid())
+    throw DataError(path, "the part record lists no files (written by an older tinbuild: run the part again)");
+  for (const auto& f : files) {
+    PartFile pf;
+    pf.role = f.GetString("role");
+    pf.path = f.GetString("path");
+    pf.size = getU64(f, "size");
+    pf.fingerprint = f.GetString("fingerprint");
+    pf.whole = f.GetBool("whole", true);
+    if (pf.role.empty() || pf.path.empty() || pf.fingerprint.size() != 16)
+      throw DataError(path, "the part record's file list is damaged");
+    d.files.push_back(pf);
+  }
   return d;
 }
 

@@ -73,6 +73,21 @@ void writePlan(Plan& plan, const std::string& path);
 Plan readPlan(const std::string& path);
 
 // What a finished part did (PLAN.parts/part-NNNN.json).
+// A file a part leaves for the merge, as the part saw it when it finished: its size and a fingerprint of its
+// bytes (all of them, or for a large part mesh its first and last MiB: `whole` false).  The merge checks
+// every one before it writes anything.
+struct PartFile {
+  std::string role;  // "seam", "dem-pieces", "mesh"
+  std::string path;
+  std::uint64_t size = 0;
+  std::string fingerprint;
+  bool whole = true;
+};
+
+// The fingerprint of a file: 16 hex digits of a 64-bit hash of its bytes (whole), or of its size, first and
+// last MiB (!whole).  DataError naming the file when it cannot be read.
+std::string fileFingerprint(const std::string& path, bool whole);
+
 struct PartDone {
   std::string planId;
   int part = 0;
@@ -91,7 +106,14 @@ struct PartDone {
   // the merge labels its outputs with it and converts the DEM's lengths by it, without opening an input.
   CrsInfo crs;
   double zUnitToMetre = 1;
+  std::vector<PartFile> files;  // the seam file, the DEM pieces, the part's mesh
 };
+
+// Checks that every file a part recorded is there, of its size and fingerprint: DataError naming the part,
+// the file and what is wrong (missing, short, altered), and how to redo it.  The state files are looked for
+// in `plan`'s state directory (an MPI rank wrote its own elsewhere and sent them), the mesh where it was
+// written.
+void checkPartFiles(const PartDone& done, const Plan& plan);
 void writePartDone(const PartDone& done, const std::string& path);
 PartDone readPartDone(const std::string& path);
 

@@ -16,6 +16,7 @@
 #include <vector>
 
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -392,9 +393,7 @@ class PlyWriter final : public ConventionalWriterBase {
     out_->finish();
   }
   void commitBody() override {
-    if (::rename(tempPath_.c_str(), path_.c_str()) != 0)
-      throw DataError(path_,
-                      std::string("cannot rename the finished output into place: ") + std::strerror(errno));
+    commitRename(tempPath_, path_);
     committed_ = true;
   }
 

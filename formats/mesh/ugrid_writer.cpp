@@ -15,6 +15,7 @@
 #include <vector>
 
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -207,9 +208,7 @@ class UgridWriter final : public MeshSink {
     flushFaces();
     open_ = false;
     check(nc_close(ncid_), "cannot finish the NetCDF file");
-    if (::rename(tempPath_.c_str(), path_.c_str()) != 0)
-      throw DataError(path_,
-                      std::string("cannot rename the finished output into place: ") + std::strerror(errno));
+    commitRename(tempPath_, path_);
     committed_ = true;
   }
 

@@ -17,6 +17,7 @@
 #include "formats/io/stdin_source.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/report_text.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -325,10 +326,11 @@ void FinalizedStreamWriter::end() {
       throw DataError(path_, "cannot close " + tempPath_ + ": " + why);
     }
     fd_ = -1;
-    if (std::rename(tempPath_.c_str(), path_.c_str()) != 0) {
-      const std::string why = errnoText();
+    try {
+      commitRename(tempPath_, path_);
+    } catch (...) {
       fail();
-      throw DataError(path_, "cannot rename " + tempPath_ + " onto it: " + why);
+      throw;
     }
   } else if (ownFd_) {
     ::close(fd_);

@@ -17,6 +17,7 @@
 #include "formats/pointcloud/laz/laz_error.h"
 #include "libterrain/core/error.h"
 #include "libterrain/synthetic/synthetic_survey.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -443,8 +444,7 @@ void LasWriter::close() {
     const int fd = fd_;
     fd_ = -1;
     if (::close(fd) != 0) throw DataError(path_, "close failed: " + errnoText());
-    if (std::rename(tempPath_.c_str(), path_.c_str()) != 0)
-      throw DataError(path_, "cannot rename " + tempPath_ + " onto it: " + errnoText());
+    commitRename(tempPath_, path_);
     closed_ = true;
   } catch (...) {
     fail();

@@ -15,11 +15,14 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <fstream>
+#include <iterator>
 #include <mutex>
 #include <system_error>
 
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -353,6 +356,21 @@ void setBands(DemWriterOptions& w, const DemOptions& d) {
   w.edgeLength = d.edgeLength;
 }
 
+// A VRT built inside a transaction names its tiles in the staging folder (FOLDER/name.tif, relative to the
+// VRT): rewrites it to name them where the commit puts them (name.tif, beside the VRT).
+void cutFolderFromVrt(const std::string& vrtFile, const std::string& finalName, const std::string& folder) {
+  std::ifstream in(vrtFile, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  in.close();
+  const std::string from = ">" + folder, to = ">";
+  for (std::size_t at = text.find(from); at != std::string::npos; at = text.find(from, at + to.size()))
+    text.replace(at, from.size(), to);
+  std::ofstream out(vrtFile, std::ios::binary | std::ios::trunc);
+  out << text;
+  out.close();
+  if (!out) throw DataError(finalName, "cannot write the VRT mosaic");
+}
+
 std::vector<std::string> demOutputPaths(const DemWriterOptions& o) {
   if ((o.target ? *o.target : demTargetForPath(o.path)) == DemTarget::TileDirectory) return {o.path};
   const fs::path p(o.path);
@@ -370,21 +388,24 @@ void DemWriter::end() {
   tiles_.clear();
   QuietGdal quiet;
   if (m.target == DemTarget::TileDirectory) {
+    OutputTransaction* transaction = OutputTransaction::current();
+    // Inside a transaction the tiles stay in the staging folder until it commits: the mosaics are built
+    // from where the tiles are now and then name them as they will be (their folder's name cut out).
+    const std::string stagingName = fs::path(m.stagingDir).filename().string() + "/";
     std::set<std::string> written;  // file names, for --overwrite's clean-up
     for (Band& b : m.bands) {
-      std::vector<std::string> finals;
+      std::vector<std::pair<std::string, std::string>> finals;  // (final, where it is now)
       for (const auto& [staged, final] : b.staged) {
-        if (std::rename(staged.c_str(), final.c_str()) != 0)
-          throw DataError(final, std::string("cannot move the tile into place: ") + std::strerror(errno));
-        finals.push_back(final);
+        bytes_ += fs::file_size(staged);
+        commitRename(staged, final);
+        finals.emplace_back(final, transaction ? staged : final);
         tiles_.push_back(final);
         written.insert(fs::path(final).filename().string());
-        bytes_ += fs::file_size(final);
       }
       b.staged.clear();
       const std::string prefix = std::string(kBandName[b.kind]) + "_";
       for (const std::string& other : m.o.otherTiles)
-        if (fs::path(other).filename().string().rfind(prefix, 0) == 0) finals.push_back(other);
+        if (fs::path(other).filename().string().rfind(prefix, 0) == 0) finals.emplace_back(other, other);
       if (finals.empty() || !m.o.mosaic) continue;
       std::sort(finals.begin(), finals.end());
       // The mosaic, with paths relative to it (the directory can be moved as a whole).
@@ -393,7 +414,7 @@ void DemWriter::end() {
                                   .string();
       const std::string tmp = temporaryBeside(vrt);
       std::vector<const char*> names;
-      for (const auto& f : finals) names.push_back(f.c_str());
+      for (const auto& f : finals) names.push_back(f.second.c_str());
       GDALBuildVRTOptions* vo = GDALBuildVRTOptionsNew(nullptr, nullptr);
       int usageError = 0;
       GDALDatasetH v =
@@ -404,19 +425,38 @@ void DemWriter::end() {
         gdalFailure(vrt, "cannot build the VRT mosaic");
       }
       GDALClose(v);
-      if (std::rename(tmp.c_str(), vrt.c_str()) != 0) {
+      if (transaction) cutFolderFromVrt(tmp, vrt, stagingName);
+      bytes_ += fs::file_size(tmp);
+      try {
+        commitRename(tmp, vrt);
+      } catch (...) {
         ::unlink(tmp.c_str());
-        throw DataError(vrt, std::string("cannot rename the mosaic into place: ") + std::strerror(errno));
+        throw;
       }
       outputs_.push_back(vrt);
       written.insert(fs::path(vrt).filename().string());
-      bytes_ += fs::file_size(vrt);
     }
-    std::error_code ec;
-    fs::remove_all(m.stagingDir, ec);
-    m.stagingDir.clear();
     m.committed = true;
-    if (m.o.replace) removeStaleFiles(m.o.path, written);
+    const std::string staging = m.stagingDir, dir = m.o.path, created = m.createdDir;
+    const bool replace = m.o.replace;
+    m.stagingDir.clear();
+    auto removeStaging = [staging] {
+      std::error_code ec;
+      fs::remove_all(staging, ec);
+    };
+    auto rollBack = [removeStaging, created] {  // the run failed after all: as if it never started
+      removeStaging();
+      std::error_code ec;
+      if (!created.empty()) fs::remove(created, ec);  // (only when empty)
+    };
+    auto finish = [removeStaging, replace, dir, written] {
+      removeStaging();
+      if (replace) removeStaleFiles(dir, written);
+    };
+    if (transaction)
+      transaction->afterCommit(finish, rollBack);
+    else
+      finish();
     return;
   }
   for (Band& b : m.bands) {
@@ -447,12 +487,10 @@ void DemWriter::end() {
       if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(b.finalPath, "cannot finish the COG (disk full?)");
       source = cogTemp;
     }
-    if (std::rename(source.c_str(), b.finalPath.c_str()) != 0)
-      throw DataError(b.finalPath,
-                      std::string("cannot rename the raster into place: ") + std::strerror(errno));
+    bytes_ += fs::file_size(source);
+    commitRename(source, b.finalPath);
     b.tempPath.clear();
     outputs_.push_back(b.finalPath);
-    bytes_ += fs::file_size(b.finalPath);
   }
   m.committed = true;
 }

@@ -85,7 +85,7 @@ class DemWriter : public DemTileSink {
  private:
   struct Band;
   struct Impl;
-  void removeStaleFiles(const std::string& dir, const std::set<std::string>& written);
+  static void removeStaleFiles(const std::string& dir, const std::set<std::string>& written);
   std::unique_ptr<Impl> impl_;
   std::vector<std::string> outputs_;
   std::vector<std::string> tiles_;

@@ -12,6 +12,7 @@
 
 #include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -179,9 +180,11 @@ void writeQuicklookPng(const std::string& dem, const std::string& hillshade, con
   }
   GDALClose(out);
   ::unlink((tmp + ".aux.xml").c_str());
-  if (std::rename(tmp.c_str(), png.c_str()) != 0) {
+  try {
+    commitRename(tmp, png);
+  } catch (...) {
     ::unlink(tmp.c_str());
-    throw DataError(png, "cannot rename the PNG into place");
+    throw;
   }
 }
 

@@ -13,6 +13,7 @@
 #include "formats/vector/contour_writer.h"
 #include "libterrain/core/error.h"
 #include "libterrain/mesh/mesh_tee.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -21,7 +22,7 @@ namespace {
 OutputResults oneFileResults(const std::string& path) {
   OutputResults r;
   r.files = {path};
-  r.bytes = fileSizeOrZero(path);
+  r.bytes = outputSize(path);
   return r;
 }
 
@@ -225,9 +226,9 @@ class ContourOutput : public OpenedOutput {
   OutputResults results() const override {
     OutputResults r;
     for (const std::string& f : contourOutputPaths(path_))
-      if (std::filesystem::exists(f)) {
+      if (outputExists(f)) {
         r.files.push_back(f);
-        r.bytes += fileSizeOrZero(f);
+        r.bytes += outputSize(f);
       }
     r.contours = tracer_->stats();
     return r;

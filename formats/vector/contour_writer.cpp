@@ -24,6 +24,7 @@
 #include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
+#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -86,6 +87,7 @@ class ContourWriter final : public ContourLineSink {
  public:
   ContourWriter(std::string path, ContourFormat format, const ContourWriterOptions& options)
       : path_(std::move(path)), format_(format), o_(options) {
+    createParentDirectories(path_);
     std::string pattern = path_ + ".tmp-XXXXXX";
     if (!::mkdtemp(pattern.data()))
       throw DataError(path_,
@@ -177,8 +179,17 @@ class ContourWriter final : public ContourLineSink {
     close();
     commitFiles();
     committed_ = true;
-    std::error_code ec;
-    fs::remove_all(tempDir_, ec);
+    // The temporary folder goes once its files are in place (at the transaction's commit, when there is
+    // one; its roll-back removes it with them).
+    const std::string dir = tempDir_;
+    auto removeDir = [dir] {
+      std::error_code ec;
+      fs::remove_all(dir, ec);
+    };
+    if (OutputTransaction* t = OutputTransaction::current())
+      t->afterCommit(removeDir, removeDir);
+    else
+      removeDir();
   }
 
  private:
@@ -246,20 +257,26 @@ class ContourWriter final : public ContourLineSink {
     std::vector<std::string> placed;
     for (const fs::path& p : made) {
       const fs::path target = dir / p.filename();
-      if (std::rename(p.c_str(), target.c_str()) != 0)
-        throw DataError(target.string(),
-                        std::string("cannot move the contour file into place: ") + std::strerror(errno));
+      commitRename(p.string(), target.string());
       placed.push_back(lower(target.filename().string()));
     }
     // A stale sidecar of an overwritten Shapefile (a .prj when the new one has no CRS) would describe
-    // the new file wrongly.
+    // the new file wrongly: removed once the new files are in place.
+    std::vector<std::string> stale;
     for (const std::string& old : contourOutputPaths(path_)) {
       const std::string f = lower(fs::path(old).filename().string());
-      if (std::find(placed.begin(), placed.end(), f) == placed.end()) {
+      if (std::find(placed.begin(), placed.end(), f) == placed.end()) stale.push_back(old);
+    }
+    auto removeStale = [stale] {
+      for (const std::string& old : stale) {
         std::error_code rc;
         if (fs::is_regular_file(old, rc)) fs::remove(old, rc);
       }
-    }
+    };
+    if (OutputTransaction* t = OutputTransaction::current())
+      t->afterCommit(removeStale);
+    else
+      removeStale();
   }
 
   std::string path_;

@@ -514,8 +514,8 @@ TEST(CliCrs, TsrsEqualToTheFirstInputsCrsStillTransformsTheOthers) {
   EXPECT_NEAR(xab, xba, 1e-3) << "the order of the inputs must not matter";
 }
 
-// DISABLED: product bug. A --report path that cannot be written is only found after the other outputs
-// were committed: exit 1, but the DEM stays (and the summary says it was written).
+// A --report path that cannot be written fails the run before anything is written, and the outputs are one
+// transaction with it: nothing of the run remains.
 TEST(CliBuild, UnwritableReportLeavesNoOutput) {
   TINBUILD_REQUIRE_DATA();
   const auto out = test::scratchDir();

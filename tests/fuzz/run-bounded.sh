@@ -1,5 +1,6 @@
 #!/usr/bin/env bash
-# A bounded libFuzzer run of fuzz_laz, for CI or a quick check before a commit.
+# A bounded libFuzzer run of fuzz_laz, then of fuzz_state (the merge's state files, a third of the time), for
+# CI or a quick check before a commit.
 #
 # Configures a separate clang tree (build-fuzz/, beside build/), builds only fuzz_laz, seeds a scratch
 # corpus from the real LAZ/COPC files plus a few template inputs, and fuzzes for a bounded time.  Exits 0
@@ -27,7 +28,7 @@ fi
 t0=$(date +%s)
 CXX=clang++ CC=clang cmake -S . -B "$build" -DTINBUILD_FUZZ=ON -DTINBUILD_TESTS=OFF \
   -DCMAKE_BUILD_TYPE=RelWithDebInfo >/dev/null
-cmake --build "$build" --target fuzz_laz -j"$jobs"
+cmake --build "$build" --target fuzz_laz fuzz_state -j"$jobs"
 t1=$(date +%s)
 
 corpus="$(mktemp -d "${TMPDIR:-/tmp}/fuzz-laz-corpus.XXXXXX")"
@@ -60,7 +61,26 @@ status=0
 "$build/fuzz_laz" "$corpus" -max_len=65536 -timeout=20 -max_total_time="$seconds" -print_final_stats=1 \
   -artifact_prefix="$build/fuzz-artifacts/" || status=$?
 t2=$(date +%s)
-echo "run-bounded: configure+build $((t1 - t0)) s, fuzzing $((t2 - t1)) s"
+
+# fuzz_state: template seeds of each state file a merge reads (a selector byte, then the file).
+state="$(mktemp -d "${TMPDIR:-/tmp}/fuzz-state-corpus.XXXXXX")"
+trap 'rm -rf "$corpus" "$state"' EXIT
+# 0: a seam file: magic, plan id (u32 length + bytes), part (u32), a vertex with one wedge, a tag, the end.
+{
+  printf '\x00TBSEAM1\n\x08\x00\x00\x00fuzzplan\x00\x00\x00\x00'
+  printf 'V\xff\xff\xff\xff\xff\xff\xff\xff'; head -c 24 /dev/zero; printf '\x00\x01\x00\x00\x00'; head -c 32 /dev/zero
+  printf 'T\x02\x01\x00\x00\x00\x01\x00\x00\x00'
+  printf 'E\x01\x00\x00\x00\x00\x00\x00\x00\x01\x00\x00\x00\x00\x00\x00\x00'
+} >"$state/seam"
+printf '\x01TBPIECE1' >"$state/pieces"
+printf '\x02{"tinbuild_part": 1, "plan_id": "p", "part": 0, "points": 3, "crs": {"name": null, "wkt": null}, "z_unit_to_metre": "0x1p+0", "files": [{"role": "seam", "path": "x", "size": 1, "fingerprint": "0123456789abcdef", "whole": true}]}' >"$state/record"
+printf '\x03{"tinbuild_plan": 1, "id": "p", "parts": [{"first": 0, "end": 4, "points": 9}], "grid": {"depth": 2}}' >"$state/plan"
+printf '\x04{"tinbuild_mesh_parts": 1, "plan_id": "p", "parts": ["a.smb"], "seam": "s.smb", "triangles": 1, "vertices": 3}' >"$state/manifest"
+state_seconds=$((seconds / 3 > 10 ? seconds / 3 : 10))
+"$build/fuzz_state" "$state" -max_len=8192 -timeout=20 -max_total_time="$state_seconds" -print_final_stats=1 \
+  -artifact_prefix="$build/fuzz-artifacts/" || status=$?
+t3=$(date +%s)
+echo "run-bounded: configure+build $((t1 - t0)) s, fuzzing fuzz_laz $((t2 - t1)) s, fuzz_state $((t3 - t2)) s"
 if [ "$status" -ne 0 ]; then
   echo "run-bounded: FINDING (exit $status); inputs in $build/fuzz-artifacts/" >&2
   exit 1

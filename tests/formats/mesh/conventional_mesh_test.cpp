@@ -548,7 +548,7 @@ TEST(ConventionalMesh, UnfinishedWriterLeavesNothing) {
 }
 
 TEST(ConventionalMesh, UnwritableDirectoryIsADataErrorNamingTheFile) {
-  for (const char* path : {"/nonexistent-dir/m.ply", "/nonexistent-dir/m.obj"}) {
+  for (const char* path : {"/proc/version/nonexistent-dir/m.ply", "/proc/version/nonexistent-dir/m.obj"}) {
     try {
       openConventionalMeshWriter(path, {});
       ADD_FAILURE() << path;

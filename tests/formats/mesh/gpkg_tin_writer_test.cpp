@@ -313,7 +313,7 @@ TEST(GpkgTinWriter, CompoundAndCustomCrsSurvive) {
 
 TEST(GpkgTinWriter, UnwritableDirectoryIsADataErrorNamingTheFile) {
   GpkgTinOptions o;
-  o.path = "/nonexistent-dir/tin.gpkg";
+  o.path = "/proc/version/nonexistent-dir/tin.gpkg";
   try {
     openGpkgTinWriter(o);
     FAIL();

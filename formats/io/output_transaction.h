@@ -1,0 +1,84 @@
+// A run's outputs as one transaction: all of them appear under their final names, or none does.
+//
+// Every writer writes under a temporary name beside its target (formats/io/output_file.h).  Without a
+// transaction it renames that into place when it finishes (library callers, tests).  While a transaction
+// is current, a writer's finishing rename goes to the transaction instead (commitRename): nothing is
+// renamed until the whole run is done, and then commit() renames everything in one short, ordered step:
+//   1. a journal listing every rename is written (and synced) beside each output the run locked;
+//   2. the renames, in the order the writers finished (the report, staged last, comes last);
+//   3. the post-commit steps (a DEM directory's staging folder removed; with --overwrite, the stale tiles
+//      of an earlier run removed), then the journals.
+// A transaction destroyed without commit() (an error, a cancellation, an exception unwinding) removes
+// every temporary it staged: no output appears under its final name.  A run killed inside step 2 (SIGKILL,
+// a power cut: nothing else can stop it there, it neither reads nor computes) leaves a journal; the next
+// run that locks one of those outputs finds it and finishes the renames (rollForwardJournals), so the
+// earlier run's result becomes whole, and the new run then replaces it or is refused as usual.
+//
+// Threads: writers on any thread may stage; commit() and the destructor run on the thread that made the
+// transaction.  One transaction is current per process at a time.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "formats/io/run_lock.h"
+
+namespace tinbuild {
+
+class OutputTransaction {
+ public:
+  OutputTransaction();
+  ~OutputTransaction();
+  OutputTransaction(const OutputTransaction&) = delete;
+  OutputTransaction& operator=(const OutputTransaction&) = delete;
+
+  // The transaction writers stage into; nullptr when none.
+  static OutputTransaction* current();
+
+  // Records that `temp` becomes `final` at the commit.
+  void stage(const std::string& temp, const std::string& final);
+  // A step to run after the renames (and never when the transaction is rolled back); `undo` (optional) runs
+  // instead when it is rolled back.
+  void afterCommit(std::function<void()> step, std::function<void()> undo = nullptr);
+  // Holds a lock of the run's until the transaction ends; journals go beside the locked paths.
+  void adopt(RunLock lock, const std::vector<std::string>& lockedPaths);
+  // The staged temporary of `final` ("" when none).
+  std::string stagedTemp(const std::string& final) const;
+
+  // Renames everything staged so far into place (see the header).  DataError naming the output when a
+  // rename fails (the journal then stays, and the next run finishes the commit).  A transaction may commit
+  // more than once (an MPI run commits each step's files before the next step reads them); what is staged
+  // after a commit is rolled back unless committed too.
+  void commit();
+  std::size_t stagedCount() const;
+
+ private:
+  mutable std::mutex mutex_;
+  std::vector<std::pair<std::string, std::string>> renames_;  // (temp, final) in staging order
+  std::vector<std::pair<std::function<void()>, std::function<void()>>> after_;
+  std::vector<RunLock> locks_;
+  std::vector<std::string> lockedPaths_;
+  OutputTransaction* previous_ = nullptr;
+};
+
+// A writer's finishing rename: staged in the current transaction, or done at once when there is none.
+// DataError naming `final` when the rename fails.
+void commitRename(const std::string& temp, const std::string& final);
+
+// The size of an output by its final name: its staged temporary's while a transaction holds it.
+std::uint64_t outputSize(const std::string& final);
+// Whether an output exists by its final name, or is staged under it.
+bool outputExists(const std::string& final);
+// Where an output can be read now: its staged temporary while a transaction holds it, else its name (a
+// merge reads back the manifest and the seam mesh it has just written, before they are committed).
+std::string readablePath(const std::string& final);
+
+// Finishes the commit of a run that died inside it, from the journal beside `path` (call while holding
+// `path`'s lock).  Returns the number of renames it finished.
+int rollForwardJournal(const std::string& path);
+
+}  // namespace tinbuild

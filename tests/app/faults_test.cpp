@@ -1,0 +1,247 @@
+// Fault injection against the whole executable: signals at moments spread over a run (through its
+// finishing and commit steps), a commit killed half-way, two runs on the same outputs, a merge stopped.
+// After each: either the complete result or no final-named output and no temporary, never a mixture, and a
+// rerun succeeds.
+#include <gtest/gtest.h>
+#include <signal.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <fstream>
+#include <functional>
+#include <filesystem>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "cli_support.h"
+#include "test_support.h"
+
+namespace tinbuild {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+// Runs tinbuild with `args` (split on spaces) in `dir`; sends `signal` after `delay` seconds (never when
+// delay < 0); returns the exit code (128 + signal when killed by one).
+int runWith(const fs::path& dir, const std::string& args, double delay = -1, int signal = SIGTERM,
+            const char* env = nullptr, const char* errFile = nullptr) {
+  std::vector<std::string> words{TINBUILD_EXE};
+  for (std::size_t at = 0; at < args.size();) {
+    const std::size_t sp = args.find(' ', at);
+    const std::string w = args.substr(at, sp == std::string::npos ? std::string::npos : sp - at);
+    if (!w.empty()) words.push_back(w);
+    if (sp == std::string::npos) break;
+    at = sp + 1;
+  }
+  const pid_t child = ::fork();
+  if (child == 0) {
+    if (::chdir(dir.c_str()) != 0) ::_exit(126);
+    if (env) ::putenv(const_cast<char*>(env));
+    std::vector<char*> argv;
+    for (auto& w : words) argv.push_back(w.data());
+    argv.push_back(nullptr);
+    if (!::freopen(errFile ? errFile : "/dev/null", "w", stderr)) ::_exit(125);
+    ::execv(argv[0], argv.data());
+    ::_exit(127);
+  }
+  if (delay >= 0) {
+    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+    ::kill(child, signal);
+  }
+  int status = 0;
+  ::waitpid(child, &status, 0);
+  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+}
+
+// Every file below dir (names relative to it), hidden ones included.
+std::vector<std::string> filesBelow(const fs::path& dir) {
+  std::vector<std::string> out;
+  std::error_code ec;
+  for (fs::recursive_directory_iterator it(dir, ec), end; !ec && it != end; it.increment(ec))
+    if (it->is_regular_file()) out.push_back(fs::relative(it->path(), dir).string());
+  std::sort(out.begin(), out.end());
+  return out;
+}
+
+const std::string kOutputs =
+    " --mesh o/tin.smb --dem o/dem --step 1 --gpkg o/tin.gpkg --contours o/c.gpkg --interval 5 --keep-class 2 "
+    "--report o/run.json --threads 2 -q";
+
+struct Survey {
+  fs::path dir;
+  std::vector<std::string> complete;  // the files of a complete run
+  double seconds = 0;
+};
+
+Survey prepare() {
+  Survey s;
+  s.dir = test::scratchDir();
+  EXPECT_EQ(runWith(s.dir, "demo s --points 1 --swath 150 --survey-only --las --progress none"), 0);
+  const auto t0 = Clock::now();
+  EXPECT_EQ(runWith(s.dir, "build s/survey.las" + kOutputs), 0);
+  s.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  s.complete = filesBelow(s.dir / "o");
+  fs::remove_all(s.dir / "o");
+  return s;
+}
+
+TEST(Faults, SignalsAnywhereLeaveTheWholeResultOrNothing) {
+  const Survey s = prepare();
+  ASSERT_FALSE(s.complete.empty());
+  int cancelled = 0, finished = 0;
+  for (int k = 0; k <= 12; ++k) {
+    const double delay = s.seconds * (0.05 + 0.09 * k);
+    const int code = runWith(s.dir, "build s/survey.las" + kOutputs, delay);
+    const std::vector<std::string> left = filesBelow(s.dir / "o");
+    if (code == 3 || code == 128 + SIGTERM) {
+      ++cancelled;
+      EXPECT_TRUE(left.empty()) << "delay " << delay << " s: a cancelled run left " << left.size()
+                                << " files, the first " << (left.empty() ? "" : left.front());
+      EXPECT_EQ(runWith(s.dir, "build s/survey.las" + kOutputs), 0) << "the resubmission after delay " << delay;
+    } else {
+      ++finished;
+      EXPECT_EQ(code, 0) << "delay " << delay;
+    }
+    EXPECT_EQ(filesBelow(s.dir / "o"), s.complete) << "delay " << delay << " s, exit " << code;
+    fs::remove_all(s.dir / "o");
+  }
+  EXPECT_GT(cancelled, 0);
+  EXPECT_GT(finished, 0);
+}
+
+TEST(Faults, AKilledCommitIsFinishedByTheNextRun) {
+  const Survey s = prepare();
+  for (int after : {0, 1, 3}) {
+    const std::string env = "TINBUILD_FAULT_COMMIT_AFTER=" + std::to_string(after);
+    EXPECT_EQ(runWith(s.dir, "build s/survey.las" + kOutputs, -1, SIGTERM, env.c_str()), 128 + SIGKILL);
+    // The next run on those outputs finishes the killed commit: the result is whole (and, without
+    // --overwrite, the run then refuses to replace it); with --overwrite it is replaced.
+    EXPECT_NE(runWith(s.dir, "build s/survey.las" + kOutputs), 0);
+    std::vector<std::string> left = filesBelow(s.dir / "o");
+    left.erase(std::remove_if(left.begin(), left.end(),
+                              [](const std::string& f) { return f.find(".tinbuild-lock") != std::string::npos; }),
+               left.end());
+    for (const std::string& f : left) EXPECT_EQ(f.find("tinbuild-journal"), std::string::npos) << f;
+    for (const std::string& f : s.complete)
+      EXPECT_TRUE(std::find(left.begin(), left.end(), f) != left.end()) << "after " << after << ": " << f;
+    EXPECT_EQ(runWith(s.dir, "build s/survey.las --overwrite" + kOutputs), 0);
+    EXPECT_EQ(filesBelow(s.dir / "o"), s.complete) << "after " << after;
+    fs::remove_all(s.dir / "o");
+  }
+}
+
+TEST(Faults, TwoRunsOnTheSameOutputsExcludeEachOther) {
+  const Survey s = prepare();
+  const pid_t first = ::fork();
+  if (first == 0) ::_exit(runWith(s.dir, "build s/survey.las" + kOutputs));
+  // The second run starts once the first holds its locks.
+  for (int i = 0; i < 400 && !fs::exists(s.dir / "o" / ".tin.smb.tinbuild-lock"); ++i)
+    std::this_thread::sleep_for(std::chrono::milliseconds(5));
+  const auto r = test::tinbuild("build " + (s.dir / "s/survey.las").string() + " --mesh " +
+                                (s.dir / "o/tin.smb").string() + " --dem " + (s.dir / "o/dem").string() + " -q");
+  int status = 0;
+  ::waitpid(first, &status, 0);
+  EXPECT_EQ(WEXITSTATUS(status), 0);
+  EXPECT_EQ(r.code, 1) << r.err;
+  EXPECT_NE(r.err.find("in use by another tinbuild run (pid"), std::string::npos) << r.err;
+  EXPECT_EQ(filesBelow(s.dir / "o"), s.complete) << "the second run touched the first one's outputs";
+}
+
+TEST(Faults, AStoppedMergeLeavesNoManifestAndReruns) {
+  const Survey s = prepare();
+  const std::string plan = "plan s/survey.las --mesh p/tin.smb --dem p/dem --step 1 --parts 3 -o p/plan.json -q";
+  ASSERT_EQ(runWith(s.dir, plan), 0);
+  for (int i = 0; i < 3; ++i) ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
+  const auto t0 = Clock::now();
+  ASSERT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
+  const double merge = std::chrono::duration<double>(Clock::now() - t0).count();
+  const std::vector<std::string> complete = filesBelow(s.dir / "p");
+  fs::remove(s.dir / "p/tin.parts.json");
+  fs::remove(s.dir / "p/tin.seam.smb");
+  fs::remove(s.dir / "p/dem/mosaic.vrt");
+  for (double f : {0.1, 0.4, 0.7}) {
+    const int code = runWith(s.dir, "merge p/plan.json -q", merge * f);
+    // (143: the signal came before the process had started main(), before any file)
+    if (code == 3 || code == 128 + SIGTERM) {
+      EXPECT_FALSE(fs::exists(s.dir / "p/tin.parts.json"));
+      EXPECT_FALSE(fs::exists(s.dir / "p/dem/mosaic.vrt"));
+      for (const std::string& file : filesBelow(s.dir / "p")) EXPECT_EQ(file.find(".tmp-"), std::string::npos) << file;
+    } else {
+      EXPECT_EQ(code, 0);
+      break;
+    }
+  }
+  if (!fs::exists(s.dir / "p/tin.parts.json")) {
+    EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
+  }
+  EXPECT_EQ(filesBelow(s.dir / "p"), complete);
+}
+
+// The merge checks every file the parts left before it writes anything: deleted, cut short or flipped, the
+// error names the part and the file, no output appears, and re-running that part mends it.
+TEST(Faults, TheMergeVerifiesThePartsFiles) {
+  const Survey s = prepare();
+  const std::string plan = "plan s/survey.las --mesh p/tin.smb --dem p/dem --step 1 --parts 3 -o p/plan.json -q";
+  ASSERT_EQ(runWith(s.dir, plan), 0);
+  for (int i = 0; i < 3; ++i) ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
+  const fs::path state = s.dir / "p/plan.parts";
+  std::vector<fs::path> seams, pieces;
+  for (const auto& e : fs::directory_iterator(state)) {
+    if (e.path().extension() == ".seam") seams.push_back(e.path());
+    if (e.path().extension() == ".dem") pieces.push_back(e.path());
+  }
+  std::sort(seams.begin(), seams.end());
+  ASSERT_EQ(seams.size(), 3u);
+  const fs::path mesh = s.dir / "p/tin.part-0001.smb";
+  ASSERT_TRUE(fs::exists(mesh));
+  struct Damage {
+    std::string what;
+    fs::path file;
+    int part;
+    std::function<void()> apply;
+  };
+  auto flip = [](const fs::path& f, std::uintmax_t at) {
+    std::fstream io(f, std::ios::in | std::ios::out | std::ios::binary);
+    io.seekg(static_cast<std::streamoff>(at));
+    char c = 0;
+    io.get(c);
+    io.seekp(static_cast<std::streamoff>(at));
+    io.put(static_cast<char>(c ^ 0x10));
+  };
+  std::vector<Damage> damages = {
+      {"missing", seams[0], 0, [&] { fs::remove(seams[0]); }},
+      {"cut short", seams[2], 2, [&] { fs::resize_file(seams[2], fs::file_size(seams[2]) / 2); }},
+      {"altered", seams[1], 1, [&] { flip(seams[1], fs::file_size(seams[1]) / 2); }},
+      {"missing", mesh, 1, [&] { fs::remove(mesh); }},
+      {"cut short", mesh, 1, [&] { fs::resize_file(mesh, fs::file_size(mesh) - 7); }},
+  };
+  if (!pieces.empty())
+    damages.push_back({"altered", pieces[0], -1, [&] { flip(pieces[0], fs::file_size(pieces[0]) - 3); }});
+  for (const Damage& d : damages) {
+    d.apply();
+    test::Run r;
+    const std::string errFile = (s.dir / "merge.err").string();
+    r.code = runWith(s.dir, "merge p/plan.json -q", -1, SIGTERM, nullptr, errFile.c_str());
+    r.err = test::slurp(errFile);
+    EXPECT_EQ(r.code, 1) << d.what << " " << d.file << ": " << r.err;
+    EXPECT_NE(r.err.find(d.file.filename().string()), std::string::npos) << r.err;
+    EXPECT_NE(r.err.find(d.what), std::string::npos) << r.err;
+    if (d.part >= 0) {
+      EXPECT_NE(r.err.find("part " + std::to_string(d.part)), std::string::npos) << r.err;
+    }
+    EXPECT_FALSE(fs::exists(s.dir / "p/tin.parts.json")) << "the merge wrote despite " << d.what;
+    EXPECT_FALSE(fs::exists(s.dir / "p/dem/mosaic.vrt"));
+    // Re-running every part mends it (the damaged one is found by name in the error).
+    for (int i = 0; i < 3; ++i)
+      ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
+  }
+  EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
+  EXPECT_TRUE(fs::exists(s.dir / "p/tin.parts.json"));
+}
+
+}  // namespace
+}  // namespace tinbuild
