@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 
 #include "formats/registry/reader_registry.h"
@@ -132,6 +133,7 @@ std::uint64_t Survey::transformFailed() const {
 Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensity) {
   ReaderOptions readerOptions = o.reader;
   readerOptions.intensity = readerOptions.intensity && needIntensity;
+  readerOptions.lazBoundsCheck = !o.computeBounds;
   if (o.inputs.empty()) throw UsageError("give at least one input file (or - for stdin)");
   int stdinCount = 0;
   for (const auto& i : o.inputs) stdinCount += i == "-";
@@ -143,6 +145,20 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
     in.streams.push_back(in.readers.back().get());
   }
   in.names = o.inputs;
+  // Coordinates beyond 1e15 belong to no map: a LAS header's offset or scale is wrong (a run on them would
+  // lay a grid and a raster that cannot be computed).  Said before any work, naming the file.
+  for (std::size_t i = 0; i < in.readers.size(); ++i) {
+    const SourceInfo& si = in.readers[i]->info();
+    if (!si.hasHeaderBounds) continue;
+    const Bounds3& b = si.headerBounds;
+    for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
+      if (!(std::fabs(v) <= 1e15)) {
+        char text[64];
+        std::snprintf(text, sizeof text, "%.6g", v);
+        throw DataError(o.inputs[i], std::string("its header's bounds reach ") + text +
+                                         ": no map coordinates are that large, so its offset or scale is wrong");
+      }
+  }
   const CrsInfo inputCrs = in.readers.front()->info().crs;
   for (std::size_t i = 1; i < in.readers.size(); ++i) {
     const CrsInfo& c = in.readers[i]->info().crs;

@@ -9,6 +9,7 @@
 #include <bit>
 #include <cerrno>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <deque>
 #include <future>
@@ -49,6 +50,13 @@ constexpr std::size_t kStreamBlock = 4u << 20;
 
 std::string fmtCount(std::uint64_t n) {
   return std::to_string(n);
+}
+
+std::string fmtDouble(double v) {
+  std::ostringstream s;
+  s.precision(12);
+  s << v;
+  return s.str();
 }
 
 std::string fmtRange(double lo, double hi) {
@@ -441,8 +449,17 @@ void LasReader::parse() {
                                 std::to_string(info_.recordLength) + " bytes per record)");
     const std::uint64_t trailing =
         compressed ? 0 : end - pointOffset_ - count * static_cast<std::uint64_t>(info_.recordLength);
-    if (!compressed && trailing > 0 && evlrStart == 0 && !internalWaveform)
+    if (!compressed && trailing > 0 && evlrStart == 0 && !internalWaveform) {
       info_.notes.push_back(fmtCount(trailing) + " bytes after the last point record are ignored");
+      // Whole records beyond the header's count: points the run leaves out, so said and counted.
+      const std::uint64_t beyond = trailing / static_cast<std::uint64_t>(info_.recordLength);
+      if (beyond > 0)
+        diag_.warn("las.records_beyond_count", file,
+                   "the file holds " + fmtCount(beyond) + " whole point records after the " + fmtCount(count) +
+                       " its header counts; they are not read (if the header's count is wrong, rewrite the "
+                       "header, e.g. with las2las or pdal translate)",
+                   beyond);
+    }
 
     // EVLRs (LAS 1.4).
     if (info_.evlrCount > 0) {
@@ -941,6 +958,7 @@ std::size_t LasReader::findNextLazChunk() {
   z.raw.assign(static_cast<std::size_t>(n) * stride, 0);
   const std::size_t used =
       decodeLazChunk(z.decoders[0], index, pos, chunk.data(), chunk.size(), n, z.raw.data());
+  checkLazChunkBounds(index, pos, z.raw.data(), static_cast<std::size_t>(n));
   z.chunks.push_back({first, n, pos, used});
   if (first + n == total) z.complete = true;
   return static_cast<std::size_t>(n);
@@ -974,14 +992,53 @@ std::size_t LasReader::decodeLazGroup(std::size_t first, std::size_t k, std::vec
     thread_local std::vector<std::uint8_t> bytes;
     if (bytes.size() < c.bytes) bytes.resize(static_cast<std::size_t>(c.bytes));
     readLazBytes(bytes.data(), static_cast<std::size_t>(c.bytes), c.offset);
-    decodeLazChunk(z.decoders[static_cast<std::size_t>(part)], index, c.offset, bytes.data(),
-                   static_cast<std::size_t>(c.bytes), c.count, out.data() + offsets[part] * stride);
+    std::uint8_t* records = out.data() + offsets[part] * stride;
+    const std::size_t used = decodeLazChunk(z.decoders[static_cast<std::size_t>(part)], index, c.offset,
+                                            bytes.data(), static_cast<std::size_t>(c.bytes), c.count, records);
+    // A chunk of the chunk table: its compressed stream ends exactly at its recorded size.
+    if (used != c.bytes)
+      throw DataError(info_.path, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(c.offset) +
+                                      ") is damaged: its compressed stream ends after " + fmtCount(used) +
+                                      " of its " + fmtCount(c.bytes) + " bytes");
+    checkLazChunkBounds(index, c.offset, records, static_cast<std::size_t>(c.count));
   };
   if (k > 1)
     crew_->run(static_cast<int>(k), work);
   else
     work(0);
   return offsets[k];
+}
+
+void LasReader::checkLazChunkBounds(std::size_t index, std::uint64_t offset, const std::uint8_t* records,
+                                    std::size_t count) const {
+  if (!lazBoundsCheck_ || !info_.hasHeaderBounds) return;
+  const auto stride = static_cast<std::size_t>(info_.recordLength);
+  const Bounds3& hb = info_.headerBounds;
+  std::size_t outside = 0;
+  double fx = 0, fy = 0, fz = 0;
+  for (std::size_t i = 0; i < count; ++i) {
+    const std::uint8_t* r = records + i * stride;
+    const double x = le::get<std::int32_t>(r) * info_.scale[0] + info_.offset[0];
+    const double y = le::get<std::int32_t>(r + 4) * info_.scale[1] + info_.offset[1];
+    const double z = le::get<std::int32_t>(r + 8) * info_.scale[2] + info_.offset[2];
+    if (x < hb.minX - boundsSlack_[0] || x > hb.maxX + boundsSlack_[0] || y < hb.minY - boundsSlack_[1] ||
+        y > hb.maxY + boundsSlack_[1] || z < hb.minZ - boundsSlack_[2] || z > hb.maxZ + boundsSlack_[2]) {
+      if (outside++ == 0) {
+        fx = x;
+        fy = y;
+        fz = z;
+      }
+    }
+  }
+  if (outside == 0) return;
+  throw DataError(info_.path, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(offset) +
+                                  ") is damaged: " + fmtCount(outside) + " of its " + fmtCount(count) +
+                                  " points decode outside the header's bounds (the first at " + fmtDouble(fx) +
+                                  ", " + fmtDouble(fy) + ", " + fmtDouble(fz) + "; header x " +
+                                  fmtRange(hb.minX, hb.maxX) + " y " + fmtRange(hb.minY, hb.maxY) + " z " +
+                                  fmtRange(hb.minZ, hb.maxZ) +
+                                  "); LASzip has no checksum and damage shows this way. If only the header's "
+                                  "bounds are wrong, run with --compute-bounds");
 }
 
 void LasReader::readLazBytes(std::uint8_t* dst, std::size_t size, std::uint64_t offset) const {

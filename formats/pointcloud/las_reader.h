@@ -90,6 +90,9 @@ class LasReader : public PointReader {
   // Every pass reads the file from storage: its pages are dropped from the page cache at rewind()
   // (benchmarks of cold reading; `--drop-cache`).
   void setDropCache(bool on) { dropCache_ = on; }
+  // LAZ: a chunk decoding to points outside the header's bounds is an error (default) or, off, a counted
+  // warning (ReaderOptions::lazBoundsCheck).
+  void setLazBoundsCheck(bool on) { lazBoundsCheck_ = on; }
 
   // LAZ: which layers of layered (LAS 1.4, point formats 6-10) chunks to decode (laz::kLayer* bits);
   // the bytes of the others stay zero.  All by default.
@@ -136,6 +139,8 @@ class LasReader : public PointReader {
   std::size_t findNextLazChunk();
   // One chunk of `count` points into out; a LazError becomes a DataError naming the chunk and its offset.
   // Returns the chunk's length in bytes.
+  void checkLazChunkBounds(std::size_t index, std::uint64_t offset, const std::uint8_t* records,
+                           std::size_t count) const;
   std::size_t decodeLazChunk(laz::ChunkDecoder& decoder, std::size_t index, std::uint64_t offset,
                              const std::uint8_t* bytes, std::size_t size, std::uint64_t count,
                              std::uint8_t* out) const;
@@ -175,6 +180,7 @@ class LasReader : public PointReader {
   Bounds3 decoded_;
   std::uint64_t outside_ = 0;
   double boundsSlack_[3] = {0, 0, 0};
+  bool lazBoundsCheck_ = true;
   bool passReported_ = false;
   std::unique_ptr<Laz, LazDeleter> laz_;
   std::shared_ptr<const CopcHierarchy> copc_;  // COPC: the octree (which chunk holds which node)

@@ -84,6 +84,10 @@ struct ReaderOptions {
   int decodeThreads = 1;      // LAS: threads decoding large batches of a file
   bool dropCache = false;     // LAS: drop the file from the page cache at the start of each pass
   bool intensity = true;      // LAZ: decode intensity (a TIN does not need it; layered chunks skip it)
+  // LAZ: a chunk that decodes to points outside the header's bounds (by more than a scale unit) is damaged
+  // (LASzip has no checksum; damage shows as points far away).  False (--compute-bounds: the header's bounds
+  // are not trusted) makes that a counted warning, as for LAS.
+  bool lazBoundsCheck = true;
 };
 
 }  // namespace tinbuild

@@ -4,6 +4,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cstdio>
 #include <cctype>
 #include <cerrno>
 #include <cstdlib>
@@ -132,6 +133,7 @@ std::unique_ptr<LasReader> lasReader(const std::string& path, const ReaderOption
   auto las = std::make_unique<LasReader>(path, diag);
   las->setDecodeThreads(options.decodeThreads);
   las->setDropCache(options.dropCache);
+  las->setLazBoundsCheck(options.lazBoundsCheck);
   return las;
 }
 std::unique_ptr<PointReader> openLas(const std::string& path, const ReaderOptions& options,
@@ -239,6 +241,42 @@ std::string surveyExtensionsText() {
   return s;
 }
 
+namespace {
+
+// What is left for the XYZ reader must be text: an empty input, or binary data (a raster, an archive, a
+// point cloud in a format tinbuild does not read) is named as such, not parsed as garbage columns.
+void refuseNonText(const std::string& path, const std::uint8_t* head, std::size_t size) {
+  if (size == 0) throw DataError(path, (path == "-" ? "standard input is empty" : "the file is empty (0 bytes)") +
+                                           std::string(": there are no points to read"));
+  std::size_t control = 0;
+  bool nul = false;
+  for (std::size_t i = 0; i < size; ++i) {
+    const std::uint8_t c = head[i];
+    nul = nul || c == 0;
+    control += (c < 0x20 && c != '\t' && c != '\n' && c != '\r' && c != '\f') || c == 0x7f;
+  }
+  if (!nul && control * 20 <= size) return;  // text (UTF-8 and Latin-1 bytes above 0x7f are fine)
+  struct Magic {
+    const char* bytes;
+    std::size_t n;
+    const char* what;
+  };
+  static const Magic kMagic[] = {{"\x89PNG", 4, "a PNG image"},       {"II*\0", 4, "a TIFF image"},
+                                 {"MM\0*", 4, "a TIFF image"},        {"PK\x03\x04", 4, "a ZIP archive"},
+                                 {"\x1f\x8b", 2, "a gzip file"},      {"%PDF", 4, "a PDF document"},
+                                 {"ASTM-E57", 8, "an E57 point cloud"}, {"\xff\xd8\xff", 3, "a JPEG image"},
+                                 {"7z\xbc\xaf", 4, "a 7-Zip archive"},  {"BZh", 3, "a bzip2 file"}};
+  std::string what = "binary data";
+  for (const Magic& m : kMagic)
+    if (size >= m.n && std::memcmp(head, m.bytes, m.n) == 0) what = m.what;
+  char hex[3 * 8 + 1] = {};
+  for (std::size_t i = 0; i < std::min<std::size_t>(size, 8); ++i) std::snprintf(hex + 3 * i, 4, "%02x ", head[i]);
+  throw DataError(path, "it holds " + what + " (first bytes " + std::string(hex, std::min<std::size_t>(size, 8) * 3 - 1) +
+                            "), not a point cloud tinbuild reads: LAS, LAZ, COPC or XYZ text");
+}
+
+}  // namespace
+
 const ReaderRow& recogniseInput(const std::uint8_t* head, std::size_t size) {
   for (const ReaderRow& row : readerTable())
     if (row.recognises(head, size)) return row;
@@ -249,7 +287,9 @@ std::unique_ptr<PointReader> openPointReader(const std::string& path, const Read
                                              Diagnostics& diag) {
   std::uint8_t head[kSniffBytes] = {};
   const std::size_t got = sniff(path, head);
-  std::unique_ptr<PointReader> reader = recogniseInput(head, got).open(path, options, diag);
+  const ReaderRow& row = recogniseInput(head, got);
+  if (&row == &readerTable().back()) refuseNonText(path, head, got);  // (XYZ takes whatever is left)
+  std::unique_ptr<PointReader> reader = row.open(path, options, diag);
   if (!options.assignSrs.empty()) {
     CrsInfo crs = crsFromUser(options.assignSrs);
     crs.source = "user (--a_srs)";

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
 #include <limits>
 #include <string>
 
@@ -28,6 +29,18 @@ inline double gridLine(double origin, double step, std::int64_t k) {
 }
 inline double centre(double origin, double step, std::int64_t k) {
   return origin + (static_cast<double>(k) + 0.5) * step;
+}
+
+// Pixel numbers stay below 2^50, where consecutive grid lines are distinct doubles and the correction
+// loops below take a step or two (demLayout refuses layouts beyond it: a far grid origin, or coordinates of
+// 1e300 from a wrong LAS offset, would otherwise loop forever).
+constexpr double kMaxPixelNumber = 1125899906842624.0;  // 2^50
+
+// A number for a message: 6 significant digits (never the 300 digits of std::to_string(1e300)).
+std::string compact(double v) {
+  char text[64];
+  std::snprintf(text, sizeof text, "%.6g", v);
+  return text;
 }
 
 // The pixel k with gridLine(k) <= v < gridLine(k + 1).
@@ -117,10 +130,30 @@ DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
     if (data.empty()) return l;  // no points: an empty raster (nothing is written)
     minX = data.minX, minY = data.minY, maxX = data.maxX, maxY = data.maxY;
   }
-  const double span = std::max(maxX - minX, maxY - minY) / o.step;
+  for (double v : {minX, minY, maxX, maxY})
+    if (!std::isfinite(v) || std::fabs(v) > 1e15)
+      throw DataError("", "DEM: the survey's coordinates reach " + compact(v) +
+                              ", beyond any map projection's range: is a LAS header's offset or scale wrong?");
+  for (const auto& [v, origin] : {std::pair{minX, o.originX}, std::pair{maxX, o.originX},
+                                  std::pair{minY, o.originY}, std::pair{maxY, o.originY}})
+    if (!(std::fabs((v - origin) / o.step) < kMaxPixelNumber))
+      throw UsageError("DEM: the grid origin " + compact(origin) + " lies " + compact(std::fabs(v - origin)) +
+                       " units from the survey: at --step " + compact(o.step) +
+                       " its pixel numbers would lose their precision; give a --grid-origin near the survey "
+                       "(the default 0,0 aligns pixel edges on multiples of the step)");
+  const double width = (maxX - minX) / o.step + 1, height = (maxY - minY) / o.step + 1;
+  const double span = std::max(width, height);
   if (!(span < 2147483647.0))
-    throw UsageError("DEM: the raster would be more than 2^31 pixels wide at this step (" +
-                     std::to_string(span) + "); choose a larger --step or an --extent");
+    throw UsageError("DEM: the raster would be more than 2^31 pixels wide at this step (" + compact(span) +
+                     "); choose a larger --step or an --extent");
+  // A raster of more than 2^40 pixels (a million by a million) at one step is not a survey's DEM: a far
+  // outlier point stretching the extent, or a step typed in the wrong unit.
+  if (!(width * height < 1099511627776.0))
+    throw UsageError("DEM: the raster would have " + compact(width * height) + " pixels (" + compact(width) +
+                     " x " + compact(height) + " at --step " + compact(o.step) + " over x " + compact(minX) +
+                     " .. " + compact(maxX) + ", y " + compact(minY) + " .. " + compact(maxY) +
+                     "); a far outlier point stretches the extent (drop it with --clip or a class filter, or "
+                     "give the DEM an --extent), or the step is in another unit than meant");
   l.colMin = pixelOf(o.originX, o.step, minX);
   l.rowMin = pixelOf(o.originY, o.step, minY);
   // The last pixel whose square reaches the maximum (a maximum exactly on a grid line ends there).

@@ -48,13 +48,18 @@ int runWith(const fs::path& dir, const std::string& args, double delay = -1, int
     ::execv(argv[0], argv.data());
     ::_exit(127);
   }
+  int status = 0;
+  auto code = [&status] { return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status); };
   if (delay >= 0) {
-    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+    const auto until = Clock::now() + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(delay));
+    while (Clock::now() < until) {
+      if (::waitpid(child, &status, WNOHANG) == child) return code();
+      std::this_thread::sleep_for(std::chrono::milliseconds(2));
+    }
     ::kill(child, signal);
   }
-  int status = 0;
   ::waitpid(child, &status, 0);
-  return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+  return code();
 }
 
 // Every file below dir (names relative to it), hidden ones included.
@@ -241,6 +246,112 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
   }
   EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
   EXPECT_TRUE(fs::exists(s.dir / "p/tin.parts.json"));
+}
+
+// A LAZ chunk with a run of zeroed bytes (a damaged disk block, a bad copy) is an error naming the chunk and
+// its byte offset, never garbage points: LASzip has no checksum, so the reader checks that each chunk's
+// stream ends where the chunk table says and that its points lie within the header's bounds.
+TEST(Faults, DamagedLazChunksAreErrorsNamingTheChunk) {
+  TINBUILD_NEED_DATA();
+  const fs::path dir = test::scratchDir();
+  const fs::path original = test::dataPath("laz/autzen_trim.laz");
+  const std::string clean = (dir / "clean.fin").string();
+  ASSERT_EQ(runWith(dir, "finalize " + original.string() + " -o " + clean + " -q"), 0);
+  const std::string expected = test::slurp(clean);
+  int errors = 0;
+  for (std::uintmax_t at = 4000; at + 64 < fs::file_size(original); at += 9973) {
+    const fs::path damaged = dir / "d.laz";
+    fs::remove(damaged);
+    fs::copy_file(original, damaged);
+    fs::permissions(damaged, fs::perms::owner_write, fs::perm_options::add);
+    {
+      std::fstream io(damaged, std::ios::in | std::ios::out | std::ios::binary);
+      io.seekp(static_cast<std::streamoff>(at));
+      const std::string zeros(32, '\0');
+      io.write(zeros.data(), 32);
+    }
+    const std::string err = (dir / "err.txt").string(), out = (dir / "d.fin").string();
+    fs::remove(out);
+    const int code = runWith(dir, "finalize d.laz -o " + out + " -q", -1, SIGTERM, nullptr, err.c_str());
+    if (code == 0) {
+      EXPECT_EQ(test::slurp(out), expected) << "zeros at byte " << at << " gave other points and no error";
+      continue;
+    }
+    ++errors;
+    EXPECT_EQ(code, 1) << at;
+    const std::string message = test::slurp(err);
+    EXPECT_NE(message.find("d.laz: LAZ chunk "), std::string::npos) << at << ": " << message;
+    EXPECT_NE(message.find("(at byte "), std::string::npos) << at << ": " << message;
+    EXPECT_NE(message.find("is damaged"), std::string::npos) << at << ": " << message;
+  }
+  EXPECT_GT(errors, 20);
+}
+
+// Work that would never end, or fill the machine, is refused at once with a clear error: a grid origin far
+// from the survey, a step or an interval in the wrong unit.  (Each of these used to loop or grow without
+// end, deaf to SIGTERM.)
+TEST(Faults, AbsurdRastersAndContourSetsAreRefusedAtOnce) {
+  TINBUILD_NEED_DATA();
+  const fs::path dir = test::scratchDir();
+  const std::string las = test::dataPath("las/simple.las");
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"--dem g1/ --step 1 --grid-origin 1e20,1e20", "give a --grid-origin near the survey"},
+      {"--dem g2/ --step 1e-6", "more than 2^31 pixels wide"},
+      {"--dem g3.tif --step 0.001", "a far outlier point stretches the extent"},
+      {"--contours g4.gpkg --interval 1e-6", "contour levels over the survey's z range"},
+  };
+  for (const auto& [args, message] : cases) {
+    const std::string err = (dir / "err.txt").string();
+    const auto t0 = Clock::now();
+    const int code = runWith(dir, "build " + las + " " + args + " -q", 30.0, SIGKILL, nullptr, err.c_str());
+    const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    EXPECT_EQ(code, 2) << args;
+    EXPECT_LT(seconds, 20) << args;
+    EXPECT_NE(test::slurp(err).find(message), std::string::npos) << args << ": " << test::slurp(err);
+    for (const std::string& f : filesBelow(dir)) EXPECT_EQ(f, "err.txt") << args;
+  }
+}
+
+// Inputs that are not point clouds are named as what they are, and a header that counts fewer points than
+// its file holds is said, not silently obeyed.
+TEST(Faults, WrongInputsAreNamedClearly) {
+  const fs::path dir = test::scratchDir();
+  {
+    std::ofstream png(dir / "photo.las", std::ios::binary);
+    const char head[] = "\x89PNG\r\n\x1a\n\0\0\0\rIHDR\0\0\0\x10";
+    png.write(head, sizeof head - 1);
+  }
+  std::ofstream(dir / "empty.las").close();
+  const std::string err = (dir / "err.txt").string();
+  EXPECT_EQ(runWith(dir, "build photo.las --mesh t.smb -q", -1, SIGTERM, nullptr, err.c_str()), 1);
+  EXPECT_NE(test::slurp(err).find("tinbuild: error: photo.las: it holds a PNG image (first bytes 89 50 4e 47"),
+            std::string::npos)
+      << test::slurp(err);
+  EXPECT_EQ(runWith(dir, "build empty.las --mesh t.smb -q", -1, SIGTERM, nullptr, err.c_str()), 1);
+  EXPECT_NE(test::slurp(err).find("tinbuild: error: empty.las: the file is empty"), std::string::npos)
+      << test::slurp(err);
+  EXPECT_FALSE(fs::exists(dir / "t.smb"));
+}
+
+TEST(Faults, RecordsBeyondTheHeadersCountAreSaid) {
+  TINBUILD_NEED_DATA();
+  const fs::path dir = test::scratchDir();
+  const fs::path las = dir / "short-count.las";
+  fs::copy_file(test::dataPath("las/simple.las"), las);
+  fs::permissions(las, fs::perms::owner_write, fs::perm_options::add);
+  std::uint32_t count = 0;
+  {
+    std::fstream io(las, std::ios::in | std::ios::out | std::ios::binary);
+    io.seekg(107);  // LAS 1.2: the legacy point count
+    io.read(reinterpret_cast<char*>(&count), 4);
+    const std::uint32_t fewer = count - 10;
+    io.seekp(107);
+    io.write(reinterpret_cast<const char*>(&fewer), 4);
+  }
+  ASSERT_GT(count, 10u);
+  const std::string err = (dir / "err.txt").string();
+  EXPECT_EQ(runWith(dir, "build short-count.las --mesh t.smb --compute-bounds", -1, SIGTERM, nullptr, err.c_str()), 0);
+  EXPECT_NE(test::slurp(err).find("holds 10 whole point records after the"), std::string::npos) << test::slurp(err);
 }
 
 }  // namespace
