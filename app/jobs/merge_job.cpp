@@ -1,6 +1,7 @@
 #include "app/jobs/merge_job.h"
 
 #include <filesystem>
+#include <functional>
 #include <memory>
 
 #include "app/jobs/run_outputs.h"
@@ -140,10 +141,17 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   info.bounds = plan.bounds;
   info.crsWkt = crs.wkt;
   step.begin(info);
+  // Cancellation (SIGTERM, Ctrl-C) is honoured between the parts' seam files and while the whole TIN is
+  // read back; nothing is renamed before the commit.
+  auto stillWanted = [&o](double fraction, const char* what) {
+    if (o.finalizer.progress && !o.finalizer.progress(fraction, what, o.finalizer.progressData)) throw CancelledError();
+  };
   for (int i = 0; i < r.parts; ++i) {
+    stillWanted(0.5 * i / r.parts, "merging the seams");
     const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step);
     r.seamBytes += c.bytes;
   }
+  stillWanted(0.5, "merging the seams");
   step.end();
   const SeamStats& ss = step.stats();
   r.seamVertices = ss.vertices;
@@ -179,7 +187,23 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
         if (*out) whole.push_back(out->row->open(out->path, context));
       MeshTee tee;
       for (auto& w : whole) w->attach(tee);
-      readMeshParts(manifest, tee);
+      tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
+      // The whole TIN passes here: cancellation is checked every 65,536 triangles.
+      struct Checked : MeshSink {
+        MeshSink& to;
+        std::function<void()> check;
+        std::uint64_t n = 0;
+        Checked(MeshSink& t, std::function<void()> c) : to(t), check(std::move(c)) {}
+        void begin(const MeshInfo& info) override { to.begin(info); }
+        void vertex(std::uint64_t id, double x, double y, double z) override { to.vertex(id, x, y, z); }
+        void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
+          if ((++n & 0xffff) == 0) check();
+          to.triangle(a, b, c);
+        }
+        void finalizeVertex(std::uint64_t id) override { to.finalizeVertex(id); }
+        void end() override { to.end(); }
+      } checked(tee, [&] { stillWanted(0.75, "writing the GeoPackage TIN and contours"); });
+      readMeshParts(manifest, checked);
       for (std::size_t i = 0; i < whole.size(); ++i) {
         const OpenedOutput& w = *whole[i];
         addOutputResults(r, o, w.results().contours ? outputs.contours : outputs.gpkg, w.results());

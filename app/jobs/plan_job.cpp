@@ -109,6 +109,18 @@ class PlanCounter : public PointSink {
   std::vector<std::uint64_t> counts_;
 };
 
+// The DEM the parts will lay, judged against the whole survey's points (a part holds only its share):
+// a far outlier stretching the extent is refused at the plan, as one process refuses it.
+void checkPlannedDem(const PipelineOptions& o, const Survey& survey, const Plan& plan) {
+  RunOutputs outputs = resolveOutputs(o);
+  if (!outputs.dem) return;
+  DemReport unused;
+  Diagnostics quiet;  // (the warnings about lengths come again from the parts)
+  completeOutputs(outputs, o, survey.crs, survey.zUnitToMetre, unused, quiet);
+  const DemLayout layout = demLayout(outputs.context.dem, plan.bounds);
+  checkDemSize(layout, outputs.context.dem, plan.bounds, plan.points);
+}
+
 }  // namespace
 RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& diag) {
   if (parts < 1) throw UsageError("--parts must be at least 1");
@@ -185,6 +197,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   plan.grid = counter.info().grid;
   plan.bounds = counter.info().bounds;
   plan.points = counter.info().points;
+  checkPlannedDem(o, in, plan);
   plan.regionLevel = counter.level();
   plan.parts = counter.split();
   plan.exactCounts = !fromHierarchy;
@@ -359,6 +372,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   plan.grid = grid;
   plan.bounds = bounds.bounds;
   plan.points = counts.points;
+  checkPlannedDem(o, in, plan);
   plan.regionLevel = level;
   plan.parts = splitRegions(counts.regions, parts);
   plan.exactCounts = true;

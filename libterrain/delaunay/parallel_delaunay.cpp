@@ -285,6 +285,7 @@ struct ParallelDelaunay::Impl {
 
     MeshInfo mi;
     mi.bounds = info.bounds;
+    mi.points = info.points;
     mi.crsWkt = info.crsWkt;
     out.begin(mi);
     // Known once the outputs have begun.  A part has none: the seam's triangles come in another process,

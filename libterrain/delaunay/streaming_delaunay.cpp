@@ -675,6 +675,7 @@ struct StreamingDelaunay::Impl {
     MeshInfo mi;
     mi.bounds = info.bounds;
     mi.vertices = 0;  // unknown: duplicates are dropped
+    mi.points = info.points;
     mi.crsWkt = info.crsWkt;
     out.begin(mi);
   }

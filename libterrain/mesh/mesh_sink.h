@@ -21,6 +21,7 @@ class ActiveRegion;  // mesh_tee.h
 struct MeshInfo {
   Bounds3 bounds;              // of all vertices (known in advance from the finalizer)
   std::uint64_t vertices = 0;  // expected count when known (0 = unknown)
+  std::uint64_t points = 0;    // points in the stream, an upper bound of the vertices (0 = unknown)
   std::string crsWkt;
 };
 

@@ -109,6 +109,19 @@ bool pixelAt(const DemLayout& l, double x, double y, std::int64_t& i, std::int64
 
 }  // namespace
 
+void checkDemSize(const DemLayout& layout, const DemOptions& o, const Bounds3& data, std::uint64_t points) {
+  // Every pixel centre under the TIN is visited once.  Ten thousand pixels a point and more is not a DEM of
+  // the survey: one far outlier (a stray return, a point in the wrong CRS) stretches the extent and the
+  // run would walk a raster of empty land for hours.  Refused before any pixel, naming the extent.
+  const double pixels = static_cast<double>(layout.width()) * static_cast<double>(layout.height());
+  if (!o.extent && points > 0 && pixels > 1e8 && pixels > 1e4 * static_cast<double>(points))
+    throw UsageError("DEM: " + compact(pixels) + " pixels for " + compact(static_cast<double>(points)) +
+                     " points (the survey's extent x " + compact(data.minX) + " .. " + compact(data.maxX) +
+                     ", y " + compact(data.minY) + " .. " + compact(data.maxY) + " at --step " + compact(o.step) +
+                     "): a far outlier point stretches the extent.  Leave it out with --clip XMIN,YMIN,XMAX,YMAX "
+                     "(or a class filter), or give the DEM the area you want with --extent");
+}
+
 DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
   if (!(o.step > 0) || !std::isfinite(o.step)) throw UsageError("DEM: the step must be a positive number");
   if (o.tileSize < 16 || o.tileSize > 65536)
@@ -185,6 +198,8 @@ std::int64_t DemRasterizer::tileKey(std::int64_t tx, std::int64_t ty) const {
 
 void DemRasterizer::begin(const MeshInfo& info) {
   layout_ = demLayout(opt_, info.bounds);
+  // (A part of a plan holds only its share of the points: the plan checked the whole survey.)
+  if (!opt_.partial) checkDemSize(layout_, opt_, info.bounds, info.points ? info.points : info.vertices);
   stats_ = DemStats{};
   open_.clear();
   done_.clear();

@@ -132,6 +132,11 @@ void combinePartialTile(DemTile& into, const DemTile& from, float nodata);
 // tile size or extent, or a raster beyond 2^31 pixels a side.
 DemLayout demLayout(const DemOptions& options, const Bounds3& dataBounds);
 
+// UsageError when the layout has ten thousand pixels a point or more (and over 10^8 pixels) without an
+// --extent: a far outlier stretching the survey's extent.  `points` 0: unknown (no check).
+void checkDemSize(const DemLayout& layout, const DemOptions& options, const Bounds3& dataBounds,
+                  std::uint64_t points);
+
 // The rasterizer's checkpoint agent (mesh_tee.h): decides, beside the triangulator, which tiles are
 // complete.  It keeps the set of tiles that the bounding box of a triangle (or, with the count band, a
 // vertex) has touched -- a superset of the tiles the rasterizer has open -- and at a checkpoint, after

@@ -354,5 +354,34 @@ TEST(Faults, RecordsBeyondTheHeadersCountAreSaid) {
   EXPECT_NE(test::slurp(err).find("holds 10 whole point records after the"), std::string::npos) << test::slurp(err);
 }
 
+// One far outlier point stretching a survey's extent used to make the rasterizer walk a million by a million
+// pixels of empty land for hours; it is refused at once, by one process and by the plan alike, naming the
+// extent and the way out (--clip, --extent).
+TEST(Faults, AFarOutlierDoesNotMakeAnEndlessDem) {
+  const fs::path dir = test::scratchDir();
+  {
+    std::ofstream xyz(dir / "outlier.xyz");
+    for (int i = 0; i < 200; ++i)
+      for (int j = 0; j < 200; ++j) xyz << 500000 + i * 2.5 + 0.1 * (j % 3) << " " << 4000000 + j * 2.5 << " 100\n";
+    xyz << "1500000 5000000 100\n";  // a thousand kilometres away
+  }
+  const std::string err = (dir / "err.txt").string();
+  const char* asked[] = {"build outlier.xyz --a_srs EPSG:32610 --dem dem/ --step 1 -q",
+                         "plan outlier.xyz --a_srs EPSG:32610 --dem dem/ --step 1 --parts 2 -o plan.json -q"};
+  for (const char* args : asked) {
+    const auto t0 = Clock::now();
+    EXPECT_EQ(runWith(dir, args, 60.0, SIGKILL, nullptr, err.c_str()), 2) << args;
+    EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 30) << args;
+    const std::string message = test::slurp(err);
+    EXPECT_NE(message.find("a far outlier point stretches the extent"), std::string::npos) << message;
+    EXPECT_NE(message.find("--clip"), std::string::npos) << message;
+    EXPECT_FALSE(fs::exists(dir / "dem")) << args;
+  }
+  // With the outlier clipped away the DEM is made.
+  EXPECT_EQ(runWith(dir, "build outlier.xyz --a_srs EPSG:32610 --dem dem/ --step 1 --clip 499000,3999000,501000,4001000 -q"),
+            0);
+  EXPECT_TRUE(fs::exists(dir / "dem" / "mosaic.vrt"));
+}
+
 }  // namespace
 }  // namespace tinbuild
