@@ -16,10 +16,6 @@ inline bool haveData() {
   return std::filesystem::exists(TINBUILD_DATA_DIR);
 }
 
-// In a test body that reads ../shared/data: skips the test when the data is absent (a clone of the project
-// alone), as every data test does.
-#define TINBUILD_NEED_DATA() \
-  if (!::tinbuild::test::haveData()) GTEST_SKIP() << "needs " << TINBUILD_DATA_DIR << " (absent)"
 
 // A fresh scratch directory for one test: <build>/test-tmp/<suite>.<test>.
 inline std::filesystem::path scratchDir() {

@@ -248,14 +248,15 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   if (hooks) hooks->triangulated(r);
   r.haveDelaunay = true;
   r.duplicateRule = duplicateRuleName(dopt.duplicates);
+  std::vector<OutputResults> results;
   for (std::size_t i = 0; i < opened.size(); ++i) {
     opened[i]->commitPartState();
-    const OutputResults res = opened[i]->results();
-    addOutputResults(r, o, resolved[i], res);
-    if (res.dem && r.dem.stats.tilesWritten == 0 && !hooks)
+    results.push_back(opened[i]->results());
+    addOutputResults(r, o, resolved[i], results.back());
+    if (results.back().dem && r.dem.stats.tilesWritten == 0 && !hooks)
       diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
   }
-  if (hooks) hooks->finished(r, outputs, opened);
+  if (hooks) hooks->finished(r, outputs, results);
   in.reportTransform(r, diag);
   finishReport(r, diag, t0);
   return r;

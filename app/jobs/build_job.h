@@ -42,8 +42,9 @@ class BuildHooks {
   virtual PointSink& pointSink(PointSink& sink) { return sink; }
   // After the triangulation, before the outputs' pieces are committed: the report's counts so far.
   virtual void triangulated(RunReport&) {}
-  // After the run, the outputs committed (their pieces too); `opened` in the order of outputs.all().
-  virtual void finished(RunReport&, const RunOutputs&, const std::vector<std::unique_ptr<OpenedOutput>>&) {}
+  // After the run, the outputs committed (their pieces too); `results`: what each wrote, in the order of
+  // outputs.all().
+  virtual void finished(RunReport&, const RunOutputs&, const std::vector<OutputResults>&) {}
 };
 
 // The build of `survey` into `outputs` (opened and resolved by the caller from `o`, which names at least one

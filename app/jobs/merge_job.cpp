@@ -94,9 +94,10 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   // Every file the parts left, as they left it: missing, cut short or altered is an error naming the part
   // and the file, before any output is touched.
   for (const PartDone& d : done) checkPartFiles(d, plan);
-  checkPlannedOutputs(resolveOutputs(o));
-  checkOutputOwnership(o, resolveOutputs(o), {{"(the plan)", plan.path}});
-  const RunLock lock = lockOutputs(o, resolveOutputs(o));
+  RunOutputs outputs = resolveOutputs(o);
+  checkPlannedOutputs(outputs);
+  checkOutputOwnership(o, outputs, {{"(the plan)", plan.path}});
+  const RunLock lock = lockOutputs(o, outputs);
   std::uint64_t keptPoints = 0;
   for (const PartDone& d : done) keptPoints += d.points;
   if (keptPoints == 0)
@@ -108,7 +109,6 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
       throw DataError(plan.partFile(d.part, "json"), "part " + std::to_string(d.part) +
                                                           " worked in another CRS than part 0 (" + d.crs.name + ", " +
                                                           crs.name + "): run the parts again");
-  RunOutputs outputs = resolveOutputs(o);
   completeOutputs(outputs, o, crs, done.front().zUnitToMetre, r.dem, diag);
   r.crs = crs;
   WriterContext& context = outputs.context;
@@ -183,8 +183,12 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     // point of closed loops aside).  One pass over the whole TIN, on this process.
     if (outputs.gpkg || outputs.contours) {
       std::vector<std::unique_ptr<OpenedOutput>> whole;
+      std::vector<ResolvedOutput> wholeRows;
       for (const ResolvedOutput* out : {&outputs.gpkg, &outputs.contours})
-        if (*out) whole.push_back(out->row->open(out->path, context));
+        if (*out) {
+          whole.push_back(out->row->open(out->path, context));
+          wholeRows.push_back(*out);
+        }
       MeshTee tee;
       for (auto& w : whole) w->attach(tee);
       tee.setProgress(o.finalizer.progress, o.finalizer.progressData);
@@ -204,10 +208,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
         void end() override { to.end(); }
       } checked(tee, [&] { stillWanted(0.75, "writing the GeoPackage TIN and contours"); });
       readMeshParts(manifest, checked);
-      for (std::size_t i = 0; i < whole.size(); ++i) {
-        const OpenedOutput& w = *whole[i];
-        addOutputResults(r, o, w.results().contours ? outputs.contours : outputs.gpkg, w.results());
-      }
+      for (std::size_t i = 0; i < whole.size(); ++i) addOutputResults(r, o, wholeRows[i], whole[i]->results());
     }
   }
   if (dem) {

@@ -93,14 +93,12 @@ class PartHooks : public BuildHooks {
                                       "run the parts with --compute-bounds)");
   }
 
-  void finished(RunReport& r, const RunOutputs& outputs,
-                const std::vector<std::unique_ptr<OpenedOutput>>& opened) override {
+  void finished(RunReport& r, const RunOutputs& outputs, const std::vector<OutputResults>& results) override {
     PartDone done;
     const std::vector<ResolvedOutput> resolved = outputs.all();
-    for (std::size_t i = 0; i < opened.size(); ++i) {
+    for (std::size_t i = 0; i < results.size(); ++i) {
       if (resolved[i].row->option == OutputOption::Mesh) done.mesh = resolved[i].path;
-      const OutputResults res = opened[i]->results();
-      if (res.dem) done.demTiles = res.demTiles;
+      if (results[i].dem) done.demTiles = results[i].demTiles;
     }
     // The seam file, then the record that the part is done (the merge trusts nothing without it).
     seamFile_->commit();

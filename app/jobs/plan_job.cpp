@@ -144,7 +144,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   if (parts < 1) throw UsageError("--parts must be at least 1");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
-  checkPlannedOutputs(resolveOutputs(o));
+  // (The outputs were checked by the caller: the wrapper above, or an MPI run at its start.)
   if (!o.overwrite) refuseExistingFile(plan.path);
   r.threads = effectiveThreads(o.threads);
   const FinalizerOptions fo = finalizerOptions(o, in, r.threads);

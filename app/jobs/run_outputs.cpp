@@ -63,11 +63,6 @@ fs::path resolved(const std::string& p) {
   return r;
 }
 
-bool isDevice(const std::string& p) {
-  struct stat st {};
-  return p == "-" || (::stat(p.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
-}
-
 // Whether `inner` lies inside the directory `dir` (both resolved).
 bool inside(const fs::path& inner, const fs::path& dir) {
   auto d = dir.begin(), i = inner.begin();
@@ -93,7 +88,7 @@ void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
   };
   std::vector<Owned> owned;
   auto add = [&](const std::string& option, const std::string& path, bool directory) {
-    if (path.empty() || isDevice(path)) return;
+    if (path.empty() || isStreamOrDevice(path)) return;
     owned.push_back({option + " " + path, path, resolved(path), directory});
   };
   for (const ResolvedOutput& out : outputs.all()) {

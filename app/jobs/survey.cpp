@@ -7,6 +7,7 @@
 
 #include "formats/registry/reader_registry.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
@@ -153,9 +154,7 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
     const Bounds3& b = si.headerBounds;
     for (double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ})
       if (!(std::fabs(v) <= 1e15)) {
-        char text[64];
-        std::snprintf(text, sizeof text, "%.6g", v);
-        throw DataError(o.inputs[i], std::string("its header's bounds reach ") + text +
+        throw DataError(o.inputs[i], "its header's bounds reach " + formatDouble("%.6g", v) +
                                          ": no map coordinates are that large, so its offset or scale is wrong");
       }
   }

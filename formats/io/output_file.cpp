@@ -59,8 +59,7 @@ OutputFile::OutputFile(std::string path, std::size_t bufferSize)
     fd_ = STDOUT_FILENO;
     return;
   }
-  struct stat st {};
-  if (::stat(path_.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode)) {
+  if (isStreamOrDevice(path_)) {
     // A device or FIFO (/dev/null, a named pipe): write to it directly; there is nothing to rename.
     fd_ = ::open(path_.c_str(), O_WRONLY | O_CLOEXEC);
     if (fd_ < 0) throw DataError(path_, std::string("cannot open for writing: ") + std::strerror(errno));
@@ -144,6 +143,11 @@ void OutputFile::commit() {
     throw;
   }
   committed_ = true;
+}
+
+bool isStreamOrDevice(const std::string& path) {
+  struct stat st {};
+  return path == "-" || (::stat(path.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
 }
 
 void refuseExistingFile(const std::string& path) {

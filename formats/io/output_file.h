@@ -28,6 +28,10 @@ void createParentDirectories(const std::string& path);
 // pipes and "-" are always writable).  Every output is checked before any work unless --overwrite.
 void refuseExistingFile(const std::string& path);
 
+// "-" (a standard stream) or a device or FIFO (/dev/null, a named pipe): written in place, never renamed,
+// refused, locked or owned.
+bool isStreamOrDevice(const std::string& path);
+
 // The size of the file at PATH; 0 for "-", a missing file or one that cannot be asked.
 std::uint64_t fileSizeOrZero(const std::string& path);
 

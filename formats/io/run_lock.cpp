@@ -30,11 +30,6 @@ std::set<std::string>& heldByThisProcess() {
   return held;
 }
 
-bool isDeviceOrStdout(const std::string& p) {
-  struct stat st {};
-  return p == "-" || (::stat(p.c_str(), &st) == 0 && !S_ISREG(st.st_mode) && !S_ISDIR(st.st_mode));
-}
-
 std::string readHolder(int fd) {
   char buf[1024];
   const ssize_t n = ::pread(fd, buf, sizeof buf - 1, 0);
@@ -75,7 +70,7 @@ RunLock::RunLock(const std::vector<std::string>& paths, const std::string& comma
 
 void RunLock::lockAll(const std::vector<std::string>& paths, const std::string& holder) {
   for (const std::string& path : paths) {
-    if (path.empty() || isDeviceOrStdout(path)) continue;
+    if (path.empty() || isStreamOrDevice(path)) continue;
     const std::string file = lockPath(path);
     {
       std::lock_guard<std::mutex> guard(g_heldMutex);

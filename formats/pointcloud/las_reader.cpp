@@ -26,6 +26,7 @@
 #include "formats/pointcloud/laz/laz_format.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/core/work_crew.h"
 
 namespace tinbuild {
@@ -50,13 +51,6 @@ constexpr std::size_t kStreamBlock = 4u << 20;
 
 std::string fmtCount(std::uint64_t n) {
   return std::to_string(n);
-}
-
-std::string fmtDouble(double v) {
-  std::ostringstream s;
-  s.precision(12);
-  s << v;
-  return s.str();
 }
 
 std::string fmtRange(double lo, double hi) {
@@ -1033,8 +1027,8 @@ void LasReader::checkLazChunkBounds(std::size_t index, std::uint64_t offset, con
   if (outside == 0) return;
   throw DataError(info_.path, "LAZ chunk " + std::to_string(index) + " (at byte " + fmtCount(offset) +
                                   ") is damaged: " + fmtCount(outside) + " of its " + fmtCount(count) +
-                                  " points decode outside the header's bounds (the first at " + fmtDouble(fx) +
-                                  ", " + fmtDouble(fy) + ", " + fmtDouble(fz) + "; header x " +
+                                  " points decode outside the header's bounds (the first at " + formatDouble("%.12g", fx) +
+                                  ", " + formatDouble("%.12g", fy) + ", " + formatDouble("%.12g", fz) + "; header x " +
                                   fmtRange(hb.minX, hb.maxX) + " y " + fmtRange(hb.minY, hb.maxY) + " z " +
                                   fmtRange(hb.minZ, hb.maxZ) +
                                   "); LASzip has no checksum and damage shows this way. If only the header's "

@@ -17,6 +17,7 @@
 #include "formats/pointcloud/xyz_reader.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/core/temp_file.h"
 
 namespace tinbuild {
@@ -235,10 +236,9 @@ bool isSurveyFileName(const std::string& name) {
 }
 
 std::string surveyExtensionsText() {
-  const std::vector<std::string> e = surveyExtensions();
-  std::string s;
-  for (std::size_t i = 0; i < e.size(); ++i) s += (i == 0 ? "" : i + 1 == e.size() ? " or " : ", ") + ("." + e[i]);
-  return s;
+  std::vector<std::string> e = surveyExtensions();
+  for (std::string& x : e) x = "." + x;
+  return orList(e);
 }
 
 namespace {

@@ -12,6 +12,7 @@
 #include "formats/raster/dem_writer.h"
 #include "formats/vector/contour_writer.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/mesh/mesh_tee.h"
 #include "formats/io/output_transaction.h"
 
@@ -299,14 +300,6 @@ const char* optionName(OutputOption option) {
 }
 
 namespace {
-
-// "a, b or c".
-std::string orList(const std::vector<std::string>& items) {
-  std::string s;
-  for (std::size_t i = 0; i < items.size(); ++i)
-    s += (i == 0 ? "" : i + 1 == items.size() ? " or " : ", ") + items[i];
-  return s;
-}
 
 std::vector<std::string> splitExtensions(const char* list) {
   std::vector<std::string> out;

@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay/predicates.h"
 
@@ -761,23 +762,15 @@ ContourTracer::ContourTracer(const ContourOptions& options, ContourLineSink& out
 
 ContourTracer::~ContourTracer() { delete impl_; }
 
-namespace {
-std::string compactNumber(double v) {
-  char text[64];
-  std::snprintf(text, sizeof text, "%.6g", v);
-  return text;
-}
-}  // namespace
-
 void ContourTracer::begin(const MeshInfo& info) {
   // Levels beyond a million over the survey's z range are not contours of a terrain: an --interval in
   // the wrong unit, or a far outlier in z (a bird, a pit) stretching the range.  Refused before any line.
   if (!info.bounds.empty() && impl_->opt.interval > 0) {
     const double levels = (info.bounds.maxZ - info.bounds.minZ) / impl_->opt.interval;
     if (!(levels < 1e6))
-      throw UsageError("--interval " + compactNumber(impl_->opt.interval) + " gives " + compactNumber(levels) +
-                       " contour levels over the survey's z range " + compactNumber(info.bounds.minZ) + " .. " +
-                       compactNumber(info.bounds.maxZ) +
+      throw UsageError("--interval " + formatDouble("%.6g", impl_->opt.interval) + " gives " + formatDouble("%.6g", levels) +
+                       " contour levels over the survey's z range " + formatDouble("%.6g", info.bounds.minZ) + " .. " +
+                       formatDouble("%.6g", info.bounds.maxZ) +
                        ": use a larger --interval, or drop the outliers in z that stretch the range (noise "
                        "classes 7 and 18 are dropped by default; --keep-class 2 keeps the ground only)");
   }

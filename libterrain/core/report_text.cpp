@@ -10,6 +10,13 @@ std::string withCommas(std::uint64_t n) {
   return s;
 }
 
+std::string orList(const std::vector<std::string>& items) {
+  std::string s;
+  for (std::size_t i = 0; i < items.size(); ++i)
+    s += (i == 0 ? "" : i + 1 == items.size() ? " or " : ", ") + items[i];
+  return s;
+}
+
 std::string formatDouble(const char* format, double v) {
   char buf[64];
   std::snprintf(buf, sizeof buf, format, v);

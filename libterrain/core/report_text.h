@@ -15,6 +15,7 @@ namespace tinbuild {
 std::string withCommas(std::uint64_t n);                 // 1234567 -> "1,234,567"
 std::string formatDouble(const char* format, double v);  // printf-style, one value
 std::string bytesText(std::uint64_t bytes);              // "12.3 MiB"
+std::string orList(const std::vector<std::string>& items);  // {a, b, c} -> "a, b or c"
 
 // {"min": [x, y, z], "max": [x, y, z]}, or null for empty bounds.
 void writeBoundsJson(JsonWriter& j, const Bounds3& b);

@@ -7,6 +7,7 @@
 #include <string>
 
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/delaunay/delaunay_predicates.h"
 #include "libterrain/delaunay/predicates.h"
 
@@ -38,9 +39,7 @@ constexpr double kMaxPixelNumber = 1125899906842624.0;  // 2^50
 
 // A number for a message: 6 significant digits (never the 300 digits of std::to_string(1e300)).
 std::string compact(double v) {
-  char text[64];
-  std::snprintf(text, sizeof text, "%.6g", v);
-  return text;
+  return formatDouble("%.6g", v);
 }
 
 // The pixel k with gridLine(k) <= v < gridLine(k + 1).

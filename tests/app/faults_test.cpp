@@ -252,7 +252,7 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
 // its byte offset, never garbage points: LASzip has no checksum, so the reader checks that each chunk's
 // stream ends where the chunk table says and that its points lie within the header's bounds.
 TEST(Faults, DamagedLazChunksAreErrorsNamingTheChunk) {
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   const fs::path dir = test::scratchDir();
   const fs::path original = test::dataPath("laz/autzen_trim.laz");
   const std::string clean = (dir / "clean.fin").string();
@@ -291,7 +291,7 @@ TEST(Faults, DamagedLazChunksAreErrorsNamingTheChunk) {
 // from the survey, a step or an interval in the wrong unit.  (Each of these used to loop or grow without
 // end, deaf to SIGTERM.)
 TEST(Faults, AbsurdRastersAndContourSetsAreRefusedAtOnce) {
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   const fs::path dir = test::scratchDir();
   const std::string las = test::dataPath("las/simple.las");
   const std::vector<std::pair<std::string, std::string>> cases = {
@@ -334,7 +334,7 @@ TEST(Faults, WrongInputsAreNamedClearly) {
 }
 
 TEST(Faults, RecordsBeyondTheHeadersCountAreSaid) {
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   const fs::path dir = test::scratchDir();
   const fs::path las = dir / "short-count.las";
   fs::copy_file(test::dataPath("las/simple.las"), las);

@@ -292,9 +292,9 @@ class TwinTest : public ::testing::TestWithParam<const char*> {};
 TEST_P(TwinTest, DecodesByteIdenticalToLasTwin) {
   const std::string name = GetParam();
   PointFile laz, las;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath("laz/" + name + ".laz"))) << name;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(las.load(dataPath("las/" + name + ".las"))) << name;
   ASSERT_TRUE(laz.hasLaz);
   ASSERT_EQ(laz.info.compressor, 3);
@@ -315,7 +315,7 @@ class RealFileTest : public ::testing::TestWithParam<const char*> {};
 TEST_P(RealFileTest, DecodesAndReencodesToLaszipBytes) {
   const std::string path = GetParam();
   PointFile laz;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath(path))) << path;
   ASSERT_TRUE(laz.hasLaz);
   ASSERT_EQ(laz.info.compressor, 3);
@@ -346,9 +346,9 @@ INSTANTIATE_TEST_SUITE_P(LayeredFiles, RealFileTest,
 // The same through the generic ChunkDecoder / ChunkEncoder entry points (which dispatch compressor 3 here).
 TEST(LayeredDispatch, ChunkCodecEntryPoints) {
   PointFile laz, las;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath("laz/autzen_trim_7.laz")));
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(las.load(dataPath("las/autzen_trim_7.las")));
   ChunkDecoder dec(laz.info);
   ASSERT_TRUE(dec.layered());
@@ -408,7 +408,7 @@ INSTANTIATE_TEST_SUITE_P(Formats, RoundTripTest,
 TEST(LayeredRoundTrip, TwinRecordsAllChunkings) {
   for (const char* name : {"1_4_w_evlr", "autzen_trim_7", "sample_lareunion_epsg2975"}) {
     PointFile las;
-    TINBUILD_NEED_DATA();
+    TINBUILD_REQUIRE_DATA();
     ASSERT_TRUE(las.load(dataPath(std::string("las/") + name + ".las")));
     const LazInfo info =
         LazInfo::forPointFormat(las.pointFormat, static_cast<std::uint16_t>(las.recordLength), 50000);
@@ -505,7 +505,7 @@ TEST(LayeredSelection, TinMaskMatchesFullDecode) {
   for (const char* path : {"laz/autzen_trim_7.laz", "laz/sample_lareunion_epsg2975.laz", "laz/fullwave.laz",
                            "laz/las_with_several_extra_byte_bloc.laz"}) {
     PointFile laz;
-    TINBUILD_NEED_DATA();
+    TINBUILD_REQUIRE_DATA();
     ASSERT_TRUE(laz.load(dataPath(path)));
     const auto full = decodeFile(laz, kAll);
     expectMaskedEqual(full, decodeFile(laz, kTin), keptBytes(laz.info, kTin), std::string(path) + " TIN");
@@ -514,7 +514,7 @@ TEST(LayeredSelection, TinMaskMatchesFullDecode) {
 
 TEST(LayeredSelection, EverySingleLayerAndRandomMasks) {
   PointFile laz;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath("laz/fullwave.laz")));
   const auto full = decodeFile(laz, kAll);
   for (std::uint32_t bit = 1; bit <= kExtraBytes; bit <<= 1)
@@ -565,7 +565,7 @@ TEST(LayeredSelection, MaskChangesBetweenChunksOfOneDecoder) {
 // ---------------------------------------------------------------------------------------------------------
 TEST(LayeredDamage, OversizedLayersAndTruncationThrow) {
   PointFile laz;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath("laz/1_4_w_evlr.laz")));
   const auto c = laz.chunks().at(0);
   std::vector<std::uint8_t> chunk(laz.bytes.begin() + c.start, laz.bytes.begin() + c.start + c.size);
@@ -613,7 +613,7 @@ TEST(LayeredDamage, FlippedBytesNeverCrash) {
   for (const char* path :
        {"laz/1_4_w_evlr.laz", "laz/fullwave.laz", "laz/las_with_several_extra_byte_bloc.laz"}) {
     PointFile laz;
-    TINBUILD_NEED_DATA();
+    TINBUILD_REQUIRE_DATA();
     ASSERT_TRUE(laz.load(dataPath(path)));
     const auto c = laz.chunks().at(0);
     const std::vector<std::uint8_t> chunk(laz.bytes.begin() + c.start, laz.bytes.begin() + c.start + c.size);
@@ -654,7 +654,7 @@ TEST(LayeredDamage, FlipsInDecodedLayersAreDetected) {
   for (const char* path : {"laz/1_4_w_evlr.laz", "laz/fullwave.laz",
                            "laz/las_with_several_extra_byte_bloc.laz", "laz/autzen_trim_7.laz"}) {
     PointFile laz;
-    TINBUILD_NEED_DATA();
+    TINBUILD_REQUIRE_DATA();
     ASSERT_TRUE(laz.load(dataPath(path)));
     const auto c = laz.chunks().at(0);
     const std::vector<std::uint8_t> chunk(laz.bytes.begin() + c.start, laz.bytes.begin() + c.start + c.size);
@@ -691,7 +691,7 @@ TEST(LayeredDamage, FlipsInDecodedLayersAreDetected) {
 // ---------------------------------------------------------------------------------------------------------
 TEST(LayeredSpeed, AutzenTrim7AllVsTin) {
   PointFile laz;
-  TINBUILD_NEED_DATA();
+  TINBUILD_REQUIRE_DATA();
   ASSERT_TRUE(laz.load(dataPath("laz/autzen_trim_7.laz")));
   for (std::uint32_t layers : {kAll, kTin}) {
     double best = 1e30;
