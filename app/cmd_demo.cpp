@@ -149,6 +149,7 @@ int runDemo(const cli::ParsedArgs& args) {
   build.finalizer.progress = ProgressDisplay::callback;
   build.finalizer.progressData = &progress;
   build.finalizer.progressCounts = progress.counts();
+  build.finalizer.cancel = cancelFlag();
   std::cout << "tinbuild demo: building the TIN and the DEM (" << build.commandLine << ")" << std::endl;
   const RunReport run = runBuild(build, diag);
   progress.finish();

@@ -14,10 +14,10 @@ namespace tinbuild::app {
 
 namespace {
 
-volatile sig_atomic_t gCancel = 0;
+CancelFlag gCancel;
 
 void onSignal(int) {
-  gCancel = 1;
+  gCancel.request();
   static const char msg[] =
       "\ntinbuild: interrupted: stopping and removing temporary outputs (again to quit at once)\n";
   const ssize_t ignored = ::write(STDERR_FILENO, msg, sizeof msg - 1);
@@ -84,7 +84,11 @@ void installCancelHandlers() {
 }
 
 bool cancelRequested() {
-  return gCancel != 0;
+  return gCancel.requested();
+}
+
+const CancelFlag* cancelFlag() {
+  return &gCancel;
 }
 
 ProgressDisplay::ProgressDisplay(ProgressMode mode) : mode_(mode) {

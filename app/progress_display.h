@@ -8,7 +8,8 @@
 //   none   -q.
 // Cancellation: installCancelHandlers() makes SIGINT and SIGTERM set a flag; the next progress call
 // returns 0, the library throws CancelledError, every temporary output is removed on the way out, and
-// main() exits with code 3.  The handler is one-shot: a second Ctrl-C kills the process at once.
+// main() exits with code 3.  The handler is one-shot: a second Ctrl-C kills the process at once.  The same
+// signal sets cancelFlag(), which the loops the progress callback does not reach poll (core/cancel.h).
 #pragma once
 
 #include <chrono>
@@ -16,6 +17,7 @@
 #include <mutex>
 #include <string>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/core/progress.h"
 
 namespace tinbuild::app {
@@ -27,6 +29,7 @@ ProgressMode parseProgressMode(const std::string& text, bool quiet);
 
 void installCancelHandlers();
 bool cancelRequested();
+const CancelFlag* cancelFlag();  // set by SIGINT and SIGTERM
 
 class ProgressDisplay {
  public:

@@ -148,7 +148,8 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   };
   for (int i = 0; i < r.parts; ++i) {
     stillWanted(0.5 * i / r.parts, "merging the seams");
-    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step);
+    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step,
+                                                o.finalizer.cancel);
     r.seamBytes += c.bytes;
   }
   stillWanted(0.5, "merging the seams");

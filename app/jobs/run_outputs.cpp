@@ -40,6 +40,9 @@ WriterContext writerContext(const PipelineOptions& o) {
   c.dem = o.dem.bands;
   c.cog = o.dem.cog;
   c.contours = o.contours;
+  c.cancel = o.finalizer.cancel;
+  c.dem.cancel = c.cancel;
+  c.contours.cancel = c.cancel;
   return c;
 }
 

@@ -231,10 +231,11 @@ File::~File() {
   for (const char* suffix : {"", "-journal", "-wal", "-shm"}) ::unlink((tempPath_ + suffix).c_str());
 }
 
-void File::open(const std::string& crsText, int cacheKiB) {
+void File::open(const std::string& crsText, int cacheKiB, const CancelFlag* cancel) {
   srs_ = srsRowFor(crsText, path_);
   db_ = std::make_unique<Db>(tempPath_, path_);
   Db& db = *db_;
+  db.setCancel(cancel);
   // The file is a temporary one until commit() renames it: a crash makes it worthless anyway, so no
   // rollback journal and no fsync.  The page size must be set before the first table: 32 KiB pages cost
   // less CPU than 4 KiB ones when writing (fewer pages to allocate, balance and write) and still make
@@ -301,6 +302,7 @@ Layer& File::addLayer(const std::string& name, const char* geometryType,
 
 void File::countRow() {
   if (++inTransaction_ >= perTransaction_) {
+    throwIfCancelled(db_->cancel());
     db_->exec("COMMIT");
     db_->exec("BEGIN");
     inTransaction_ = 0;
@@ -312,11 +314,13 @@ void File::commit(const std::string& metadataLayer,
   if (!db_) throw Error("GeoPackage writer: commit() before open()");
   Db& db = *db_;
   for (auto& l : layers_) {
+    throwIfCancelled(db.cancel());
     l->insert.flush();
     if (l->rtree) l->rtree->finish();
     finishLayer(*l);
   }
   if (!metadata.empty()) writeMetadata(metadataLayer, metadata);
+  throwIfCancelled(db.cancel());
   db.exec("COMMIT");
   layers_.clear();
   db.close();

@@ -31,6 +31,7 @@
 #include <vector>
 
 #include "formats/io/little_endian.h"
+#include "libterrain/core/cancel.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild::gpkg {
@@ -173,17 +174,30 @@ class Db {
   // left on device)").
   [[noreturn]] void failSqlite(const std::string& what) const {
     const int sysErr = errno;
+    if (db_ && (sqlite3_errcode(db_) & 0xff) == SQLITE_INTERRUPT && cancelRequested(cancel_)) throw CancelledError();
     std::string msg = db_ ? sqlite3_errmsg(db_) : "no database";
-    const bool io = db_ && (sqlite3_errcode(db_) == SQLITE_IOERR || sqlite3_errcode(db_) == SQLITE_FULL);
+    const int code = db_ ? sqlite3_errcode(db_) & 0xff : 0;  // (extended codes are on: SQLITE_IOERR_WRITE...)
+    const bool io = code == SQLITE_IOERR || code == SQLITE_FULL;
     if (const int e = db_ ? sqlite3_system_errno(db_) : 0; io && (e || sysErr))
       msg += std::string(" (") + std::strerror(e ? e : sysErr) + ")";
     fail(what + ": " + msg);
   }
   sqlite3* get() const { return db_; }
+  // A statement running when `cancel` is set stops within SQLite's next few thousand steps (its progress
+  // handler), and the call throws CancelledError: the COMMIT of a large last transaction, an index.
+  void setCancel(const CancelFlag* cancel) {
+    cancel_ = cancel;
+    sqlite3_progress_handler(
+        db_, cancel ? 4096 : 0,
+        [](void* flag) -> int { return static_cast<const CancelFlag*>(flag)->requested() ? 1 : 0; },
+        const_cast<CancelFlag*>(cancel));
+  }
+  const CancelFlag* cancel() const { return cancel_; }
 
  private:
   std::string reportAs_;
   sqlite3* db_ = nullptr;
+  const CancelFlag* cancel_ = nullptr;
 };
 
 
@@ -383,6 +397,7 @@ class RtreeLoader {
     std::vector<Entry> up;
     up.reserve(n / capacity_ + 1);
     for (std::size_t first = 0; first < n; first += capacity_) {
+      if ((first / capacity_ & 63) == 0) throwIfCancelled(db_.cancel());
       const std::size_t count = std::min(capacity_, n - first);
       const std::int64_t nodeno = nextNode_++;
       up.push_back(writeNode(entries, order_.data() + first, count, depth, nodeno));
@@ -517,7 +532,8 @@ class File {
 
   // Creates the database with the core tables and the CRS (`crsText`: WKT, EPSG:n...; "" = undefined
   // Cartesian), SQLite's page cache bounded to `cacheKiB`, and opens the first transaction.
-  void open(const std::string& crsText, int cacheKiB);
+  // `cancel` (may be null) is polled by the long steps: the rows, the R*-tree's packing, the commit.
+  void open(const std::string& crsText, int cacheKiB, const CancelFlag* cancel = nullptr);
   // A feature layer: geometry column `geom` of `geometryType` (with z), then `columns` (name, SQL type).
   // With batchBlobBytes > 0 its rows go through layer.insert (geom blobs of at most that size, the other
   // columns integers).  With spatialIndex, an R*-tree filled through layer.index().

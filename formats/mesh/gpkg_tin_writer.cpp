@@ -31,7 +31,7 @@ class GpkgTinWriter final : public TriangleSink {
   GpkgTinWriter& operator=(const GpkgTinWriter&) = delete;
 
   void begin(const MeshInfo& info) override {
-    file_.open(o_.crsWkt.empty() ? info.crsWkt : o_.crsWkt, kCacheKiB);
+    file_.open(o_.crsWkt.empty() ? info.crsWkt : o_.crsWkt, kCacheKiB, o_.cancel);
     std::vector<std::pair<std::string, std::string>> ids;
     if (o_.vertexIds) ids = {{"a", "INTEGER"}, {"b", "INTEGER"}, {"c", "INTEGER"}};
     tin_ = &file_.addLayer(o_.layerName, "POLYGON", ids,

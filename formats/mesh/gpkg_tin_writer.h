@@ -70,6 +70,7 @@
 #include <memory>
 #include <string>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
@@ -84,6 +85,7 @@ struct GpkgTinOptions {
   bool spatialIndex = true;       // the R*-tree spatial index(es), packed in bulk (see above)
   std::string crsWkt;             // overrides MeshInfo.crsWkt when not empty (WKT, EPSG:n, PROJ...)
   std::string commandLine;        // recorded as TINBUILD_COMMAND when not empty
+  const CancelFlag* cancel = nullptr;  // polled while rows, the R*-tree and the commit are written
 };
 
 // Opens the writer (checks the options, reserves the temporary name); begin() creates the dataset.

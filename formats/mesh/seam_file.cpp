@@ -61,7 +61,7 @@ std::uint64_t SeamFileWriter::bytes() const {
 }
 
 SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
-                            SeamStep& step) {
+                            SeamStep& step, const CancelFlag* cancel) {
   RecordReader in(path, "seam file");
   char magic[8];
   in.bytes(magic, 8);
@@ -74,7 +74,8 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
   const std::uint32_t p = in.get<std::uint32_t>();
   if (p != part) throw DataError(path, "the seam file is part " + std::to_string(p) + "'s, not part " + std::to_string(part) + "'s");
   SeamFileCounts counts;
-  for (;;) {
+  for (std::uint64_t record = 0;; ++record) {
+    if ((record & 4095) == 0) throwIfCancelled(cancel);
     const char kind = in.get<char>();
     if (kind == 'V') {
       SeamRecord r;

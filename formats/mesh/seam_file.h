@@ -16,6 +16,7 @@
 #include <memory>
 #include <string>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/delaunay/seam_step.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 
@@ -45,8 +46,9 @@ struct SeamFileCounts {
 };
 
 // Feeds a seam file's records to `step`.  Throws DataError naming the file when it is not a seam file of
-// this plan and part, or is truncated or corrupt.
+// this plan and part, or is truncated or corrupt.  `cancel` (may be null) is polled every few thousand
+// records: CancelledError.
 SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
-                            SeamStep& step);
+                            SeamStep& step, const CancelFlag* cancel = nullptr);
 
 }  // namespace tinbuild

@@ -167,6 +167,7 @@ void MergeDemSink::tile(const DemTile& seamTile) {
 void MergeDemSink::end() {
   for (const auto& [tx, ty] : parts_.keys()) {
     if (done_.count({ty, tx})) continue;
+    throwIfCancelled(cancel_);
     DemTile t;
     parts_.addPieces(tx, ty, t, false, nodata_);
     t.partial = false;

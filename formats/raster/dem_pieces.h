@@ -83,8 +83,9 @@ class PartDemSink : public DemTileSink {
 // tiles only parts have pieces of.
 class MergeDemSink : public DemTileSink {
  public:
-  MergeDemSink(DemTileSink& writer, const DemPieceIndex& parts, float nodata)
-      : writer_(writer), parts_(parts), nodata_(nodata) {}
+  // `cancel` (may be null) is polled between the tiles end() assembles from pieces.
+  MergeDemSink(DemTileSink& writer, const DemPieceIndex& parts, float nodata, const CancelFlag* cancel = nullptr)
+      : writer_(writer), parts_(parts), nodata_(nodata), cancel_(cancel) {}
   void begin(const DemLayout& layout, const MeshInfo& info) override;
   void tile(const DemTile& tile) override;
   void end() override;
@@ -94,6 +95,7 @@ class MergeDemSink : public DemTileSink {
   DemTileSink& writer_;
   const DemPieceIndex& parts_;
   float nodata_;
+  const CancelFlag* cancel_;
   DemLayout layout_;
   std::map<std::pair<std::int64_t, std::int64_t>, bool> done_;
   std::uint64_t written_ = 0;

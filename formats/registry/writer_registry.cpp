@@ -112,6 +112,7 @@ std::unique_ptr<OpenedOutput> openGpkgTin(const std::string& path, const WriterC
   go.path = path;
   go.points = c.gpkgPoints;
   go.commandLine = c.commandLine;
+  go.cancel = c.cancel;
   return std::make_unique<TriangleOutput>(path, openGpkgTinWriter(go));
 }
 
@@ -127,7 +128,7 @@ class DemOutput : public OpenedOutput {
       part_ = std::make_unique<PartDemSink>(*writer_, *pieces_);
       sink = part_.get();
     } else if (c.demMerge) {
-      merge_ = std::make_unique<MergeDemSink>(*writer_, *c.demMerge, d.nodata);
+      merge_ = std::make_unique<MergeDemSink>(*writer_, *c.demMerge, d.nodata, c.cancel);
       sink = merge_.get();
     }
     rasterizer_ = std::make_unique<DemRasterizer>(d, *sink);
@@ -176,6 +177,7 @@ DemWriterOptions demWriterOptions(const std::string& path, DemTarget target, con
   wo.commandLine = c.commandLine;
   setBands(wo, c.dem);
   wo.replace = c.overwrite;
+  wo.cancel = c.cancel;
   return wo;
 }
 
@@ -249,6 +251,7 @@ std::unique_ptr<OpenedOutput> openContours(const std::string& path, const Writer
   ContourWriterOptions wo;
   wo.crs = c.crs;
   wo.commandLine = c.commandLine;
+  wo.cancel = c.cancel;
   return std::make_unique<ContourOutput>(path, openContourWriter(path, wo), c.contours);
 }
 

@@ -71,6 +71,9 @@ struct WriterContext {
   std::string demPieces;
   const DemPieceIndex* demMerge = nullptr;
   std::vector<std::string> demOtherTiles;
+  // Polled by the writers' long loops (their last tiles, spatial index, lines: core/cancel.h); the DEM's
+  // and the contours' options carry the same flag.
+  const CancelFlag* cancel = nullptr;
 };
 
 // What an output did (OpenedOutput::results, after the run): its files and bytes, and the figures the run

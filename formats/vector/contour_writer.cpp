@@ -300,7 +300,7 @@ class ContourGpkgWriter final : public ContourLineSink {
       : path_(std::move(path)), o_(options), file_(path_, options.transactionSize) {}
 
   void begin(const MeshInfo& info) override {
-    file_.open(o_.crs.wkt.empty() ? info.crsWkt : o_.crs.wkt, kCacheKiB);
+    file_.open(o_.crs.wkt.empty() ? info.crsWkt : o_.crs.wkt, kCacheKiB, o_.cancel);
     layer_ = &file_.addLayer(o_.layerName, "LINESTRING", {{"elev", "REAL"}, {"index", "MEDIUMINT"}},
                              "contour lines (tinbuild)", 0, true);
     insert_ = gpkg::Stmt(file_.db(), "INSERT INTO " + gpkg::sqlName(o_.layerName) +

@@ -33,6 +33,7 @@ struct ContourWriterOptions {
   std::string commandLine;  // layer metadata TINBUILD_COMMAND when not empty
   std::string layerName = "contours";
   std::size_t transactionSize = 10000;  // GeoPackage: lines per transaction
+  const CancelFlag* cancel = nullptr;    // GeoPackage: polled while rows, the R*-tree and the commit are written
 };
 
 // The format for PATH's extension (case-insensitive); false when it names none of them.

@@ -736,6 +736,7 @@ struct ContourTracer::Impl {
     // Every vertex should be finalized by now; anything left (a stream without finalizations) goes out
     // in pool order, which is a function of the event sequence.
     for (std::uint32_t i = 0; i < polys.size(); ++i) {
+      if ((i & 4095) == 0) throwIfCancelled(opt.cancel);
       if (!polys[i].live) continue;
       Poly& p = polys[i];
       if (!p.startFinal) ends.erase(p.startKey);
@@ -788,6 +789,7 @@ void ContourTracer::finalizeVertex(std::uint64_t id) { impl_->finalize(id); }
 
 void ContourTracer::end() {
   impl_->finish();
+  throwIfCancelled(impl_->opt.cancel);
   impl_->out.end();
 }
 

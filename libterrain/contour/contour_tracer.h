@@ -68,6 +68,7 @@
 #include <string>
 #include <vector>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/mesh/mesh_sink.h"
 
 namespace tinbuild {
@@ -81,6 +82,7 @@ struct ContourOptions {
   double simplify = 0;          // Douglas-Peucker tolerance in xy, topology-preserving (0: off)
   std::size_t spillRun = 128;   // points per in-memory run of an unfinished line before it is spilled
   std::string tempDir;          // the spill file's directory ("" = $TMPDIR or /tmp)
+  const CancelFlag* cancel = nullptr;  // polled while end() emits the lines left open (core/cancel.h)
 };
 
 struct ContourLine {

@@ -128,6 +128,7 @@
 #include <vector>
 
 #include "libterrain/core/point.h"
+#include "libterrain/core/cancel.h"
 #include "libterrain/core/progress.h"
 #include "libterrain/finalizer/grid.h"
 #include "libterrain/finalizer/point_filter.h"
@@ -153,6 +154,9 @@ struct FinalizerOptions {
   ProgressFunc progress = nullptr;      // GDAL's convention (progress.h); 0 = cancel
   void* progressData = nullptr;
   ProgressCounts* progressCounts = nullptr;  // filled before each progress call (points of the pass)
+  // Polled where the progress callback does not reach (core/cancel.h): the outputs' finishing loops, the
+  // merge, the MPI exchange.  Set together with the callback's cancellation (the CLI: SIGINT, SIGTERM).
+  const CancelFlag* cancel = nullptr;
   // Read the next batches on a background thread while the current one is worked on (false: everything
   // on the calling thread, for --threads 1).  The sequence of points is the same either way.
   bool readAhead = true;

@@ -464,7 +464,13 @@ void DemTileTracker::checkpoint(const ActiveRegion& region, std::vector<std::int
 void DemRasterizer::end() {
   if (!begun_) throw Error("DEM: end() without begin()");
   begun_ = false;  // (complete() marks what is left partial in a part)
-  while (!open_.empty()) complete(open_.begin()->first);
+  // The tiles still open (the last rows of a survey, or every tile of a part): one tile is a fraction of
+  // a second, so a cancellation is honoured between tiles.
+  while (!open_.empty()) {
+    throwIfCancelled(opt_.cancel);
+    complete(open_.begin()->first);
+  }
+  throwIfCancelled(opt_.cancel);
   out_.end();
 }
 

@@ -49,6 +49,7 @@
 #include <unordered_set>
 #include <vector>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
@@ -70,6 +71,7 @@ struct DemOptions {
   // combined (combinePartialTile) with the other processes' pieces of them.  Tiles every pixel centre of
   // which has its triangle are final here as always.
   bool partial = false;
+  const CancelFlag* cancel = nullptr;  // polled while end() completes the tiles left open (core/cancel.h)
 };
 
 // The raster's geometry, fixed at begin().

@@ -355,6 +355,34 @@ TEST(GpkgTinWriter, DestroyedBeforeEndLeavesNothing) {
   EXPECT_EQ(fs::last_write_time(dir / "tin.gpkg"), before);
 }
 
+// A cancellation stops the writer in its rows, its R*-tree or its commit: no file is left.
+TEST(GpkgTinWriter, CancelledLeavesNothing) {
+  const auto dir = test::scratchDir();
+  CancelFlag flag;
+  GpkgTinOptions o;
+  o.path = (dir / "tin.gpkg").string();
+  o.cancel = &flag;
+  auto writer = openGpkgTinWriter(o);
+  MeshTee tee;
+  tee.add(*writer);
+  MeshInfo info;
+  tee.begin(info);
+  std::uint64_t id = 0;
+  for (int i = 0; i < 300; ++i)
+    for (int j = 0; j < 300; ++j) tee.vertex(id++, i, j, 0.01 * i * j);
+  for (int i = 0; i + 1 < 300; ++i)
+    for (int j = 0; j + 1 < 300; ++j) {
+      const std::uint64_t a = i * 300 + j, b = a + 300;
+      tee.triangle(a, b, b + 1);
+      tee.triangle(a, b + 1, a + 1);
+    }
+  for (std::uint64_t v = 0; v < id; ++v) tee.finalizeVertex(v);
+  flag.request();
+  EXPECT_THROW(tee.end(), CancelledError);
+  writer.reset();
+  EXPECT_TRUE(fs::is_empty(dir)) << filesIn(dir).front();
+}
+
 // A real survey through the product's pipeline pieces: LAS reader -> finalizer -> streaming Delaunay ->
 // MeshTee -> GeoPackage writer (and a recorder of the same stream).  ~119k triangles and ~60k points,
 // so transactions are committed along the way.

@@ -434,6 +434,46 @@ TEST(ContourTracer, RandomTerrainMatchesReference) {
   EXPECT_TRUE(sameLines(run.out.lines, again.out.lines));
 }
 
+// A cancellation while end() emits the lines still open stops it within a few thousand lines, before the
+// sink's end().
+TEST(ContourTracer, EndStopsWhenCancelled) {
+  auto pts = randomPoints(3000, 3, 1000, terrain);
+  const Recorder rec = triangulate(pts);
+  ContourOptions opt;
+  opt.interval = 0.01;  // thousands of levels, each open line ending on the hull
+  struct CancelAtFirstLine : Collector {
+    CancelFlag* flag = nullptr;
+    void line(const ContourLine& l) override {
+      Collector::line(l);
+      if (flag) flag->request();
+    }
+  };
+  // The events without finalizations: the lines stay open until end().  Returns the lines end() emitted.
+  auto run = [&rec](ContourOptions o, bool cancel) {
+    CancelAtFirstLine out;
+    CancelFlag flag;
+    o.cancel = &flag;
+    ContourTracer tracer(o, out);
+    tracer.begin(rec.info);
+    for (const Event& e : rec.events)
+      if (e.kind == Event::Vertex)
+        tracer.vertex(e.a, e.x, e.y, e.z);
+      else if (e.kind == Event::Triangle)
+        tracer.triangle(e.a, e.b, e.c);
+    const std::size_t before = out.lines.size();  // (loops that closed went at once)
+    if (cancel) out.flag = &flag;  // a signal while end() emits the first of the lines left
+    if (cancel)
+      EXPECT_THROW(tracer.end(), CancelledError);
+    else
+      tracer.end();
+    EXPECT_EQ(out.ended, !cancel);
+    return out.lines.size() - before;
+  };
+  const std::size_t left = run(opt, false), emitted = run(opt, true);
+  EXPECT_GT(left, 8000u);
+  EXPECT_LE(emitted, 4096u);
+}
+
 // Real surveys of ../shared/data (default filters, as `build`): the contours of the product's TIN equal
 // the per-triangle reference's, lines are closed or end on the hull, and no two lines cross.
 TEST(ContourTracer, RealSurveysMatchReference) {

@@ -360,6 +360,38 @@ TEST(DemRasterizer, NoPointsWritesNothing) {
   EXPECT_TRUE(a.ended);
 }
 
+// A cancellation while end() completes the tiles still open stops it between tiles (a signal during
+// "finishing outputs" is honoured at once, not after the last tile).
+TEST(DemRasterizer, EndStopsBetweenTilesWhenCancelled) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 20000);
+  DemOptions o;
+  o.step = 1;
+  o.tileSize = 16;
+  DemRun run;
+  runStreaming(pts, o, run);
+  ASSERT_GT(run.raster.tiles, 4);
+  struct CancelAtFirstTile : Assembler {
+    CancelFlag* flag = nullptr;
+    void tile(const DemTile& t) override {
+      Assembler::tile(t);
+      if (flag) flag->request();
+    }
+  } out;
+  CancelFlag flag;
+  o.cancel = &flag;
+  o.streaming = false;  // every tile waits for end()
+  DemRasterizer dem(o, out);
+  dem.begin(run.mesh.info);
+  for (const auto& v : run.mesh.verts) dem.vertex(v);
+  for (const auto& t : run.mesh.tris) dem.triangle(t[0], t[1], t[2]);
+  const int before = out.tiles;  // (tiles filled whole go at once)
+  ASSERT_LT(before + 2, run.raster.tiles);
+  out.flag = &flag;  // a signal while end() hands over the first of the tiles left
+  EXPECT_THROW(dem.end(), CancelledError);
+  EXPECT_EQ(out.tiles, before + 1);
+  EXPECT_FALSE(out.ended);
+}
+
 TEST(VertexTable, InsertFindEraseUnderChurn) {
   VertexTable t;
   std::map<std::uint64_t, double> ref;
