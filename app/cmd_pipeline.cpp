@@ -45,6 +45,7 @@ int runWithReport(PipelineArgs& a, Run run) {
   o.finalizer.progress = ProgressDisplay::callback;
   o.finalizer.progressData = &progress;
   o.finalizer.progressCounts = progress.counts();
+  o.finalizer.cancel = cancelFlag();
   installCancelHandlers();
   // The run's outputs are one transaction (formats/io/output_transaction.h): every writer stages its file,
   // and nothing appears under its final name until the run has succeeded and no cancellation is pending;
@@ -70,8 +71,9 @@ int runWithReport(PipelineArgs& a, Run run) {
     reportFile->write(formatRunJson(report));
     reportFile->commit();  // (staged: renamed with the outputs, last)
   }
-  // The last moment a cancellation stops the run: from here the commit is a few renames.
-  if (!ProgressDisplay::callback(1.0, "committing outputs", &progress)) throw CancelledError();
+  // The last moment a cancellation stops the run: from here the commit is a few renames.  (An MPI run
+  // decided this moment collectively, on every rank at once.)
+  if (!report.decided && !ProgressDisplay::callback(1.0, "committing outputs", &progress)) throw CancelledError();
   transaction.commit();
   progress.finish();
   if (report.secondaryRank) return 0;  // an MPI rank but the first: rank 0 reports for the run

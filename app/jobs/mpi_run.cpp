@@ -107,30 +107,95 @@ void collective(int rank, int size, const std::string& what, Step step) {
   throw Error(report);
 }
 
-// An MPI run's steps read what the step before wrote, under its final name: the output transaction (if
-// any) commits each step's files.  A run stopped later keeps the part files and the plan state it
-// committed (a re-run replaces them); the merge's outputs still appear all at once, at the end.
+// An MPI run's steps read what the step before wrote, under its final name (other processes read it):
+// the output transaction (if any) commits each step's files provisionally.  A run stopped later removes
+// them again on every rank, so nothing of a stopped run stays under a final name; the merge's outputs
+// appear all at once, at the end, and the part files become the run's with them.
 void commitStep() {
-  if (OutputTransaction* t = OutputTransaction::current()) t->commit();
+  if (OutputTransaction* t = OutputTransaction::current()) t->commitProvisionally();
 }
 
-constexpr std::uint64_t kChunk = std::uint64_t{1} << 28;
+// A state file goes from a rank to rank 0 in chunks of 16 MiB (a few milliseconds each), so neither side
+// holds a whole file in memory.  Before each chunk, and once after the last, the two ranks vote: a
+// cancellation or a failure (a read, a write, a full disk) on either side stops both at the same point,
+// so neither is left waiting on the other, and the collective step around the exchange then stops every
+// rank.  A cancellation is thus honoured within a chunk.
+constexpr std::uint64_t kChunk = std::uint64_t{1} << 24;
+constexpr int kGoOn = 0, kStopCancelled = 1, kStopFailed = 2;
 
-void sendBytes(const std::string& bytes, int to, int tag) {
-  const std::uint64_t n = bytes.size();
-  MPI_Send(&n, 1, MPI_UINT64_T, to, tag, MPI_COMM_WORLD);
-  for (std::uint64_t at = 0; at < n; at += kChunk)
-    MPI_Send(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, to, tag, MPI_COMM_WORLD);
+// Both ranks' states -> the worse one.
+int pairVote(int peer, int tag, int mine) {
+  int theirs = kGoOn;
+  MPI_Sendrecv(&mine, 1, MPI_INT, peer, tag, &theirs, 1, MPI_INT, peer, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  return std::max(mine, theirs);
 }
 
-std::string receiveBytes(int from, int tag) {
-  std::uint64_t n = 0;
-  MPI_Recv(&n, 1, MPI_UINT64_T, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-  std::string bytes(n, '\0');
-  for (std::uint64_t at = 0; at < n; at += kChunk)
-    MPI_Recv(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, from, tag, MPI_COMM_WORLD,
-             MPI_STATUS_IGNORE);
-  return bytes;
+void stopOnVote(int outcome, const std::string& error, int peer) {
+  if (outcome == kStopFailed)
+    throw Error(!error.empty() ? error : "the transfer failed on rank " + std::to_string(peer));
+  if (outcome == kStopCancelled) throw CancelledError();
+}
+
+int stateOf(const std::string& error, const CancelFlag* cancel) {
+  return !error.empty() ? kStopFailed : cancelRequested(cancel) ? kStopCancelled : kGoOn;
+}
+
+// Sends `path` (when it exists) to rank 0; returns the bytes sent.
+std::uint64_t sendFile(const std::string& path, int tag, const CancelFlag* cancel) {
+  std::ifstream in(path, std::ios::binary);
+  std::error_code ec;
+  const std::uint64_t size = in ? fs::file_size(path, ec) : 0;
+  const std::uint64_t header[2] = {in && !ec ? 1u : 0u, size};
+  MPI_Send(header, 2, MPI_UINT64_T, 0, tag, MPI_COMM_WORLD);
+  if (!header[0]) return 0;
+  std::vector<char> buffer(static_cast<std::size_t>(std::min(kChunk, size)));
+  std::string error;
+  for (std::uint64_t at = 0;;) {
+    const std::uint64_t n = std::min(kChunk, size - at);
+    if (n > 0 && error.empty() && !in.read(buffer.data(), static_cast<std::streamsize>(n)))
+      error = path + ": cannot read the file to send it to rank 0";
+    stopOnVote(pairVote(0, tag, stateOf(error, cancel)), error, 0);
+    if (n == 0) return size;
+    MPI_Send(buffer.data(), static_cast<int>(n), MPI_CHAR, 0, tag, MPI_COMM_WORLD);
+    at += n;
+  }
+}
+
+// Rank 0: receives what `from` sends (sendFile) into `path`; returns the bytes received.
+std::uint64_t receiveFile(const std::string& path, int from, int tag, const CancelFlag* cancel) {
+  std::uint64_t header[2] = {0, 0};
+  MPI_Recv(header, 2, MPI_UINT64_T, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  if (!header[0]) return 0;
+  const std::uint64_t size = header[1];
+  std::string error;
+  std::unique_ptr<OutputFile> out;
+  try {
+    out = std::make_unique<OutputFile>(path, static_cast<std::size_t>(std::max<std::uint64_t>(16, std::min(kChunk, size))));
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  std::vector<char> buffer(static_cast<std::size_t>(std::min(kChunk, size)));
+  for (std::uint64_t at = 0;;) {
+    const std::uint64_t n = std::min(kChunk, size - at);
+    if (n == 0 && error.empty()) {  // the whole file: committed before the last vote, which reports it
+      try {
+        out->commit();
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    stopOnVote(pairVote(from, tag, stateOf(error, cancel)), error, from);
+    if (n == 0) return size;
+    MPI_Recv(buffer.data(), static_cast<int>(n), MPI_CHAR, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+    if (error.empty()) {
+      try {
+        out->write(buffer.data(), static_cast<std::size_t>(n));
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    at += n;
+  }
 }
 
 // A private temporary directory for a rank's state (rank 0 keeps its state beside the outputs).
@@ -309,27 +374,15 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   double partSeconds = since(tPart);
   // 3. Seam files, DEM pieces and part records to rank 0.
   const char* kinds[] = {"seam", "dem", "json"};
+  const CancelFlag* cancel = options.finalizer.cancel;
   collective(rank, size, "exchange from rank", [&] {
     for (int from = 1; from < size; ++from)
       for (int k = 0; k < 3; ++k) {
         const int tag = 100 + k;
-        if (rank == from) {
-          const std::string path = plan.partFile(rank, kinds[k]);
-          std::error_code ec;
-          const bool present = fs::exists(path, ec);
-          std::string bytes = present ? readWhole(path) : std::string();
-          const std::uint64_t flag = present ? 1 : 0;
-          MPI_Send(&flag, 1, MPI_UINT64_T, 0, tag, MPI_COMM_WORLD);
-          if (present) sendBytes(bytes, 0, tag);
-          exchanged += bytes.size();
-        } else if (rank == 0) {
-          std::uint64_t flag = 0;
-          MPI_Recv(&flag, 1, MPI_UINT64_T, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
-          if (!flag) continue;
-          const std::string bytes = receiveBytes(from, tag);
-          writeWhole(plan.partFile(from, kinds[k]), bytes);
-          exchanged += bytes.size();
-        }
+        if (rank == from)
+          exchanged += sendFile(plan.partFile(rank, kinds[k]), tag, cancel);
+        else if (rank == 0)
+          exchanged += receiveFile(plan.partFile(from, kinds[k]), from, tag, cancel);
       }
   });
   collective(rank, size, "commit on rank", [&] { commitStep(); });  // rank 0: the files it received
@@ -355,9 +408,17 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   MPI_Gather(&peak, 1, MPI_UINT64_T, peaks.data(), 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
   std::uint64_t exchangedAll = 0;
   MPI_Reduce(&exchanged, &exchangedAll, 1, MPI_UINT64_T, MPI_SUM, 0, MPI_COMM_WORLD);
+  // 5. The decision: one last vote.  A cancellation that has reached any rank by now stops all of them
+  // (exit 3, nothing of the merge committed).  After the vote the run is decided: rank 0 commits and
+  // every rank exits 0, whatever signal arrives later (as a single process past its commit).  Without
+  // it, a late SIGTERM could stop one rank with exit 3 while rank 0 committed a whole result.
+  int stop = cancelRequested(options.finalizer.cancel) ? 1 : 0;
+  MPI_Allreduce(MPI_IN_PLACE, &stop, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  if (stop) throw CancelledError();
   if (rank != 0) {
     partReport.command = "build --mpi";
     partReport.secondaryRank = true;
+    partReport.decided = true;
     return partReport;
   }
   std::error_code ec;
@@ -378,6 +439,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   outputs.insert(outputs.end(), merged.outputs.begin(), merged.outputs.end());
   merged.outputs = outputs;
   merged.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  merged.decided = true;
   return merged;
 }
 

@@ -75,6 +75,9 @@ struct RunReport {
   double planSeconds = 0, mergeSeconds = 0;  // --mpi: rank 0's plan and merge
   std::vector<double> rankPartSeconds;       // --mpi: each rank's part (its build)
   bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
+  // --mpi: every rank voted to go on after the merge (mpi_run.cpp); a signal arriving later no longer
+  // stops the commit, on any rank, so the exit codes agree with what rank 0 commits.
+  bool decided = false;
 };
 
 // The human summary (a few lines for stderr) and the JSON report (stable keys, see docs/usage.md).

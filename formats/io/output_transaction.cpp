@@ -74,10 +74,15 @@ OutputTransaction::OutputTransaction() : previous_(g_current.exchange(this)) {}
 
 OutputTransaction::~OutputTransaction() {
   g_current.store(previous_);
-  // Rolled back (what no commit took): every staged temporary goes, and the undo steps run.
+  // Rolled back (what no commit took): every staged temporary goes, so do the files committed only
+  // provisionally, and the undo steps run.
   for (auto it = renames_.rbegin(); it != renames_.rend(); ++it) {
     std::error_code ec;
     fs::remove_all(it->first, ec);
+  }
+  for (auto it = provisional_.rbegin(); it != provisional_.rend(); ++it) {
+    std::error_code ec;
+    fs::remove_all(*it, ec);
   }
   for (auto it = after_.rbegin(); it != after_.rend(); ++it)
     if (it->second) {
@@ -123,6 +128,19 @@ std::size_t OutputTransaction::stagedCount() const {
 
 void OutputTransaction::commit() {
   std::lock_guard<std::mutex> lock(mutex_);
+  commitLocked();
+  provisional_.clear();
+}
+
+void OutputTransaction::commitProvisionally() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::string> finals;
+  for (const auto& r : renames_) finals.push_back(r.second);
+  commitLocked();
+  provisional_.insert(provisional_.end(), finals.begin(), finals.end());
+}
+
+void OutputTransaction::commitLocked() {
   // 1. The journals: one beside every locked output, each listing every rename and every journal.
   std::vector<std::string> journals;
   if (!renames_.empty())

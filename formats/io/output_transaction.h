@@ -50,15 +50,21 @@ class OutputTransaction {
   std::string stagedTemp(const std::string& final) const;
 
   // Renames everything staged so far into place (see the header).  DataError naming the output when a
-  // rename fails (the journal then stays, and the next run finishes the commit).  A transaction may commit
-  // more than once (an MPI run commits each step's files before the next step reads them); what is staged
-  // after a commit is rolled back unless committed too.
+  // rename fails (the journal then stays, and the next run finishes the commit).  What is staged after a
+  // commit is rolled back unless committed too.
   void commit();
+  // The same renames, for a later step of the run to read the files under their names (an MPI run's part
+  // files, which other processes read), but provisionally: if the transaction is then rolled back (an
+  // error, a cancellation), these files are removed again, so a stopped run leaves none of them.  Only
+  // commit() makes them the run's for good.  (A run killed outright leaves them: docs/usage.md.)
+  void commitProvisionally();
   std::size_t stagedCount() const;
 
  private:
   mutable std::mutex mutex_;
+  void commitLocked();
   std::vector<std::pair<std::string, std::string>> renames_;  // (temp, final) in staging order
+  std::vector<std::string> provisional_;                      // renamed by commitProvisionally()
   std::vector<std::pair<std::function<void()>, std::function<void()>>> after_;
   std::vector<RunLock> locks_;
   std::vector<std::string> lockedPaths_;

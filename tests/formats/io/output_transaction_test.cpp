@@ -67,6 +67,29 @@ TEST(OutputTransaction, RolledBackLeavesNothing) {
   EXPECT_EQ(slurp(dir / "now.txt"), "n");
 }
 
+// An MPI run's steps commit provisionally (other processes read the files under their names): a run
+// stopped later removes them again; only the final commit keeps them.
+TEST(OutputTransaction, ProvisionalCommitsAreUndoneByARollBack) {
+  const fs::path dir = test::scratchDir();
+  {
+    OutputTransaction t;
+    write(dir / "part0.smb", "p");
+    t.commitProvisionally();
+    EXPECT_EQ(slurp(dir / "part0.smb"), "p");  // readable by name, by anyone
+    write(dir / "merged.smb", "m");
+  }  // (stopped before the commit)
+  EXPECT_TRUE(fs::is_empty(dir)) << "a rolled-back run left " << fs::directory_iterator(dir)->path();
+  {
+    OutputTransaction t;
+    write(dir / "part0.smb", "p");
+    t.commitProvisionally();
+    write(dir / "merged.smb", "m");
+    t.commit();
+  }
+  EXPECT_EQ(slurp(dir / "part0.smb"), "p");
+  EXPECT_EQ(slurp(dir / "merged.smb"), "m");
+}
+
 TEST(OutputTransaction, AKilledCommitIsFinishedFromItsJournal) {
   const fs::path dir = test::scratchDir();
   const std::string a = (dir / "a.txt").string(), b = (dir / "b.txt").string();
