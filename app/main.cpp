@@ -1,6 +1,7 @@
 // tinbuild: streaming LIDAR to TIN and DEM.  main() dispatches to a subcommand and maps exceptions to
 // exit codes: 0 success, 1 data or runtime error, 2 usage error, 3 cancelled.
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <iostream>
 #include <new>
@@ -33,7 +34,7 @@ const tinbuild::app::Command* findCommand(const std::string& name) {
 
 }  // namespace
 
-int main(int argc, char** argv) {
+static int runCommand(int argc, char** argv) {
   // First of all: a SIGTERM from a batch system that arrives while the process starts (GDAL and PROJ load)
   // is a cancellation like any other (exit 3), not the default action's death.
   tinbuild::app::installCancelHandlers();
@@ -87,4 +88,19 @@ int main(int argc, char** argv) {
     std::cerr << "tinbuild: error: " << e.what() << "\n";
     return 1;
   }
+}
+
+int main(int argc, char** argv) {
+  const int code = runCommand(argc, argv);
+  // A run that failed or was cancelled has removed its temporaries and released its locks on the way
+  // out (the stack unwound); the libraries' exit handlers are skipped, because one of them may crash
+  // over the failure (HDF5 closes a NetCDF file again after a failed write), and a clear error must
+  // stay a clear error with its exit code.
+  if (code != 0) {
+    std::cout.flush();
+    std::cerr.flush();
+    std::fflush(nullptr);
+    std::_Exit(code);
+  }
+  return code;
 }

@@ -1,6 +1,7 @@
 #include "formats/mesh/ugrid_writer.h"
 
 #include <cpl_error.h>
+#include <dlfcn.h>
 #include <netcdf.h>
 #include <ogr_spatialref.h>
 #include <unistd.h>
@@ -21,6 +22,19 @@
 namespace tinbuild {
 
 namespace {
+
+// HDF5 (under netCDF-4) prints its whole error stack on stderr when a write fails (a full or failing
+// disk), dozens of lines; the writer reports the failure itself, naming the file.  The printing is turned
+// off in the HDF5 library netCDF loaded, found at run time (tinbuild does not link HDF5 itself), on each
+// thread that writes (a thread-safe HDF5 keeps the setting per thread).
+void quietHdf5() {
+  thread_local const bool done = [] {
+    using SetAuto = int (*)(std::int64_t estack, void* func, void* data);  // H5Eset_auto2 (hid_t: 64 bits)
+    if (auto f = reinterpret_cast<SetAuto>(::dlsym(RTLD_DEFAULT, "H5Eset_auto2"))) f(0 /* H5E_DEFAULT */, nullptr, nullptr);
+    return true;
+  }();
+  (void)done;
+}
 
 // Node numbers are NetCDF ints (MDAL reads the connectivity as int).
 constexpr std::uint64_t kMaxNodes = 0x7FFFFFFFull;
@@ -150,6 +164,7 @@ class UgridWriter final : public MeshSink {
  public:
   UgridWriter(std::string path, const UgridWriterOptions& options)
       : path_(std::move(path)), options_(options), block_(options.blockSize > 0 ? options.blockSize : 65536) {
+    quietHdf5();
     const int fd = createTemporaryBeside(path_, tempPath_);
     ::close(fd);
     try {
@@ -173,6 +188,7 @@ class UgridWriter final : public MeshSink {
   UgridWriter& operator=(const UgridWriter&) = delete;
 
   void begin(const MeshInfo& info) override {
+    quietHdf5();
     crs_ = analyseCrs(options_.crs, info.crsWkt);
     define();
   }
@@ -213,8 +229,13 @@ class UgridWriter final : public MeshSink {
   }
 
  private:
+  // netCDF's message, and the system's reason when the disk failed (netCDF says "HDF error").
   void check(int status, const std::string& what) const {
-    if (status != NC_NOERR) throw DataError(path_, what + ": " + nc_strerror(status));
+    if (status == NC_NOERR) return;
+    const int e = errno;
+    std::string text = what + ": " + nc_strerror(status);
+    if (e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS) text += std::string(" (") + std::strerror(e) + ")";
+    throw DataError(path_, text);
   }
   void text(int varid, const char* name, const std::string& value) {
     check(nc_put_att_text(ncid_, varid, name, value.size(), value.data()),
@@ -333,6 +354,7 @@ class UgridWriter final : public MeshSink {
   }
 
   void flushNodes() {
+    quietHdf5();
     if (x_.empty()) return;
     const std::size_t start = nodesWritten_, count = x_.size();
     check(nc_put_vara_double(ncid_, xVar_, &start, &count, x_.data()), "cannot write node x");
@@ -344,6 +366,7 @@ class UgridWriter final : public MeshSink {
     z_.clear();
   }
   void flushFaces() {
+    quietHdf5();
     if (faces_.empty()) return;
     const std::size_t start[2] = {facesWritten_, 0}, count[2] = {faces_.size() / 3, 3};
     check(nc_put_vara_int(ncid_, facesVar_, start, count, faces_.data()), "cannot write faces");

@@ -35,19 +35,39 @@ void registerGdalWriters() {
 
 namespace {
 
+// GDAL's progress convention over a CancelFlag (data; null: never cancelled): 0 stops the copy.
+int gdalCancelProgress(double, const char*, void* flag) {
+  return cancelRequested(static_cast<const CancelFlag*>(flag)) ? 0 : 1;
+}
+
 // GDAL reports errors through a handler (stderr by default); within our calls they are collected and
 // turned into exceptions naming the file.
+// The handler also keeps the system's error at the moment GDAL reported a failure, which GDAL's messages do
+// not carry ("Error writing TIFF header" is a full disk or a failing one) and later calls overwrite.
+thread_local int t_failureErrno = 0;
+
+bool isDiskErrno(int e) {
+  return e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS;
+}
+
 struct QuietGdal {
   QuietGdal() {
-    CPLPushErrorHandler(CPLQuietErrorHandler);
+    CPLPushErrorHandler([](CPLErr level, CPLErrorNum, const char*) {
+      if (level >= CE_Failure && isDiskErrno(errno) && t_failureErrno == 0) t_failureErrno = errno;
+    });
     CPLErrorReset();
+    t_failureErrno = 0;
   }
   ~QuietGdal() { CPLPopErrorHandler(); }
 };
 
+// GDAL's message, and the system's reason when the call failed on the disk.
 [[noreturn]] void gdalFailure(const std::string& path, const std::string& what) {
+  const int e = t_failureErrno ? t_failureErrno : errno;
   const char* msg = CPLGetLastErrorMsg();
-  throw DataError(path, what + (msg && *msg ? std::string(": ") + msg : std::string()));
+  std::string text = what + (msg && *msg ? std::string(": ") + msg : std::string());
+  if (isDiskErrno(e)) text += std::string(" (") + std::strerror(e) + ")";
+  throw DataError(path, text);
 }
 
 bool endsWith(std::string s, const std::string& suffix) {
@@ -136,7 +156,11 @@ struct DemWriter::Impl {
         GDALClose(b.ds);
         b.ds = nullptr;
       }
-      if (!b.tempPath.empty()) ::unlink(b.tempPath.c_str());
+      if (!b.tempPath.empty()) {
+        ::unlink(b.tempPath.c_str());
+        // (a GeoPackage raster: SQLite's rollback journal of the failed transaction, when GDAL left one)
+        for (const char* sidecar : {"-journal", "-wal", "-shm"}) ::unlink((b.tempPath + sidecar).c_str());
+      }
     }
     if (!stagingDir.empty()) {
       std::error_code ec;
@@ -193,38 +217,42 @@ struct DemWriter::Impl {
   }
 
   // Writes `data` (w x h, north-up) as a whole raster at `path` (tile directory target).
-  void writeTileFile(const std::string& path, const void* data, int w, int h, int kind, double west,
+  void writeTileFile(const std::string& path, const std::string& reportAs, const void* data, int w, int h, int kind, double west,
                      double north) {
     QuietGdal quiet;
     const GDALDataType type = bandType(kind);
     GDALDatasetH ds = nullptr;
     if (o.cog) {
       GDALDatasetH mem = GDALCreate(driver("MEM"), "", w, h, 1, type, nullptr);
-      if (!mem) gdalFailure(path, "cannot create an in-memory raster");
+      if (!mem) gdalFailure(reportAs, "cannot create an in-memory raster");
       describe(mem, west, north, kind, path);
       if (GDALRasterIO(GDALGetRasterBand(mem, 1), GF_Write, 0, 0, w, h, const_cast<void*>(data), w, h, type,
                        0, 0) != CE_None) {
         GDALClose(mem);
-        gdalFailure(path, "cannot fill the in-memory raster");
+        gdalFailure(reportAs, "cannot fill the in-memory raster");
       }
       CPLStringList opts = cogOptions(kind);
-      ds = GDALCreateCopy(driver("COG"), path.c_str(), mem, FALSE, opts.List(), nullptr, nullptr);
+      ds = GDALCreateCopy(driver("COG"), path.c_str(), mem, FALSE, opts.List(), gdalCancelProgress,
+                          const_cast<CancelFlag*>(o.cancel));
       GDALClose(mem);
-      if (!ds) gdalFailure(path, "cannot write the Cloud Optimized GeoTIFF");
+      if (!ds) {
+        throwIfCancelled(o.cancel);
+        gdalFailure(reportAs, "cannot write the Cloud Optimized GeoTIFF");
+      }
     } else {
       CPLStringList opts = gtiffOptions(kind, false);
       ds = GDALCreate(driver("GTiff"), path.c_str(), w, h, 1, type, opts.List());
-      if (!ds) gdalFailure(path, "cannot create the GeoTIFF");
+      if (!ds) gdalFailure(reportAs, "cannot create the GeoTIFF");
       describe(ds, west, north, kind, path);
       if (GDALRasterIO(GDALGetRasterBand(ds, 1), GF_Write, 0, 0, w, h, const_cast<void*>(data), w, h, type, 0,
                        0) != CE_None) {
         GDALClose(ds);
-        gdalFailure(path, "cannot write the raster");
+        gdalFailure(reportAs, "cannot write the raster");
       }
     }
     CPLErrorReset();
     GDALClose(ds);
-    if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(path, "cannot finish the raster (disk full?)");
+    if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(reportAs, "cannot finish the raster (disk full?)");
   }
 };
 
@@ -312,8 +340,9 @@ void DemWriter::tile(const DemTile& t) {
       const std::string name =
           std::string(kBandName[b.kind]) + "_" + coordText(cellWest) + "_" + coordText(cellSouth) + ".tif";
       const std::string staged = m.stagingDir + "/" + name;
-      m.writeTileFile(staged, bandData(t, b.kind), t.width, t.height, b.kind, west, north);
-      b.staged.emplace_back(staged, (fs::path(m.o.path) / name).string());
+      const std::string final = (fs::path(m.o.path) / name).string();
+      m.writeTileFile(staged, final, bandData(t, b.kind), t.width, t.height, b.kind, west, north);
+      b.staged.emplace_back(staged, final);
     }
     return;
   }
@@ -416,12 +445,14 @@ void DemWriter::end() {
       std::vector<const char*> names;
       for (const auto& f : finals) names.push_back(f.second.c_str());
       GDALBuildVRTOptions* vo = GDALBuildVRTOptionsNew(nullptr, nullptr);
+      GDALBuildVRTOptionsSetProgress(vo, gdalCancelProgress, const_cast<CancelFlag*>(m.o.cancel));
       int usageError = 0;
       GDALDatasetH v =
           GDALBuildVRT(tmp.c_str(), static_cast<int>(names.size()), nullptr, names.data(), vo, &usageError);
       GDALBuildVRTOptionsFree(vo);
       if (!v) {
         ::unlink(tmp.c_str());
+        throwIfCancelled(m.o.cancel);
         gdalFailure(vrt, "cannot build the VRT mosaic");
       }
       GDALClose(v);
@@ -460,6 +491,7 @@ void DemWriter::end() {
     return;
   }
   for (Band& b : m.bands) {
+    throwIfCancelled(m.o.cancel);
     if (!b.ds) {  // an empty raster (no points): nothing to write
       ::unlink(b.tempPath.c_str());
       b.tempPath.clear();
@@ -476,12 +508,15 @@ void DemWriter::end() {
       if (!src) gdalFailure(b.finalPath, "cannot reopen the raster");
       const std::string cogTemp = temporaryBeside(b.finalPath);
       CPLStringList opts = m.cogOptions(b.kind);
-      GDALDatasetH cog =
-          GDALCreateCopy(m.driver("COG"), cogTemp.c_str(), src, FALSE, opts.List(), nullptr, nullptr);
+      GDALDatasetH cog = GDALCreateCopy(m.driver("COG"), cogTemp.c_str(), src, FALSE, opts.List(),
+                                        gdalCancelProgress, const_cast<CancelFlag*>(m.o.cancel));
       GDALClose(src);
       ::unlink(b.tempPath.c_str());
       b.tempPath = cogTemp;
-      if (!cog) gdalFailure(b.finalPath, "cannot write the Cloud Optimized GeoTIFF");
+      if (!cog) {
+        throwIfCancelled(m.o.cancel);
+        gdalFailure(b.finalPath, "cannot write the Cloud Optimized GeoTIFF");
+      }
       CPLErrorReset();
       GDALClose(cog);
       if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(b.finalPath, "cannot finish the COG (disk full?)");

@@ -32,6 +32,7 @@
 #include <vector>
 
 #include "formats/crs/crs.h"
+#include "libterrain/core/cancel.h"
 #include "libterrain/raster/dem_rasterizer.h"
 
 namespace tinbuild {
@@ -56,6 +57,8 @@ struct DemWriterOptions {
   // files, any band: each goes to the mosaic its name starts with).
   bool mosaic = true;
   std::vector<std::string> otherTiles;
+  // Polled while end() finishes (the COG copy of a single raster, the mosaics over many tiles).
+  const CancelFlag* cancel = nullptr;
 };
 
 // Sets the writer's band flags to the rasterizer's (they must match).

@@ -28,7 +28,7 @@ using Clock = std::chrono::steady_clock;
 // Runs tinbuild with `args` (split on spaces) in `dir`; sends `signal` after `delay` seconds (never when
 // delay < 0); returns the exit code (128 + signal when killed by one).
 int runWith(const fs::path& dir, const std::string& args, double delay = -1, int signal = SIGTERM,
-            const char* env = nullptr, const char* errFile = nullptr) {
+            std::vector<std::string> env = {}, const char* errFile = nullptr) {
   std::vector<std::string> words{TINBUILD_EXE};
   for (std::size_t at = 0; at < args.size();) {
     const std::size_t sp = args.find(' ', at);
@@ -40,7 +40,7 @@ int runWith(const fs::path& dir, const std::string& args, double delay = -1, int
   const pid_t child = ::fork();
   if (child == 0) {
     if (::chdir(dir.c_str()) != 0) ::_exit(126);
-    if (env) ::putenv(const_cast<char*>(env));
+    for (std::string& e : env) ::putenv(e.data());
     std::vector<char*> argv;
     for (auto& w : words) argv.push_back(w.data());
     argv.push_back(nullptr);
@@ -122,7 +122,7 @@ TEST(Faults, AKilledCommitIsFinishedByTheNextRun) {
   const Survey s = prepare();
   for (int after : {0, 1, 3}) {
     const std::string env = "TINBUILD_FAULT_COMMIT_AFTER=" + std::to_string(after);
-    EXPECT_EQ(runWith(s.dir, "build s/survey.las" + kOutputs, -1, SIGTERM, env.c_str()), 128 + SIGKILL);
+    EXPECT_EQ(runWith(s.dir, "build s/survey.las" + kOutputs, -1, SIGTERM, {env}), 128 + SIGKILL);
     // The next run on those outputs finishes the killed commit: the result is whole (and, without
     // --overwrite, the run then refuses to replace it); with --overwrite it is replaced.
     EXPECT_NE(runWith(s.dir, "build s/survey.las" + kOutputs), 0);
@@ -154,6 +154,149 @@ TEST(Faults, TwoRunsOnTheSameOutputsExcludeEachOther) {
   EXPECT_EQ(r.code, 1) << r.err;
   EXPECT_NE(r.err.find("in use by another tinbuild run (pid"), std::string::npos) << r.err;
   EXPECT_EQ(filesBelow(s.dir / "o"), s.complete) << "the second run touched the first one's outputs";
+}
+
+// Bytes of the files below dir whose relative path contains `part`.
+std::uintmax_t bytesOf(const fs::path& dir, const std::string& part) {
+  std::uintmax_t n = 0;
+  for (const std::string& f : filesBelow(dir))
+    if (f.find(part) != std::string::npos) n += fs::file_size(dir / f);
+  return n;
+}
+
+// A disk that fails (EIO) under any output, at its first byte or half-way through it: the run fails with
+// exit 1 and a message naming that output (and the system's reason where the format's library passes it
+// on); no output of the run appears, though the others were in flight, no temporary or lock stays, and a
+// rerun succeeds.  The fault is injected into the executable (app/io_fault_inject.cpp, LD_PRELOAD).
+TEST(Faults, AFailingDiskUnderAnyOutputLeavesNothing) {
+  const Survey s = prepare();
+  struct Case {
+    std::string outputs;  // the run's outputs (all written at once)
+    std::string file;     // the output whose writes fail (a part of its path)
+    std::string named;    // what the message names
+    bool reason;          // the message gives the system's reason
+  };
+  const std::string a = " --mesh o/tin.ply --dem o/d.tif --step 1 --contours o/c.shp --interval 5 --keep-class 2 -q";
+  const std::string b = " --mesh o/tin.obj --dem o/d.gpkg --step 1 --contours o/c.fgb --interval 5 --keep-class 2 -q";
+  const std::string c = " --mesh o/u.nc --dem o/cog.tif --cog --step 1 --contours o/c.geojson --interval 5 --keep-class 2 -q";
+  const std::vector<Case> cases = {
+      {kOutputs, "tin.smb", "o/tin.smb", true},     {kOutputs, "dem", "o/dem/dem_", true},
+      {kOutputs, "tin.gpkg", "o/tin.gpkg", true},   {kOutputs, "c.gpkg", "o/c.gpkg", true},
+      {kOutputs, "run.json", "o/run.json", true},   {a, "tin.ply", "o/tin.ply", true},
+      {a, "d.tif", "o/d.tif", true},                {a, "c.shp", "o/c.shp", true},
+      {a, "c.dbf", "o/c.shp", false},               {b, "tin.obj", "o/tin.obj", true},
+      {b, "d.gpkg", "o/d.gpkg", false},             {b, "c.fgb", "o/c.fgb", false},
+      {c, "u.nc", "o/u.nc", true},                  {c, "cog.tif", "o/cog.tif", true},
+      {c, "c.geojson", "o/c.geojson", false},
+  };
+  const std::string errFile = (s.dir / "fault.err").string();
+  std::string measured;
+  std::vector<std::string> complete;
+  for (const Case& k : cases) {
+    if (k.outputs != measured) {  // a clean run of these outputs (then each case's rerun leaves one)
+      fs::remove_all(s.dir / "o");
+      ASSERT_EQ(runWith(s.dir, "build s/survey.las" + k.outputs), 0) << k.outputs;
+      complete = filesBelow(s.dir / "o");
+      measured = k.outputs;
+    }
+    const std::uintmax_t size = bytesOf(s.dir / "o", k.file);
+    ASSERT_GT(size, 0u) << k.file;
+    fs::remove_all(s.dir / "o");
+    for (const std::uintmax_t after : {std::uintmax_t{0}, size / 2}) {
+      const int code = runWith(s.dir, "build s/survey.las" + k.outputs, -1, SIGTERM,
+                               {std::string("LD_PRELOAD=") + TINBUILD_IO_FAULTS_LIB, "TINBUILD_IO_FAULT_PATH=" + k.file,
+                                "TINBUILD_IO_FAULT_AFTER=" + std::to_string(after)},
+                               errFile.c_str());
+      const std::string err = test::slurp(errFile);
+      const std::string at = k.file + " failing after " + std::to_string(after) + " bytes: ";
+      EXPECT_EQ(code, 1) << at << err;
+      EXPECT_NE(err.find(k.named), std::string::npos) << at << err;
+      if (k.reason) {
+        EXPECT_NE(err.find("Input/output error"), std::string::npos) << at << err;
+      }
+      EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << at << "one line, not a library's error stack: " << err;
+      const std::vector<std::string> left = filesBelow(s.dir / "o");
+      EXPECT_TRUE(left.empty()) << at << left.size() << " files left, the first " << left.front();
+    }
+    ASSERT_EQ(runWith(s.dir, "build s/survey.las" + k.outputs), 0) << "the rerun after " << k.file << " failed";
+    EXPECT_EQ(filesBelow(s.dir / "o"), complete);
+  }
+}
+
+// The same for a plan's parts and its merge: a part whose state file, piece file or mesh cannot be
+// written leaves none of them (the part is simply run again), and a merge whose output cannot be written
+// leaves none of its outputs.
+TEST(Faults, AFailingDiskUnderAPartOrAMergeLeavesNothing) {
+  const Survey s = prepare();
+  ASSERT_EQ(runWith(s.dir, "plan s/survey.las --mesh p/tin.smb --dem p/dem --step 1 --gpkg p/tin.gpkg --contours "
+                           "p/c.gpkg --interval 5 --keep-class 2 --parts 2 -o p/plan.json -q"),
+            0);
+  const std::vector<std::string> planned = filesBelow(s.dir / "p");
+  const std::string errFile = (s.dir / "fault.err").string();
+  auto failing = [&](const std::string& args, const std::string& file) {
+    const int code = runWith(s.dir, args, -1, SIGTERM,
+                             {std::string("LD_PRELOAD=") + TINBUILD_IO_FAULTS_LIB, "TINBUILD_IO_FAULT_PATH=" + file},
+                             errFile.c_str());
+    const std::string err = test::slurp(errFile);
+    EXPECT_EQ(code, 1) << file << ": " << err;
+    EXPECT_NE(err.find("Input/output error"), std::string::npos) << file << ": " << err;
+  };
+  for (const char* file : {"part-0000.seam", "part-0000.dem", "part-0000.json", "tin.part-0000.smb"}) {
+    failing("build --plan p/plan.json --part 0 -q", file);
+    EXPECT_EQ(filesBelow(s.dir / "p"), planned) << file;
+  }
+  for (int i = 0; i < 2; ++i) ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
+  const std::vector<std::string> parted = filesBelow(s.dir / "p");
+  for (const char* file : {"tin.parts.json", "tin.seam.smb", "p/dem/", "tin.gpkg", "c.gpkg"}) {
+    failing("merge p/plan.json -q", file);
+    EXPECT_EQ(filesBelow(s.dir / "p"), parted) << file;
+  }
+  EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
+  EXPECT_TRUE(fs::exists(s.dir / "p/tin.parts.json"));
+  EXPECT_TRUE(fs::exists(s.dir / "p/tin.gpkg"));
+}
+
+// A tmpfs mounted for a test, unmounted whatever happens.
+struct Tmpfs {
+  fs::path dir;
+  bool mounted = false;
+  Tmpfs(const fs::path& d, const std::string& size) : dir(d) {
+    fs::create_directories(dir);
+    mounted = std::system(("mount -t tmpfs -o size=" + size + " tmpfs " + dir.string() + " > /dev/null 2>&1").c_str()) == 0;
+  }
+  ~Tmpfs() {
+    if (mounted) (void)!std::system(("umount " + dir.string()).c_str());
+  }
+};
+
+// A disk that fills (ENOSPC: a small tmpfs, where this machine lets the test mount one) at moments spread
+// over the outputs: exit 1, the reason given, nothing left on that disk.
+TEST(Faults, AFullDiskLeavesNothing) {
+  const Survey s = prepare();
+  const fs::path disk = s.dir / "disk";
+  const std::string outputs = " --mesh disk/o/tin.smb --dem disk/o/dem --step 1 --gpkg disk/o/tin.gpkg --contours "
+                              "disk/o/c.gpkg --interval 5 --keep-class 2 --report disk/o/run.json --threads 2 -q";
+  std::uintmax_t total = 0;
+  {
+    Tmpfs big(disk, "2g");
+    if (!big.mounted) GTEST_SKIP() << "cannot mount a tmpfs here (not root, or no CAP_SYS_ADMIN)";
+    ASSERT_EQ(runWith(s.dir, "build s/survey.las" + outputs), 0);
+    total = bytesOf(disk / "o", "");
+  }
+  const std::string errFile = (s.dir / "full.err").string();
+  for (const double share : {0.002, 0.05, 0.3, 0.6, 0.95}) {
+    const auto kib = std::max<std::uintmax_t>(64, static_cast<std::uintmax_t>(share * static_cast<double>(total)) / 1024);
+    Tmpfs small(disk, std::to_string(kib) + "k");
+    ASSERT_TRUE(small.mounted);
+    const int code = runWith(s.dir, "build s/survey.las" + outputs, -1, SIGTERM, {}, errFile.c_str());
+    const std::string err = test::slurp(errFile);
+    EXPECT_EQ(code, 1) << share << ": " << err;
+    EXPECT_NE(err.find("disk/o/"), std::string::npos) << err;
+    EXPECT_EQ(std::count(err.begin(), err.end(), '\n'), 1) << "one line: " << err;
+    const std::vector<std::string> left = filesBelow(disk);
+    EXPECT_TRUE(left.empty()) << "a disk " << share << " of the outputs' size: " << left.size()
+                              << " files left, the first " << left.front();
+  }
 }
 
 TEST(Faults, AStoppedMergeLeavesNoManifestAndReruns) {
@@ -230,7 +373,7 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
     d.apply();
     test::Run r;
     const std::string errFile = (s.dir / "merge.err").string();
-    r.code = runWith(s.dir, "merge p/plan.json -q", -1, SIGTERM, nullptr, errFile.c_str());
+    r.code = runWith(s.dir, "merge p/plan.json -q", -1, SIGTERM, {}, errFile.c_str());
     r.err = test::slurp(errFile);
     EXPECT_EQ(r.code, 1) << d.what << " " << d.file << ": " << r.err;
     EXPECT_NE(r.err.find(d.file.filename().string()), std::string::npos) << r.err;
@@ -272,7 +415,7 @@ TEST(Faults, DamagedLazChunksAreErrorsNamingTheChunk) {
     }
     const std::string err = (dir / "err.txt").string(), out = (dir / "d.fin").string();
     fs::remove(out);
-    const int code = runWith(dir, "finalize d.laz -o " + out + " -q", -1, SIGTERM, nullptr, err.c_str());
+    const int code = runWith(dir, "finalize d.laz -o " + out + " -q", -1, SIGTERM, {}, err.c_str());
     if (code == 0) {
       EXPECT_EQ(test::slurp(out), expected) << "zeros at byte " << at << " gave other points and no error";
       continue;
@@ -303,7 +446,7 @@ TEST(Faults, AbsurdRastersAndContourSetsAreRefusedAtOnce) {
   for (const auto& [args, message] : cases) {
     const std::string err = (dir / "err.txt").string();
     const auto t0 = Clock::now();
-    const int code = runWith(dir, "build " + las + " " + args + " -q", 30.0, SIGKILL, nullptr, err.c_str());
+    const int code = runWith(dir, "build " + las + " " + args + " -q", 30.0, SIGKILL, {}, err.c_str());
     const double seconds = std::chrono::duration<double>(Clock::now() - t0).count();
     EXPECT_EQ(code, 2) << args;
     EXPECT_LT(seconds, 20) << args;
@@ -323,11 +466,11 @@ TEST(Faults, WrongInputsAreNamedClearly) {
   }
   std::ofstream(dir / "empty.las").close();
   const std::string err = (dir / "err.txt").string();
-  EXPECT_EQ(runWith(dir, "build photo.las --mesh t.smb -q", -1, SIGTERM, nullptr, err.c_str()), 1);
+  EXPECT_EQ(runWith(dir, "build photo.las --mesh t.smb -q", -1, SIGTERM, {}, err.c_str()), 1);
   EXPECT_NE(test::slurp(err).find("tinbuild: error: photo.las: it holds a PNG image (first bytes 89 50 4e 47"),
             std::string::npos)
       << test::slurp(err);
-  EXPECT_EQ(runWith(dir, "build empty.las --mesh t.smb -q", -1, SIGTERM, nullptr, err.c_str()), 1);
+  EXPECT_EQ(runWith(dir, "build empty.las --mesh t.smb -q", -1, SIGTERM, {}, err.c_str()), 1);
   EXPECT_NE(test::slurp(err).find("tinbuild: error: empty.las: the file is empty"), std::string::npos)
       << test::slurp(err);
   EXPECT_FALSE(fs::exists(dir / "t.smb"));
@@ -350,7 +493,7 @@ TEST(Faults, RecordsBeyondTheHeadersCountAreSaid) {
   }
   ASSERT_GT(count, 10u);
   const std::string err = (dir / "err.txt").string();
-  EXPECT_EQ(runWith(dir, "build short-count.las --mesh t.smb --compute-bounds", -1, SIGTERM, nullptr, err.c_str()), 0);
+  EXPECT_EQ(runWith(dir, "build short-count.las --mesh t.smb --compute-bounds", -1, SIGTERM, {}, err.c_str()), 0);
   EXPECT_NE(test::slurp(err).find("holds 10 whole point records after the"), std::string::npos) << test::slurp(err);
 }
 
@@ -370,7 +513,7 @@ TEST(Faults, AFarOutlierDoesNotMakeAnEndlessDem) {
                          "plan outlier.xyz --a_srs EPSG:32610 --dem dem/ --step 1 --parts 2 -o plan.json -q"};
   for (const char* args : asked) {
     const auto t0 = Clock::now();
-    EXPECT_EQ(runWith(dir, args, 60.0, SIGKILL, nullptr, err.c_str()), 2) << args;
+    EXPECT_EQ(runWith(dir, args, 60.0, SIGKILL, {}, err.c_str()), 2) << args;
     EXPECT_LT(std::chrono::duration<double>(Clock::now() - t0).count(), 30) << args;
     const std::string message = test::slurp(err);
     EXPECT_NE(message.find("a far outlier point stretches the extent"), std::string::npos) << message;
@@ -384,7 +527,8 @@ TEST(Faults, AFarOutlierDoesNotMakeAnEndlessDem) {
 }
 
 // Under MPI, SIGTERM to the ranks (what Slurm sends every task at a time limit) stops the whole run with
-// exit code 3 and no final-named merge output, at any moment; a rerun then succeeds.
+// exit code 3 and no final-named file at all (the part files the steps committed provisionally go too),
+// at any moment; or the run was past its last vote and exits 0 with the whole result.  A rerun succeeds.
 TEST(Faults, SigtermToMpiRanksExitsThreeEverywhere) {
   if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
   const Survey s = prepare();
@@ -409,12 +553,14 @@ TEST(Faults, SigtermToMpiRanksExitsThreeEverywhere) {
     // The merge's outputs appear together or not at all, whatever the moment.
     int present = 0;
     for (const char* f : {"m/tin.parts.json", "m/tin.seam.smb", "m/dem/mosaic.vrt"}) present += fs::exists(s.dir / f);
-    EXPECT_TRUE(present == 0 || present == 3) << present << " of the merge's 3 outputs after a stop at " << delay;
-    if (code != 0 && present == 0) {
+    if (code == 0) {
+      EXPECT_EQ(present, 3) << "a run that exited 0 after a stop at " << delay;
+    } else {
       ++stopped;
       EXPECT_EQ(code, 3) << "delay " << delay;
+      const std::vector<std::string> left = filesBelow(s.dir / "m");
+      EXPECT_TRUE(left.empty()) << "a stopped run left " << left.size() << " files, the first " << left.front();
     }
-    // (A signal after rank 0's commit can still make a rank exit non-zero: the result is then whole.)
     fs::remove_all(s.dir / "m");
   }
   EXPECT_GT(stopped, 0);
