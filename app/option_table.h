@@ -11,7 +11,8 @@
 //       .text([](Job& j, const std::string& v) { j.step = v; });
 //   t.flag("-q", "no summary", "--quiet").runOnly().set([](Job& j) { j.quiet = true; });
 //
-// A value given twice counts once, the last one (each() sees them all).  Checks run in the table's order,
+// An option that takes one value (all but each()) may be repeated with the same value; two different
+// values are a UsageError (a second --mesh must not silently replace the first).  Checks run in the table's order,
 // each option's requirements before its value; a check fails with a UsageError naming the option.
 // A run-only option (-q, --threads, --report, ...) changes how a job runs, not what it makes: the
 // recorded command leaves it out, so runs that make the same outputs record the same command.
@@ -60,6 +61,7 @@ class OptionTable {
     bool runOnly = false;
     std::vector<Need> needs;
     Bind bind;
+    bool many = false;  // takes every value given (each())
   };
 
   // What option()/flag() return: says the rest of the declaration, one call each.
@@ -84,6 +86,7 @@ class OptionTable {
     }
     // Every value, in the order given.
     Declaration& each(std::function<void(T&, const std::vector<std::string>&)> set) {
+      opt().many = true;
       return bind([set](T& t, const ParsedArgs& a, const std::string& name) { set(t, a.all(name)); });
     }
     // A whole number lo..hi.
@@ -173,6 +176,12 @@ class OptionTable {
       for (const Need& n : o.needs)
         if (!isGiven(args, n.option)) throw UsageError(o.spec.name + " " + n.text);
       if (!o.bind) throw Error("option " + o.spec.name + " is declared without a binding");
+      const std::vector<std::string>& values = args.all(o.spec.name);
+      if (!o.many)
+        for (const std::string& v : values)
+          if (v != values.front())
+            throw UsageError(o.spec.name + " is given twice, as '" + values.front() + "' and as '" + v +
+                             "': it takes one value");
       o.bind(target, args, o.spec.name);
     }
   }

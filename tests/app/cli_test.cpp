@@ -64,6 +64,11 @@ TEST(Cli, UsageErrorsExitTwo) {
   EXPECT_EQ(tinbuild("info").code, 2);
   EXPECT_EQ(tinbuild("info --no-such-option x.las").code, 2);
   EXPECT_EQ(tinbuild("info --depth 99 x.las").code, 2);
+  // A second value for an option of one value is refused, never a silent replacement (a dropped output).
+  const auto twice = tinbuild("build x.las --mesh a.smb --mesh b.nc");
+  EXPECT_EQ(twice.code, 2);
+  EXPECT_NE(twice.err.find("--mesh is given twice, as 'a.smb' and as 'b.nc'"), std::string::npos) << twice.err;
+  EXPECT_EQ(tinbuild("build x.las --step 1 --step 1 --dem d/").err.find("given twice"), std::string::npos);  // (the same twice)
 }
 
 TEST(Cli, DataErrorsExitOneAndNameTheFile) {
