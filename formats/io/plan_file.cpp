@@ -1,6 +1,7 @@
 // Plans, done files and mesh manifests (header).
 #include "formats/io/plan_file.h"
 
+#include <cpl_error.h>
 #include <cpl_json.h>
 #include <fcntl.h>
 #include <unistd.h>
@@ -13,6 +14,7 @@
 #include <cstring>
 #include <filesystem>
 #include <fstream>
+#include <iterator>
 #include <vector>
 
 #include "formats/io/output_file.h"
@@ -150,8 +152,32 @@ CPLJSONObject loadJson(const std::string& path, const char* what) {
   CPLJSONDocument doc;
   std::error_code ec;
   if (!fs::exists(path, ec)) throw DataError(path, std::string("no such ") + what);
-  if (!doc.Load(path)) throw DataError(path, std::string("not a readable ") + what + " (invalid JSON)");
+  CPLPushErrorHandler(CPLQuietErrorHandler);  // (GDAL's parser would print its own message first)
+  const bool loaded = doc.Load(path);
+  CPLPopErrorHandler();
+  if (!loaded) throw DataError(path, std::string("not a readable ") + what + " (invalid JSON)");
   return doc.GetRoot();
+}
+
+// A part record carries a checksum of its own text (its first member), so an altered record is named as
+// such rather than read as another part's figures.
+constexpr const char* kChecksumHead = "{\n  \"checksum\": \"";
+
+std::string sealJson(const std::string& body) {
+  return kChecksumHead + hashText(body) + "\"," + body.substr(1);
+}
+
+void checkSeal(const std::string& path, const std::string& redo) {
+  std::ifstream in(path, std::ios::binary);
+  std::string text((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+  const std::string head = kChecksumHead;
+  if (text.compare(0, head.size(), head) != 0 || text.size() < head.size() + 18 ||
+      text.compare(head.size() + 16, 2, "\",") != 0)
+    throw DataError(path, "the part record has no checksum (damaged, or written by an older tinbuild)" + redo);
+  if (!text.empty() && text.back() == '\n') text.pop_back();  // (writeText's last newline)
+  const std::string sum = text.substr(head.size(), 16);
+  if (hashText("{" + text.substr(head.size() + 18)) != sum)
+    throw DataError(path, "the part record was altered after the part wrote it (its checksum differs)" + redo);
 }
 
 std::uint64_t getU64(const CPLJSONObject& o, const char* key) {
@@ -333,12 +359,14 @@ void writePartDone(const PartDone& d, const std::string& path) {
   }
   j.endArray();
   j.endObject();
-  writeText(path, j.str());
+  writeText(path, sealJson(j.str()));
 }
 
 PartDone readPartDone(const std::string& path) {
   const CPLJSONObject root = loadJson(path, "part record");
   if (root.GetInteger("tinbuild_part", 0) != 1) throw DataError(path, "not a tinbuild part record");
+  const int part = root.GetInteger("part", -1);
+  checkSeal(path, part >= 0 ? ": run part " + std::to_string(part) + " again, then merge" : ": run the part again, then merge");
   PartDone d;
   d.planId = root.GetString("plan_id");
   d.part = root.GetInteger("part", -1);

@@ -299,9 +299,24 @@ TEST(Faults, AFullDiskLeavesNothing) {
   }
 }
 
-TEST(Faults, AStoppedMergeLeavesNoManifestAndReruns) {
+TEST(Faults, AStoppedPartOrMergeLeavesNothingAndReruns) {
   const Survey s = prepare();
   const std::string plan = "plan s/survey.las --mesh p/tin.smb --dem p/dem --step 1 --parts 3 -o p/plan.json -q";
+  ASSERT_EQ(runWith(s.dir, plan), 0);
+  // A part stopped at any moment leaves none of its files (or all of them), and runs again.
+  const std::vector<std::string> planned = filesBelow(s.dir / "p");
+  const auto p0 = Clock::now();
+  ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part 0 -q"), 0);
+  const double part = std::chrono::duration<double>(Clock::now() - p0).count();
+  const std::vector<std::string> parted = filesBelow(s.dir / "p");
+  for (double f : {0.1, 0.4, 0.7, 0.95}) {
+    for (const std::string& file : parted)
+      if (std::find(planned.begin(), planned.end(), file) == planned.end()) fs::remove(s.dir / "p" / file);
+    const int code = runWith(s.dir, "build --plan p/plan.json --part 0 -q", part * f);
+    EXPECT_EQ(filesBelow(s.dir / "p"), code == 0 ? parted : planned) << "part stopped at " << f << ", exit " << code;
+    if (code != 0) EXPECT_TRUE(code == 3 || code == 128 + SIGTERM) << code;
+  }
+  fs::remove_all(s.dir / "p");
   ASSERT_EQ(runWith(s.dir, plan), 0);
   for (int i = 0; i < 3; ++i) ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
   const auto t0 = Clock::now();
@@ -369,6 +384,10 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
   };
   if (!pieces.empty())
     damages.push_back({"altered", pieces[0], -1, [&] { flip(pieces[0], fs::file_size(pieces[0]) - 3); }});
+  // The part records themselves carry a checksum of their text.
+  const fs::path record = state / "part-0001.json";
+  damages.push_back({"altered", record, 1, [&] { flip(record, fs::file_size(record) / 2); }});
+  damages.push_back({"not a readable part record", record, -1, [&] { fs::resize_file(record, fs::file_size(record) / 2); }});
   for (const Damage& d : damages) {
     d.apply();
     test::Run r;
