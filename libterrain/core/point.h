@@ -17,6 +17,9 @@ enum PointFlag : std::uint8_t {
   kFlagKeyPoint = 1u << 1,
   kFlagWithheld = 1u << 2,
   kFlagOverlap = 1u << 3,
+  // A constraint vertex (libterrain/hydro): added by the run, not read from the survey.  The user's class,
+  // return and withheld filters let it pass; --clip and a part's window do not.
+  kFlagConstraint = 1u << 4,
 };
 
 struct PointRecord {

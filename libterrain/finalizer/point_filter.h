@@ -149,6 +149,11 @@ struct PointFilter {
   }
 
   FilterReason reason(const PointRecord& p) const {
+    if (p.flags & kFlagConstraint) {
+      if (clip && !clip->contains(p.x, p.y)) return FilterReason::kClip;
+      if (window && !window->contains(p.x, p.y)) return FilterReason::kOtherPart;
+      return FilterReason::kKept;
+    }
     if (dropWithheld && (p.flags & kFlagWithheld)) return FilterReason::kWithheld;
     if (dropClasses[p.classification]) return FilterReason::kClass;
     if (firstOnly || lastOnly) {
@@ -214,7 +219,7 @@ struct PointFilter {
     std::size_t kept = 0;
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint8_t withheld = p[i].flags & withheldMask;
-      if ((withheld | drop[p[i].classification]) == 0) {
+      if ((withheld | drop[p[i].classification]) == 0 || (p[i].flags & kFlagConstraint)) {
         if (kept != i) p[kept] = p[i];
         ++kept;
       } else {

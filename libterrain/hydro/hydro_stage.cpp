@@ -1,0 +1,221 @@
+#include "libterrain/hydro/hydro_stage.h"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+
+namespace tinbuild {
+
+namespace {
+
+bool segmentsCross(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy) {
+  auto orient = [](double px, double py, double qx, double qy, double rx, double ry) {
+    const double d = (qx - px) * (ry - py) - (qy - py) * (rx - px);
+    return d > 0 ? 1 : d < 0 ? -1 : 0;
+  };
+  const int o1 = orient(ax, ay, bx, by, cx, cy), o2 = orient(ax, ay, bx, by, dx, dy);
+  const int o3 = orient(cx, cy, dx, dy, ax, ay), o4 = orient(cx, cy, dx, dy, bx, by);
+  return o1 != o2 && o3 != o4;
+}
+
+bool edgeMeetsBox(double ax, double ay, double bx, double by, double minX, double minY, double maxX, double maxY) {
+  if (std::max(ax, bx) < minX || std::min(ax, bx) > maxX || std::max(ay, by) < minY || std::min(ay, by) > maxY)
+    return false;
+  // The box's corners on one side of the edge's line: no meeting.
+  auto side = [&](double x, double y) {
+    const double d = (bx - ax) * (y - ay) - (by - ay) * (x - ax);
+    return d > 0 ? 1 : d < 0 ? -1 : 0;
+  };
+  const int s1 = side(minX, minY), s2 = side(maxX, minY), s3 = side(minX, maxY), s4 = side(maxX, maxY);
+  return !((s1 > 0 && s2 > 0 && s3 > 0 && s4 > 0) || (s1 < 0 && s2 < 0 && s3 < 0 && s4 < 0));
+}
+
+std::string plural(std::size_t n, const char* one, const char* many) {
+  return std::to_string(n) + " " + (n == 1 ? one : many);
+}
+
+}  // namespace
+
+// ---------------------------------------------------------------------------------------------------
+// WaterIndex: each cell knows, for every water area whose box meets it, whether its centre is inside and
+// which ring edges cross it; a point is then inside when the centre is, flipped once per edge that the
+// segment from the centre to the point crosses.
+
+WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
+  if (areas_.empty()) return;
+  double minX = std::numeric_limits<double>::infinity(), minY = minX, maxX = -minX, maxY = -minX;
+  std::size_t edges = 0;
+  for (const WaterArea& w : areas_)
+    for (const auto& p : w.outer) {
+      minX = std::min(minX, p[0]), maxX = std::max(maxX, p[0]);
+      minY = std::min(minY, p[1]), maxY = std::max(maxY, p[1]);
+      ++edges;
+    }
+  // About one edge per cell along the rings, and at most 2^22 cells.
+  const double w = maxX - minX, h = maxY - minY;
+  double cell = std::max(w, h) / std::max<double>(1.0, static_cast<double>(edges) / 4.0);
+  cell = std::max(cell, std::sqrt(std::max(w * h, 1e-12) / 4194304.0));
+  cell = std::max(cell, 1e-6);
+  x0_ = minX;
+  y0_ = minY;
+  cell_ = cell;
+  cols_ = static_cast<std::int64_t>(w / cell) + 1;
+  rows_ = static_cast<std::int64_t>(h / cell) + 1;
+  cells_.resize(static_cast<std::size_t>(cols_ * rows_));
+  for (std::uint32_t a = 0; a < areas_.size(); ++a) {
+    const WaterArea& area = areas_[a];
+    double ax0 = std::numeric_limits<double>::infinity(), ay0 = ax0, ax1 = -ax0, ay1 = -ax0;
+    for (const auto& p : area.outer) {
+      ax0 = std::min(ax0, p[0]), ax1 = std::max(ax1, p[0]);
+      ay0 = std::min(ay0, p[1]), ay1 = std::max(ay1, p[1]);
+    }
+    const auto c0 = static_cast<std::int64_t>((ax0 - x0_) / cell_), c1 = std::min(cols_ - 1, static_cast<std::int64_t>((ax1 - x0_) / cell_));
+    const auto r0 = static_cast<std::int64_t>((ay0 - y0_) / cell_), r1 = std::min(rows_ - 1, static_cast<std::int64_t>((ay1 - y0_) / cell_));
+    // The ring edges into the cells they meet.
+    std::vector<std::vector<Edge>> local(static_cast<std::size_t>((c1 - c0 + 1) * (r1 - r0 + 1)));
+    auto addRing = [&](const std::vector<std::array<double, 2>>& ring) {
+      for (std::size_t i = 0; i < ring.size(); ++i) {
+        const auto& p = ring[i];
+        const auto& q = ring[(i + 1) % ring.size()];
+        const Edge e{p[0], p[1], q[0], q[1]};
+        const auto ec0 = std::max(c0, static_cast<std::int64_t>((std::min(p[0], q[0]) - x0_) / cell_));
+        const auto ec1 = std::min(c1, static_cast<std::int64_t>((std::max(p[0], q[0]) - x0_) / cell_));
+        const auto er0 = std::max(r0, static_cast<std::int64_t>((std::min(p[1], q[1]) - y0_) / cell_));
+        const auto er1 = std::min(r1, static_cast<std::int64_t>((std::max(p[1], q[1]) - y0_) / cell_));
+        for (std::int64_t r = er0; r <= er1; ++r)
+          for (std::int64_t c = ec0; c <= ec1; ++c) {
+            const double bx = x0_ + static_cast<double>(c) * cell_, by = y0_ + static_cast<double>(r) * cell_;
+            if (edgeMeetsBox(e.ax, e.ay, e.bx, e.by, bx, by, bx + cell_, by + cell_))
+              local[static_cast<std::size_t>((r - r0) * (c1 - c0 + 1) + (c - c0))].push_back(e);
+          }
+      }
+    };
+    addRing(area.outer);
+    for (const auto& hole : area.holes) addRing(hole);
+    for (std::int64_t r = r0; r <= r1; ++r)
+      for (std::int64_t c = c0; c <= c1; ++c) {
+        const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_, cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
+        CellArea ca;
+        ca.area = a;
+        ca.centreInside = insideWater(area, cx, cy);
+        ca.edges = std::move(local[static_cast<std::size_t>((r - r0) * (c1 - c0 + 1) + (c - c0))]);
+        if (!ca.centreInside && ca.edges.empty()) continue;
+        cells_[static_cast<std::size_t>(r * cols_ + c)].push_back(std::move(ca));
+      }
+  }
+}
+
+bool WaterIndex::inside(double x, double y) const {
+  if (areas_.empty()) return false;
+  const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
+  if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
+  const auto c = static_cast<std::int64_t>(fc), r = static_cast<std::int64_t>(fr);
+  const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_, cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
+  for (const CellArea& ca : cells_[static_cast<std::size_t>(r * cols_ + c)]) {
+    if (ca.edges.empty()) {
+      if (ca.centreInside) return true;
+      continue;
+    }
+    bool in = ca.centreInside;
+    for (const Edge& e : ca.edges)
+      if (segmentsCross(cx, cy, x, y, e.ax, e.ay, e.bx, e.by)) in = !in;
+    if (in) return true;
+  }
+  return false;
+}
+
+std::string WaterStage::describe() const {
+  return "points inside " + plural(count_, "water polygon", "water polygons");
+}
+
+std::size_t WaterStage::apply(PointRecord* p, std::size_t n) const {
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(p[i].flags & kFlagConstraint) && index_.inside(p[i].x, p[i].y)) continue;
+    if (kept != i) p[kept] = p[i];
+    ++kept;
+  }
+  return kept;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// BufferStage: the pieces by the grid cells their discs meet (compressed rows).
+
+BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraints) : c_(std::move(constraints)) {
+  const auto& v = c_->vertices;
+  if (c_->pieces.empty()) return;
+  double minX = std::numeric_limits<double>::infinity(), minY = minX, maxX = -minX, maxY = -minX, longest = 0;
+  for (const auto& pc : c_->pieces) {
+    const ConstraintPoint &a = v[pc[0]], &b = v[pc[1]];
+    minX = std::min({minX, a.x, b.x}), maxX = std::max({maxX, a.x, b.x});
+    minY = std::min({minY, a.y, b.y}), maxY = std::max({maxY, a.y, b.y});
+    longest = std::max(longest, std::hypot(b.x - a.x, b.y - a.y));
+  }
+  cell_ = std::max({longest, 1e-6, std::sqrt(std::max((maxX - minX) * (maxY - minY), 1e-12) / 16777216.0)});
+  x0_ = minX - cell_;
+  y0_ = minY - cell_;
+  cols_ = static_cast<std::int64_t>((maxX - x0_) / cell_) + 2;
+  rows_ = static_cast<std::int64_t>((maxY - y0_) / cell_) + 2;
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> entries;  // (cell, piece)
+  for (std::uint32_t i = 0; i < c_->pieces.size(); ++i) {
+    const ConstraintPoint &a = v[c_->pieces[i][0]], &b = v[c_->pieces[i][1]];
+    const double mx = 0.5 * (a.x + b.x), my = 0.5 * (a.y + b.y), r = 0.5 * std::hypot(b.x - a.x, b.y - a.y) * (1 + 1e-9);
+    const auto cA = static_cast<std::int64_t>((mx - r - x0_) / cell_), cB = static_cast<std::int64_t>((mx + r - x0_) / cell_);
+    const auto rA = static_cast<std::int64_t>((my - r - y0_) / cell_), rB = static_cast<std::int64_t>((my + r - y0_) / cell_);
+    for (std::int64_t row = rA; row <= rB; ++row)
+      for (std::int64_t col = cA; col <= cB; ++col) entries.emplace_back(static_cast<std::uint64_t>(row * cols_ + col), i);
+  }
+  std::sort(entries.begin(), entries.end());
+  start_.assign(static_cast<std::size_t>(cols_ * rows_) + 1, 0);
+  for (const auto& e : entries) ++start_[e.first + 1];
+  for (std::size_t k = 1; k < start_.size(); ++k) start_[k] += start_[k - 1];
+  pieceIds_.reserve(entries.size());
+  for (const auto& e : entries) pieceIds_.push_back(e.second);
+}
+
+bool BufferStage::inBuffer(double x, double y) const {
+  if (pieceIds_.empty()) return false;
+  const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
+  if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
+  const std::size_t cell = static_cast<std::size_t>(fr) * static_cast<std::size_t>(cols_) + static_cast<std::size_t>(fc);
+  const auto& v = c_->vertices;
+  for (std::uint32_t k = start_[cell]; k < start_[cell + 1]; ++k) {
+    const auto& pc = c_->pieces[pieceIds_[k]];
+    if (inDiametralDisc(x, y, v[pc[0]], v[pc[1]])) return true;
+  }
+  return false;
+}
+
+std::string BufferStage::describe() const {
+  return "points within the buffers of " + plural(c_->pieces.size(), "constraint piece", "constraint pieces");
+}
+
+std::size_t BufferStage::apply(PointRecord* p, std::size_t n) const {
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(p[i].flags & kFlagConstraint) && inBuffer(p[i].x, p[i].y)) continue;
+    if (kept != i) p[kept] = p[i];
+    ++kept;
+  }
+  return kept;
+}
+
+// ---------------------------------------------------------------------------------------------------
+
+std::size_t ConstraintStream::read(PointRecord* out, std::size_t max) {
+  const auto& v = c_->vertices;
+  std::size_t n = 0;
+  while (n < max && next_ < v.size()) {
+    PointRecord r;
+    r.x = v[next_].x;
+    r.y = v[next_].y;
+    r.z = v[next_].z;
+    r.classification = 2;
+    r.flags = kFlagConstraint;
+    out[n++] = r;
+    ++next_;
+  }
+  return n;
+}
+
+}  // namespace tinbuild

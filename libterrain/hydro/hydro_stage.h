@@ -1,0 +1,91 @@
+// The constraints in the point stream (finalizer/point_stage.h): two stages and one added stream.
+//
+//   - WaterStage ("water"): leaves out every lidar point strictly inside a water area (islands stay land);
+//   - BufferStage ("breaklines"): leaves out every lidar point in the closed diametral disc of a
+//     constraint piece (conforming.h), the specification's buffer around a breakline: what would keep
+//     a piece from being a TIN edge;
+//   - ConstraintStream: the constraint vertices themselves, one more input after the survey's, flagged
+//     kFlagConstraint (class 2, ground).  The user's class, return and withheld filters do not apply to
+//     them, the --clip and a part's window do (PointFilter::reason), and these two stages let them pass:
+//     a part of a plan keeps exactly the vertices in its window, so parts equal one process.
+// Both stages are functions of the record alone, on read-only indexes built once: they may run on any
+// number of threads.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include "libterrain/finalizer/point_stage.h"
+#include "libterrain/finalizer/point_stream.h"
+#include "libterrain/hydro/conforming.h"
+
+namespace tinbuild {
+
+// A uniform grid over water areas that answers "inside water?" in a cell's few edges.
+class WaterIndex {
+ public:
+  explicit WaterIndex(const std::vector<WaterArea>& areas);
+  bool inside(double x, double y) const;
+  bool empty() const { return areas_.empty(); }
+
+ private:
+  struct Edge {
+    double ax, ay, bx, by;
+  };
+  struct CellArea {
+    std::uint32_t area = 0;
+    bool centreInside = false;
+    std::vector<Edge> edges;  // the area's ring edges that meet the cell
+  };
+  std::vector<WaterArea> areas_;
+  double x0_ = 0, y0_ = 0, cell_ = 1;
+  std::int64_t cols_ = 0, rows_ = 0;
+  std::vector<std::vector<CellArea>> cells_;
+};
+
+class WaterStage final : public PointStage {
+ public:
+  explicit WaterStage(const std::vector<WaterArea>& areas) : index_(areas), count_(areas.size()) {}
+  std::string name() const override { return "water"; }
+  std::string describe() const override;
+  std::size_t apply(PointRecord* p, std::size_t n) const override;
+
+ private:
+  WaterIndex index_;
+  std::size_t count_;
+};
+
+class BufferStage final : public PointStage {
+ public:
+  explicit BufferStage(std::shared_ptr<const ConformingConstraints> constraints);
+  std::string name() const override { return "breaklines"; }
+  std::string describe() const override;
+  std::size_t apply(PointRecord* p, std::size_t n) const override;
+  // Whether (x, y) lies in a piece's closed diametral disc.
+  bool inBuffer(double x, double y) const;
+
+ private:
+  std::shared_ptr<const ConformingConstraints> c_;
+  double x0_ = 0, y0_ = 0, cell_ = 1;
+  std::int64_t cols_ = 0, rows_ = 0;
+  std::vector<std::uint32_t> start_;   // cell -> first entry in pieceIds_ (CSR)
+  std::vector<std::uint32_t> pieceIds_;
+};
+
+// The constraint vertices as a point stream (rewindable; every pass the same records).
+class ConstraintStream final : public PointStream {
+ public:
+  explicit ConstraintStream(std::shared_ptr<const ConformingConstraints> constraints) : c_(std::move(constraints)) {}
+  std::size_t read(PointRecord* out, std::size_t max) override;
+  bool rewindable() const override { return true; }
+  void rewind() override { next_ = 0; }
+
+ private:
+  std::shared_ptr<const ConformingConstraints> c_;
+  std::size_t next_ = 0;
+};
+
+}  // namespace tinbuild

@@ -1,0 +1,378 @@
+#include "libterrain/hydro/water_levels.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "libterrain/core/error.h"
+#include "libterrain/hydro/hydro_stage.h"
+
+namespace tinbuild {
+
+namespace {
+
+using Ring = std::vector<std::array<double, 2>>;
+
+std::int64_t cellKey(std::int64_t c, std::int64_t r) {
+  return (r << 32) ^ (c & 0xffffffffll);
+}
+
+// Segments in the cells of a sparse grid, each cell within `reach` of the segment holding it.
+struct SegmentCells {
+  double cell = 1;
+  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> cells;
+  std::int64_t c(double x) const { return static_cast<std::int64_t>(std::floor(x / cell)); }
+  void add(std::uint32_t id, double ax, double ay, double bx, double by) {
+    const double len = std::hypot(bx - ax, by - ay);
+    const auto steps = static_cast<std::int64_t>(std::ceil(len / cell)) + 1;
+    std::unordered_set<std::int64_t> mine;
+    for (std::int64_t k = 0; k <= steps; ++k) {
+      const double t = static_cast<double>(k) / static_cast<double>(steps);
+      const std::int64_t cx = c(ax + t * (bx - ax)), cy = c(ay + t * (by - ay));
+      for (std::int64_t dy = -1; dy <= 1; ++dy)
+        for (std::int64_t dx = -1; dx <= 1; ++dx)
+          if (mine.insert(cellKey(cx + dx, cy + dy)).second) cells[cellKey(cx + dx, cy + dy)].push_back(id);
+    }
+  }
+  const std::vector<std::uint32_t>* at(double x, double y) const {
+    auto it = cells.find(cellKey(c(x), c(y)));
+    return it == cells.end() ? nullptr : &it->second;
+  }
+};
+
+double pointSegmentDistance(double x, double y, double ax, double ay, double bx, double by, double* tOut = nullptr) {
+  const double dx = bx - ax, dy = by - ay, len2 = dx * dx + dy * dy;
+  double t = len2 > 0 ? ((x - ax) * dx + (y - ay) * dy) / len2 : 0;
+  t = std::clamp(t, 0.0, 1.0);
+  if (tOut) *tOut = t;
+  return std::hypot(ax + t * dx - x, ay + t * dy - y);
+}
+
+// A centerline: arclength at each vertex, and the nearest point's arclength for any position.
+struct Centerline {
+  std::vector<std::array<double, 2>> p;
+  std::vector<double> cum;
+  SegmentCells index;
+  double length = 0;
+
+  Centerline(const ConstraintLine& line, double cell) {
+    for (const auto& q : line.points) p.push_back({q.x, q.y});
+    cum.assign(p.size(), 0);
+    for (std::size_t i = 1; i < p.size(); ++i) cum[i] = cum[i - 1] + std::hypot(p[i][0] - p[i - 1][0], p[i][1] - p[i - 1][1]);
+    length = cum.empty() ? 0 : cum.back();
+    index.cell = cell;
+    for (std::uint32_t i = 0; i + 1 < p.size(); ++i) index.add(i, p[i][0], p[i][1], p[i + 1][0], p[i + 1][1]);
+  }
+  // Arclength of the nearest point (searching outwards ring by ring of cells).
+  double project(double x, double y) const {
+    double best = std::numeric_limits<double>::infinity(), s = 0;
+    auto consider = [&](std::uint32_t i) {
+      double t = 0;
+      const double d = pointSegmentDistance(x, y, p[i][0], p[i][1], p[i + 1][0], p[i + 1][1], &t);
+      if (d < best || (d == best && cum[i] + t * (cum[i + 1] - cum[i]) < s)) {
+        best = d;
+        s = cum[i] + t * (cum[i + 1] - cum[i]);
+      }
+    };
+    const std::int64_t cx = index.c(x), cy = index.c(y);
+    for (std::int64_t r = 0; r < 4096; ++r) {
+      for (std::int64_t dy = -r; dy <= r; ++dy)
+        for (std::int64_t dx = -r; dx <= r; ++dx) {
+          if (std::max(std::llabs(dx), std::llabs(dy)) != r) continue;
+          auto it = index.cells.find(cellKey(cx + dx, cy + dy));
+          if (it != index.cells.end())
+            for (std::uint32_t i : it->second) consider(i);
+        }
+      if (best <= static_cast<double>(r) * index.cell) break;
+    }
+    if (!std::isfinite(best))  // (farther than 4096 cells: every segment)
+      for (std::uint32_t i = 0; i + 1 < p.size(); ++i) consider(i);
+    return s;
+  }
+  std::array<double, 4> pointAndTangent(double s) const {
+    std::size_t i = static_cast<std::size_t>(std::upper_bound(cum.begin(), cum.end(), s) - cum.begin());
+    i = std::clamp<std::size_t>(i, 1, p.size() - 1);
+    const double segLen = cum[i] - cum[i - 1];
+    const double t = segLen > 0 ? (s - cum[i - 1]) / segLen : 0;
+    const double tx = p[i][0] - p[i - 1][0], ty = p[i][1] - p[i - 1][1], n = std::hypot(tx, ty);
+    return {p[i - 1][0] + t * tx, p[i - 1][1] + t * ty, n > 0 ? tx / n : 1, n > 0 ? ty / n : 0};
+  }
+};
+
+bool segmentsIntersect(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy) {
+  auto orient = [](double px, double py, double qx, double qy, double rx, double ry) {
+    const double d = (qx - px) * (ry - py) - (qy - py) * (rx - px);
+    return d > 0 ? 1 : d < 0 ? -1 : 0;
+  };
+  return orient(ax, ay, bx, by, cx, cy) != orient(ax, ay, bx, by, dx, dy) &&
+         orient(cx, cy, dx, dy, ax, ay) != orient(cx, cy, dx, dy, bx, by);
+}
+
+double percentileOf(std::vector<float> v, double p) {
+  std::sort(v.begin(), v.end());
+  const auto k = static_cast<std::size_t>(std::floor(std::clamp(p, 0.0, 100.0) / 100.0 * static_cast<double>(v.size() - 1)));
+  return static_cast<double>(v[k]);
+}
+
+Ring xyOf(const std::vector<ConstraintPoint>& ring) {
+  Ring r;
+  for (const auto& q : ring) r.push_back({q.x, q.y});
+  return r;
+}
+
+}  // namespace
+
+struct ShoreSampler::Impl {
+  WaterLevelOptions o;
+  const ConstraintInput& in;
+  struct Body {
+    const WaterPolygon* poly = nullptr;
+    WaterArea area;
+    int flow = -1;  // the centerline that makes it a river
+    double s0 = 0, s1 = 0;  // stations' arclength range
+    std::uint32_t stations = 0;
+    std::vector<float> zs;                   // a lake's bank points
+    std::vector<std::vector<float>> atStation;  // a river's, by station
+    std::uint64_t bankPoints = 0;
+  };
+  std::vector<Body> bodies;
+  std::vector<Centerline> flows;
+  std::vector<WaterArea> areas;
+  std::unique_ptr<WaterIndex> waterIndex;
+  SegmentCells shore;  // ring edges of the bodies that need points
+  struct ShoreEdge {
+    std::uint32_t body;
+    double ax, ay, bx, by;
+  };
+  std::vector<ShoreEdge> shoreEdges;
+
+  Impl(const ConstraintInput& input, const WaterLevelOptions& options) : o(options), in(input) {
+    if (!(o.shoreDistance > 0)) throw UsageError("--shore-distance must be positive");
+    if (!(o.stationSpacing > 0)) throw UsageError("--station-spacing must be positive");
+    if (!(o.percentile >= 0 && o.percentile <= 100)) throw UsageError("--water-percentile must be 0 to 100");
+    for (const ConstraintLine& f : in.flows) flows.emplace_back(f, std::max(o.stationSpacing, o.shoreDistance));
+    for (const WaterPolygon& w : in.water) {
+      Body b;
+      b.poly = &w;
+      b.area.outer = xyOf(w.outer);
+      for (const auto& h : w.holes) b.area.holes.push_back(xyOf(h));
+      // A river when a centerline crosses its outer ring or runs inside it.
+      for (std::size_t f = 0; f < flows.size() && b.flow < 0; ++f) {
+        const auto& c = flows[f].p;
+        for (std::size_t i = 0; i + 1 < c.size() && b.flow < 0; ++i) {
+          if (insideWater(b.area, c[i][0], c[i][1])) b.flow = static_cast<int>(f);
+          for (std::size_t k = 0; k < b.area.outer.size() && b.flow < 0; ++k) {
+            const auto& p = b.area.outer[k];
+            const auto& q = b.area.outer[(k + 1) % b.area.outer.size()];
+            if (segmentsIntersect(c[i][0], c[i][1], c[i + 1][0], c[i + 1][1], p[0], p[1], q[0], q[1]))
+              b.flow = static_cast<int>(f);
+          }
+        }
+      }
+      if (b.flow >= 0) {
+        // The stations: along the stretch of the centerline inside this polygon.
+        const Centerline& cl = flows[static_cast<std::size_t>(b.flow)];
+        double lo = std::numeric_limits<double>::infinity(), hi = -lo;
+        const double step = o.stationSpacing / 4;
+        for (double s = 0; s <= cl.length + step; s += step) {
+          const auto pt = cl.pointAndTangent(std::min(s, cl.length));
+          if (insideWater(b.area, pt[0], pt[1])) {
+            lo = std::min(lo, std::min(s, cl.length));
+            hi = std::max(hi, std::min(s, cl.length));
+          }
+        }
+        if (!(lo <= hi)) {
+          lo = 0;
+          hi = cl.length;
+        }
+        b.s0 = std::floor(lo / o.stationSpacing) * o.stationSpacing;
+        b.s1 = std::min(cl.length, std::ceil(hi / o.stationSpacing) * o.stationSpacing);
+        b.stations = static_cast<std::uint32_t>(std::llround((b.s1 - b.s0) / o.stationSpacing)) + 1;
+        b.atStation.resize(b.stations);
+      }
+      areas.push_back(b.area);
+      bodies.push_back(std::move(b));
+    }
+    waterIndex = std::make_unique<WaterIndex>(areas);
+    shore.cell = o.shoreDistance;
+    for (std::uint32_t bi = 0; bi < bodies.size(); ++bi) {
+      if (bodies[bi].poly->level && bodies[bi].flow < 0) continue;  // a lake with its level: no points needed
+      auto addRing = [&](const Ring& r) {
+        for (std::size_t k = 0; k < r.size(); ++k) {
+          const auto& p = r[k];
+          const auto& q = r[(k + 1) % r.size()];
+          shore.add(static_cast<std::uint32_t>(shoreEdges.size()), p[0], p[1], q[0], q[1]);
+          shoreEdges.push_back({bi, p[0], p[1], q[0], q[1]});
+        }
+      };
+      addRing(bodies[bi].area.outer);
+      for (const Ring& h : bodies[bi].area.holes) addRing(h);
+    }
+  }
+
+  void add(const PointRecord* p, std::size_t n) {
+    std::vector<std::uint32_t> near;
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::vector<std::uint32_t>* list = shore.at(p[i].x, p[i].y);
+      if (!list) continue;
+      near.clear();
+      for (std::uint32_t e : *list) {
+        const ShoreEdge& se = shoreEdges[e];
+        if (std::find(near.begin(), near.end(), se.body) != near.end()) continue;
+        if (pointSegmentDistance(p[i].x, p[i].y, se.ax, se.ay, se.bx, se.by) <= o.shoreDistance) near.push_back(se.body);
+      }
+      if (near.empty() || waterIndex->inside(p[i].x, p[i].y)) continue;
+      const auto z = static_cast<float>(p[i].z);
+      for (std::uint32_t bi : near) {
+        Body& b = bodies[bi];
+        ++b.bankPoints;
+        if (b.flow < 0) {
+          b.zs.push_back(z);
+          continue;
+        }
+        const double s = flows[static_cast<std::size_t>(b.flow)].project(p[i].x, p[i].y);
+        const double k = std::round((std::clamp(s, b.s0, b.s1) - b.s0) / o.stationSpacing);
+        b.atStation[std::min<std::size_t>(static_cast<std::size_t>(k), b.stations - 1)].push_back(z);
+      }
+    }
+  }
+};
+
+ShoreSampler::ShoreSampler(const ConstraintInput& input, const WaterLevelOptions& options)
+    : impl_(std::make_unique<Impl>(input, options)) {}
+ShoreSampler::~ShoreSampler() = default;
+
+bool ShoreSampler::needsPoints() const {
+  return !impl_->shoreEdges.empty();
+}
+
+void ShoreSampler::add(const PointRecord* p, std::size_t n) {
+  impl_->add(p, n);
+}
+
+PreparedWater ShoreSampler::finish() const {
+  const Impl& m = *impl_;
+  PreparedWater out;
+  out.areas = m.areas;
+  for (std::uint32_t bi = 0; bi < m.bodies.size(); ++bi) {
+    const Impl::Body& b = m.bodies[bi];
+    WaterBody report;
+    report.source = b.poly->source;
+    report.river = b.flow >= 0;
+    report.bankPoints = b.bankPoints;
+    const std::string distance = std::to_string(m.o.shoreDistance);
+    const std::uint32_t shoreOrder = 2 * bi + 1, sectionOrder = 2 * bi;
+    auto ringSegments = [&](const std::vector<ConstraintPoint>& ring, auto zOf) {
+      for (std::size_t k = 0; k < ring.size(); ++k) {
+        const ConstraintPoint& p = ring[k];
+        const ConstraintPoint& q = ring[(k + 1) % ring.size()];
+        out.segments.push_back({ConstraintPoint{p.x, p.y, zOf(p)}, ConstraintPoint{q.x, q.y, zOf(q)}, SegmentKind::Water, shoreOrder});
+      }
+    };
+    auto allRings = [&](auto zOf) {
+      ringSegments(b.poly->outer, zOf);
+      for (const auto& h : b.poly->holes) ringSegments(h, zOf);
+    };
+    if (b.flow < 0) {
+      double level = 0;
+      if (b.poly->level) {
+        level = *b.poly->level;
+        report.given = true;
+      } else {
+        if (b.zs.empty())
+          throw Error(b.poly->source + ": no lidar point within " + distance +
+                      " of this water polygon's shore to set its level: give it a level (a POLYGON Z at one z) or a "
+                      "larger --shore-distance");
+        level = percentileOf(b.zs, m.o.percentile);
+      }
+      report.level = report.lastLevel = level;
+      allRings([level](const ConstraintPoint&) { return level; });
+      out.bodies.push_back(report);
+      continue;
+    }
+    // A river: the stations' levels, filled where no bank point fell, then never rising downstream.
+    const Centerline& cl = m.flows[static_cast<std::size_t>(b.flow)];
+    std::vector<double> level(b.stations, std::numeric_limits<double>::quiet_NaN());
+    for (std::uint32_t k = 0; k < b.stations; ++k)
+      if (!b.atStation[k].empty()) level[k] = percentileOf(b.atStation[k], m.o.percentile);
+    int first = -1;
+    for (std::uint32_t k = 0; k < b.stations; ++k)
+      if (!std::isnan(level[k])) {
+        if (first < 0) first = static_cast<int>(k);
+      }
+    if (first < 0)
+      throw Error(b.poly->source + ": no lidar point within " + distance +
+                  " of this river's shore to set its levels: a larger --shore-distance, or levels in the polygon");
+    for (std::uint32_t k = 0; k < b.stations; ++k) {
+      if (!std::isnan(level[k])) continue;
+      int prev = -1, next = -1;
+      for (int j = static_cast<int>(k) - 1; j >= 0; --j)
+        if (!std::isnan(level[static_cast<std::size_t>(j)])) {
+          prev = j;
+          break;
+        }
+      for (std::uint32_t j = k + 1; j < b.stations; ++j)
+        if (!b.atStation[j].empty()) {
+          next = static_cast<int>(j);
+          break;
+        }
+      if (prev >= 0 && next >= 0) {
+        const double t = (static_cast<double>(k) - prev) / static_cast<double>(next - prev);
+        level[k] = level[static_cast<std::size_t>(prev)] + t * (percentileOf(b.atStation[static_cast<std::size_t>(next)], m.o.percentile) - level[static_cast<std::size_t>(prev)]);
+      } else {
+        level[k] = prev >= 0 ? level[static_cast<std::size_t>(prev)] : percentileOf(b.atStation[static_cast<std::size_t>(next)], m.o.percentile);
+      }
+    }
+    for (std::uint32_t k = 1; k < b.stations; ++k) level[k] = std::min(level[k], level[k - 1]);
+    auto levelAt = [&](double s) {
+      const double u = (std::clamp(s, b.s0, b.s1) - b.s0) / m.o.stationSpacing;
+      const auto k = std::min<std::size_t>(static_cast<std::size_t>(u), b.stations - 1);
+      if (k + 1 >= b.stations) return level[b.stations - 1];
+      const double t = u - static_cast<double>(k);
+      return level[k] + t * (level[k + 1] - level[k]);
+    };
+    allRings([&](const ConstraintPoint& p) { return levelAt(cl.project(p.x, p.y)); });
+    // Cross-sections: from the station along the normal to the nearest shore on each side.
+    std::vector<std::array<double, 4>> edges;
+    auto collect = [&](const std::vector<ConstraintPoint>& ring) {
+      for (std::size_t k = 0; k < ring.size(); ++k) {
+        const auto& p = ring[k];
+        const auto& q = ring[(k + 1) % ring.size()];
+        edges.push_back({p.x, p.y, q.x, q.y});
+      }
+    };
+    collect(b.poly->outer);
+    for (const auto& h : b.poly->holes) collect(h);
+    for (std::uint32_t k = 0; k < b.stations; ++k) {
+      const double s = std::min(b.s0 + k * m.o.stationSpacing, cl.length);
+      const auto pt = cl.pointAndTangent(s);
+      if (!insideWater(b.area, pt[0], pt[1])) continue;
+      const double nx = -pt[3], ny = pt[2];
+      double plus = std::numeric_limits<double>::infinity(), minus = -plus;
+      for (const auto& e : edges) {
+        const double sx = e[2] - e[0], sy = e[3] - e[1];
+        const double d = nx * sy - ny * sx;
+        if (d == 0) continue;
+        const double wx = e[0] - pt[0], wy = e[1] - pt[1];
+        const double lambda = (wx * sy - wy * sx) / d, u = (wx * ny - wy * nx) / d;
+        if (u < 0 || u > 1) continue;
+        if (lambda > 0) plus = std::min(plus, lambda);
+        if (lambda < 0) minus = std::max(minus, lambda);
+      }
+      if (!std::isfinite(plus) || !std::isfinite(minus)) continue;
+      const double z = level[k];
+      out.segments.push_back({ConstraintPoint{pt[0] + minus * nx, pt[1] + minus * ny, z},
+                              ConstraintPoint{pt[0] + plus * nx, pt[1] + plus * ny, z}, SegmentKind::Water, sectionOrder});
+    }
+    report.stations = b.stations;
+    report.level = level.front();
+    report.lastLevel = level.back();
+    out.bodies.push_back(report);
+  }
+  return out;
+}
+
+}  // namespace tinbuild
