@@ -196,6 +196,47 @@ PipelineTable reportGroup() {
 const cli::Need kContours = cli::appliesTo("--contours", "contours", "--contours FILE");
 const cli::Need kDem = cli::appliesTo("--dem", "a DEM", "--dem DIR|FILE.tif|FILE.gpkg");
 
+// Breaklines and hydro-flattening (app/jobs/constraints.h): for build and plan, and for verify to check
+// the constraints against the mesh.
+PipelineTable constraintGroup() {
+  PipelineTable t;
+  t.option("--breaklines", "FILE",
+           "hard breaklines (LINESTRING Z, MULTILINESTRING Z, POLYGON Z rings; any OGR vector, every layer): "
+           "edges of the TIN at the line's z (repeatable)")
+      .each([](A& a, const std::vector<std::string>& v) { a.options.constraints.breaklines = v; });
+  t.option("--water", "FILE",
+           "water polygons to hydro-flatten: points inside left out, lakes flat at or below their shore "
+           "(repeatable)")
+      .each([](A& a, const std::vector<std::string>& v) { a.options.constraints.water = v; });
+  t.option("--flow", "FILE",
+           "river centerlines digitised downstream: the water polygons they cross are rivers, level across and "
+           "never rising downstream (repeatable)")
+      .needs(cli::needs("--water", "--water FILE (the rivers' polygons)"))
+      .each([](A& a, const std::vector<std::string>& v) { a.options.constraints.flows = v; });
+  t.option("--breakline-buffer", "L",
+           "breaklines: the longest constraint piece, and the width cleared of lidar points along them "
+           "(metres or unit; default: the survey's mean point spacing)")
+      .text([](A& a, const std::string& v) { a.options.constraints.buffer = v; });
+  t.option("--shore-distance", "L",
+           "water: bank points lie within L of the shore (metres or unit; default 3 x the point spacing)")
+      .needs(cli::needs("--water", "--water FILE"))
+      .text([](A& a, const std::string& v) { a.options.constraints.shoreDistance = v; });
+  t.option("--water-percentile", "P",
+           "water: the level is this percentile of the bank points' z (default 0: the lowest, at or below "
+           "every bank point)")
+      .needs(cli::needs("--water", "--water FILE"))
+      .real(Range::NonNegative, [](A& a, double v) {
+        if (v > 100) throw UsageError("--water-percentile must be 0 to 100");
+        a.options.constraints.percentile = v;
+      });
+  t.option("--station-spacing", "L",
+           "rivers: distance between the stations along the centerline (metres or unit; default 10 x the "
+           "point spacing)")
+      .needs(cli::needs("--flow", "--flow FILE"))
+      .text([](A& a, const std::string& v) { a.options.constraints.stationSpacing = v; });
+  return t;
+}
+
 // What a build makes: the TIN as a mesh and a GeoPackage, contours, the DEM.
 PipelineTable outputGroup() {
   PipelineTable t;
@@ -341,6 +382,8 @@ PipelineTable outputFile(const std::string& metavar, const std::string& help) {
 // The build's rules between options, run once every option is bound.
 void applyBuildRules(const cli::ParsedArgs& args, PipelineArgs& a) {
   PipelineOptions& o = a.options;
+  if (!o.constraints.any() && args.has("--breakline-buffer"))
+    throw UsageError("--breakline-buffer applies to constraints: add --breaklines FILE or --water FILE");
   if (o.inputs.empty()) throw UsageError("build: give at least one input file (or - for stdin)");
   if (o.meshOutput.empty() && o.gpkgOutput.empty() && o.dem.path.empty() && o.contoursOutput.empty())
     throw UsageError(
@@ -371,14 +414,15 @@ void applyBuildRules(const cli::ParsedArgs& args, PipelineArgs& a) {
 
 const PipelineTable& buildTable() {
   static const PipelineTable t =
-      PipelineTable().add(outputGroup(), buildRunGroup(), inputGroup(), triangulatorGroup(), reportGroup());
+      PipelineTable().add(outputGroup(), constraintGroup(), buildRunGroup(), inputGroup(), triangulatorGroup(),
+                          reportGroup());
   return t;
 }
 
 const PipelineTable& planTable() {
   static const PipelineTable t = [] {
     PipelineTable p;
-    p.add(outputGroup(), inputGroup(), triangulatorGroup(), reportGroup());
+    p.add(outputGroup(), constraintGroup(), inputGroup(), triangulatorGroup(), reportGroup());
     p.option("--parts", "N", "how many parts").runOnly().integer(1, 1 << 20, [](A& a, int n) {
       a.run.parts = n;
     });
@@ -419,7 +463,7 @@ const PipelineTable& verifyTable() {
         .each([](A& a, const std::vector<std::string>& words) { a.run.points = words; });
     v.flag("--json", "machine-readable result").runOnly().set([](A& a) { a.run.json = true; });
     v.flag("-q", "no warnings on stderr", "--quiet").runOnly().set([](A& a) { a.run.quiet = true; });
-    v.add(inputGroup());
+    v.add(inputGroup(), constraintGroup());
     return v;
   }();
   return t;

@@ -191,6 +191,11 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   r.inputs = o.inputs;
   const int threads = effectiveThreads(o.threads);
   FinalizerOptions fo = finalizerOptions(o, in, threads);
+  // Breaklines and water (before any output is opened: a bad vector file fails first).
+  BuildHooks oneProcess;
+  const PreparedConstraints constraints = (hooks ? hooks : &oneProcess)->constraints(o, in, diag);
+  applyConstraints(constraints, fo, in);
+  reportConstraints(constraints, r);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
@@ -241,6 +246,23 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     r.finalizer = finalizePoints(in.streams, fo, hooks ? hooks->pointSink(sink) : sink, diag);
   }
   in.countSkipped(r);
+  // The constraint vertices passed the filter as records; they were not read from the survey.
+  if (!constraints.empty()) {
+    const std::uint64_t all = constraints.conforming->vertices.size();
+    std::uint64_t here = 0;
+    for (const ConstraintPoint& v : constraints.conforming->vertices) {
+      PointRecord p;
+      p.x = v.x;
+      p.y = v.y;
+      p.flags = kFlagConstraint;
+      here += fo.filter.reason(p) == FilterReason::kKept;
+    }
+    FilterCounts& f = r.finalizer.filter;
+    f.read -= std::min(f.read, all);
+    f.otherPart -= std::min(f.otherPart, all - here);
+    f.kept -= std::min(f.kept, here);
+    r.constraints.verticesHere = here;
+  }
   r.threads = threads;
   r.haveFinalizer = true;
   r.delaunay = delaunay.stats();

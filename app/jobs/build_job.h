@@ -19,6 +19,7 @@
 #include <string>
 #include <vector>
 
+#include "app/jobs/constraints.h"
 #include "app/jobs/job_options.h"
 #include "app/jobs/run_outputs.h"
 #include "app/jobs/run_report.h"
@@ -34,6 +35,11 @@ RunReport runBuild(const PipelineOptions& options, Diagnostics& diag);
 class BuildHooks {
  public:
   virtual ~BuildHooks() = default;
+  // The run's constraints (--breaklines, --water): one process prepares them from the survey; a part reads
+  // the plan's copy, so that every part places the same vertices.
+  virtual PreparedConstraints constraints(const PipelineOptions& o, Survey& survey, Diagnostics& diag) {
+    return prepareConstraints(o, survey, diag);
+  }
   // Once the outputs are resolved and their context completed, before they are opened.
   virtual void outputs(RunOutputs&, RunReport&) {}
   // The triangulator's options.

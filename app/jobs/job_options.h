@@ -31,6 +31,17 @@ struct DemRequest {
   DemOptions bands;             // slope/aspect/hillshade/count/edgeLength, nodata, extent, origin
 };
 
+// What `build --breaklines/--water/--flow` asks for (app/jobs/constraints.h).  Lengths as typed (metres
+// unless they carry a unit); "" = chosen from the survey's point spacing.
+struct ConstraintRequest {
+  std::vector<std::string> breaklines, water, flows;  // the vector files, each option repeatable
+  std::string buffer;          // --breakline-buffer: the longest constraint piece ("" = the point spacing)
+  std::string shoreDistance;   // --shore-distance ("" = 3 x the spacing)
+  std::string stationSpacing;  // --station-spacing ("" = 10 x the spacing)
+  double percentile = 0;       // --water-percentile
+  bool any() const { return !breaklines.empty() || !water.empty(); }
+};
+
 struct PipelineOptions {
   std::vector<std::string> inputs;
   ReaderOptions reader;
@@ -46,6 +57,7 @@ struct PipelineOptions {
   DemRequest dem;               // runBuild: DEM rasters
   std::string contoursOutput;   // runBuild: contour lines (.gpkg, .geojson, .json, .fgb, .shp)
   ContourOptions contours;      // ... their levels (--interval, --base, --index-every, --min-length)
+  ConstraintRequest constraints;  // --breaklines, --water, --flow: hydro-flattening
   std::string commandLine;      // recorded in the outputs' metadata
   std::string tSrs;             // --t_srs: the working CRS (points are transformed in the reader stage)
   bool strictCrs = false;       // --strict-crs: CRS contradictions are errors, not warnings

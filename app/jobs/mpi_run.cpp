@@ -316,7 +316,7 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   collective(rank, size, "plan on rank", [&] {
     localDir = makeLocalDir(rank);
     survey = openSurvey(options, diag, /*needIntensity=*/false);
-    sliced = planInSlices(survey);
+    sliced = planInSlices(survey) && !options.constraints.any();  // (constraints: rank 0 plans, as for COPC)
   });
   if (sliced) {
     MpiReducer reducer(rank, size);
@@ -354,6 +354,21 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       commitStep();
       plan = readPlan(path);
     });
+    // The constraints the plan prepared (constraints.bin beside it) go to every rank too.
+    if (options.constraints.any()) {
+      std::string bytes = rank == 0 ? readWhole(plan.constraintsFile()) : std::string();
+      std::uint64_t n = bytes.size();
+      MPI_Bcast(&n, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+      bytes.resize(n);
+      for (std::uint64_t at = 0; at < n; at += kChunk)
+        MPI_Bcast(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, 0, MPI_COMM_WORLD);
+      collective(rank, size, "plan copy on rank", [&] {
+        if (rank == 0) return;
+        std::filesystem::create_directories(plan.stateDir());
+        writeWhole(plan.constraintsFile(), bytes);
+        commitStep();
+      });
+    }
   }
 
   commitStep();  // (the plan's files, for the next step to read)

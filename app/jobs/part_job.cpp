@@ -58,6 +58,18 @@ class PartHooks : public BuildHooks {
   PartHooks(const PipelineOptions& o, const Plan& plan, const Survey& survey, JobClock::time_point t0)
       : o_(o), plan_(plan), survey_(survey), part_(plan.parts[static_cast<std::size_t>(o.part)]), t0_(t0) {}
 
+  // The plan's constraints, as the plan prepared them for every part.
+  PreparedConstraints constraints(const PipelineOptions&, Survey&, Diagnostics&) override {
+    if (plan_.constraints.empty()) return {};
+    const std::string path = plan_.constraintsFile();
+    std::error_code ec;
+    if (!std::filesystem::exists(path, ec))
+      throw DataError(path, "the plan's constraints are missing: make the plan again");
+    if (fileFingerprint(path, true) != plan_.constraints)
+      throw DataError(path, "the plan's constraints were altered after the plan wrote them: make the plan again");
+    return readConstraintsFile(path);
+  }
+
   void outputs(RunOutputs& outputs, RunReport& r) override {
     std::error_code ec;
     std::filesystem::create_directories(plan_.stateDir(), ec);

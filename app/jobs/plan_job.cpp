@@ -1,11 +1,14 @@
 #include "app/jobs/plan_job.h"
 
 #include <algorithm>
+#include <filesystem>
 #include <limits>
 
 #include "app/jobs/build_job.h"
 #include "app/jobs/run_outputs.h"
+#include "app/jobs/constraints.h"
 #include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 #include "libterrain/finalizer/regions.h"
 
@@ -147,7 +150,18 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   // (The outputs were checked by the caller: the wrapper above, or an MPI run at its start.)
   if (!o.overwrite) refuseExistingFile(plan.path);
   r.threads = effectiveThreads(o.threads);
-  const FinalizerOptions fo = finalizerOptions(o, in, r.threads);
+  FinalizerOptions fo = finalizerOptions(o, in, r.threads);
+  // Breaklines and water: prepared once here, for every part (constraints.bin, fingerprinted in the plan);
+  // the plan then counts the points the parts will stream, stages and vertices included.
+  const PreparedConstraints constraints = prepareConstraints(o, in, diag);
+  if (!constraints.empty()) {
+    applyConstraints(constraints, fo, in);
+    reportConstraints(constraints, r);
+    std::error_code ec;
+    std::filesystem::create_directories(plan.stateDir(), ec);
+    writeConstraints(constraints, plan.constraintsFile());
+    plan.constraints = fileFingerprint(readablePath(plan.constraintsFile()), true);
+  }
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
@@ -161,7 +175,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     PointStream::BlockFrame frame;
     fromHierarchy = in.readsItself(i) && in.readers[i]->describeBlocks(blocks[i], frame);
   }
-  if (!fromHierarchy) {
+  if (!fromHierarchy && constraints.empty()) {
     // Any other survey: read in one slice, the same code as the ranks of an MPI run.
     struct OneSlice : PlanReducer {
       int slice() const override { return 0; }
@@ -180,7 +194,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     return sliced;
   }
   PlanCounter counter(parts);
-  counter.stopAtBegin(true);
+  counter.stopAtBegin(fromHierarchy);  // (with constraints: every point streamed and counted)
   try {
     r.finalizer = finalizePoints(in.streams, fo, counter, diag);
   } catch (const PlanCounter::Stop&) {

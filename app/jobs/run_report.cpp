@@ -147,6 +147,20 @@ std::string formatRunSummary(const RunReport& r) {
                        rate(f.read, s.pass3Seconds) + " M/s)");
     }
   }
+  if (r.constraints.present) {
+    const ConstraintFigures& c = r.constraints;
+    line("breaklines", withCommas(c.breaklines) + " lines and rings, " + withCommas(c.bodies.size()) +
+                           " water polygons: " + withCommas(c.vertices) + " constraint vertices added, " +
+                           withCommas(c.pieces) + " pieces (every one a TIN edge), " + withCommas(c.crossings) +
+                           " crossings noded; buffer " + formatDouble("%.3g", c.buffer) + " (point spacing " +
+                           formatDouble("%.3g", c.spacing) + ")");
+    for (const WaterBody& b : c.bodies)
+      line("water", b.source + ": " +
+                        (b.river ? "a river, " + std::to_string(b.stations) + " stations from " +
+                                       formatDouble("%.3f", b.level) + " down to " + formatDouble("%.3f", b.lastLevel)
+                                 : "level " + formatDouble("%.3f", b.level)) +
+                        (b.given ? " (given)" : " (" + withCommas(b.bankPoints) + " bank points)"));
+  }
   if (r.haveDelaunay) {
     const DelaunayStats& d = r.delaunay;
     line("TIN", withCommas(d.verticesOut) + " vertices, " + withCommas(d.trianglesEmitted) + " triangles (" +
@@ -446,6 +460,32 @@ std::string formatRunJson(const RunReport& r) {
       j.key("bytes_per_triangle").value(static_cast<double>(r.gpkgBytes) / static_cast<double>(r.gpkgTriangles));
     else
       j.key("bytes_per_triangle").null();
+    j.endObject();
+  }
+  if (r.constraints.present) {
+    const ConstraintFigures& c = r.constraints;
+    j.key("constraints").beginObject();
+    j.key("breaklines").value(c.breaklines);
+    j.key("vertices_added").value(c.vertices);
+    j.key("pieces").value(c.pieces);
+    j.key("crossings").value(c.crossings);
+    j.key("point_spacing").value(c.spacing);
+    j.key("buffer").value(c.buffer);
+    j.key("shore_distance").value(c.shoreDistance);
+    j.key("station_spacing").value(c.stationSpacing);
+    j.key("water").beginArray();
+    for (const WaterBody& b : c.bodies) {
+      j.beginObject();
+      j.key("source").value(b.source);
+      j.key("kind").value(b.river ? "river" : "lake");
+      j.key("level_given").value(b.given);
+      j.key("level").value(b.level);
+      j.key("last_level").value(b.lastLevel);
+      j.key("bank_points").value(b.bankPoints);
+      j.key("stations").value(static_cast<std::uint64_t>(b.stations));
+      j.endObject();
+    }
+    j.endArray();
     j.endObject();
   }
   if (!r.contoursOutput.empty()) {

@@ -13,6 +13,7 @@
 #include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
+#include "libterrain/hydro/water_levels.h"
 #include "libterrain/raster/dem_rasterizer.h"
 
 namespace tinbuild {
@@ -26,6 +27,16 @@ struct DemReport {
   double step = 0, maxEdge = 0;  // in CRS units, as used
   std::string unit;              // the CRS's horizontal unit ("metre", "US survey foot", "" = no CRS)
   std::vector<std::string> files;
+};
+
+// What the constraints did: the vector files' lines, the vertices added to make every piece a TIN edge,
+// the lengths chosen, each water body's level.
+struct ConstraintFigures {
+  bool present = false;
+  std::uint64_t breaklines = 0, vertices = 0, pieces = 0, crossings = 0;
+  std::uint64_t verticesHere = 0;  // streamed by this process (a part: those in its window)
+  double spacing = 0, buffer = 0, shoreDistance = 0, stationSpacing = 0;  // CRS units
+  std::vector<WaterBody> bodies;
 };
 
 struct RunReport {
@@ -78,6 +89,8 @@ struct RunReport {
   // --mpi: every rank voted to go on after the merge (mpi_run.cpp); a signal arriving later no longer
   // stops the commit, on any rank, so the exit codes agree with what rank 0 commits.
   bool decided = false;
+  // --breaklines, --water (app/jobs/constraints.h).
+  ConstraintFigures constraints;
 };
 
 // The human summary (a few lines for stderr) and the JSON report (stable keys, see docs/usage.md).

@@ -56,6 +56,7 @@ struct Survey {
   std::optional<PartWindow> window;
   std::uint64_t filesOutsidePart = 0, pointsOutsidePart = 0;  // records left unread (files, runs)
   std::vector<std::unique_ptr<PointStream>> segmented;         // inputs read by runs of records
+  std::vector<std::unique_ptr<PointStream>> addedStreams;      // the run's own points (constraint vertices)
 
   // Points PROJ could not transform (dropped, counted).
   std::uint64_t transformFailed() const;

@@ -1,5 +1,6 @@
 #include "app/jobs/verify_job.h"
 
+#include "app/jobs/constraints.h"
 #include "app/jobs/survey.h"
 #include "app/jobs/tin_parts.h"
 #include "formats/io/plan_file.h"
@@ -21,14 +22,34 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
   else
     readStreamingMesh(mesh, verifier);
   r.check = verifier.report();
+  if (o.constraints.any() && o.inputs.empty())
+    throw UsageError("verify --breaklines/--water: give the inputs the mesh was built from (--points INPUT...): "
+                     "the constraints are placed from the survey's extent, spacing and shores");
   if (!o.inputs.empty()) {
     // The same inputs, CRS handling (--t_srs, UTM for geographic input) and filters as `build`.
     Survey in = openSurvey(o, diag);
+    // The same constraints too: their stages and vertices are part of what the mesh must hold.
+    FinalizerOptions fo = o.finalizer;
+    const PreparedConstraints constraints = prepareConstraints(o, in, diag);
+    applyConstraints(constraints, fo, in);
+    if (!constraints.empty()) {
+      ConstraintEdgeCheck edges(constraints.conforming);
+      if (isMeshManifest(mesh))
+        readMeshParts(mesh, edges);
+      else
+        readStreamingMesh(mesh, edges);
+      r.constraintsChecked = true;
+      r.pieces = edges.pieces();
+      r.piecesMissing = edges.piecesMissing();
+      r.constraintVerticesMissing = edges.verticesMissing();
+      r.heightsDiffering = edges.heightsDiffering();
+      r.firstMissingPiece = edges.firstMissing();
+    }
     ConcatPointStream stream(in.streams);
     if (!stream.rewindable())
       throw UsageError("verify --points: the inputs must be files (they are read several times)");
     SurveyStatsOptions so;
-    so.filter = &o.finalizer.filter;
+    so.filter = &fo.filter;
     so.memoryBudget = o.finalizer.memoryBudget;
     const SurveyStats stats = analyzeSurvey(stream, so);
     r.pointsChecked = true;
@@ -69,6 +90,16 @@ std::string formatVerifyText(const VerifyReport& r) {
            withCommas(r.inputPoints) + " points after filters), the mesh has " + withCommas(c.vertices) +
            " vertices, and the sets differ\n";
   }
+  if (r.constraintsChecked) {
+    if (r.constraintsOk())
+      o += "  constraints: every one of the " + withCommas(r.pieces) +
+           " constraint pieces is a TIN edge, every constraint vertex a TIN vertex at its height\n";
+    else
+      o += "  constraints: PROBLEM: " + withCommas(r.piecesMissing) + " of " + withCommas(r.pieces) +
+           " pieces are no TIN edge" + (r.firstMissingPiece.empty() ? "" : " (the first " + r.firstMissingPiece + ")") +
+           ", " + withCommas(r.constraintVerticesMissing) + " constraint vertices missing, " +
+           withCommas(r.heightsDiffering) + " at another height\n";
+  }
   o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
   return o;
 }
@@ -106,6 +137,14 @@ std::string formatVerifyJson(const VerifyReport& r) {
     j.key("input_duplicates").value(r.inputDuplicates);
     j.key("comparable").value(r.pointsCountable);
     j.key("match").value(r.pointsMatch);
+    j.endObject();
+  }
+  if (r.constraintsChecked) {
+    j.key("constraints").beginObject();
+    j.key("pieces").value(r.pieces);
+    j.key("pieces_not_edges").value(r.piecesMissing);
+    j.key("vertices_missing").value(r.constraintVerticesMissing);
+    j.key("heights_differing").value(r.heightsDiffering);
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -21,8 +21,14 @@ struct VerifyReport {
   bool pointsCountable = true;  // false: the inputs were too incoherent for the memory budget
   std::uint64_t inputPoints = 0, inputDistinct = 0, inputDuplicates = 0;
   bool pointsMatch = false;
+  // --breaklines/--water with --points: every constraint piece a TIN edge, every constraint vertex a TIN
+  // vertex at its height.
+  bool constraintsChecked = false;
+  std::uint64_t pieces = 0, piecesMissing = 0, constraintVerticesMissing = 0, heightsDiffering = 0;
+  std::string firstMissingPiece;
   double seconds = 0;
-  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch); }
+  bool constraintsOk() const { return piecesMissing == 0 && constraintVerticesMissing == 0 && heightsDiffering == 0; }
+  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch) && (!constraintsChecked || constraintsOk()); }
 };
 VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);
 std::string formatVerifyText(const VerifyReport& report);

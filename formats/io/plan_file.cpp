@@ -224,6 +224,7 @@ std::string planBody(const Plan& p) {
     j.endObject();
   }
   j.endArray();
+  if (!p.constraints.empty()) j.key("constraints").value(p.constraints);
   j.key("parts").beginArray();
   for (const auto& part : p.parts) {
     j.beginObject();
@@ -241,6 +242,10 @@ std::string Plan::stateDir() const {
   std::string s = path;
   if (s.size() > 5 && s.compare(s.size() - 5, 5, ".json") == 0) s.resize(s.size() - 5);
   return s + ".parts";
+}
+
+std::string Plan::constraintsFile() const {
+  return (fs::path(stateDir()) / "constraints.bin").string();
 }
 
 std::string Plan::partFile(int part, const std::string& extension) const {
@@ -312,6 +317,7 @@ Plan readPlan(const std::string& path) {
     seg.maxY = parseHexDouble(box[3].ToString(), path, "segment box");
     p.segments.push_back(seg);
   }
+  p.constraints = root.GetString("constraints");
   for (const auto& o : root.GetArray("parts"))
     p.parts.push_back(PlanPart{getU64(o, "first_region"), getU64(o, "end_region"), getU64(o, "points")});
   if (p.grid.depth < 0 || p.grid.depth > 15 || p.regionLevel < 1 || p.regionLevel > p.grid.depth ||

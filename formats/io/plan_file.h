@@ -55,11 +55,15 @@ struct Plan {
   // false when they were estimated from a COPC hierarchy (no point read).
   bool exactCounts = true;
   std::vector<PlanSegment> segments;  // of the inputs cut into several (LAS/LAZ read in their own CRS)
+  // --breaklines/--water: the fingerprint of the constraints the plan prepared for its parts
+  // (constraintsFile()); "" = none.
+  std::string constraints;
   std::string path;  // where it was read from / written to
 
   // PLAN.parts (PLAN without its .json).
   std::string stateDir() const;
   std::string partFile(int part, const std::string& extension) const;  // stateDir/part-NNNN.extension
+  std::string constraintsFile() const;                                 // stateDir/constraints.bin
 };
 
 // The input as it is now (size, modification time).  Throws DataError when it cannot be asked.

@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <limits>
 
 namespace tinbuild {
@@ -216,6 +218,80 @@ std::size_t ConstraintStream::read(PointRecord* out, std::size_t max) {
     ++next_;
   }
   return n;
+}
+
+}  // namespace tinbuild
+
+namespace tinbuild {
+
+namespace {
+
+std::uint64_t positionHash(double x, double y) {
+  std::uint64_t a, b;
+  std::memcpy(&a, &x, 8);
+  std::memcpy(&b, &y, 8);
+  return a * 0x9e3779b97f4a7c15ull ^ (b + 0x7f4a7c159e3779b9ull + (a << 6) + (a >> 2));
+}
+
+}  // namespace
+
+ConstraintEdgeCheck::ConstraintEdgeCheck(std::shared_ptr<const ConformingConstraints> constraints)
+    : c_(std::move(constraints)), seen_(c_->vertices.size(), 0) {
+  for (std::uint32_t i = 0; i < c_->vertices.size(); ++i) byPosition_.emplace(positionHash(c_->vertices[i].x, c_->vertices[i].y), i);
+}
+
+void ConstraintEdgeCheck::vertex(std::uint64_t id, double x, double y, double z) {
+  auto it = byPosition_.find(positionHash(x, y));
+  if (it == byPosition_.end()) return;
+  const ConstraintPoint& v = c_->vertices[it->second];
+  if (v.x != x || v.y != y) return;
+  live_[id] = it->second;
+  seen_[it->second] = 1;
+  if (v.z != z) ++heightsDiffering_;
+}
+
+void ConstraintEdgeCheck::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
+  const std::uint64_t ids[3] = {a, b, c};
+  std::uint32_t cv[3];
+  bool is[3];
+  for (int k = 0; k < 3; ++k) {
+    auto it = live_.find(ids[k]);
+    is[k] = it != live_.end();
+    cv[k] = is[k] ? it->second : 0;
+  }
+  for (int k = 0; k < 3; ++k) {
+    const int l = (k + 1) % 3;
+    if (!is[k] || !is[l]) continue;
+    const std::uint32_t p = std::min(cv[k], cv[l]), q = std::max(cv[k], cv[l]);
+    edges_.insert((static_cast<std::uint64_t>(p) << 32) | q);
+  }
+}
+
+void ConstraintEdgeCheck::finalizeVertex(std::uint64_t id) {
+  live_.erase(id);
+}
+
+std::uint64_t ConstraintEdgeCheck::piecesMissing() const {
+  std::uint64_t n = 0;
+  for (const auto& pc : c_->pieces) n += !edges_.count((static_cast<std::uint64_t>(pc[0]) << 32) | pc[1]);
+  return n;
+}
+
+std::uint64_t ConstraintEdgeCheck::verticesMissing() const {
+  std::uint64_t n = 0;
+  for (char s : seen_) n += !s;
+  return n;
+}
+
+std::string ConstraintEdgeCheck::firstMissing() const {
+  for (const auto& pc : c_->pieces)
+    if (!edges_.count((static_cast<std::uint64_t>(pc[0]) << 32) | pc[1])) {
+      const ConstraintPoint &a = c_->vertices[pc[0]], &b = c_->vertices[pc[1]];
+      char buf[160];
+      std::snprintf(buf, sizeof buf, "(%.3f, %.3f) - (%.3f, %.3f)", a.x, a.y, b.x, b.y);
+      return buf;
+    }
+  return "";
 }
 
 }  // namespace tinbuild

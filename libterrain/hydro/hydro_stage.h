@@ -16,11 +16,14 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "libterrain/finalizer/point_stage.h"
 #include "libterrain/finalizer/point_stream.h"
 #include "libterrain/hydro/conforming.h"
+#include "libterrain/mesh/mesh_sink.h"
 
 namespace tinbuild {
 
@@ -86,6 +89,35 @@ class ConstraintStream final : public PointStream {
  private:
   std::shared_ptr<const ConformingConstraints> c_;
   std::size_t next_ = 0;
+};
+
+}  // namespace tinbuild
+
+namespace tinbuild {
+
+// `verify` with constraints: reads a TIN (as a MeshSink) and checks that every constraint vertex is a TIN
+// vertex at the constraint's height, and every piece an edge of it.  Memory: the constraint vertices.
+class ConstraintEdgeCheck final : public MeshSink {
+ public:
+  explicit ConstraintEdgeCheck(std::shared_ptr<const ConformingConstraints> constraints);
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double z) override;
+  void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override;
+  void finalizeVertex(std::uint64_t id) override;
+  void end() override {}
+  std::uint64_t pieces() const { return c_->pieces.size(); }
+  std::uint64_t piecesMissing() const;  // pieces that are no edge of the TIN
+  std::uint64_t verticesMissing() const;
+  std::uint64_t heightsDiffering() const { return heightsDiffering_; }
+  std::string firstMissing() const;  // "(x, y) - (x, y)" of the first piece missing, "" when none
+
+ private:
+  std::shared_ptr<const ConformingConstraints> c_;
+  std::unordered_map<std::uint64_t, std::uint32_t> byPosition_;  // hash of (x, y) bits -> vertex (exact check after)
+  std::unordered_map<std::uint64_t, std::uint32_t> live_;         // TIN vertex id -> constraint vertex
+  std::vector<char> seen_;
+  std::unordered_set<std::uint64_t> edges_;  // (constraint vertex a << 32 | b), a < b
+  std::uint64_t heightsDiffering_ = 0;
 };
 
 }  // namespace tinbuild

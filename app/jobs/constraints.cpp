@@ -1,0 +1,305 @@
+// Breaklines and hydro-flattening in a job (header).
+#include "app/jobs/constraints.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstring>
+#include <fstream>
+#include <limits>
+
+#include "formats/crs/reprojection.h"
+#include "formats/io/output_file.h"
+#include "formats/io/record_file.h"
+#include "formats/vector/constraint_reader.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
+
+namespace tinbuild {
+
+namespace {
+
+// The pass before the finalizer: the kept points' extent and count, and the bank points.
+struct SurveyPass {
+  Bounds3 bounds;
+  std::uint64_t points = 0;
+};
+
+SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSampler* sampler, const CancelFlag* cancel) {
+  SurveyPass out;
+  PointFilter userFilter = filter;
+  userFilter.stages.clear();
+  userFilter.window.reset();
+  std::vector<PointRecord> batch(65536);
+  FilterCounts counts;
+  for (PointStream* s : survey.streams) {
+    if (!s->rewindable())
+      throw UsageError("--breaklines/--water read the survey once before the run: the input must be a file, not stdin");
+    for (;;) {
+      throwIfCancelled(cancel);
+      std::size_t n = s->read(batch.data(), batch.size());
+      if (n == 0) break;
+      n = userFilter.apply(batch.data(), n, counts);
+      for (std::size_t i = 0; i < n; ++i) out.bounds.add(batch[i].x, batch[i].y, batch[i].z);
+      out.points += n;
+      if (sampler) sampler->add(batch.data(), n);
+    }
+    s->rewind();
+  }
+  return out;
+}
+
+std::vector<ConstraintSegment> breaklineSegments(const ConstraintInput& in) {
+  std::vector<ConstraintSegment> out;
+  for (std::uint32_t i = 0; i < in.breaklines.size(); ++i) {
+    const ConstraintLine& l = in.breaklines[i];
+    const std::size_t n = l.points.size();
+    for (std::size_t k = 0; k + 1 < n; ++k) out.push_back({l.points[k], l.points[k + 1], SegmentKind::Breakline, i});
+    if (l.closed && n >= 3) out.push_back({l.points[n - 1], l.points[0], SegmentKind::Breakline, i});
+  }
+  return out;
+}
+
+double lengthOption(const std::string& text, double fallback, const CrsInfo& crs, const char* option) {
+  if (text.empty()) return fallback;
+  const double v = parseLength(text, crs, option);
+  if (!(v > 0) || !std::isfinite(v)) throw UsageError(std::string(option) + " must be a positive length, got '" + text + "'");
+  return v;
+}
+
+constexpr char kMagic[8] = {'T', 'B', 'C', 'O', 'N', 'S', '0', '1'};
+
+}  // namespace
+
+PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey, Diagnostics& diag) {
+  PreparedConstraints c;
+  const ConstraintRequest& q = o.constraints;
+  if (!q.any()) {
+    if (!q.flows.empty()) throw UsageError("--flow needs --water (the rivers' polygons)");
+    return c;
+  }
+  ConstraintFiles files;
+  files.breaklines = q.breaklines;
+  files.water = q.water;
+  files.flows = q.flows;
+  const ConstraintInput input = readConstraints(files, survey.crs, diag);
+  c.breaklines = input.breaklines.size();
+  if (!survey.crs.wkt.empty() && survey.crs.geographic)
+    throw UsageError("--breaklines/--water need a projected CRS (lengths in metres): give --t_srs");
+
+  // The pass: spacing first needs the extent and count; the bank points need the shore distance, which
+  // defaults to a multiple of the spacing -- so a user who leaves it to the survey gets it from the
+  // header's figures when they are known, else from the pass itself (the levels then take one more pass).
+  std::unique_ptr<ShoreSampler> sampler;
+  WaterLevelOptions wo;
+  wo.percentile = q.percentile;
+  auto spacingOf = [](const Bounds3& b, std::uint64_t n) {
+    const double area = std::max((b.maxX - b.minX) * (b.maxY - b.minY), 1e-12);
+    return std::sqrt(area / static_cast<double>(std::max<std::uint64_t>(n, 1)));
+  };
+  double spacing = 0;
+  SurveyPass pass;
+  // One pass when the lengths that the sampling needs are given, or no level is derived; else two.
+  auto makeSampler = [&](double sp) {
+    wo.shoreDistance = lengthOption(q.shoreDistance, 3 * sp, survey.crs, "--shore-distance");
+    wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
+    sampler = std::make_unique<ShoreSampler>(input, wo);
+    if (!sampler->needsPoints()) sampler.reset();
+  };
+  if (!q.water.empty() && !q.shoreDistance.empty() && !q.stationSpacing.empty()) {
+    makeSampler(1);
+    pass = passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
+    spacing = spacingOf(pass.bounds, pass.points);
+  } else {
+    pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel);
+    spacing = spacingOf(pass.bounds, pass.points);
+    if (!q.water.empty()) {
+      makeSampler(spacing);
+      if (sampler) passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
+    }
+  }
+  if (pass.points == 0) throw DataError(o.inputs.empty() ? "build" : o.inputs.front(), "no point is kept by the filters: nothing to constrain");
+  c.spacing = spacing;
+  c.shoreDistance = wo.shoreDistance;
+  c.stationSpacing = wo.stationSpacing;
+  c.buffer = lengthOption(q.buffer, spacing, survey.crs, "--breakline-buffer");
+
+  std::vector<ConstraintSegment> segments;
+  if (!input.water.empty()) {
+    PreparedWater water;
+    if (sampler) {
+      water = sampler->finish();
+    } else {
+      ShoreSampler given(input, wo);  // every level given: nothing to sample
+      water = given.finish();
+    }
+    segments = water.segments;
+    c.water = water.areas;
+    c.bodies = water.bodies;
+  }
+  const std::vector<ConstraintSegment> lines = breaklineSegments(input);
+  segments.insert(segments.end(), lines.begin(), lines.end());
+  ConformingOptions co;
+  co.minX = pass.bounds.minX;
+  co.minY = pass.bounds.minY;
+  co.maxX = pass.bounds.maxX;
+  co.maxY = pass.bounds.maxY;
+  co.maxPiece = c.buffer;
+  co.snap = std::min(1e-3, c.buffer * 1e-3);
+  c.conforming = std::make_shared<const ConformingConstraints>(conformConstraints(segments, c.water, co));
+  if (c.conforming->vertices.empty())
+    diag.warn("constraints.outside", q.breaklines.empty() ? q.water.front() : q.breaklines.front(),
+              "no constraint meets the survey's extent: nothing is constrained");
+  return c;
+}
+
+void applyConstraints(const PreparedConstraints& c, FinalizerOptions& fo, Survey& survey) {
+  if (c.empty()) return;
+  if (!c.water.empty()) fo.filter.stages.push_back(std::make_shared<WaterStage>(c.water));
+  fo.filter.stages.push_back(std::make_shared<BufferStage>(c.conforming));
+  if (fo.filter.stages.size() > kMaxPointStages)
+    throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
+  survey.addedStreams.push_back(std::make_unique<ConstraintStream>(c.conforming));
+  survey.streams.push_back(survey.addedStreams.back().get());
+  survey.names.push_back("the constraint vertices");
+  fo.inputNames = survey.names;
+  if (fo.knownBounds)
+    for (const ConstraintPoint& v : c.conforming->vertices) fo.knownBounds->add(v.x, v.y, v.z);
+  if (fo.expectedPoints) fo.expectedPoints += c.conforming->vertices.size();
+}
+
+void reportConstraints(const PreparedConstraints& c, RunReport& r) {
+  if (c.empty()) return;
+  ConstraintFigures& f = r.constraints;
+  f.present = true;
+  f.breaklines = c.breaklines;
+  f.vertices = c.conforming->vertices.size();
+  f.pieces = c.conforming->pieces.size();
+  f.crossings = c.conforming->stats.crossings;
+  f.spacing = c.spacing;
+  f.buffer = c.buffer;
+  f.shoreDistance = c.shoreDistance;
+  f.stationSpacing = c.stationSpacing;
+  f.bodies = c.bodies;
+}
+
+void writeConstraints(const PreparedConstraints& c, const std::string& path) {
+  OutputFile f(path);
+  auto u64 = [&f](std::uint64_t v) { f.write(&v, 8); };
+  auto f64 = [&f](double v) { f.write(&v, 8); };
+  f.write(kMagic, 8);
+  f64(c.spacing);
+  f64(c.buffer);
+  f64(c.shoreDistance);
+  f64(c.stationSpacing);
+  u64(c.breaklines);
+  const auto& v = c.conforming->vertices;
+  u64(v.size());
+  for (const auto& p : v) {
+    f64(p.x);
+    f64(p.y);
+    f64(p.z);
+  }
+  const auto& pcs = c.conforming->pieces;
+  u64(pcs.size());
+  for (const auto& p : pcs) f.write(p.data(), 8);
+  u64(c.water.size());
+  auto ring = [&](const std::vector<std::array<double, 2>>& r) {
+    u64(r.size());
+    for (const auto& q : r) {
+      f64(q[0]);
+      f64(q[1]);
+    }
+  };
+  for (const WaterArea& w : c.water) {
+    ring(w.outer);
+    u64(w.holes.size());
+    for (const auto& h : w.holes) ring(h);
+  }
+  u64(c.bodies.size());
+  for (const WaterBody& b : c.bodies) {
+    u64(b.source.size());
+    f.write(b.source.data(), b.source.size());
+    u64((b.river ? 1u : 0u) | (b.given ? 2u : 0u));
+    f64(b.level);
+    f64(b.lastLevel);
+    u64(b.bankPoints);
+    u64(b.stations);
+  }
+  f.write(kMagic, 8);  // (the end: a file cut short is found)
+  f.commit();
+}
+
+PreparedConstraints readConstraintsFile(const std::string& path) {
+  RecordReader in(path, "constraint file");
+  char magic[8];
+  in.bytes(magic, 8);
+  if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "not a tinbuild constraint file");
+  PreparedConstraints c;
+  c.spacing = in.get<double>();
+  c.buffer = in.get<double>();
+  c.shoreDistance = in.get<double>();
+  c.stationSpacing = in.get<double>();
+  c.breaklines = in.get<std::uint64_t>();
+  auto cc = std::make_shared<ConformingConstraints>();
+  const std::uint64_t nv = in.get<std::uint64_t>();
+  if (nv > (std::uint64_t{1} << 31)) throw DataError(path, "corrupt constraint file");
+  cc->vertices.resize(nv);
+  for (auto& p : cc->vertices) {
+    p.x = in.get<double>();
+    p.y = in.get<double>();
+    p.z = in.get<double>();
+  }
+  const std::uint64_t np = in.get<std::uint64_t>();
+  if (np > (std::uint64_t{1} << 32)) throw DataError(path, "corrupt constraint file");
+  cc->pieces.resize(np);
+  for (auto& p : cc->pieces) {
+    p[0] = in.get<std::uint32_t>();
+    p[1] = in.get<std::uint32_t>();
+    if (p[0] >= nv || p[1] >= nv) throw DataError(path, "corrupt constraint file (a piece's vertex)");
+  }
+  auto ring = [&in, &path]() {
+    const std::uint64_t n = in.get<std::uint64_t>();
+    if (n > (std::uint64_t{1} << 31)) throw DataError(path, "corrupt constraint file");
+    std::vector<std::array<double, 2>> r(n);
+    for (auto& q : r) {
+      q[0] = in.get<double>();
+      q[1] = in.get<double>();
+    }
+    return r;
+  };
+  const std::uint64_t nw = in.get<std::uint64_t>();
+  if (nw > (std::uint64_t{1} << 24)) throw DataError(path, "corrupt constraint file");
+  for (std::uint64_t i = 0; i < nw; ++i) {
+    WaterArea w;
+    w.outer = ring();
+    const std::uint64_t nh = in.get<std::uint64_t>();
+    if (nh > (std::uint64_t{1} << 24)) throw DataError(path, "corrupt constraint file");
+    for (std::uint64_t h = 0; h < nh; ++h) w.holes.push_back(ring());
+    c.water.push_back(std::move(w));
+  }
+  const std::uint64_t nb = in.get<std::uint64_t>();
+  if (nb > (std::uint64_t{1} << 24)) throw DataError(path, "corrupt constraint file");
+  for (std::uint64_t i = 0; i < nb; ++i) {
+    WaterBody b;
+    const std::uint64_t len = in.get<std::uint64_t>();
+    if (len > 65536) throw DataError(path, "corrupt constraint file");
+    b.source.resize(len);
+    in.bytes(b.source.data(), len);
+    const std::uint64_t flags = in.get<std::uint64_t>();
+    b.river = flags & 1;
+    b.given = flags & 2;
+    b.level = in.get<double>();
+    b.lastLevel = in.get<double>();
+    b.bankPoints = in.get<std::uint64_t>();
+    b.stations = static_cast<std::uint32_t>(in.get<std::uint64_t>());
+    c.bodies.push_back(b);
+  }
+  in.bytes(magic, 8);
+  if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "corrupt constraint file (its end)");
+  cc->stats.vertices = cc->vertices.size();
+  cc->stats.pieces = cc->pieces.size();
+  c.conforming = std::move(cc);
+  return c;
+}
+
+}  // namespace tinbuild
