@@ -16,6 +16,7 @@
 #include "formats/pointcloud/las_writer.h"
 #include "formats/raster/quicklook.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/synthetic/synthetic_survey.h"
 
 namespace tinbuild::app {
@@ -58,6 +59,37 @@ const cli::OptionTable<DemoSettings>& demoTable() {
     return t;
   }();
   return table;
+}
+
+// water.geojson (the river's polygon), flow.geojson (its centreline, downstream), roads.geojson (the road's
+// crest, LINESTRING Z), in EPSG:32610 with exact coordinates.
+void writeDemoFeatures(const SurveyFeatures& f, const std::filesystem::path& dir) {
+  auto number = [](double v) { return formatDouble("%.17g", v); };
+  auto write = [&dir](const char* name, const std::string& geometry) {
+    const std::string path = (dir / name).string();
+    std::ofstream out(path, std::ios::trunc);
+    out << "{\"type\":\"FeatureCollection\",\"crs\":{\"type\":\"name\",\"properties\":{\"name\":"
+           "\"urn:ogc:def:crs:EPSG::32610\"}},\"features\":[{\"type\":\"Feature\",\"properties\":{},"
+           "\"geometry\":"
+        << geometry << "}]}\n";
+    out.close();
+    if (!out) throw DataError(path, "cannot write the demo's feature file");
+  };
+  std::string ring = "{\"type\":\"Polygon\",\"coordinates\":[[";
+  for (std::size_t i = 0; i <= f.riverPolygon.size(); ++i) {
+    const auto& p = f.riverPolygon[i % f.riverPolygon.size()];
+    ring += (i ? "," : "") + std::string("[") + number(p[0]) + "," + number(p[1]) + "]";
+  }
+  write("water.geojson", ring + "]]}");
+  std::string flow = "{\"type\":\"LineString\",\"coordinates\":[";
+  for (std::size_t i = 0; i < f.riverCentreline.size(); ++i)
+    flow += (i ? "," : "") + std::string("[") + number(f.riverCentreline[i][0]) + "," + number(f.riverCentreline[i][1]) + "]";
+  write("flow.geojson", flow + "]}");
+  std::string road = "{\"type\":\"LineString\",\"coordinates\":[";
+  for (std::size_t i = 0; i < f.roadCrest.size(); ++i)
+    road += (i ? "," : "") + std::string("[") + number(f.roadCrest[i][0]) + "," + number(f.roadCrest[i][1]) + "," +
+            number(f.roadCrest[i][2]) + "]";
+  write("roads.geojson", road + "]}");
 }
 
 int runDemo(const cli::ParsedArgs& args) {
@@ -140,6 +172,10 @@ int runDemo(const cli::ParsedArgs& args) {
   InfoReport report = inspectSurvey(info, diag);
   std::ofstream((dir / "survey-info.json").string()) << formatInfoJson(report);
   std::cout << formatInfoText(report) << "\n";
+
+  // The river and the road, digitised as a surveyor would (GeoJSON in the survey's CRS): the river's
+  // water polygon and its centreline hydro-flatten the DEM, the road's crest is a hard breakline.
+  writeDemoFeatures(SurveyGenerator(spec).features(5.0), dir);
 
   // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
   // Parsed from the words of a `tinbuild build` command line by the build's own table.

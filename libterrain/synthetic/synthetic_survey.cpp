@@ -258,6 +258,18 @@ class Terrain {
   double minZ = 0, maxZ = 0;
   double riverHalf = 0, bankWidth = 0;
 
+  // The river's centre line at u (v) and the half-width along v of the water there.
+  double riverCentre(double u) const {
+    return axis_ + meanderAmp_[0] * detSin(meanderK_[0] * u + meanderPhase_[0]) +
+           meanderAmp_[1] * detSin(meanderK_[1] * u + meanderPhase_[1]);
+  }
+  double riverHalfAlongV(double u) const {
+    const double slope = meanderAmp_[0] * meanderK_[0] * detCos(meanderK_[0] * u + meanderPhase_[0]) +
+                         meanderAmp_[1] * meanderK_[1] * detCos(meanderK_[1] * u + meanderPhase_[1]);
+    return riverHalf * std::sqrt(1.0 + slope * slope);
+  }
+  double roadV() const { return roadV_; }
+
  private:
   double base_ = 0, grade_ = 0, axis_ = 0, floodHalf_ = 0, wallHeight_ = 0, wallWidth_ = 0;
   double depth_ = 0, bankDrop_ = 0, waterDrop_ = 0;
@@ -788,6 +800,28 @@ double SurveyGenerator::side() const {
 }
 int SurveyGenerator::stripCount() const {
   return static_cast<int>(impl_->strips);
+}
+
+SurveyFeatures SurveyGenerator::features(double step) const {
+  SurveyFeatures f;
+  const Impl& m = *impl_;
+  if (m.spec.kind != SurveySpec::Kind::FlightStrips) return f;
+  const double ox = m.spec.originX, oy = m.spec.originY;
+  const double margin = 2 * step;
+  const auto n = static_cast<std::int64_t>(std::ceil((m.side + 2 * margin) / step));
+  std::vector<std::array<double, 2>> right;
+  for (std::int64_t k = 0; k <= n; ++k) {
+    const double u = -margin + static_cast<double>(k) * step;
+    const double c = m.terrain.riverCentre(u), h = m.terrain.riverHalfAlongV(u);
+    f.riverCentreline.push_back({ox + u, oy + c});
+    f.riverPolygon.push_back({ox + u, oy + c - h});
+    right.push_back({ox + u, oy + c + h});
+    const double rv = m.terrain.roadV();
+    f.roadCrest.push_back({ox + u, oy + rv, m.terrain.sample(u, rv).z});
+  }
+  f.riverPolygon.insert(f.riverPolygon.end(), right.rbegin(), right.rend());
+  f.riverHalfWidth = m.terrain.riverHalf;
+  return f;
 }
 
 double SurveyGenerator::groundHeight(double x, double y) const {

@@ -65,11 +65,13 @@
 //     9 water, 18 high noise.  returnNumber is 1-based and <= numberOfReturns <= 4.
 #pragma once
 
+#include <array>
 #include <cstddef>
 #include <cstdint>
 #include <memory>
 #include <optional>
 #include <string_view>
+#include <vector>
 
 #include "libterrain/core/point.h"
 
@@ -96,6 +98,16 @@ struct SurveySpec {
 const char* surveyKindName(SurveySpec::Kind kind);
 // Accepts the names above (and "flightstrips", "random", "grid"); nullopt when unknown.
 std::optional<SurveySpec::Kind> parseSurveyKind(std::string_view name);
+
+// What a FlightStrips survey's terrain holds, drawn as a surveyor would digitise it (absolute coordinates,
+// one vertex every `step` along the valley, a little beyond the area): the river's water's edge as one
+// polygon (counter-clockwise), its centreline digitised downstream (the valley falls along x), and the
+// road's crest line with its heights.  For hydro-flattening demos and tests.
+struct SurveyFeatures {
+  std::vector<std::array<double, 2>> riverPolygon, riverCentreline;
+  std::vector<std::array<double, 3>> roadCrest;
+  double riverHalfWidth = 0;
+};
 
 class SurveyGenerator {
  public:
@@ -126,6 +138,8 @@ class SurveyGenerator {
   // points lie within a few centimetres of it, the river bed below the water surface.  An oracle for
   // DEM tests.
   double groundHeight(double x, double y) const;
+  // The river and the road as features (FlightStrips; empty for the other kinds).
+  SurveyFeatures features(double step) const;
 
  private:
   struct Impl;
