@@ -20,7 +20,14 @@
 #include "libterrain/hydro/hydro_stage.h"
 #include "libterrain/hydro/water_levels.h"
 #include "libterrain/mesh/mesh_sink.h"
+#include "triangle_sets.h"
 #include "vector_stream.h"
+
+#if __has_include(<CGAL/Delaunay_triangulation_2.h>)
+#include <CGAL/Delaunay_triangulation_2.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#define TINBUILD_TEST_HAVE_CGAL 1
+#endif
 
 namespace tinbuild {
 namespace {
@@ -279,6 +286,47 @@ TEST(Conforming, RiversNeverRiseAndAreLevelAcross) {
     if (it != bankAtX[1].end() && std::abs(it->second - z) == 0) ++shared;
   }
   EXPECT_GE(shared, 15u) << "cross-sections at the stations, level from bank to bank";
+}
+
+// The conforming TIN is the Delaunay triangulation of its own vertices: the same triangles as CGAL's
+// Delaunay_triangulation_2 (exact predicates) of the lidar points left and the constraint vertices.
+TEST(Conforming, TheTinIsCgalsDelaunayTriangulationOfItsVertices) {
+#ifndef TINBUILD_TEST_HAVE_CGAL
+  GTEST_SKIP() << "CGAL headers not available";
+#else
+  const auto pts = terrain(20000, 100, 5);
+  std::vector<ConstraintSegment> segs;
+  std::mt19937_64 rng(9);
+  std::uniform_real_distribution<double> u(0, 100);
+  for (std::uint32_t i = 0; i < 8; ++i) segs.push_back(seg(u(rng), u(rng), 20, u(rng), u(rng), 25, i));
+  WaterArea lake;
+  lake.outer = {{60, 60}, {90, 62}, {85, 90}, {62, 88}};
+  for (int k = 0; k < 4; ++k)
+    segs.push_back({ConstraintPoint{lake.outer[k][0], lake.outer[k][1], 5}, ConstraintPoint{lake.outer[(k + 1) % 4][0], lake.outer[(k + 1) % 4][1], 5},
+                    SegmentKind::Water, 0});
+  ConformRun run;
+  build(run, pts, segs, {lake}, 100, 0.7);
+  expectPiecesAreEdges(run);
+  std::vector<test::Tri> ours;
+  for (const auto& t : run.tin.tris) {
+    const auto &a = run.tin.xyz[t[0]], &b = run.tin.xyz[t[1]], &c = run.tin.xyz[t[2]];
+    ours.push_back(test::canonical(a[0], a[1], b[0], b[1], c[0], c[1]));
+  }
+  std::sort(ours.begin(), ours.end());
+  using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+  std::vector<K::Point_2> points;
+  for (const auto& [key, id] : run.tin.idAt) points.emplace_back(run.tin.xyz[id][0], run.tin.xyz[id][1]);
+  CGAL::Delaunay_triangulation_2<K> dt;
+  dt.insert(points.begin(), points.end());
+  std::vector<test::Tri> theirs;
+  for (auto f = dt.finite_faces_begin(); f != dt.finite_faces_end(); ++f) {
+    const auto &a = f->vertex(0)->point(), &b = f->vertex(1)->point(), &c = f->vertex(2)->point();
+    theirs.push_back(test::canonical(a.x(), a.y(), b.x(), b.y(), c.x(), c.y()));
+  }
+  std::sort(theirs.begin(), theirs.end());
+  EXPECT_EQ(ours.size(), theirs.size());
+  EXPECT_TRUE(ours == theirs) << "the conforming TIN differs from CGAL's Delaunay triangulation of its vertices";
+#endif
 }
 
 }  // namespace
