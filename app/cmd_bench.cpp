@@ -37,6 +37,8 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--list", "T,T,...",
        "threads: the thread counts measured, starting with 1 (default 1,2,4,8); parts: the rank counts (1,2,4)"},
       {"--step", "R", "parts: the DEM's pixel size (default 1)"},
+      {"--ponds", "P", "hydro: water polygons drawn over the survey besides its river (default 40)"},
+      {"--roads", "R", "hydro: roads as hard breaklines (default 12)"},
       {"--no-cgal", "", "skip the CGAL runs"},
       {"--dir", "DIR", "where the temporary surveys go (default $TMPDIR or /tmp)"},
       {"--keep", "", "keep the generated files"},
@@ -151,6 +153,7 @@ Command benchCommand() {
       "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench parts [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4] [--step R]\n"
       "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
+      "       tinbuild bench hydro [--points N] [--ponds P] [--roads R] [--repeat R] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -173,6 +176,9 @@ Command benchCommand() {
       "one process, median of R alternating rounds (default 3): wall time and ratio, plan, slowest part and\n"
       "merge times, the largest rank's peak RSS, bytes sent between ranks, seam share, CGAL; checks that\n"
       "every P wrote the same DEM tiles and triangle count (input as for threads).\n"
+      "bench hydro: the same build (mesh and 1 m DEM of the four-strip survey, --points default 10M) with and\n"
+      "without hydro-flattening (ponds drawn over it, its river and centreline, roads as breaklines), median\n"
+      "of R alternating rounds (default 3): time and peak RSS ratios, vertices added, points left out.\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

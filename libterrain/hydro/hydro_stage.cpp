@@ -204,14 +204,47 @@ std::size_t BufferStage::apply(PointRecord* p, std::size_t n) const {
 
 // ---------------------------------------------------------------------------------------------------
 
+ConstraintStream::ConstraintStream(std::shared_ptr<const ConformingConstraints> constraints) : c_(std::move(constraints)) {
+  const auto& v = c_->vertices;
+  double minX = std::numeric_limits<double>::infinity(), minY = minX, maxX = -minX, maxY = -minX;
+  for (const auto& p : v) {
+    minX = std::min(minX, p.x), maxX = std::max(maxX, p.x);
+    minY = std::min(minY, p.y), maxY = std::max(maxY, p.y);
+  }
+  const double span = std::max({maxX - minX, maxY - minY, 1e-12});
+  auto spread = [](std::uint64_t a) {  // the bits of a 32-bit value, every other bit
+    a &= 0xffffffffull;
+    a = (a | (a << 16)) & 0x0000ffff0000ffffull;
+    a = (a | (a << 8)) & 0x00ff00ff00ff00ffull;
+    a = (a | (a << 4)) & 0x0f0f0f0f0f0f0f0full;
+    a = (a | (a << 2)) & 0x3333333333333333ull;
+    return (a | (a << 1)) & 0x5555555555555555ull;
+  };
+  std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(v.size());
+  for (std::uint32_t i = 0; i < v.size(); ++i) {
+    const auto cx = static_cast<std::uint64_t>(std::clamp((v[i].x - minX) / span, 0.0, 1.0) * 4294967295.0);
+    const auto cy = static_cast<std::uint64_t>(std::clamp((v[i].y - minY) / span, 0.0, 1.0) * 4294967295.0);
+    keyed[i] = {spread(cx) | (spread(cy) << 1), i};
+  }
+  std::sort(keyed.begin(), keyed.end());
+  order_.reserve(keyed.size());
+  for (const auto& k : keyed) order_.push_back(k.second);
+}
+
+void ConstraintStream::seek(std::uint64_t record, std::uint64_t) {
+  next_ = static_cast<std::size_t>(std::min<std::uint64_t>(record, order_.size()));
+}
+
 std::size_t ConstraintStream::read(PointRecord* out, std::size_t max) {
   const auto& v = c_->vertices;
   std::size_t n = 0;
-  while (n < max && next_ < v.size()) {
+  max = std::min<std::size_t>(max, 1024 - next_ % 1024);  // (batches never straddle a block of 1024)
+  while (n < max && next_ < order_.size()) {
+    const ConstraintPoint& q = v[order_[next_]];
     PointRecord r;
-    r.x = v[next_].x;
-    r.y = v[next_].y;
-    r.z = v[next_].z;
+    r.x = q.x;
+    r.y = q.y;
+    r.z = q.z;
     r.classification = 2;
     r.flags = kFlagConstraint;
     out[n++] = r;

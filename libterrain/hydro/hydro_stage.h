@@ -78,16 +78,21 @@ class BufferStage final : public PointStage {
   std::vector<std::uint32_t> pieceIds_;
 };
 
-// The constraint vertices as a point stream (rewindable; every pass the same records).
+// The constraint vertices as a point stream: rewindable and seekable like a LAS file (so the finalizer
+// may still read the survey in a spatially coherent order), in Morton order over the vertices' box and in
+// batches of at most 1024, each a compact patch of the plane.
 class ConstraintStream final : public PointStream {
  public:
-  explicit ConstraintStream(std::shared_ptr<const ConformingConstraints> constraints) : c_(std::move(constraints)) {}
+  explicit ConstraintStream(std::shared_ptr<const ConformingConstraints> constraints);
   std::size_t read(PointRecord* out, std::size_t max) override;
   bool rewindable() const override { return true; }
   void rewind() override { next_ = 0; }
+  bool seekable() const override { return true; }
+  void seek(std::uint64_t record, std::uint64_t count) override;
 
  private:
   std::shared_ptr<const ConformingConstraints> c_;
+  std::vector<std::uint32_t> order_;
   std::size_t next_ = 0;
 };
 

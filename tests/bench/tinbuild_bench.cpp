@@ -81,6 +81,13 @@ const char* kUsage =
     "tinbuild-bench: our streaming Delaunay pipeline against CGAL's in-core Delaunay_triangulation_2\n"
     "\n"
     "usage:\n"
+    "  tinbuild-bench hydro [--points N] [--ponds P] [--roads R] [--repeat R] [--dir DIR] [--keep]\n"
+    "                       [--tinbuild EXE]\n"
+    "      The demo's four-strip survey of N points (default 10M) built to a mesh and a 1 m DEM, bare\n"
+    "      earth (--keep-class 2,9), with and without hydro-flattening (P ponds drawn over it, default 40,\n"
+    "      its river with its centreline, R roads as breaklines, default 12), in alternating rounds:\n"
+    "      median wall time and peak RSS, their ratios, the constraint vertices added and the points\n"
+    "      the water and breakline stages left out.\n"
     "  tinbuild-bench suite [--points N] [--seed S] [--repeat R] [--threads T] [--no-cgal] [--dir DIR]\n"
     "                       [--keep] [--tinbuild EXE]\n"
     "      The runs of `delaunay` on a uniform random survey, a flight-strip survey (default swath) and\n"
@@ -1215,6 +1222,134 @@ int partsMain(const std::vector<std::string>& argv) {
       "  seam %%: seam vertices / TIN vertices.  Every P wrote the same DEM tiles and as many triangles.\n");
   return 0;
 }
+// `hydro`: hydro-flattening's cost: the same build with and without breaklines and water polygons.
+int hydroMain(const std::vector<std::string>& argv) {
+  Args args("hydro", argv);
+  Config cfg = makeConfig(args);
+  const std::uint64_t n = args.count("--points", 10000000, 100000, std::uint64_t{1} << 36);
+  const int ponds = static_cast<int>(args.count("--ponds", 40, 0, 10000));
+  const int roads = static_cast<int>(args.count("--roads", 12, 0, 10000));
+  const int rounds = static_cast<int>(args.count("--repeat", 3, 1, 1000));
+  const std::string base = args.value("--dir", defaultTempDir());
+  args.finish();
+  TempDir dir(base, cfg.keep);
+  const std::string las = benchSurvey(cfg, "", n, dir);
+  // The features of the demo's survey (the same spec as `tinbuild demo --points`).
+  SurveySpec spec;
+  spec.kind = SurveySpec::Kind::FlightStrips;
+  spec.points = n;
+  spec.seed = 2006;
+  spec.swath = 500;
+  SurveyGenerator gen(spec);
+  const SurveyFeatures f = gen.features(5.0);
+  const double x0 = spec.originX, y0 = spec.originY, L = gen.side();
+  auto num = [](double v) { return fmt("%.17g", v); };
+  auto collection = [](const std::string& path, const std::vector<std::string>& geometries) {
+    std::ofstream out(path);
+    out << R"({"type":"FeatureCollection","crs":{"type":"name","properties":{"name":"urn:ogc:def:crs:EPSG::32610"}},"features":[)";
+    for (std::size_t i = 0; i < geometries.size(); ++i)
+      out << (i ? "," : "") << R"({"type":"Feature","properties":{},"geometry":)" << geometries[i] << "}";
+    out << "]}\n";
+  };
+  // Ponds: circles of 8-30 m (24-gons) away from the river and from each other; the river's polygon.
+  std::vector<std::string> water;
+  std::vector<std::array<double, 3>> placed;  // x, y, r
+  std::uint64_t state = 0x5eed;
+  auto uniform = [&state]() {
+    state = state * 6364136223846793005ull + 1442695040888963407ull;
+    return static_cast<double>(state >> 11) / 9007199254740992.0;
+  };
+  for (int tries = 0; static_cast<int>(placed.size()) < ponds && tries < 100000; ++tries) {
+    const double r = 8 + 22 * uniform(), x = x0 + r + (L - 2 * r) * uniform(), y = y0 + r + (L - 2 * r) * uniform();
+    bool ok = true;
+    for (const auto& c : f.riverCentreline) ok = ok && std::hypot(c[0] - x, c[1] - y) > r + 3 * f.riverHalfWidth;
+    for (const auto& p : placed) ok = ok && std::hypot(p[0] - x, p[1] - y) > r + p[2] + 5;
+    if (!ok) continue;
+    placed.push_back({x, y, r});
+    std::string g = R"({"type":"Polygon","coordinates":[[)";
+    for (int k = 0; k <= 24; ++k) {
+      const double a = 2 * M_PI * (k % 24) / 24;
+      g += (k ? "," : "") + std::string("[") + num(x + r * std::cos(a)) + "," + num(y + r * std::sin(a)) + "]";
+    }
+    water.push_back(g + "]]}");
+  }
+  {
+    std::string g = R"({"type":"Polygon","coordinates":[[)";
+    for (std::size_t i = 0; i <= f.riverPolygon.size(); ++i) {
+      const auto& p = f.riverPolygon[i % f.riverPolygon.size()];
+      g += (i ? "," : "") + std::string("[") + num(p[0]) + "," + num(p[1]) + "]";
+    }
+    water.push_back(g + "]]}");
+  }
+  collection(dir.path() + "/water.geojson", water);
+  std::string flow = R"({"type":"LineString","coordinates":[)";
+  for (std::size_t i = 0; i < f.riverCentreline.size(); ++i)
+    flow += (i ? "," : "") + std::string("[") + num(f.riverCentreline[i][0]) + "," + num(f.riverCentreline[i][1]) + "]";
+  collection(dir.path() + "/flow.geojson", {flow + "]}"});
+  // Roads: the survey's own, and straight roads between random points of the area's edge, a vertex every
+  // 10 m on the ground plus half a metre (crests).
+  std::vector<std::string> lines;
+  {
+    std::string g = R"({"type":"LineString","coordinates":[)";
+    for (std::size_t i = 0; i < f.roadCrest.size(); ++i)
+      g += (i ? "," : "") + std::string("[") + num(f.roadCrest[i][0]) + "," + num(f.roadCrest[i][1]) + "," + num(f.roadCrest[i][2]) + "]";
+    lines.push_back(g + "]}");
+  }
+  for (int k = 1; k < roads; ++k) {
+    const double ax = x0 + L * uniform(), bx = x0 + L * uniform();
+    const double ay = y0, by = y0 + L;
+    const auto steps = static_cast<int>(std::hypot(bx - ax, by - ay) / 10) + 1;
+    std::string g = R"({"type":"LineString","coordinates":[)";
+    for (int i = 0; i <= steps; ++i) {
+      const double t = static_cast<double>(i) / steps, x = ax + t * (bx - ax), y = ay + t * (by - ay);
+      g += (i ? "," : "") + std::string("[") + num(x) + "," + num(y) + "," + num(gen.groundHeight(x, y) + 0.5) + "]";
+    }
+    lines.push_back(g + "]}");
+  }
+  collection(dir.path() + "/roads.geojson", lines);
+
+  const std::vector<std::string> common{"--keep-class", "2,9", "-q", "--overwrite"};
+  const std::vector<std::string> hydro{"--water", dir.path() + "/water.geojson", "--flow", dir.path() + "/flow.geojson",
+                                       "--breaklines", dir.path() + "/roads.geojson"};
+  std::vector<double> seconds[2], rss[2];
+  std::string hydroReport;
+  for (int round = 0; round < rounds; ++round)
+    for (int with = 0; with < 2; ++with) {
+      const std::string tag = with ? "hydro" : "plain";
+      const std::string mesh = dir.path() + "/" + tag + ".smb", dem = dir.path() + "/" + tag + "-dem",
+                        report = dir.path() + "/" + tag + ".json";
+      std::vector<std::string> cmd{"build", las, "--mesh", mesh, "--dem", dem, "--step", "1", "--report", report};
+      cmd.insert(cmd.end(), common.begin(), common.end());
+      if (with) cmd.insert(cmd.end(), hydro.begin(), hydro.end());
+      const ChildRun run = runChild(cfg.tinbuild, cmd, false);
+      seconds[with].push_back(run.seconds);
+      rss[with].push_back(mib(run.maxRssKb));
+      progress("  round " + std::to_string(round + 1) + "/" + std::to_string(rounds) + ", " + tag + ": " +
+               fmt("%.3f s", run.seconds) + " " + fmt("%.1f MiB", mib(run.maxRssKb)));
+      if (with) hydroReport = readFile(report);
+      std::error_code ec;
+      std::filesystem::remove_all(dem, ec);
+      removeFiles({mesh});
+    }
+  const double t0 = medianOf(seconds[0]), t1 = medianOf(seconds[1]), m0 = medianOf(rss[0]), m1 = medianOf(rss[1]);
+  std::printf("tinbuild-bench hydro: %s (%s points), %zu ponds, the river and its centreline, %d roads\n", las.c_str(),
+              group(n).c_str(), placed.size(), roads);
+  std::printf("  machine     %u cores (nproc), load average %s after; median of %d alternating rounds\n",
+              std::thread::hardware_concurrency(), loadAverage().c_str(), rounds);
+  std::printf("\n  %-28s %10s %9s\n", "build --mesh --dem (2,9)", "seconds", "RSS MiB");
+  std::printf("  %-28s %10s %9s\n", "without constraints", fmt("%.3f", t0).c_str(), fmt("%.1f", m0).c_str());
+  std::printf("  %-28s %10s %9s\n", "hydro-flattened", fmt("%.3f", t1).c_str(), fmt("%.1f", m1).c_str());
+  std::printf("  %-28s %10s %9s   (targets <= 1.2, <= 1.2)\n", "ratio", fmt("%.3f", t1 / t0).c_str(),
+              fmt("%.3f", m1 / m0).c_str());
+  std::printf("\n  constraint vertices added %s, pieces %s; left out: %s points inside water, %s in breakline "
+              "buffers\n",
+              group(jsonCount(hydroReport, "vertices_added", "constraints")).c_str(),
+              group(jsonCount(hydroReport, "pieces", "constraints")).c_str(),
+              group(jsonCount(hydroReport, "water", "by_stage")).c_str(),
+              group(jsonCount(hydroReport, "breaklines", "by_stage")).c_str());
+  return 0;
+}
+
 }  // namespace
 
 }  // namespace tinbuild::bench
@@ -1245,6 +1380,7 @@ int main(int argc, char** argv) {
     if (command == "finalize") return finalizeMain(rest);
     if (command == "threads") return threadsMain(rest);
     if (command == "parts") return partsMain(rest);
+    if (command == "hydro") return hydroMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
     throw BenchError("unknown subcommand '" + command + "' (see tinbuild-bench --help)");
   } catch (const std::exception& e) {
