@@ -2,6 +2,7 @@
 #include "app/jobs/constraints.h"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <cstring>
 #include <fstream>
@@ -77,12 +78,17 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     if (!q.flows.empty()) throw UsageError("--flow needs --water (the rivers' polygons)");
     return c;
   }
+  using Clock = std::chrono::steady_clock;
+  auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
+  auto t = Clock::now();
   ConstraintFiles files;
   files.breaklines = q.breaklines;
   files.water = q.water;
   files.flows = q.flows;
   const ConstraintInput input = readConstraints(files, survey.crs, diag);
   c.breaklines = input.breaklines.size();
+  c.readSeconds = since(t);
+  t = Clock::now();
   if (!survey.crs.wkt.empty() && survey.crs.geographic)
     throw UsageError("--breaklines/--water need a projected CRS (lengths in metres): give --t_srs");
 
@@ -118,6 +124,8 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     }
   }
   if (pass.points == 0) throw DataError(o.inputs.empty() ? "build" : o.inputs.front(), "no point is kept by the filters: nothing to constrain");
+  c.passSeconds = since(t);
+  t = Clock::now();
   c.spacing = spacing;
   c.shoreDistance = wo.shoreDistance;
   c.stationSpacing = wo.stationSpacing;
@@ -146,6 +154,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   co.maxPiece = c.buffer;
   co.snap = std::min(1e-3, c.buffer * 1e-3);
   c.conforming = std::make_shared<const ConformingConstraints>(conformConstraints(segments, c.water, co));
+  c.conformSeconds = since(t);
   if (c.conforming->vertices.empty())
     diag.warn("constraints.outside", q.breaklines.empty() ? q.water.front() : q.breaklines.front(),
               "no constraint meets the survey's extent: nothing is constrained");
@@ -180,6 +189,9 @@ void reportConstraints(const PreparedConstraints& c, RunReport& r) {
   f.shoreDistance = c.shoreDistance;
   f.stationSpacing = c.stationSpacing;
   f.bodies = c.bodies;
+  f.readSeconds = c.readSeconds;
+  f.passSeconds = c.passSeconds;
+  f.conformSeconds = c.conformSeconds;
 }
 
 void writeConstraints(const PreparedConstraints& c, const std::string& path) {

@@ -153,7 +153,10 @@ std::string formatRunSummary(const RunReport& r) {
                            " water polygons: " + withCommas(c.vertices) + " constraint vertices added, " +
                            withCommas(c.pieces) + " pieces (every one a TIN edge), " + withCommas(c.crossings) +
                            " crossings noded; buffer " + formatDouble("%.3g", c.buffer) + " (point spacing " +
-                           formatDouble("%.3g", c.spacing) + ")");
+                           formatDouble("%.3g", c.spacing) + "); prepared in " +
+                           formatDouble("%.3f s", c.readSeconds + c.passSeconds + c.conformSeconds) + " (files " +
+                           formatDouble("%.3f", c.readSeconds) + ", pass over the points " +
+                           formatDouble("%.3f", c.passSeconds) + ", split " + formatDouble("%.3f", c.conformSeconds) + ")");
     for (const WaterBody& b : c.bodies)
       line("water", b.source + ": " +
                         (b.river ? "a river, " + std::to_string(b.stations) + " stations from " +
@@ -473,6 +476,9 @@ std::string formatRunJson(const RunReport& r) {
     j.key("buffer").value(c.buffer);
     j.key("shore_distance").value(c.shoreDistance);
     j.key("station_spacing").value(c.stationSpacing);
+    j.key("read_seconds").value(c.readSeconds);
+    j.key("pass_seconds").value(c.passSeconds);
+    j.key("conform_seconds").value(c.conformSeconds);
     j.key("water").beginArray();
     for (const WaterBody& b : c.bodies) {
       j.beginObject();

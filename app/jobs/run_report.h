@@ -35,6 +35,7 @@ struct ConstraintFigures {
   bool present = false;
   std::uint64_t breaklines = 0, vertices = 0, pieces = 0, crossings = 0;
   std::uint64_t verticesHere = 0;  // streamed by this process (a part: those in its window)
+  double readSeconds = 0, passSeconds = 0, conformSeconds = 0;  // reading the files, the passes, the split
   double spacing = 0, buffer = 0, shoreDistance = 0, stationSpacing = 0;  // CRS units
   std::vector<WaterBody> bodies;
 };

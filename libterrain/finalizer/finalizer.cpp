@@ -301,9 +301,11 @@ class Sources {
       // A batch is full (batch_ points kept) unless its input ends: so the batches, and the segments pass
       // 3 may reorder, are the same however an input's reads come (a file, or its spooled copy).
       const std::uint64_t start = rawPos_[current_];
+      const std::size_t limit = inputs_[current_]->batchLimit();
+      const std::size_t full = limit ? std::min(batch_, limit) : batch_;
       std::size_t n = 0;
-      while (n < batch_ && !ended_) {
-        const std::size_t raw = inputs_[current_]->read(out + n, batch_ - n);
+      while (n < full && !ended_) {
+        const std::size_t raw = inputs_[current_]->read(out + n, full - n);
         rawPos_[current_] += raw;
         if (raw == 0)
           ended_ = true;
@@ -348,7 +350,13 @@ class Sources {
       batchSegment_ = schedule_[step_];
       const Segment& seg = segments_[schedule_[step_++]];
       std::size_t kept = 0;
-      if (seg.input != current_) suspendCurrent();
+      // Another file: the one read before is suspended.  (An input held in memory in between does not
+      // count: the file stays open and keeps its read-ahead.)
+      if (!inputs_[seg.input]->inMemory()) {
+        if (lastFile_ < inputs_.size() && lastFile_ != seg.input && !spools_[lastFile_].active)
+          inputs_[lastFile_]->suspend();
+        lastFile_ = seg.input;
+      }
       current_ = seg.input;
       Spool& spool = spools_[current_];
       if (spool.active) {
@@ -380,17 +388,16 @@ class Sources {
       if (kept == 0) continue;  // (an unread block whose points the filter all dropped)
       return kept;
     }
-    suspendCurrent();
+    if (lastFile_ < inputs_.size() && !spools_[lastFile_].active) inputs_[lastFile_]->suspend();
+    lastFile_ = ~std::size_t{0};
     return 0;
   }
   static constexpr std::size_t kLookahead = 16;
   void hint(std::size_t k) {
     const Segment& seg = segments_[schedule_[k]];
-    if (seg.input == current_ && !spools_[seg.input].active) inputs_[seg.input]->willRead(seg.start, seg.raw);
+    if (seg.input == lastFile_ && !spools_[seg.input].active) inputs_[seg.input]->willRead(seg.start, seg.raw);
   }
-  void suspendCurrent() {
-    if (current_ < inputs_.size() && !spools_[current_].active) inputs_[current_]->suspend();
-  }
+  std::size_t lastFile_ = ~std::size_t{0};  // the file input a scheduled pass reads (inMemory() ones aside)
   Error changed(const Segment& seg) const {
     return Error("finalizer: " + name(seg.input) + " yielded other points in pass " + std::to_string(pass_) +
                  " than in the pass before (records " + withCommas(seg.start) + " .. " +

@@ -68,6 +68,13 @@ class PointStream {
     (void)frame;
     return false;
   }
+  // A stream whose records come in small compact patches (the constraint vertices of libterrain/hydro)
+  // asks the finalizer to end a batch after this many kept records (0: no limit), so that each batch is
+  // one patch and pass 3 can read it where it lies.  A property of the stream: the same in every pass.
+  virtual std::size_t batchLimit() const { return 0; }
+  // Held in memory (nothing to open, nothing to prefetch): reading it between another input's segments
+  // does not suspend that input, so the file keeps its descriptor and its read-ahead.
+  virtual bool inMemory() const { return false; }
   // The caller will not read this stream for a while (it reads other inputs): release what a read holds
   // open (a descriptor, a mapping).  The next read() reopens it.
   virtual void suspend() {}

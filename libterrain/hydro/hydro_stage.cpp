@@ -53,10 +53,10 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
       minY = std::min(minY, p[1]), maxY = std::max(maxY, p[1]);
       ++edges;
     }
-  // About one edge per cell along the rings, and at most 2^22 cells.
+  // About one edge per cell along the rings, and at most 2^20 cells.
   const double w = maxX - minX, h = maxY - minY;
   double cell = std::max(w, h) / std::max<double>(1.0, static_cast<double>(edges) / 4.0);
-  cell = std::max(cell, std::sqrt(std::max(w * h, 1e-12) / 4194304.0));
+  cell = std::max(cell, std::sqrt(std::max(w * h, 1e-12) / 1048576.0));
   cell = std::max(cell, 1e-6);
   x0_ = minX;
   y0_ = minY;
@@ -143,6 +143,15 @@ std::size_t WaterStage::apply(PointRecord* p, std::size_t n) const {
 // ---------------------------------------------------------------------------------------------------
 // BufferStage: the pieces by the grid cells their discs meet (compressed rows).
 
+namespace {
+std::uint64_t mixKey(std::uint64_t k) {
+  k ^= k >> 33;
+  k *= 0xff51afd7ed558ccdull;
+  k ^= k >> 33;
+  return k;
+}
+}  // namespace
+
 BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraints) : c_(std::move(constraints)) {
   const auto& v = c_->vertices;
   if (c_->pieces.empty()) return;
@@ -153,7 +162,8 @@ BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraint
     minY = std::min({minY, a.y, b.y}), maxY = std::max({maxY, a.y, b.y});
     longest = std::max(longest, std::hypot(b.x - a.x, b.y - a.y));
   }
-  cell_ = std::max({longest, 1e-6, std::sqrt(std::max((maxX - minX) * (maxY - minY), 1e-12) / 16777216.0)});
+  // Cells of four pieces' length: a piece's disc meets one to four of them, a cell holds a few pieces.
+  cell_ = std::max({4 * longest, 1e-6, std::max(maxX - minX, maxY - minY) / 1048576.0});
   x0_ = minX - cell_;
   y0_ = minY - cell_;
   cols_ = static_cast<std::int64_t>((maxX - x0_) / cell_) + 2;
@@ -168,21 +178,54 @@ BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraint
       for (std::int64_t col = cA; col <= cB; ++col) entries.emplace_back(static_cast<std::uint64_t>(row * cols_ + col), i);
   }
   std::sort(entries.begin(), entries.end());
-  start_.assign(static_cast<std::size_t>(cols_ * rows_) + 1, 0);
-  for (const auto& e : entries) ++start_[e.first + 1];
-  for (std::size_t k = 1; k < start_.size(); ++k) start_[k] += start_[k - 1];
   pieceIds_.reserve(entries.size());
-  for (const auto& e : entries) pieceIds_.push_back(e.second);
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    if (i == 0 || entries[i].first != entries[i - 1].first) {
+      keys_.push_back(entries[i].first);
+      start_.push_back(static_cast<std::uint32_t>(pieceIds_.size()));
+    }
+    pieceIds_.push_back(entries[i].second);
+  }
+  start_.push_back(static_cast<std::uint32_t>(pieceIds_.size()));
+  // The bitmap of occupied cells, when it is small (at most 2^27 cells: 16 MiB).
+  if (static_cast<double>(cols_) * static_cast<double>(rows_) <= 134217728.0) {
+    occupied_.assign(static_cast<std::size_t>((cols_ * rows_ + 63) / 64), 0);
+    for (const std::uint64_t k : keys_) occupied_[k >> 6] |= std::uint64_t{1} << (k & 63);
+  }
+  std::uint64_t size = 16;
+  while (size < 2 * keys_.size()) size <<= 1;
+  mask_ = size - 1;
+  table_.assign(size, 0);
+  for (std::uint32_t k = 0; k < keys_.size(); ++k) {
+    std::uint64_t slot = mixKey(keys_[k]) & mask_;
+    while (table_[slot]) slot = (slot + 1) & mask_;
+    table_[slot] = k + 1;
+  }
+}
+
+const std::uint32_t* BufferStage::find(std::uint64_t key, std::uint32_t& count) const {
+  for (std::uint64_t slot = mixKey(key) & mask_;; slot = (slot + 1) & mask_) {
+    const std::uint32_t k = table_[slot];
+    if (!k) return nullptr;
+    if (keys_[k - 1] == key) {
+      count = start_[k] - start_[k - 1];
+      return pieceIds_.data() + start_[k - 1];
+    }
+  }
 }
 
 bool BufferStage::inBuffer(double x, double y) const {
-  if (pieceIds_.empty()) return false;
+  if (keys_.empty()) return false;
   const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
-  const std::size_t cell = static_cast<std::size_t>(fr) * static_cast<std::size_t>(cols_) + static_cast<std::size_t>(fc);
+  const std::uint64_t key = static_cast<std::uint64_t>(fr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(fc);
+  if (!occupied_.empty() && !((occupied_[key >> 6] >> (key & 63)) & 1)) return false;
+  std::uint32_t n = 0;
+  const std::uint32_t* ids = find(key, n);
+  if (!ids) return false;
   const auto& v = c_->vertices;
-  for (std::uint32_t k = start_[cell]; k < start_[cell + 1]; ++k) {
-    const auto& pc = c_->pieces[pieceIds_[k]];
+  for (std::uint32_t k = 0; k < n; ++k) {
+    const auto& pc = c_->pieces[ids[k]];
     if (inDiametralDisc(x, y, v[pc[0]], v[pc[1]])) return true;
   }
   return false;
@@ -238,7 +281,7 @@ void ConstraintStream::seek(std::uint64_t record, std::uint64_t) {
 std::size_t ConstraintStream::read(PointRecord* out, std::size_t max) {
   const auto& v = c_->vertices;
   std::size_t n = 0;
-  max = std::min<std::size_t>(max, 1024 - next_ % 1024);  // (batches never straddle a block of 1024)
+  max = std::min<std::size_t>(max, kBatch - next_ % kBatch);  // (batches never straddle a block)
   while (n < max && next_ < order_.size()) {
     const ConstraintPoint& q = v[order_[next_]];
     PointRecord r;

@@ -72,15 +72,25 @@ class BufferStage final : public PointStage {
 
  private:
   std::shared_ptr<const ConformingConstraints> c_;
+  // The pieces by the cells their discs meet, over the occupied cells only (constraints are thin lines
+  // across a large area): the cells' keys sorted, their pieces in one array, and an open-addressing table
+  // from a key to its place.
   double x0_ = 0, y0_ = 0, cell_ = 1;
-  std::int64_t cols_ = 0, rows_ = 0;
-  std::vector<std::uint32_t> start_;   // cell -> first entry in pieceIds_ (CSR)
+  std::int64_t cols_ = 0;
+  std::vector<std::uint64_t> keys_;      // occupied cells, sorted
+  std::vector<std::uint32_t> start_;     // keys_[k]'s pieces: pieceIds_[start_[k] .. start_[k + 1])
   std::vector<std::uint32_t> pieceIds_;
+  std::vector<std::uint32_t> table_;     // hash slot -> k + 1 (0: empty)
+  std::uint64_t mask_ = 0;
+  std::vector<std::uint64_t> occupied_;  // one bit per cell (rows_ x cols_): most points need only this
+  std::int64_t rows_ = 0;
+  const std::uint32_t* find(std::uint64_t key, std::uint32_t& count) const;
 };
 
 // The constraint vertices as a point stream: rewindable and seekable like a LAS file (so the finalizer
 // may still read the survey in a spatially coherent order), in Morton order over the vertices' box and in
-// batches of at most 1024, each a compact patch of the plane.
+// batches of at most kBatch, each a small patch of the plane (a few tens of metres of a line): the
+// finalizer schedules each batch where it lies, so no cell waits long for its constraint vertices.
 class ConstraintStream final : public PointStream {
  public:
   explicit ConstraintStream(std::shared_ptr<const ConformingConstraints> constraints);
@@ -89,8 +99,11 @@ class ConstraintStream final : public PointStream {
   void rewind() override { next_ = 0; }
   bool seekable() const override { return true; }
   void seek(std::uint64_t record, std::uint64_t count) override;
+  std::size_t batchLimit() const override { return kBatch; }
+  bool inMemory() const override { return true; }
 
  private:
+  static constexpr std::size_t kBatch = 64;
   std::shared_ptr<const ConformingConstraints> c_;
   std::vector<std::uint32_t> order_;
   std::size_t next_ = 0;

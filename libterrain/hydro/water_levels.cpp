@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <limits>
 #include <unordered_map>
@@ -38,9 +39,34 @@ struct SegmentCells {
     }
   }
   const std::vector<std::uint32_t>* at(double x, double y) const {
+    if (!bits.empty()) {  // (most points are far from any segment: one bit answers)
+      const double fx = std::floor(x / cell) - static_cast<double>(c0), fy = std::floor(y / cell) - static_cast<double>(r0);
+      if (!(fx >= 0 && fy >= 0 && fx < static_cast<double>(w) && fy < static_cast<double>(h))) return nullptr;
+      const auto k = static_cast<std::uint64_t>(fy) * static_cast<std::uint64_t>(w) + static_cast<std::uint64_t>(fx);
+      if (!((bits[k >> 6] >> (k & 63)) & 1)) return nullptr;
+    }
     auto it = cells.find(cellKey(c(x), c(y)));
     return it == cells.end() ? nullptr : &it->second;
   }
+  // Builds the bitmap of occupied cells when their box is small enough (at most 2^27 cells).
+  void seal() {
+    if (cells.empty()) return;
+    std::int64_t cmin = INT64_MAX, cmax = INT64_MIN, rmin = INT64_MAX, rmax = INT64_MIN;
+    for (const auto& [key, list] : cells) {
+      const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
+      cmin = std::min(cmin, col), cmax = std::max(cmax, col), rmin = std::min(rmin, r), rmax = std::max(rmax, r);
+    }
+    if (static_cast<double>(cmax - cmin + 1) * static_cast<double>(rmax - rmin + 1) > 134217728.0) return;
+    c0 = cmin, r0 = rmin, w = cmax - cmin + 1, h = rmax - rmin + 1;
+    bits.assign(static_cast<std::size_t>((w * h + 63) / 64), 0);
+    for (const auto& [key, list] : cells) {
+      const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
+      const auto k = static_cast<std::uint64_t>((r - r0) * w + (col - c0));
+      bits[k >> 6] |= std::uint64_t{1} << (k & 63);
+    }
+  }
+  std::vector<std::uint64_t> bits;
+  std::int64_t c0 = 0, r0 = 0, w = 0, h = 0;
 };
 
 double pointSegmentDistance(double x, double y, double ax, double ay, double bx, double by, double* tOut = nullptr) {
@@ -211,6 +237,7 @@ struct ShoreSampler::Impl {
       addRing(bodies[bi].area.outer);
       for (const Ring& h : bodies[bi].area.holes) addRing(h);
     }
+    shore.seal();
   }
 
   void add(const PointRecord* p, std::size_t n) {
