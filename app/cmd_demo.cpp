@@ -160,8 +160,14 @@ int runDemo(const cli::ParsedArgs& args) {
     writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   }
   progress.finish();
+  // The river and the road, digitised as a surveyor would (GeoJSON in the survey's CRS): the river's
+  // water polygon and its centreline hydro-flatten the DEM, the road's crest is a hard breakline.
+  writeDemoFeatures(SurveyGenerator(spec).features(5.0), dir);
   if (d.surveyOnly) {
-    std::cout << "tinbuild demo: wrote " << las << " (--survey-only: nothing else)" << std::endl;
+    std::cout << "tinbuild demo: wrote " << las
+              << " and its river and road (water.geojson, flow.geojson, roads.geojson; --survey-only: nothing "
+                 "else)"
+              << std::endl;
     return 0;
   }
 
@@ -172,10 +178,6 @@ int runDemo(const cli::ParsedArgs& args) {
   InfoReport report = inspectSurvey(info, diag);
   std::ofstream((dir / "survey-info.json").string()) << formatInfoJson(report);
   std::cout << formatInfoText(report) << "\n";
-
-  // The river and the road, digitised as a surveyor would (GeoJSON in the survey's CRS): the river's
-  // water polygon and its centreline hydro-flatten the DEM, the road's crest is a hard breakline.
-  writeDemoFeatures(SurveyGenerator(spec).features(5.0), dir);
 
   // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
   // Parsed from the words of a `tinbuild build` command line by the build's own table.

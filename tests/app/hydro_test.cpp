@@ -5,10 +5,12 @@
 // count and any split into parts; bad vector input refused before any work.
 #include <gdal_priv.h>
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -117,7 +119,9 @@ struct Valley {
 const Valley& valley() {
   static const Valley v = [] {
     Valley s;
-    s.dir = fs::path(TINBUILD_TEST_TMP) / "Hydro.valley";  // (shared by the tests: made once per run)
+    // (made once per process; CTest runs every test in a process of its own, side by side)
+    const auto* info = ::testing::UnitTest::GetInstance()->current_test_info();
+    s.dir = fs::path(TINBUILD_TEST_TMP) / (std::string("Hydro.valley.") + info->name());
     fs::remove_all(s.dir);
     fs::create_directories(s.dir);
     s.spec.kind = SurveySpec::Kind::FlightStrips;
@@ -268,6 +272,16 @@ TEST(Hydro, TheSameDemForAnyThreadsAndAnyParts) {
     ASSERT_EQ(m.code, 0) << m.err;
     EXPECT_TRUE(pixels(d / "dem" / "mosaic.vrt") == first) << parts << " parts";
   }
+  // Under MPI: rank 0 plans and sends the constraints to the other rank.
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) return;
+  if (test::tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos) return;
+  const fs::path d = out / "mpi";
+  const std::string run = std::string("mpirun --allow-run-as-root --oversubscribe -np 2 ") + TINBUILD_EXE + " build " + las +
+                          v.args + " --dem " + (d / "dem").string() + " --step 1 --threads 1 --mpi -q > " +
+                          (out / "mpi.log").string() + " 2>&1";
+  const int rc = std::system(run.c_str());
+  ASSERT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0) << test::slurp(out / "mpi.log");
+  EXPECT_TRUE(pixels(d / "dem" / "mosaic.vrt") == first) << "2 MPI ranks";
 }
 
 TEST(Hydro, BadVectorInputIsRefusedBeforeAnyWork) {

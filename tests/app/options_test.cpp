@@ -351,7 +351,8 @@ TEST(Options, DemoWordsParseToTheDemosOptions) {
   EXPECT_EQ(o.commandLine,
             "tinbuild build /data/demo/survey.laz --keep-class 2,9 --mesh /data/demo/tin.smb --gpkg "
             "/data/demo/tin.gpkg --dem /data/demo/dem --step 1 --tile-size 512 --hillshade --contours "
-            "/data/demo/contours.gpkg --interval 1 --index-every 5");
+            "/data/demo/contours.gpkg --interval 1 --index-every 5 --water /data/demo/water.geojson --flow "
+            "/data/demo/flow.geojson --breaklines /data/demo/roads.geojson");
   // The same words as a user's `tinbuild build` make the same options (the command is recorded in the
   // table's order there).
   const PipelineArgs b = app::parseBuildArgs(parse(app::demoBuildWords(las, dir)));

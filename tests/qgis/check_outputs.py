@@ -68,6 +68,11 @@ def main():
              "--contours", os.path.join(out, "contours.gpkg"), "--interval", "1", "--index-every", "5"])
         run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
              "--dem", os.path.join(out, "dem.tif"), "--step", "2"])
+        # Hydro-flattened: the demo's river polygon and centreline, its road's crest as a breakline.
+        water, flow, roads = (os.path.join(demo, n) for n in ("water.geojson", "flow.geojson", "roads.geojson"))
+        run([args.tinbuild, "build", survey, "--keep-class", "2,9", "-q", "--overwrite",
+             "--water", water, "--flow", flow, "--breaklines", roads,
+             "--dem", os.path.join(out, "hydro.tif"), "--step", "1", "--gpkg", os.path.join(out, "hydro.gpkg")])
         rep = json.load(open(report))
         triangles = rep["triangulation"]["triangles"]
         vertices = rep["triangulation"]["vertices"]
@@ -131,7 +136,41 @@ def main():
                 groups = [dp.datasetGroupMetadata(i).name() for i in range(dp.datasetGroupCount())]
                 check(len(groups) > 0, f"tin.nc has elevations on its vertices (dataset groups {groups})")
 
+        def checkHydro():
+            from qgis.core import QgsPointXY
+            dem = QgsRasterLayer(os.path.join(out, "hydro.tif"), "hydro", "gdal")
+            check(dem.isValid(), "the hydro-flattened DEM opens as a raster layer")
+            if dem.isValid():
+                check(dem.crs() == want, f"hydro.tif CRS {dem.crs().authid()} is EPSG:32610")
+            for name, path, kind in (("water polygons", water, "Polygon"), ("breaklines", roads, "Line"),
+                                     ("centreline", flow, "Line")):
+                layer = QgsVectorLayer(path, name, "ogr")
+                check(layer.isValid() and layer.featureCount() == 1, f"the {name} open as a vector layer")
+                if layer.isValid():
+                    check(layer.crs() == want, f"the {name}' CRS {layer.crs().authid()} is EPSG:32610")
+            tin = QgsVectorLayer(os.path.join(out, "hydro.gpkg") + "|layername=tin", "tin", "ogr")
+            check(tin.isValid() and tin.crs() == want, "the hydro-flattened TIN opens with its CRS")
+            if dem.isValid():
+                # Along the centreline, inside the area, the river never rises downstream.
+                line = QgsVectorLayer(flow, "flow", "ogr")
+                g = next(line.getFeatures()).geometry()
+                e = dem.extent()
+                values = []
+                length = g.length()
+                d = 0.0
+                while d < length:
+                    p = g.interpolate(d).asPoint()
+                    if e.xMinimum() + 10 < p.x() < e.xMaximum() - 10:
+                        v, ok = dem.dataProvider().sample(QgsPointXY(p), 1)
+                        if ok:
+                            values.append(v)
+                    d += 1.0
+                rises = sum(1 for a, b in zip(values, values[1:]) if b > a + 1e-4)
+                check(len(values) > 100 and rises == 0,
+                      f"the river never rises along its centreline ({len(values)} samples, {rises} rises)")
+
         checkLayers()
+        checkHydro()
         app.exitQgis()
     finally:
         if not args.workdir:
