@@ -7,6 +7,7 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <thread>
 
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
@@ -25,7 +26,8 @@ struct SurveyPass {
   std::uint64_t points = 0;
 };
 
-SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSampler* sampler, const CancelFlag* cancel) {
+SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSampler* sampler, const CancelFlag* cancel,
+                          const ShoreSampler* candidates = nullptr, std::vector<PointRecord>* gathered = nullptr) {
   SurveyPass out;
   PointFilter userFilter = filter;
   userFilter.stages.clear();
@@ -33,6 +35,7 @@ SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSample
   std::vector<PointRecord> batch(65536);
   FilterCounts counts;
   for (PointStream* s : survey.streams) {
+    s->setDecodeThreads(std::max(1, static_cast<int>(std::thread::hardware_concurrency())));  // (the finalizer sets its own)
     if (!s->rewindable())
       throw UsageError("--breaklines/--water read the survey once before the run: the input must be a file, not stdin");
     for (;;) {
@@ -43,6 +46,7 @@ SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSample
       for (std::size_t i = 0; i < n; ++i) out.bounds.add(batch[i].x, batch[i].y, batch[i].z);
       out.points += n;
       if (sampler) sampler->add(batch.data(), n);
+      if (candidates) candidates->collect(batch.data(), n, *gathered);
     }
     s->rewind();
   }
@@ -115,6 +119,25 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     makeSampler(1);
     pass = passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
     spacing = spacingOf(pass.bounds, pass.points);
+  } else if (!q.water.empty() && survey.headerBounds && survey.headerPoints > 0) {
+    // One pass: the points near the shores are gathered within twice the default distance for the
+    // header's spacing (every point of the survey): the kept points' spacing, and so the default
+    // distance, is larger only when the filters keep less than a quarter of the points.  Then the real
+    // sampler takes the gathered points (the same as a second pass would give it); else a second pass.
+    const Bounds3& hb = *survey.headerBounds;
+    const double headerSpacing = spacingOf(hb, survey.headerPoints);
+    WaterLevelOptions wide = wo;
+    wide.shoreDistance = q.shoreDistance.empty() ? 6 * headerSpacing : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
+    wide.stationSpacing = 1;
+    ShoreSampler gather(input, wide);
+    std::vector<PointRecord> near;
+    pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel, gather.needsPoints() ? &gather : nullptr, &near);
+    spacing = spacingOf(pass.bounds, pass.points);
+    makeSampler(spacing);
+    if (sampler && wo.shoreDistance <= wide.shoreDistance)
+      sampler->add(near.data(), near.size());
+    else if (sampler)
+      passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
   } else {
     pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel);
     spacing = spacingOf(pass.bounds, pass.points);

@@ -8,6 +8,7 @@
 #include <utility>
 
 #include "libterrain/core/error.h"
+#include "libterrain/hydro/hydro_stage.h"
 
 namespace tinbuild {
 
@@ -176,11 +177,8 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
     grid.forCells(std::min(e.ax, e.bx), std::min(e.ay, e.by), std::max(e.ax, e.bx), std::max(e.ay, e.by),
                   [&](std::int64_t c) { waterCells[c].push_back(i); });
   }
-  auto inAnyWater = [&](double x, double y) {
-    for (const WaterArea& w : water)
-      if (insideWater(w, x, y)) return true;
-    return false;
-  };
+  const WaterIndex waterIndex(water);
+  auto inAnyWater = [&](double x, double y) { return waterIndex.inside(x, y); };
 
   std::vector<Seg> segs;
   for (const ConstraintSegment& s0 : input) {
@@ -312,7 +310,27 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
   // 3. Pieces: split for length, then wherever a constraint vertex lies in a piece's closed diametral disc.
   std::vector<ConstraintPoint> v = pool.v;
   std::vector<char> apex(v.size(), 1);  // the noded vertices: pieces near them are split on shells
-  std::vector<std::array<std::uint32_t, 2>> pieces = edges;
+  // First for length, in one go: each edge into ceil(length / maxPiece) equal pieces.  (Near a vertex
+  // where edges meet, the encroachment rounds below then split on shells as needed.)
+  std::vector<std::array<std::uint32_t, 2>> pieces;
+  pieces.reserve(edges.size());
+  for (const auto& e : edges) {
+    const ConstraintPoint A = v[e[0]], B = v[e[1]];
+    const double len = std::hypot(B.x - A.x, B.y - A.y);
+    const auto n = static_cast<std::uint64_t>(std::ceil(len / o.maxPiece));
+    if (n > (std::uint64_t{1} << 31)) throw Error("constraints: a segment of " + std::to_string(len) + " would need too many pieces");
+    std::uint32_t prev = e[0];
+    for (std::uint64_t k = 1; k < n; ++k) {
+      const double t = static_cast<double>(k) / static_cast<double>(n);
+      const auto m = static_cast<std::uint32_t>(v.size());
+      v.push_back(ConstraintPoint{A.x + t * (B.x - A.x), A.y + t * (B.y - A.y), A.z + t * (B.z - A.z)});
+      apex.push_back(0);
+      pieces.push_back({prev, m});
+      prev = m;
+      ++st.splitsForLength;
+    }
+    pieces.push_back({prev, e[1]});
+  }
   const double minPiece = o.maxPiece * 1e-6;
   auto splitPoint = [&](std::uint32_t a, std::uint32_t b) {
     const ConstraintPoint &A = v[a], &B = v[b];
@@ -325,35 +343,54 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
     }
     return ConstraintPoint{A.x + t * (B.x - A.x), A.y + t * (B.y - A.y), A.z + t * (B.z - A.z)};
   };
+  // Rounds: every piece is checked against every vertex near it once; after that, a piece is checked again
+  // only against the vertices the last round made (few), unless it is itself new.
+  Grid vg(o.minX - o.maxPiece, o.minY - o.maxPiece, o.maxX + o.maxPiece, o.maxY + o.maxPiece, o.maxPiece);
+  std::vector<std::pair<std::int64_t, std::uint32_t>> byCell;  // (cell, vertex), sorted
+  auto cellOf = [&vg, &v](std::uint32_t i) { return vg.row(v[i].y) * vg.cols + vg.col(v[i].x); };
+  byCell.reserve(v.size());
+  for (std::uint32_t i = 0; i < v.size(); ++i) byCell.emplace_back(cellOf(i), i);
+  std::sort(byCell.begin(), byCell.end());
+  std::vector<char> fresh(pieces.size(), 1);  // pieces to check against every vertex near them
+  std::vector<std::uint32_t> made;            // the vertices the last round made
   for (int round = 0;; ++round) {
-    Grid vg(o.minX - o.maxPiece, o.minY - o.maxPiece, o.maxX + o.maxPiece, o.maxY + o.maxPiece, o.maxPiece);
-    std::unordered_map<std::int64_t, std::vector<std::uint32_t>> vcells;
-    for (std::uint32_t i = 0; i < v.size(); ++i) vcells[vg.row(v[i].y) * vg.cols + vg.col(v[i].x)].push_back(i);
     std::vector<std::array<std::uint32_t, 2>> next;
+    std::vector<char> nextFresh;
     next.reserve(pieces.size());
-    std::uint64_t splitsNow = 0;
-    for (const auto& pc : pieces) {
+    nextFresh.reserve(pieces.size());
+    std::vector<std::uint32_t> madeNow;
+    for (std::size_t i = 0; i < pieces.size(); ++i) {
+      const auto& pc = pieces[i];
       const ConstraintPoint &A = v[pc[0]], &B = v[pc[1]];
       const double len = std::hypot(B.x - A.x, B.y - A.y);
       bool split = len > o.maxPiece;
       if (split) {
         ++st.splitsForLength;
-      } else {
+      } else if (fresh[i]) {
         const double mx = 0.5 * (A.x + B.x), my = 0.5 * (A.y + B.y), r = 0.5 * len;
         vg.forCells(mx - r, my - r, mx + r, my + r, [&](std::int64_t c) {
           if (split) return;
-          auto it = vcells.find(c);
-          if (it == vcells.end()) return;
-          for (std::uint32_t w : it->second)
+          auto it = std::lower_bound(byCell.begin(), byCell.end(), std::make_pair(c, std::uint32_t{0}));
+          for (; it != byCell.end() && it->first == c; ++it) {
+            const std::uint32_t w = it->second;
             if (w != pc[0] && w != pc[1] && inDiametralDisc(v[w].x, v[w].y, A, B)) {
               split = true;
               return;
             }
+          }
         });
         if (split) ++st.splitsForEncroachment;
+      } else {
+        for (const std::uint32_t w : made)
+          if (w != pc[0] && w != pc[1] && inDiametralDisc(v[w].x, v[w].y, A, B)) {
+            split = true;
+            ++st.splitsForEncroachment;
+            break;
+          }
       }
       if (!split) {
         next.push_back(pc);
+        nextFresh.push_back(0);
         continue;
       }
       if (len < minPiece)
@@ -363,13 +400,24 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
       const auto m = static_cast<std::uint32_t>(v.size());
       v.push_back(splitPoint(pc[0], pc[1]));
       apex.push_back(0);
+      madeNow.push_back(m);
       next.push_back({pc[0], m});
       next.push_back({pc[1], m});
-      ++splitsNow;
+      nextFresh.push_back(1);
+      nextFresh.push_back(1);
     }
     pieces.swap(next);
-    if (splitsNow == 0) break;
+    fresh.swap(nextFresh);
+    if (madeNow.empty()) break;
     if (v.size() > (std::size_t{1} << 31)) throw Error("constraints: more than 2^31 vertices");
+    // The new vertices into the index.
+    std::vector<std::pair<std::int64_t, std::uint32_t>> add;
+    for (const std::uint32_t m : madeNow) add.emplace_back(cellOf(m), m);
+    std::sort(add.begin(), add.end());
+    const std::size_t old = byCell.size();
+    byCell.insert(byCell.end(), add.begin(), add.end());
+    std::inplace_merge(byCell.begin(), byCell.begin() + static_cast<std::ptrdiff_t>(old), byCell.end());
+    made.swap(madeNow);
   }
 
   // 4. In a canonical order: vertices by x, then y; pieces by their vertices.

@@ -64,6 +64,8 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
   cols_ = static_cast<std::int64_t>(w / cell) + 1;
   rows_ = static_cast<std::int64_t>(h / cell) + 1;
   cells_.resize(static_cast<std::size_t>(cols_ * rows_));
+  any_.assign(static_cast<std::size_t>((cols_ * rows_ + 63) / 64), 0);
+  whole_.assign(any_.size(), 0);
   for (std::uint32_t a = 0; a < areas_.size(); ++a) {
     const WaterArea& area = areas_[a];
     double ax0 = std::numeric_limits<double>::infinity(), ay0 = ax0, ax1 = -ax0, ay1 = -ax0;
@@ -94,16 +96,36 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
     };
     addRing(area.outer);
     for (const auto& hole : area.holes) addRing(hole);
-    for (std::int64_t r = r0; r <= r1; ++r)
+    // Which cell centres are inside: a scanline per row of centres (the rings' crossings of it, sorted;
+    // even-odd over the outer ring and the holes alike), not a ring walk per cell.
+    std::vector<double> crossings;
+    for (std::int64_t r = r0; r <= r1; ++r) {
+      const double cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
+      crossings.clear();
+      auto crossRing = [&](const std::vector<std::array<double, 2>>& ring) {
+        for (std::size_t i = 0, j = ring.size() - 1; i < ring.size(); j = i++) {
+          const double xi = ring[i][0], yi = ring[i][1], xj = ring[j][0], yj = ring[j][1];
+          if ((yi > cy) != (yj > cy)) crossings.push_back((xj - xi) * (cy - yi) / (yj - yi) + xi);
+        }
+      };
+      crossRing(area.outer);
+      for (const auto& hole : area.holes) crossRing(hole);
+      std::sort(crossings.begin(), crossings.end());
+      std::size_t passed = 0;
       for (std::int64_t c = c0; c <= c1; ++c) {
-        const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_, cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
+        const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_;
+        while (passed < crossings.size() && crossings[passed] <= cx) ++passed;
         CellArea ca;
         ca.area = a;
-        ca.centreInside = insideWater(area, cx, cy);
+        ca.centreInside = passed % 2 == 1;
         ca.edges = std::move(local[static_cast<std::size_t>((r - r0) * (c1 - c0 + 1) + (c - c0))]);
         if (!ca.centreInside && ca.edges.empty()) continue;
-        cells_[static_cast<std::size_t>(r * cols_ + c)].push_back(std::move(ca));
+        const auto k = static_cast<std::size_t>(r * cols_ + c);
+        any_[k >> 6] |= std::uint64_t{1} << (k & 63);
+        if (ca.centreInside && ca.edges.empty()) whole_[k >> 6] |= std::uint64_t{1} << (k & 63);
+        cells_[k].push_back(std::move(ca));
       }
+    }
   }
 }
 
@@ -112,8 +134,11 @@ bool WaterIndex::inside(double x, double y) const {
   const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
   const auto c = static_cast<std::int64_t>(fc), r = static_cast<std::int64_t>(fr);
+  const auto k = static_cast<std::size_t>(r * cols_ + c);
+  if (!((any_[k >> 6] >> (k & 63)) & 1)) return false;
+  if ((whole_[k >> 6] >> (k & 63)) & 1) return true;
   const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_, cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
-  for (const CellArea& ca : cells_[static_cast<std::size_t>(r * cols_ + c)]) {
+  for (const CellArea& ca : cells_[k]) {
     if (ca.edges.empty()) {
       if (ca.centreInside) return true;
       continue;

@@ -47,6 +47,8 @@ class WaterIndex {
   double x0_ = 0, y0_ = 0, cell_ = 1;
   std::int64_t cols_ = 0, rows_ = 0;
   std::vector<std::vector<CellArea>> cells_;
+  // One bit per cell: any area meets it; it lies inside an area whole (most points need only these).
+  std::vector<std::uint64_t> any_, whole_;
 };
 
 class WaterStage final : public PointStage {

@@ -240,6 +240,24 @@ struct ShoreSampler::Impl {
     shore.seal();
   }
 
+  // The points of p[0..n) that add() would use (within shoreDistance of a shore that needs points, not
+  // inside water), appended to `out`.
+  void collect(const PointRecord* p, std::size_t n, std::vector<PointRecord>& out) const {
+    for (std::size_t i = 0; i < n; ++i) {
+      const std::vector<std::uint32_t>* list = shore.at(p[i].x, p[i].y);
+      if (!list) continue;
+      bool near = false;
+      for (std::uint32_t e : *list) {
+        const ShoreEdge& se = shoreEdges[e];
+        if (pointSegmentDistance(p[i].x, p[i].y, se.ax, se.ay, se.bx, se.by) <= o.shoreDistance) {
+          near = true;
+          break;
+        }
+      }
+      if (near && !waterIndex->inside(p[i].x, p[i].y)) out.push_back(p[i]);
+    }
+  }
+
   void add(const PointRecord* p, std::size_t n) {
     std::vector<std::uint32_t> near;
     for (std::size_t i = 0; i < n; ++i) {
@@ -278,6 +296,10 @@ bool ShoreSampler::needsPoints() const {
 
 void ShoreSampler::add(const PointRecord* p, std::size_t n) {
   impl_->add(p, n);
+}
+
+void ShoreSampler::collect(const PointRecord* p, std::size_t n, std::vector<PointRecord>& out) const {
+  impl_->collect(p, n, out);
 }
 
 PreparedWater ShoreSampler::finish() const {

@@ -63,6 +63,11 @@ class ShoreSampler {
   bool needsPoints() const;
   // Kept points, in any order, from one thread.
   void add(const PointRecord* p, std::size_t n);
+  // The points of p[0..n) that add() would take (near a shore that needs points, not inside water),
+  // appended to `out`: a sampler with a larger shoreDistance gathers candidates in the same pass that
+  // measures the survey, and the real one is then fed those alone (the same levels as a second pass, as
+  // long as the real distance is not larger).
+  void collect(const PointRecord* p, std::size_t n, std::vector<PointRecord>& out) const;
   // The levels, the shores at their levels and the cross-sections.  Throws Error naming the polygon when
   // a level cannot be derived (no bank point within shoreDistance).
   PreparedWater finish() const;
