@@ -18,6 +18,7 @@
 
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
+#include "formats/io/quiet_gdal.h"
 
 namespace tinbuild {
 
@@ -38,14 +39,6 @@ struct ContextDeleter {
 };
 using ContextPtr = std::unique_ptr<PJ_CONTEXT, ContextDeleter>;
 
-// Silences GDAL's error printing in a scope (the callers report failures themselves).
-class QuietGdal {
- public:
-  QuietGdal() { CPLPushErrorHandler(CPLQuietErrorHandler); }
-  ~QuietGdal() { CPLPopErrorHandler(); }
-  QuietGdal(const QuietGdal&) = delete;
-  QuietGdal& operator=(const QuietGdal&) = delete;
-};
 
 std::string crsLabel(const CrsInfo& c) {
   std::string s = c.name.empty() ? std::string("an unnamed CRS") : c.name;

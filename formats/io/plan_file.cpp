@@ -1,7 +1,6 @@
 // Plans, done files and mesh manifests (header).
 #include "formats/io/plan_file.h"
 
-#include <cpl_error.h>
 #include <cpl_json.h>
 #include <fcntl.h>
 #include <unistd.h>
@@ -18,6 +17,7 @@
 #include <vector>
 
 #include "formats/io/output_file.h"
+#include "formats/io/quiet_gdal.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/json_writer.h"
 
@@ -152,9 +152,11 @@ CPLJSONObject loadJson(const std::string& path, const char* what) {
   CPLJSONDocument doc;
   std::error_code ec;
   if (!fs::exists(path, ec)) throw DataError(path, std::string("no such ") + what);
-  CPLPushErrorHandler(CPLQuietErrorHandler);  // (GDAL's parser would print its own message first)
-  const bool loaded = doc.Load(path);
-  CPLPopErrorHandler();
+  bool loaded = false;
+  {
+    QuietGdal quiet;  // (GDAL's parser would print its own message first)
+    loaded = doc.Load(path);
+  }
   if (!loaded) throw DataError(path, std::string("not a readable ") + what + " (invalid JSON)");
   return doc.GetRoot();
 }

@@ -23,6 +23,7 @@
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
 #include "formats/io/output_transaction.h"
+#include "formats/io/quiet_gdal.h"
 
 namespace tinbuild {
 
@@ -40,35 +41,6 @@ int gdalCancelProgress(double, const char*, void* flag) {
   return cancelRequested(static_cast<const CancelFlag*>(flag)) ? 0 : 1;
 }
 
-// GDAL reports errors through a handler (stderr by default); within our calls they are collected and
-// turned into exceptions naming the file.
-// The handler also keeps the system's error at the moment GDAL reported a failure, which GDAL's messages do
-// not carry ("Error writing TIFF header" is a full disk or a failing one) and later calls overwrite.
-thread_local int t_failureErrno = 0;
-
-bool isDiskErrno(int e) {
-  return e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS;
-}
-
-struct QuietGdal {
-  QuietGdal() {
-    CPLPushErrorHandler([](CPLErr level, CPLErrorNum, const char*) {
-      if (level >= CE_Failure && isDiskErrno(errno) && t_failureErrno == 0) t_failureErrno = errno;
-    });
-    CPLErrorReset();
-    t_failureErrno = 0;
-  }
-  ~QuietGdal() { CPLPopErrorHandler(); }
-};
-
-// GDAL's message, and the system's reason when the call failed on the disk.
-[[noreturn]] void gdalFailure(const std::string& path, const std::string& what) {
-  const int e = t_failureErrno ? t_failureErrno : errno;
-  const char* msg = CPLGetLastErrorMsg();
-  std::string text = what + (msg && *msg ? std::string(": ") + msg : std::string());
-  if (isDiskErrno(e)) text += std::string(" (") + std::strerror(e) + ")";
-  throw DataError(path, text);
-}
 
 bool endsWith(std::string s, const std::string& suffix) {
   std::transform(s.begin(), s.end(), s.begin(), [](unsigned char c) { return std::tolower(c); });

@@ -25,6 +25,7 @@
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
+#include "formats/io/quiet_gdal.h"
 
 namespace tinbuild {
 
@@ -42,23 +43,6 @@ void registerVectorDrivers() {
   std::call_once(once, [] { GDALAllRegister(); });
 }
 
-// GDAL prints its errors on stderr by default; while a file is read they are kept quiet, and the last
-// one goes into the DataError instead (gdalReason).
-class QuietGdal {
- public:
-  QuietGdal() {
-    CPLPushErrorHandler(CPLQuietErrorHandler);
-    CPLErrorReset();
-  }
-  ~QuietGdal() { CPLPopErrorHandler(); }
-  QuietGdal(const QuietGdal&) = delete;
-  QuietGdal& operator=(const QuietGdal&) = delete;
-};
-
-std::string gdalReason() {
-  const char* msg = CPLGetLastErrorMsg();
-  return msg && *msg ? std::string(": ") + msg : std::string();
-}
 
 // Shortest text that reads back as the same double, so a coordinate in a message can be searched for;
 // without an exponent in the range of coordinates ("500000", not "5e+05").
@@ -141,7 +125,7 @@ class LayerTransform {
     ct_.reset(OGRCreateCoordinateTransformation(&source, run));
     if (!ct_)
       throw DataError(file, "layer '" + layer + "': no transformation from its CRS (" + from_ +
-                                ") to the run's CRS (" + to_ + ")" + gdalReason());
+                                ") to the run's CRS (" + to_ + ")" + gdalMessage());
     // z goes through the transformation only when both sides say what z is; between a 2D CRS and
     // anything, a height has no defined meaning to transform, and it is kept as the file gives it.
     transformZ_ = hasVerticalPart(source) && hasVerticalPart(*run);
@@ -170,7 +154,7 @@ class LayerTransform {
                                    nullptr, errors_.data() + s);
       for (std::size_t i = s; i < s + static_cast<std::size_t>(count); ++i) {
         if (errors_[i] == 0 && std::isfinite(x_[i]) && std::isfinite(y_[i]) && std::isfinite(z_[i])) continue;
-        std::string reason = gdalReason();
+        std::string reason = gdalMessage();
         if (reason.empty() && errors_[i] != 0)
           reason = std::string(": ") + proj_context_errno_string(nullptr, errors_[i]);
         ref.fail("cannot transform " + pointText(pts[i].x, pts[i].y) + " from the layer's CRS (" + from_ +
@@ -660,7 +644,7 @@ class FileReader {
       std::error_code ec;
       if (path_.rfind("/vsi", 0) != 0 && !std::filesystem::exists(path_, ec))
         throw DataError(path_, "cannot open as a vector file: no such file");
-      throw DataError(path_, "cannot open as a vector file" + gdalReason());
+      throw DataError(path_, "cannot open as a vector file" + gdalMessage());
     }
     for (int li = 0; li < ds->GetLayerCount(); ++li) {
       OGRLayer* layer = ds->GetLayer(li);
@@ -674,7 +658,7 @@ class FileReader {
         if (!feature) {
           // The end of the layer, or a read that failed (a truncated file): only GDAL's error tells.
           if (CPLGetLastErrorType() == CE_Failure || CPLGetLastErrorType() == CE_Fatal)
-            throw DataError(path_, "layer '" + name + "': cannot read its features" + gdalReason());
+            throw DataError(path_, "layer '" + name + "': cannot read its features" + gdalMessage());
           break;
         }
         const FeatureRef ref{path_, name, static_cast<long long>(feature->GetFID())};
@@ -699,7 +683,7 @@ class FileReader {
     // A geometry the driver could not decode comes as none, with GDAL's error (left from GetNextFeature):
     // a constraint silently missing would be worse than the error.
     if (!geometry && (CPLGetLastErrorType() == CE_Failure || CPLGetLastErrorType() == CE_Fatal))
-      ref.fail("cannot read its geometry" + gdalReason());
+      ref.fail("cannot read its geometry" + gdalMessage());
     if (!geometry || geometry->IsEmpty()) {
       diag_.warn("constraints.feature_without_geometry", path_,
                  ref.where() + ": a feature without geometry (skipped)");
@@ -711,7 +695,7 @@ class FileReader {
     // Any curve type, even one made of straight pieces only (a COMPOUNDCURVE of LINESTRINGs).
     if (geometry->hasCurveGeometry()) {
       linear.reset(geometry->getLinearGeometry());
-      if (!linear) ref.fail("cannot linearize the " + typeName + gdalReason());
+      if (!linear) ref.fail("cannot linearize the " + typeName + gdalMessage());
       geometry = linear.get();
     }
     parts_.clear();
@@ -868,7 +852,7 @@ ConstraintInput readConstraints(const ConstraintFiles& files, const CrsInfo& run
     QuietGdal quiet;
     run = std::make_unique<OGRSpatialReference>();
     if (run->SetFromUserInput(runCrs.wkt.c_str()) != OGRERR_NONE)
-      throw Error("the run's CRS cannot be interpreted for the constraint files" + gdalReason());
+      throw Error("the run's CRS cannot be interpreted for the constraint files" + gdalMessage());
     run->SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
   }
   const std::pair<const std::vector<std::string>*, Role> groups[] = {

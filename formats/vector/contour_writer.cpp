@@ -21,6 +21,7 @@
 #include <vector>
 
 #include "formats/io/gpkg_file.h"
+#include "formats/io/quiet_gdal.h"
 #include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
@@ -37,22 +38,6 @@ std::string lower(std::string s) {
   return s;
 }
 
-// GDAL reports errors through a handler (stderr by default); within our calls they are collected and
-// turned into exceptions naming the file.
-struct QuietGdal {
-  QuietGdal() {
-    CPLPushErrorHandler(CPLQuietErrorHandler);
-    CPLErrorReset();
-  }
-  ~QuietGdal() { CPLPopErrorHandler(); }
-  QuietGdal(const QuietGdal&) = delete;
-  QuietGdal& operator=(const QuietGdal&) = delete;
-};
-
-[[noreturn]] void gdalFailure(const std::string& path, const std::string& what) {
-  const char* msg = CPLGetLastErrorMsg();
-  throw DataError(path, what + (msg && *msg ? std::string(": ") + msg : std::string()));
-}
 
 // The OGR formats (a GeoPackage is written by ContourGpkgWriter, without OGR).
 const char* driverName(ContourFormat f) {
