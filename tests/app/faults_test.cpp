@@ -314,7 +314,9 @@ TEST(Faults, AStoppedPartOrMergeLeavesNothingAndReruns) {
       if (std::find(planned.begin(), planned.end(), file) == planned.end()) fs::remove(s.dir / "p" / file);
     const int code = runWith(s.dir, "build --plan p/plan.json --part 0 -q", part * f);
     EXPECT_EQ(filesBelow(s.dir / "p"), code == 0 ? parted : planned) << "part stopped at " << f << ", exit " << code;
-    if (code != 0) EXPECT_TRUE(code == 3 || code == 128 + SIGTERM) << code;
+    if (code != 0) {
+      EXPECT_TRUE(code == 3 || code == 128 + SIGTERM) << code;
+    }
   }
   fs::remove_all(s.dir / "p");
   ASSERT_EQ(runWith(s.dir, plan), 0);

@@ -4,6 +4,7 @@
 // downstream and level across, every constraint a chain of TIN edges (verify), the same DEM for any thread
 // count and any split into parts; bad vector input refused before any work.
 #include <gdal_priv.h>
+#include <ogrsf_frmts.h>
 #include <gtest/gtest.h>
 #include <sys/wait.h>
 
@@ -160,9 +161,26 @@ TEST(Hydro, LakesPondsAndRiversAreFlattenedAndVerified) {
   const fs::path out = test::scratchDir();
   const std::string las = (v.dir / "valley.las").string();
   const auto r = test::tinbuild("build " + las + v.args + " --mesh " + (out / "tin.smb").string() + " --dem " +
-                                (out / "dem.tif").string() + " --step 0.5 --report " + (out / "run.json").string() + " -q");
+                                (out / "dem.tif").string() + " --step 0.5 --report " + (out / "run.json").string() +
+                                " --contours " + (out / "contours.gpkg").string() + " --interval 0.25 -q");
   ASSERT_EQ(r.code, 0) << r.err;
   const Raster dem = readRaster(out / "dem.tif");
+  // A lake flat at its level gives no contour inside (and the pond neither).
+  {
+    GDALDatasetUniquePtr ds(GDALDataset::Open((out / "contours.gpkg").c_str(), GDAL_OF_VECTOR | GDAL_OF_READONLY));
+    ASSERT_TRUE(ds);
+    std::size_t inside = 0, vertices = 0;
+    for (auto&& f : ds->GetLayer(0)) {
+      const OGRLineString* line = f->GetGeometryRef()->toLineString();
+      for (int i = 0; i < line->getNumPoints(); ++i, ++vertices) {
+        const double x = line->getX(i), y = line->getY(i);
+        for (const auto* water : {&v.lake, &v.pond})
+          if (inPolygon(*water, x, y) && distanceToRing(*water, x, y) > 0.5) ++inside;
+      }
+    }
+    EXPECT_GT(vertices, 1000u);
+    EXPECT_EQ(inside, 0u) << "contour vertices inside the lake or the pond";
+  }
 
   // The lake: every pixel inside (a pixel away from the shore) at the lake's level.
   std::size_t lakePixels = 0;
