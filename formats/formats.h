@@ -14,12 +14,13 @@
 //   raster/      DEM outputs through GDAL: GeoTIFF tiles + VRT mosaics, one GeoTIFF or COG, GeoPackage
 //                raster; the PNG quick-look (with contour lines drawn over it).
 //   vector/      vector outputs: contour lines (GeoPackage directly with SQLite; GeoJSON, FlatGeobuf and
-//                Shapefile through OGR).
+//                Shapefile through OGR); vector inputs: the constraint files of --breaklines, --water and
+//                --flow (any OGR vector, reprojected, simple polygons checked exactly).
 //   crs/         CRSs from GeoTIFF keys, WKT, EPSG codes and user strings; comparison; reprojection of
 //                points; UTM zone choice; lengths with units.
 //   io/          files that are complete or absent (temporary name, rename on success), stdin with push-back,
 //                little-endian fields, GeoPackage writing with SQLite (gpkg_file: the TIN's and the
-//                contours').
+//                contours'), GDAL's errors kept quiet and put into ours (quiet_gdal).
 //
 // Invariants every writer keeps: output goes to a temporary name beside the target and is renamed only
 // when the run succeeds; a writer destroyed before end() removes what it wrote; I/O errors are DataErrors

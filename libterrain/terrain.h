@@ -22,6 +22,9 @@
 //               thread when asked, with checkpoint agents for "is this area complete?".
 //   raster/     the DEM rasterizer: TIN interpolation at pixel centres, tiles released when complete.
 //   contour/    the streaming contour tracer: isolines cut from the mesh as it streams, chained into lines.
+//   hydro/      breaklines and hydro-flattening: water levels from bank points and river stations, the
+//               conforming split (constraint pieces made Delaunay edges), the water and breakline stages,
+//               the constraint vertices as a stream, verify's edge check.
 //   synthetic/  realistic synthetic surveys (terrain, classes, returns, flight strips) for the demo,
 //               tests and benchmarks.
 // Nothing here includes formats/ or app/.
