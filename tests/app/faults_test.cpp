@@ -384,8 +384,11 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
       {"missing", mesh, 1, [&] { fs::remove(mesh); }},
       {"cut short", mesh, 1, [&] { fs::resize_file(mesh, fs::file_size(mesh) - 7); }},
   };
-  if (!pieces.empty())
+  if (!pieces.empty()) {
     damages.push_back({"altered", pieces[0], -1, [&] { flip(pieces[0], fs::file_size(pieces[0]) - 3); }});
+    damages.push_back({"missing", pieces[0], -1, [&] { fs::remove(pieces[0]); }});
+    damages.push_back({"cut short", pieces[0], -1, [&] { fs::resize_file(pieces[0], fs::file_size(pieces[0]) / 2); }});
+  }
   // The part records themselves carry a checksum of their text.
   const fs::path record = state / "part-0001.json";
   damages.push_back({"altered", record, 1, [&] { flip(record, fs::file_size(record) / 2); }});
@@ -408,6 +411,22 @@ TEST(Faults, TheMergeVerifiesThePartsFiles) {
     for (int i = 0; i < 3; ++i)
       ASSERT_EQ(runWith(s.dir, "build --plan p/plan.json --part " + std::to_string(i) + " -q"), 0);
   }
+  // The plan itself: a flipped byte anywhere, or a plan cut short, is an error naming it, and nothing is
+  // written.
+  const fs::path planFile = s.dir / "p/plan.json";
+  const std::string planText = test::slurp(planFile);
+  for (const std::uintmax_t at : {planText.size() / 4, planText.size() / 2, 3 * planText.size() / 4}) {
+    flip(planFile, at);
+    const std::string errFile = (s.dir / "merge.err").string();
+    EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q", -1, SIGTERM, {}, errFile.c_str()), 1) << "plan flipped at " << at;
+    EXPECT_NE(test::slurp(errFile).find("plan.json"), std::string::npos) << test::slurp(errFile);
+    EXPECT_FALSE(fs::exists(s.dir / "p/tin.parts.json"));
+    std::ofstream(planFile, std::ios::binary | std::ios::trunc) << planText;
+  }
+  fs::resize_file(planFile, planText.size() / 2);
+  EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 1);
+  EXPECT_FALSE(fs::exists(s.dir / "p/tin.parts.json"));
+  std::ofstream(planFile, std::ios::binary | std::ios::trunc) << planText;
   EXPECT_EQ(runWith(s.dir, "merge p/plan.json -q"), 0);
   EXPECT_TRUE(fs::exists(s.dir / "p/tin.parts.json"));
 }
