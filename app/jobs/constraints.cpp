@@ -96,56 +96,54 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   if (!survey.crs.wkt.empty() && survey.crs.geographic)
     throw UsageError("--breaklines/--water need a projected CRS (lengths in metres): give --t_srs");
 
-  // The pass: spacing first needs the extent and count; the bank points need the shore distance, which
-  // defaults to a multiple of the spacing -- so a user who leaves it to the survey gets it from the
-  // header's figures when they are known, else from the pass itself (the levels then take one more pass).
-  std::unique_ptr<ShoreSampler> sampler;
+  // The pass: the spacing needs the extent and count of the kept points; the bank points need the shore
+  // distance, which defaults to a multiple of that spacing.  One pass when both lengths are given, or
+  // when the header's spacing bounds the default (see below); else a second one for the bank points.
+  std::unique_ptr<ShoreSampler> sampler;  // (with --water)
   WaterLevelOptions wo;
   wo.percentile = q.percentile;
   auto spacingOf = [](const Bounds3& b, std::uint64_t n) {
     const double area = std::max((b.maxX - b.minX) * (b.maxY - b.minY), 1e-12);
     return std::sqrt(area / static_cast<double>(std::max<std::uint64_t>(n, 1)));
   };
-  double spacing = 0;
-  SurveyPass pass;
-  // One pass when the lengths that the sampling needs are given, or no level is derived; else two.
   auto makeSampler = [&](double sp) {
     wo.shoreDistance = lengthOption(q.shoreDistance, 3 * sp, survey.crs, "--shore-distance");
     wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
     sampler = std::make_unique<ShoreSampler>(input, wo);
-    if (!sampler->needsPoints()) sampler.reset();
   };
+  // The sampler when some level must come from the points (none when every level is given).
+  auto sampling = [&sampler]() { return sampler && sampler->needsPoints() ? sampler.get() : nullptr; };
+  SurveyPass pass;
   if (!q.water.empty() && !q.shoreDistance.empty() && !q.stationSpacing.empty()) {
-    makeSampler(1);
-    pass = passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
-    spacing = spacingOf(pass.bounds, pass.points);
+    makeSampler(1);  // (both lengths given: the spacing is not needed)
+    pass = passOverPoints(survey, o.finalizer.filter, sampling(), o.finalizer.cancel);
   } else if (!q.water.empty() && survey.headerBounds && survey.headerPoints > 0) {
-    // One pass: the points near the shores are gathered within twice the default distance for the
-    // header's spacing (every point of the survey): the kept points' spacing, and so the default
-    // distance, is larger only when the filters keep less than a quarter of the points.  Then the real
-    // sampler takes the gathered points (the same as a second pass would give it); else a second pass.
-    const Bounds3& hb = *survey.headerBounds;
-    const double headerSpacing = spacingOf(hb, survey.headerPoints);
+    // The points near the shores are gathered within twice the default distance for the header's
+    // spacing (every point of the survey): the kept points' spacing, and so the default distance, is
+    // larger only when the filters keep less than a quarter of the points.  Then the real sampler takes
+    // the gathered points (the same as a second pass would give it); else a second pass.
+    const double headerSpacing = spacingOf(*survey.headerBounds, survey.headerPoints);
     WaterLevelOptions wide = wo;
     wide.shoreDistance = q.shoreDistance.empty() ? 6 * headerSpacing : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
     wide.stationSpacing = 1;
     ShoreSampler gather(input, wide);
     std::vector<PointRecord> near;
     pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel, gather.needsPoints() ? &gather : nullptr, &near);
-    spacing = spacingOf(pass.bounds, pass.points);
-    makeSampler(spacing);
-    if (sampler && wo.shoreDistance <= wide.shoreDistance)
-      sampler->add(near.data(), near.size());
-    else if (sampler)
-      passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
+    makeSampler(spacingOf(pass.bounds, pass.points));
+    if (ShoreSampler* s = sampling()) {
+      if (wo.shoreDistance <= wide.shoreDistance)
+        s->add(near.data(), near.size());
+      else
+        passOverPoints(survey, o.finalizer.filter, s, o.finalizer.cancel);
+    }
   } else {
     pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel);
-    spacing = spacingOf(pass.bounds, pass.points);
     if (!q.water.empty()) {
-      makeSampler(spacing);
-      if (sampler) passOverPoints(survey, o.finalizer.filter, sampler.get(), o.finalizer.cancel);
+      makeSampler(spacingOf(pass.bounds, pass.points));
+      if (ShoreSampler* s = sampling()) passOverPoints(survey, o.finalizer.filter, s, o.finalizer.cancel);
     }
   }
+  const double spacing = spacingOf(pass.bounds, pass.points);
   if (pass.points == 0) throw DataError(o.inputs.empty() ? "build" : o.inputs.front(), "no point is kept by the filters: nothing to constrain");
   c.passSeconds = since(t);
   t = Clock::now();
@@ -156,13 +154,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
 
   std::vector<ConstraintSegment> segments;
   if (!input.water.empty()) {
-    PreparedWater water;
-    if (sampler) {
-      water = sampler->finish();
-    } else {
-      ShoreSampler given(input, wo);  // every level given: nothing to sample
-      water = given.finish();
-    }
+    const PreparedWater water = sampler->finish();
     segments = water.segments;
     c.water = water.areas;
     c.bodies = water.bodies;

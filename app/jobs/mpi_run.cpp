@@ -198,6 +198,17 @@ std::uint64_t receiveFile(const std::string& path, int from, int tag, const Canc
   }
 }
 
+// Rank 0's file at `path` (read there) to every rank, in chunks: its bytes, on every rank.
+std::string broadcastFile(int rank, const std::string& path) {
+  std::string bytes = rank == 0 ? readWhole(path) : std::string();
+  std::uint64_t n = bytes.size();
+  MPI_Bcast(&n, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+  bytes.resize(n);
+  for (std::uint64_t at = 0; at < n; at += kChunk)
+    MPI_Bcast(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, 0, MPI_COMM_WORLD);
+  return bytes;
+}
+
 // A private temporary directory for a rank's state (rank 0 keeps its state beside the outputs).
 std::string makeLocalDir(int rank) {
   if (rank == 0) return "";
@@ -338,12 +349,8 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       planReport = runPlan(po, survey, size, plan, diag);
       commitStep();
     });
-    std::string planText = rank == 0 ? readWhole(rootPlanPath) : std::string();
-    std::uint64_t planBytes = planText.size();
-    MPI_Bcast(&planBytes, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
-    planText.resize(planBytes);
-    MPI_Bcast(planText.data(), static_cast<int>(planBytes), MPI_CHAR, 0, MPI_COMM_WORLD);
-    exchanged += planBytes * static_cast<std::uint64_t>(size - 1) * (rank == 0 ? 1 : 0) * 2;
+    const std::string planText = broadcastFile(rank, rootPlanPath);
+    exchanged += planText.size() * static_cast<std::uint64_t>(size - 1) * (rank == 0 ? 1 : 0) * 2;
     collective(rank, size, "plan copy on rank", [&] {
       if (rank == 0) {
         plan = readPlan(rootPlanPath);
@@ -356,12 +363,8 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     });
     // The constraints the plan prepared (constraints.bin beside it) go to every rank too.
     if (options.constraints.any()) {
-      std::string bytes = rank == 0 ? readWhole(plan.constraintsFile()) : std::string();
-      std::uint64_t n = bytes.size();
-      MPI_Bcast(&n, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
-      bytes.resize(n);
-      for (std::uint64_t at = 0; at < n; at += kChunk)
-        MPI_Bcast(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, 0, MPI_COMM_WORLD);
+      const std::string bytes = broadcastFile(rank, plan.constraintsFile());
+      exchanged += bytes.size() * static_cast<std::uint64_t>(size - 1) * (rank == 0 ? 1 : 0) * 2;
       collective(rank, size, "plan copy on rank", [&] {
         if (rank == 0) return;
         std::filesystem::create_directories(plan.stateDir());

@@ -157,6 +157,11 @@ void refuseExistingFile(const std::string& path) {
     throw DataError(path, "exists; pass --overwrite to replace it");
 }
 
+std::string diskErrorReason(int e) {
+  const bool disk = e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS;
+  return disk ? std::string(" (") + std::strerror(e) + ")" : std::string();
+}
+
 std::uint64_t fileSizeOrZero(const std::string& path) {
   if (path == "-") return 0;
   std::error_code ec;

@@ -32,6 +32,11 @@ void refuseExistingFile(const std::string& path);
 // refused, locked or owned.
 bool isStreamOrDevice(const std::string& path);
 
+// " (the system's message)" when errno `e` says the disk failed or filled (EIO, ENOSPC, EFBIG, EDQUOT,
+// EROFS), else "": for messages of libraries that report only their own words ("HDF error", "Error
+// writing TIFF header").
+std::string diskErrorReason(int e);
+
 // The size of the file at PATH; 0 for "-", a missing file or one that cannot be asked.
 std::uint64_t fileSizeOrZero(const std::string& path);
 

@@ -3,8 +3,8 @@
 #include <cpl_error.h>
 
 #include <cerrno>
-#include <cstring>
 
+#include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -13,12 +13,9 @@ namespace {
 
 thread_local int t_failureErrno = 0;
 
-bool isDiskErrno(int e) {
-  return e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS;
-}
-
 void keepDiskErrno(CPLErr level, CPLErrorNum, const char*) {
-  if (level >= CE_Failure && isDiskErrno(errno) && t_failureErrno == 0) t_failureErrno = errno;
+  const int e = errno;  // (first: nothing below may change it)
+  if (level >= CE_Failure && t_failureErrno == 0 && !diskErrorReason(e).empty()) t_failureErrno = e;
 }
 
 }  // namespace
@@ -40,9 +37,7 @@ std::string gdalMessage() {
 
 void gdalFailure(const std::string& path, const std::string& what) {
   const int e = t_failureErrno ? t_failureErrno : errno;
-  std::string text = what + gdalMessage();
-  if (isDiskErrno(e)) text += std::string(" (") + std::strerror(e) + ")";
-  throw DataError(path, text);
+  throw DataError(path, what + gdalMessage() + diskErrorReason(e));
 }
 
 }  // namespace tinbuild

@@ -233,9 +233,7 @@ class UgridWriter final : public MeshSink {
   void check(int status, const std::string& what) const {
     if (status == NC_NOERR) return;
     const int e = errno;
-    std::string text = what + ": " + nc_strerror(status);
-    if (e == EIO || e == ENOSPC || e == EFBIG || e == EDQUOT || e == EROFS) text += std::string(" (") + std::strerror(e) + ")";
-    throw DataError(path_, text);
+    throw DataError(path_, what + ": " + nc_strerror(status) + diskErrorReason(e));
   }
   void text(int varid, const char* name, const std::string& value) {
     check(nc_put_att_text(ncid_, varid, name, value.size(), value.data()),

@@ -135,6 +135,16 @@ std::string near(double x, double y) {
 
 }  // namespace
 
+bool segmentsCross(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy) {
+  auto orient = [](double px, double py, double qx, double qy, double rx, double ry) {
+    const double d = (qx - px) * (ry - py) - (qy - py) * (rx - px);
+    return d > 0 ? 1 : d < 0 ? -1 : 0;
+  };
+  const int o1 = orient(ax, ay, bx, by, cx, cy), o2 = orient(ax, ay, bx, by, dx, dy);
+  const int o3 = orient(cx, cy, dx, dy, ax, ay), o4 = orient(cx, cy, dx, dy, bx, by);
+  return o1 != o2 && o3 != o4;
+}
+
 bool insideWater(const WaterArea& w, double x, double y) {
   if (!inRing(w.outer, x, y)) return false;
   for (const Ring& h : w.holes)

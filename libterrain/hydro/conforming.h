@@ -78,6 +78,9 @@ inline bool inDiametralDisc(double x, double y, const ConstraintPoint& a, const 
   return ax * bx + ay * by <= 1e-9 * (dx * dx + dy * dy);
 }
 
+// Whether the segments a-b and c-d cross or touch (the signs of four orientations, in floating point).
+bool segmentsCross(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy);
+
 // Whether (x, y) is inside the water area (inside the outer ring, outside every hole).  A point on a ring
 // may count either way: the ring is a constraint, and its pieces' discs clear the lidar points there.
 bool insideWater(const WaterArea& w, double x, double y);

@@ -6,19 +6,11 @@
 #include <cstring>
 #include <limits>
 
+#include "libterrain/finalizer/regions.h"
+
 namespace tinbuild {
 
 namespace {
-
-bool segmentsCross(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy) {
-  auto orient = [](double px, double py, double qx, double qy, double rx, double ry) {
-    const double d = (qx - px) * (ry - py) - (qy - py) * (rx - px);
-    return d > 0 ? 1 : d < 0 ? -1 : 0;
-  };
-  const int o1 = orient(ax, ay, bx, by, cx, cy), o2 = orient(ax, ay, bx, by, dx, dy);
-  const int o3 = orient(cx, cy, dx, dy, ax, ay), o4 = orient(cx, cy, dx, dy, bx, by);
-  return o1 != o2 && o3 != o4;
-}
 
 bool edgeMeetsBox(double ax, double ay, double bx, double by, double minX, double minY, double maxX, double maxY) {
   if (std::max(ax, bx) < minX || std::min(ax, bx) > maxX || std::max(ay, by) < minY || std::min(ay, by) > maxY)
@@ -280,19 +272,11 @@ ConstraintStream::ConstraintStream(std::shared_ptr<const ConformingConstraints> 
     minY = std::min(minY, p.y), maxY = std::max(maxY, p.y);
   }
   const double span = std::max({maxX - minX, maxY - minY, 1e-12});
-  auto spread = [](std::uint64_t a) {  // the bits of a 32-bit value, every other bit
-    a &= 0xffffffffull;
-    a = (a | (a << 16)) & 0x0000ffff0000ffffull;
-    a = (a | (a << 8)) & 0x00ff00ff00ff00ffull;
-    a = (a | (a << 4)) & 0x0f0f0f0f0f0f0f0full;
-    a = (a | (a << 2)) & 0x3333333333333333ull;
-    return (a | (a << 1)) & 0x5555555555555555ull;
-  };
   std::vector<std::pair<std::uint64_t, std::uint32_t>> keyed(v.size());
   for (std::uint32_t i = 0; i < v.size(); ++i) {
-    const auto cx = static_cast<std::uint64_t>(std::clamp((v[i].x - minX) / span, 0.0, 1.0) * 4294967295.0);
-    const auto cy = static_cast<std::uint64_t>(std::clamp((v[i].y - minY) / span, 0.0, 1.0) * 4294967295.0);
-    keyed[i] = {spread(cx) | (spread(cy) << 1), i};
+    const auto cx = static_cast<std::uint32_t>(std::clamp((v[i].x - minX) / span, 0.0, 1.0) * 4294967295.0);
+    const auto cy = static_cast<std::uint32_t>(std::clamp((v[i].y - minY) / span, 0.0, 1.0) * 4294967295.0);
+    keyed[i] = {mortonIndex(cx, cy), i};
   }
   std::sort(keyed.begin(), keyed.end());
   order_.reserve(keyed.size());

@@ -128,14 +128,6 @@ struct Centerline {
   }
 };
 
-bool segmentsIntersect(double ax, double ay, double bx, double by, double cx, double cy, double dx, double dy) {
-  auto orient = [](double px, double py, double qx, double qy, double rx, double ry) {
-    const double d = (qx - px) * (ry - py) - (qy - py) * (rx - px);
-    return d > 0 ? 1 : d < 0 ? -1 : 0;
-  };
-  return orient(ax, ay, bx, by, cx, cy) != orient(ax, ay, bx, by, dx, dy) &&
-         orient(cx, cy, dx, dy, ax, ay) != orient(cx, cy, dx, dy, bx, by);
-}
 
 double percentileOf(std::vector<float> v, double p) {
   std::sort(v.begin(), v.end());
@@ -193,7 +185,7 @@ struct ShoreSampler::Impl {
           for (std::size_t k = 0; k < b.area.outer.size() && b.flow < 0; ++k) {
             const auto& p = b.area.outer[k];
             const auto& q = b.area.outer[(k + 1) % b.area.outer.size()];
-            if (segmentsIntersect(c[i][0], c[i][1], c[i + 1][0], c[i + 1][1], p[0], p[1], q[0], q[1]))
+            if (segmentsCross(c[i][0], c[i][1], c[i + 1][0], c[i + 1][1], p[0], p[1], q[0], q[1]))
               b.flow = static_cast<int>(f);
           }
         }
