@@ -104,7 +104,7 @@ PipelineTable inputGroup() {
   PipelineTable t;
   t.option("--depth", "K", "finalizer grid depth 0..15 (default: cells of a few thousand points)")
       .integer(0, 15, [](A& a, int v) { a.options.finalizer.depth = v; });
-  t.option("--memory", "MB", "memory budget for waiting chunks; beyond it they spill to disk (default 512)")
+  t.option("--memory", "MB", "the run's memory budget for its buffers: waiting chunks, cell tables, queues, open DEM tiles; beyond their shares they spill to disk (default 512)")
       .integer(1, 1 << 22,
                [](A& a, int mb) { a.options.finalizer.memoryBudget = static_cast<std::size_t>(mb) << 20; });
   t.option("--keep-class", "LIST", "keep only these classes, e.g. 2,8 or 2-5 (default: all but 7 and 18)")

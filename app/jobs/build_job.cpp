@@ -82,6 +82,7 @@ ParallelDelaunayOptions triangulatorOptions(const PipelineOptions& o, const Dela
   p.delaunay = dopt;
   p.threads = threads;
   p.regionLevel = o.regionLevel;
+  p.maxQueuedPoints = memoryShares(o.finalizer.memoryBudget).regionQueuePoints;
   return p;
 }
 
@@ -108,7 +109,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
-  r.memoryBudget = fo.memoryBudget;
+  r.memoryBudget = o.finalizer.memoryBudget;
   FinalizedStreamWriter writer(o.finalizedOutput);
   // The writer is called directly: encoding is a copy, cheaper than handing batches to another thread.
   r.finalizer = finalizePoints(in.streams, fo, writer, diag);
@@ -199,7 +200,7 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
-  r.memoryBudget = fo.memoryBudget;
+  r.memoryBudget = o.finalizer.memoryBudget;
 
   // Contours of a TIN that keeps vegetation or buildings are isolines of every tree and roof: millions of
   // tiny loops, a file many times the mesh's size.  Say so before the work, with the usual cure.

@@ -165,7 +165,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
-  r.memoryBudget = fo.memoryBudget;
+  r.memoryBudget = o.finalizer.memoryBudget;
   // A COPC survey: one process counts it from the octree's hierarchy (block mode) and decodes no point
   // before its stream; so does the plan.  It stops the finalizer when the stream begins (the grid and
   // bounds are then known) and spreads each node's count over the regions its box meets.

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <filesystem>
 
+#include "app/jobs/survey.h"
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
@@ -187,6 +188,8 @@ void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInf
   if (!(d.step > 0)) throw UsageError("--step must be positive, got '" + o.dem.step + "'");
   d.maxEdge = parseLength(o.dem.maxEdge, crs, "--max-edge");
   d.tileSize = o.dem.tileSize;
+  d.memoryBudget = memoryShares(o.finalizer.memoryBudget).demTiles;
+  d.tempDir = o.finalizer.tempDir;
   if (!o.dem.tileSizeLength.empty()) {
     const double len = parseLength(o.dem.tileSizeLength, crs, "--tile-size-m");
     d.tileSize = static_cast<int>(std::llround(len / d.step));

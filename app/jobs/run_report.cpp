@@ -5,6 +5,7 @@
 #include <fstream>
 #include <string>
 
+#include "app/jobs/survey.h"
 #include "libterrain/core/json_writer.h"
 #include "libterrain/core/report_text.h"
 
@@ -224,7 +225,10 @@ std::string formatRunSummary(const RunReport& r) {
                     withCommas(d.stats.pixelsWritten) + " with a value; " + withCommas(d.stats.tilesWritten) +
                     " tiles written (" + withCommas(d.stats.tilesCompletedEarly) +
                     " during the run), at most " + withCommas(d.stats.maxOpenTiles) + " open (" +
-                    bytesText(d.stats.peakTileBytes) + ")" +
+                    bytesText(d.stats.peakTileBytes) +
+                    (d.stats.spilledBytes ? ", " + bytesText(d.stats.spilledBytes) + " of full blocks spilled"
+                                          : std::string()) +
+                    ")" +
                     (d.maxEdge > 0 ? "; --max-edge " + formatDouble("%.6g", d.maxEdge) + " " + unit +
                                          " blanked " + withCommas(d.stats.pixelsMaxEdge) + " pixels"
                                    : std::string()));
@@ -326,6 +330,15 @@ std::string formatRunJson(const RunReport& r) {
     j.key("estimated_stored_width").value(s.storedOrderWidthEstimate);
     j.endObject();
     j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBudget));
+    {
+      const MemoryShares m = memoryShares(r.memoryBudget);
+      j.key("memory_shares").beginObject();
+      j.key("chunks_bytes").value(static_cast<std::uint64_t>(m.chunks));
+      j.key("tables_bytes").value(static_cast<std::uint64_t>(m.tables));
+      j.key("dem_tiles_bytes").value(static_cast<std::uint64_t>(m.demTiles));
+      j.key("region_queue_points").value(static_cast<std::uint64_t>(m.regionQueuePoints));
+      j.endObject();
+    }
     j.key("peak_pool_bytes").value(s.peakPoolBytes);
     j.key("largest_chunk_bytes").value(s.largestChunkBytes);
     j.key("bookkeeping_bytes").value(s.bookkeepingBytes);
@@ -422,6 +435,8 @@ std::string formatRunJson(const RunReport& r) {
     j.key("tiles_filled").value(d.stats.tilesFilled);
     j.key("max_open_tiles").value(d.stats.maxOpenTiles);
     j.key("peak_tile_bytes").value(d.stats.peakTileBytes);
+    j.key("spilled_bytes").value(d.stats.spilledBytes);
+    j.key("spilled_blocks").value(d.stats.spilledBlocks);
     j.key("files").beginArray();
     for (const auto& f : d.files) j.value(f);
     j.endArray();

@@ -360,10 +360,24 @@ std::vector<std::string> stageNames(const PointFilter& filter) {
   return names;
 }
 
+MemoryShares memoryShares(std::size_t budget) {
+  MemoryShares m;
+  m.budget = budget;
+  m.chunks = std::max<std::size_t>(budget / 8 * 3, std::size_t{1} << 20);
+  m.tables = std::max<std::size_t>(budget / 8, std::size_t{1} << 20);
+  m.demTiles = std::max<std::size_t>(budget / 4, std::size_t{1} << 20);
+  m.regionQueuePoints = std::clamp<std::size_t>(budget / 32 / sizeof(PointRecord), std::size_t{1} << 14,
+                                                std::size_t{1} << 18);
+  return m;
+}
+
 FinalizerOptions finalizerOptions(const PipelineOptions& o, const Survey& s, int threads) {
   if (o.finalizer.filter.stages.size() > kMaxPointStages)
     throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
   FinalizerOptions fo = o.finalizer;
+  const MemoryShares shares = memoryShares(o.finalizer.memoryBudget);
+  fo.memoryBudget = shares.chunks;
+  fo.tableBudget = shares.tables;
   fo.crsWkt = s.crs.wkt;
   fo.inputNames = s.names;
   if (s.headerBounds) {

@@ -74,6 +74,20 @@ struct Survey {
 // (a TIN, a DEM) lets LAZ readers skip it.
 Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensity = true);
 
+// How a run spends its memory budget (--memory, held in PipelineOptions::finalizer.memoryBudget): the
+// buffers that would otherwise grow with the survey get a share each, and spill or wait beyond it.
+//   chunks       the finalizer's waiting chunks (3/8; spilled to a temporary file beyond it)
+//   tables       the finalizer's per-cell tables (1/8; a coarser fine depth, then a coarser leaf depth)
+//   demTiles     the DEM's open tiles (1/4; full blocks spilled to a temporary file beyond it)
+//   regionQueue  points queued for the triangulator's regions (1/32, 16,384 .. 262,144 points)
+// The rest (about a fifth) is left to what follows the stream's width without a knob: the triangulators'
+// live triangles, the outputs' live vertices, the readers' batches.  Code and libraries come on top.
+struct MemoryShares {
+  std::size_t budget = 0, chunks = 0, tables = 0, demTiles = 0;
+  std::size_t regionQueuePoints = 0;
+};
+MemoryShares memoryShares(std::size_t budget);
+
 // The finalizer's options for the survey: the user's (depth, memory, filter, progress), the survey's CRS,
 // header bounds and scale, the stage threads for `threads`; a part's window, and the plan's grid and
 // bounds.

@@ -40,6 +40,11 @@ constexpr std::uint32_t kNone = 0xffffffffu;
 constexpr int kMaxDepth = 15;
 constexpr int kMaxAutoDepth = 12;
 constexpr std::uint64_t kNoCandidate = ~std::uint64_t{0};  // a fine cell or leaf without a sprinkle point
+// What the per-cell tables cost (FinalizerOptions::tableBudget): an occupied fine cell of pass 2 (its
+// FineCell, a Morton key in buildTree, the vector's growth) and an occupied leaf in pass 3 (Leaf, Node,
+// its sprinkle record, its chunk, the index; measured 128 bytes).
+constexpr std::uint64_t kFineCellBytes = 80;
+constexpr std::uint64_t kLeafBytes = 160;
 constexpr double kTargetPerCell = 2000;  // default depth: occupied cells hold at least this many on average
 
 std::uint64_t mix64(std::uint64_t z) {
@@ -948,11 +953,29 @@ class Finalizer {
 
   // ---- pass 2 -----------------------------------------------------------------------------------
 
+  // Does pass 3's bookkeeping for this many occupied leaves fit options.tableBudget?  Else the default
+  // depth goes a level coarser (bigger chunks, a wider stream, a quarter of the tables).
+  bool leavesFit(std::uint64_t occupied) const {
+    return options_.tableBudget == 0 || occupied * kLeafBytes <= options_.tableBudget;
+  }
+
   // Two levels below the leaves (16 candidates per leaf), without exceeding depth 12 unless asked to.
+  // Under options.tableBudget, as many levels fewer as the table needs to fit (down to the expected leaf
+  // depth: one candidate, the first point, per leaf): it costs 4 bytes per fine cell (dense up to
+  // kDenseFineDepth) and about 80 bytes per occupied one (the candidate, its key, the growth of the
+  // vector, the Morton order of buildTree), and a survey occupies at most one fine cell per point.
   int fineDepth(std::uint64_t expected) const {
     if (options_.depth >= 0) return std::min(options_.depth + 2, std::max(options_.depth, kMaxAutoDepth));
     if (expected == 0) return 10;
-    return std::min(kMaxAutoDepth, chooseDepth(expected) + 2);
+    const int leaf = chooseDepth(expected);
+    int fine = std::min(kMaxAutoDepth, leaf + 2);
+    while (fine > leaf && options_.tableBudget > 0 && fineTableEstimate(fine, expected) > options_.tableBudget)
+      --fine;
+    return fine;
+  }
+  static std::uint64_t fineTableEstimate(int fine, std::uint64_t expected) {
+    const std::uint64_t cells = std::uint64_t{1} << (2 * fine);
+    return (fine <= kDenseFineDepth ? cells * 4 : 0) + std::min(cells, expected) * kFineCellBytes;
   }
 
   // Counts points per fine cell of g; measures `real` (the bounds) when measureBounds.
@@ -1117,7 +1140,8 @@ class Finalizer {
           occupied += m != last;
           last = m;
         }
-        if (static_cast<double>(stats_.points) / static_cast<double>(occupied) >= kTargetPerCell) {
+        if (static_cast<double>(stats_.points) / static_cast<double>(occupied) >= kTargetPerCell &&
+            leavesFit(occupied)) {
           depth = l;
           break;
         }
@@ -1436,7 +1460,8 @@ class Finalizer {
             }
           }
       }
-      if (static_cast<double>(total) / static_cast<double>(occupied) >= kTargetPerCell) return k;
+      if (static_cast<double>(total) / static_cast<double>(occupied) >= kTargetPerCell && leavesFit(occupied))
+        return k;
     }
     return 0;
   }

@@ -142,6 +142,11 @@ class Diagnostics;
 struct FinalizerOptions {
   int depth = -1;                                     // -1: chosen from the data; else 0..15
   std::size_t memoryBudget = std::size_t{512} << 20;  // bytes for chunk buffers
+  // Bytes for the per-cell tables: pass 2's fine counts and sprinkle candidates, pass 3's bookkeeping of
+  // the occupied leaves (0: no limit).  A tighter budget counts at a coarser fine depth (fewer sprinkle
+  // candidates a leaf, down to one: its first point) and, when the leaves' bookkeeping would not fit,
+  // the default depth goes coarser (bigger chunks, a wider stream).  A set depth is kept.
+  std::size_t tableBudget = 0;
   std::string tempDir;                                // spill/spool files; "" = $TMPDIR or /tmp
   PointFilter filter;
   std::uint64_t seed = 0x5eed2006;  // BRIO

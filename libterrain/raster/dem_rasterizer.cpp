@@ -1,13 +1,17 @@
 #include "libterrain/raster/dem_rasterizer.h"
 
+#include <sys/uio.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <string>
 
 #include "libterrain/core/error.h"
 #include "libterrain/core/report_text.h"
+#include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay/delaunay_predicates.h"
 #include "libterrain/delaunay/predicates.h"
 
@@ -106,6 +110,37 @@ bool pixelAt(const DemLayout& l, double x, double y, std::int64_t& i, std::int64
   return i >= l.colMin && i <= l.colMax && j >= l.rowMin && j <= l.rowMax;
 }
 
+// Open tiles hold their bands in blocks of 256 x 256 pixels (a power of two: the pixel loop finds the
+// block and the place in it with shifts and masks).
+constexpr int kBlockShift = 8;
+constexpr std::int64_t kBlockSize = std::int64_t{1} << kBlockShift;
+constexpr std::int64_t kBlockMask = kBlockSize - 1;
+
+// Calls f(tileBand, blockBand) for every band, in the order of the spill file (the 4-byte bands first,
+// so each band starts aligned to its element).
+template <class Tile, class Block, class F>
+void forBands(Tile& t, Block& b, F&& f) {
+  f(t.z, b.z);
+  f(t.slope, b.slope);
+  f(t.aspect, b.aspect);
+  f(t.edgeLength, b.edgeLength);
+  f(t.count, b.count);
+  f(t.hillshade, b.hillshade);
+}
+
+// Copies a block's rows (bw x bh elements, row-major, from raw bytes) into a tile band at column x0, row y0.
+template <class T>
+void placeBlock(std::vector<T>& band, std::size_t tileWidth, const unsigned char* src, std::size_t bw,
+                std::size_t bh, std::size_t x0, std::size_t y0) {
+  for (std::size_t r = 0; r < bh; ++r)
+    std::memcpy(band.data() + (y0 + r) * tileWidth + x0, src + r * bw * sizeof(T), bw * sizeof(T));
+}
+
+template <class T>
+void freeBand(std::vector<T>& band) {
+  std::vector<T>().swap(band);  // clear() would keep the capacity
+}
+
 }  // namespace
 
 void checkDemSize(const DemLayout& layout, const DemOptions& o, const Bounds3& data, std::uint64_t points) {
@@ -181,10 +216,25 @@ DemLayout demLayout(const DemOptions& o, const Bounds3& data) {
   return l;
 }
 
+struct DemRasterizer::Block {
+  enum class State : std::uint8_t { Absent, InMemory, Spilled };
+  std::vector<float> z, slope, aspect, edgeLength;  // bands as in DemTile, width x (pixels / width)
+  std::vector<std::uint16_t> count;
+  std::vector<std::uint8_t> hillshade;
+  std::uint64_t offset = 0;    // in the spill file, when spilled
+  std::uint32_t assigned = 0;  // pixel centres a triangle has claimed
+  std::uint32_t pixels = 0;
+  std::uint16_t width = 0;
+  State state = State::Absent;
+  bool queued = false;  // in memory and on the full-block FIFO
+};
+
 struct DemRasterizer::Open {
-  DemTile tile;
+  DemTile tile;                  // geometry and validPixels; the band arrays are assembled at complete()
   std::uint64_t dataPixels = 0;  // pixels with data in any band
   std::uint64_t assigned = 0;    // pixel centres a triangle has claimed (each has exactly one)
+  std::int64_t blocksX = 0;
+  std::vector<Block> blocks;  // row-major, from the tile's north-west corner
 };
 
 DemRasterizer::DemRasterizer(const DemOptions& options, DemTileSink& out)
@@ -202,6 +252,13 @@ void DemRasterizer::begin(const MeshInfo& info) {
   stats_ = DemStats{};
   open_.clear();
   done_.clear();
+  full_.clear();
+  fullLive_ = 0;
+  heldBytes_ = 0;
+  spillFile_.reset();
+  spillEnd_ = 0;
+  pixelBytes_ = sizeof(float) * (1u + opt_.slope + opt_.aspect + opt_.edgeLength) +
+                sizeof(std::uint16_t) * opt_.count + sizeof(std::uint8_t) * opt_.hillshade;
   tileSpan(layout_, firstTx_, firstTy_, tilesX_, tilesY_);
   const double az = opt_.hillshadeAzimuth / kDeg, alt = opt_.hillshadeAltitude / kDeg;
   lightX_ = std::sin(az) * std::cos(alt);
@@ -227,37 +284,99 @@ DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
   t.row0 = px.row0;
   t.width = static_cast<int>(px.col1 - px.col0 + 1);
   t.height = static_cast<int>(px.row1 - px.row0 + 1);
-  const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
-  t.z.assign(n, opt_.nodata);
-  if (opt_.slope) t.slope.assign(n, opt_.nodata);
-  if (opt_.aspect) t.aspect.assign(n, opt_.nodata);
-  if (opt_.edgeLength) t.edgeLength.assign(n, opt_.nodata);
-  if (opt_.hillshade) t.hillshade.assign(n, 0);
-  if (opt_.count) t.count.assign(n, 0);
+  o->blocksX = (t.width + kBlockMask) >> kBlockShift;
+  const std::int64_t blocksY = (t.height + kBlockMask) >> kBlockShift;
+  o->blocks.resize(static_cast<std::size_t>(o->blocksX * blocksY));
+  for (std::int64_t by = 0; by < blocksY; ++by)
+    for (std::int64_t bx = 0; bx < o->blocksX; ++bx) {
+      Block& b = o->blocks[static_cast<std::size_t>(by * o->blocksX + bx)];
+      const std::int64_t w = std::min(kBlockSize, t.width - (bx << kBlockShift));
+      const std::int64_t h = std::min(kBlockSize, t.height - (by << kBlockShift));
+      b.width = static_cast<std::uint16_t>(w);
+      b.pixels = static_cast<std::uint32_t>(w * h);
+    }
   Open& ref = *o;
   open_.emplace(key, std::move(o));
   stats_.maxOpenTiles = std::max<std::uint64_t>(stats_.maxOpenTiles, open_.size());
-  std::uint64_t bytes = 0;
-  for (const auto& [k, p] : open_) {
-    (void)k;
-    const DemTile& d = p->tile;
-    bytes += (d.z.size() + d.slope.size() + d.aspect.size() + d.edgeLength.size()) * 4 + d.hillshade.size() +
-             d.count.size() * 2;
-  }
-  stats_.peakTileBytes = std::max(stats_.peakTileBytes, bytes);
   return ref;
+}
+
+void DemRasterizer::allocate(Block& b) {
+  const std::size_t n = b.pixels;
+  b.z.assign(n, opt_.nodata);
+  if (opt_.slope) b.slope.assign(n, opt_.nodata);
+  if (opt_.aspect) b.aspect.assign(n, opt_.nodata);
+  if (opt_.edgeLength) b.edgeLength.assign(n, opt_.nodata);
+  if (opt_.hillshade) b.hillshade.assign(n, 0);
+  if (opt_.count) b.count.assign(n, 0);
+  b.state = Block::State::InMemory;
+  heldBytes_ += b.pixels * pixelBytes_;
+  stats_.peakTileBytes = std::max(stats_.peakTileBytes, heldBytes_);
+}
+
+// Without a budget nothing is spilled, so nothing is queued (the FIFO would only grow).  Entries of tiles
+// completed meanwhile stay in the FIFO until they reach its front; when they outnumber the live ones it is
+// compacted, so it stays proportional to the full blocks in memory.
+void DemRasterizer::blockFull(std::int64_t key, std::uint32_t index, Block& b) {
+  if (opt_.memoryBudget == 0 || b.state != Block::State::InMemory) return;
+  b.queued = true;
+  full_.push_back({key, index});
+  ++fullLive_;
+  if (full_.size() > 2 * fullLive_ + 4096) {
+    auto stale = [this](const FullBlock& e) {
+      const auto it = open_.find(e.key);
+      return it == open_.end() || !it->second->blocks[e.block].queued;
+    };
+    full_.erase(std::remove_if(full_.begin(), full_.end(), stale), full_.end());
+  }
+}
+
+void DemRasterizer::spill() {
+  const std::uint64_t target = opt_.memoryBudget - opt_.memoryBudget / 4;
+  std::vector<iovec> iov;
+  while (heldBytes_ > target && !full_.empty()) {
+    const FullBlock e = full_.front();
+    full_.pop_front();
+    const auto it = open_.find(e.key);
+    if (it == open_.end()) continue;  // the tile was completed meanwhile
+    Block& b = it->second->blocks[e.block];
+    if (!b.queued) continue;
+    b.queued = false;
+    --fullLive_;
+    if (!spillFile_) spillFile_ = std::make_unique<TempFile>(opt_.tempDir, "dem");
+    const std::uint64_t bytes = b.pixels * pixelBytes_;
+    iov.clear();
+    forBands(b, b, [&iov](auto& band, auto&) {
+      if (!band.empty()) iov.push_back({band.data(), band.size() * sizeof(band[0])});
+    });
+    spillFile_->writeAt(spillEnd_, iov);
+    b.offset = spillEnd_;
+    spillEnd_ += bytes;
+    forBands(b, b, [](auto& band, auto&) { freeBand(band); });
+    b.state = Block::State::Spilled;
+    heldBytes_ -= bytes;
+    stats_.spilledBytes += bytes;
+    ++stats_.spilledBlocks;
+  }
 }
 
 void DemRasterizer::vertex(const MeshVertex& v) {
   std::int64_t i, j;
   if (!opt_.count || tilesX_ == 0 || !pixelAt(layout_, v.x, v.y, i, j)) return;
   const std::int64_t T = layout_.tileSize;
-  Open& o = tileAt(floorDiv(i - layout_.tileCol0, T), floorDiv(j - layout_.tileRow0, T));
-  DemTile& t = o.tile;
-  const std::size_t idx =
-      static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width + static_cast<std::size_t>(i - t.col0);
-  if (t.count[idx] == 0 && t.z[idx] == opt_.nodata) ++o.dataPixels;
-  if (t.count[idx] < 65535) ++t.count[idx];
+  const std::int64_t tx = floorDiv(i - layout_.tileCol0, T), ty = floorDiv(j - layout_.tileRow0, T);
+  Open& o = tileAt(tx, ty);
+  const DemTile& t = o.tile;
+  const std::int64_t r = t.row0 + t.height - 1 - j, c = i - t.col0;
+  Block& b = o.blocks[static_cast<std::size_t>((r >> kBlockShift) * o.blocksX + (c >> kBlockShift))];
+  // (With the count band no block is ever full, so none is spilled.)
+  if (b.state == Block::State::Spilled)
+    throw Error("DEM: internal error: a vertex reached a full block of tile (" + std::to_string(tx) + ", " +
+                std::to_string(ty) + ")");
+  if (b.state == Block::State::Absent) allocate(b);
+  const auto idx = static_cast<std::size_t>((r & kBlockMask) * b.width + (c & kBlockMask));
+  if (b.count[idx] == 0 && b.z[idx] == opt_.nodata) ++o.dataPixels;
+  if (b.count[idx] < 65535) ++b.count[idx];
 }
 
 void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const MeshVertex& vc) {
@@ -307,6 +426,7 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
   }
 
   bool any = false;
+  const bool writes = !tooLong || opt_.edgeLength;  // a pixel left nodata everywhere needs no block
   const std::int64_t T = L.tileSize;
   Open* cur = nullptr;
   std::int64_t curTx = 0, curTy = 0;
@@ -314,6 +434,12 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
   for (std::int64_t j = j0; j <= j1; ++j) {
     const double py = centre(L.originY, L.step, j);
     const std::int64_t ty = floorDiv(j - L.tileRow0, T);
+    // The row's place in the current tile's blocks, worked out once per tile and row.
+    const Open* rowTile = nullptr;
+    std::int64_t rowBlocks = 0, blockRow = 0, blockCol = -1;
+    Block* blk = nullptr;
+    std::uint32_t blockIndex = 0;
+    std::size_t rowStart = 0;
     for (std::int64_t i = i0; i <= i1; ++i) {
       const Point2 p{centre(L.originX, L.step, i), py};
       if (!edgeIncludes(pa, pb, p) || !edgeIncludes(pb, pc, p) || !edgeIncludes(pc, pa, p)) continue;
@@ -324,8 +450,26 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
         curTy = ty;
       }
       DemTile& t = cur->tile;
-      const std::size_t idx = static_cast<std::size_t>(t.row0 + t.height - 1 - j) * t.width +
-                              static_cast<std::size_t>(i - t.col0);
+      if (cur != rowTile) {
+        rowTile = cur;
+        const std::int64_t r = t.row0 + t.height - 1 - j;
+        rowBlocks = (r >> kBlockShift) * cur->blocksX;
+        blockRow = r & kBlockMask;
+        blockCol = -1;
+      }
+      const std::int64_t col = i - t.col0;
+      if ((col >> kBlockShift) != blockCol) {
+        blockCol = col >> kBlockShift;
+        blockIndex = static_cast<std::uint32_t>(rowBlocks + blockCol);
+        blk = &cur->blocks[blockIndex];
+        // A spilled block was full: every pixel centre of it had its triangle already.
+        if (blk->state == Block::State::Spilled)
+          throw Error("DEM: internal error: a triangle reached a full block of tile (" + std::to_string(tx) +
+                      ", " + std::to_string(ty) + ")");
+        rowStart = static_cast<std::size_t>(blockRow * blk->width);
+      }
+      Block& block = *blk;
+      const std::size_t idx = rowStart + static_cast<std::size_t>(col & kBlockMask);
       any = true;
       // Every pixel centre belongs to exactly one triangle: when all of a tile's have theirs, no later
       // triangle can change the tile, so it is complete (at this point of the stream, whatever the
@@ -333,21 +477,27 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
       if (++cur->assigned == static_cast<std::uint64_t>(t.width) * static_cast<std::uint64_t>(t.height) &&
           !opt_.count)
         filled_.push_back(tileKey(curTx, curTy));
-      const bool hadData = t.z[idx] != opt_.nodata || (!t.count.empty() && t.count[idx] > 0) ||
-                           (!t.edgeLength.empty() && t.edgeLength[idx] != opt_.nodata);
+      // (An absent block has nodata and count 0 everywhere.)
+      const bool hadData = block.state == Block::State::InMemory &&
+                           (block.z[idx] != opt_.nodata || (!block.count.empty() && block.count[idx] > 0) ||
+                            (!block.edgeLength.empty() && block.edgeLength[idx] != opt_.nodata));
       if (!hadData) ++cur->dataPixels;
-      if (!t.edgeLength.empty()) t.edgeLength[idx] = edge;
+      if (writes && block.state == Block::State::Absent) allocate(block);
+      // The same rule for a block: once all its pixel centres are claimed, it can be spilled.
+      if (++block.assigned == block.pixels && !opt_.count)
+        blockFull(tileKey(curTx, curTy), blockIndex, block);
+      if (!block.edgeLength.empty()) block.edgeLength[idx] = edge;
       if (tooLong) {
         ++stats_.pixelsMaxEdge;
         continue;
       }
       const double z = a.z + gx * (p.x - a.x) + gy * (p.y - a.y);
-      t.z[idx] = static_cast<float>(z);
+      block.z[idx] = static_cast<float>(z);
       ++t.validPixels;
       ++stats_.pixelsWritten;
-      if (!t.slope.empty()) t.slope[idx] = slope;
-      if (!t.aspect.empty()) t.aspect[idx] = aspect;
-      if (!t.hillshade.empty()) t.hillshade[idx] = shade;
+      if (!block.slope.empty()) block.slope[idx] = slope;
+      if (!block.aspect.empty()) block.aspect[idx] = aspect;
+      if (!block.hillshade.empty()) block.hillshade[idx] = shade;
     }
   }
   if (any) ++stats_.trianglesRasterized;
@@ -356,6 +506,8 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
     ++stats_.tilesCompletedEarly;
     complete(key);
   }
+  // After the writes (the blocks this triangle filled are written) and after the filled tiles are freed.
+  if (opt_.memoryBudget > 0 && heldBytes_ > opt_.memoryBudget) spill();
 }
 
 void DemRasterizer::complete(std::int64_t key) {
@@ -364,12 +516,55 @@ void DemRasterizer::complete(std::int64_t key) {
   if (it == open_.end()) return;
   std::unique_ptr<Open> o = std::move(it->second);
   open_.erase(it);
-  if (o->dataPixels == 0) {
+  const bool empty = o->dataPixels == 0;
+  DemTile& t = o->tile;
+  if (!empty) {
+    const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
+    t.z.assign(n, opt_.nodata);
+    if (opt_.slope) t.slope.assign(n, opt_.nodata);
+    if (opt_.aspect) t.aspect.assign(n, opt_.nodata);
+    if (opt_.edgeLength) t.edgeLength.assign(n, opt_.nodata);
+    if (opt_.hillshade) t.hillshade.assign(n, 0);
+    if (opt_.count) t.count.assign(n, 0);
+  }
+  // Each block into its place in the tile's bands (absent blocks are the defaults above), freed as it goes.
+  const auto tileWidth = static_cast<std::size_t>(t.width);
+  for (std::size_t k = 0; k < o->blocks.size(); ++k) {
+    Block& b = o->blocks[k];
+    if (b.queued) --fullLive_;
+    if (b.state == Block::State::Absent) continue;
+    const std::uint64_t bytes = b.pixels * pixelBytes_;
+    const std::size_t bw = b.width, bh = b.pixels / b.width;
+    const auto x0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) % o->blocksX) << kBlockShift;
+    const auto y0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShift;
+    if (b.state == Block::State::Spilled) {
+      if (!empty) {
+        readBuffer_.resize(static_cast<std::size_t>(bytes));
+        spillFile_->readAt(b.offset, readBuffer_.data(), readBuffer_.size());
+        const unsigned char* src = readBuffer_.data();
+        forBands(t, b, [&](auto& tileBand, auto&) {
+          if (tileBand.empty()) return;
+          placeBlock(tileBand, tileWidth, src, bw, bh, x0, y0);
+          src += b.pixels * sizeof(tileBand[0]);
+        });
+      }
+      spillFile_->discard(b.offset, bytes);
+    } else {
+      forBands(t, b, [&](auto& tileBand, auto& blockBand) {
+        if (!empty && !tileBand.empty())
+          placeBlock(tileBand, tileWidth, reinterpret_cast<const unsigned char*>(blockBand.data()), bw, bh,
+                     x0, y0);
+        freeBand(blockBand);
+      });
+      heldBytes_ -= bytes;
+    }
+  }
+  if (empty) {
     ++stats_.tilesEmpty;
     return;
   }
-  o->tile.partial = opt_.partial && !begun_;  // still open at end(): see DemOptions::partial
-  out_.tile(o->tile);
+  t.partial = opt_.partial && !begun_;  // still open at end(): see DemOptions::partial
+  out_.tile(t);
   ++stats_.tilesWritten;
 }
 

@@ -38,9 +38,24 @@
 // any number of threads.  A write into a completed tile would
 // prove that rule wrong; it throws Error instead of producing a torn raster.  Tiles with no valid pixel
 // are dropped (not written).  end() completes the rest in row-major order.
+//
+// Memory.  A survey swept in rows keeps a whole row of tiles open, so whole-tile arrays would grow with
+// the survey's width.  An open tile therefore holds its bands in blocks of 256 x 256 pixels (clipped at
+// the tile's east and south edges, in the tile's north-up row-major order), allocated when a pixel in
+// them is first written; a block never written stays absent and means nodata (0 for hillshade and count).
+// Each block counts the pixel centres assigned to it: when all have their triangle and there is no count
+// band (a vertex may still add to a pixel of a full block), no later triangle can change the block, and
+// it joins a FIFO of full blocks.  With DemOptions::memoryBudget > 0, whenever the open tiles' blocks in
+// memory exceed the budget, the oldest full blocks are written to one unlinked temporary file and freed,
+// until 3/4 of the budget is reached or no full block is left (blocks still being filled stay in memory:
+// the budget may then be exceeded, never an error).  complete() reads a tile's spilled blocks back and
+// hands over the same DemTile, bit for bit, as without a budget.  DemStats::peakTileBytes is the most
+// block bytes held in memory at once; spilledBytes and spilledBlocks count what went to the file.
 #pragma once
 
+#include <cstddef>
 #include <cstdint>
+#include <deque>
 #include <map>
 #include <memory>
 #include <optional>
@@ -53,6 +68,8 @@
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
+
+class TempFile;
 
 struct DemOptions {
   double step = 1;                   // pixel size, in CRS units
@@ -72,6 +89,8 @@ struct DemOptions {
   // which has its triangle are final here as always.
   bool partial = false;
   const CancelFlag* cancel = nullptr;  // polled while end() completes the tiles left open (core/cancel.h)
+  std::size_t memoryBudget = 0;        // bytes for the open tiles' pixel blocks; 0 = no limit (no spill)
+  std::string tempDir;                 // for the spill file; "" = $TMPDIR, else /tmp
 };
 
 // The raster's geometry, fixed at begin().
@@ -121,8 +140,10 @@ struct DemStats {
   std::uint64_t tilesCompletedEarly = 0;  // tiles handed over before end(): the streaming at work
   std::uint64_t tilesFilled = 0;          // of those, complete because every pixel centre had its triangle
   std::uint64_t maxOpenTiles = 0;
-  std::uint64_t openChecks = 0;  // markOpen scans
-  std::uint64_t peakTileBytes = 0;
+  std::uint64_t openChecks = 0;     // markOpen scans
+  std::uint64_t peakTileBytes = 0;  // most pixel bytes held in memory at once by open tiles' blocks
+  std::uint64_t spilledBytes = 0;   // bytes written to the spill file (DemOptions::memoryBudget)
+  std::uint64_t spilledBlocks = 0;
 };
 
 // Adds the piece `from` of a tile to `into` (the same tile, the same bands).  A pixel centre belongs to one
@@ -186,8 +207,18 @@ class DemRasterizer : public TriangleSink {
   const DemLayout& layout() const { return layout_; }
 
  private:
+  struct Block;
   struct Open;
+  // A full block waiting in memory: its tile's key and its index in the tile (the tile may have been
+  // completed since; such entries are skipped).
+  struct FullBlock {
+    std::int64_t key;
+    std::uint32_t block;
+  };
   Open& tileAt(std::int64_t tx, std::int64_t ty);
+  void allocate(Block& b);
+  void blockFull(std::int64_t key, std::uint32_t index, Block& b);
+  void spill();
   void complete(std::int64_t key);
   std::int64_t tileKey(std::int64_t tx, std::int64_t ty) const;
 
@@ -202,6 +233,13 @@ class DemRasterizer : public TriangleSink {
   DemTileTracker tracker_;
   double lightX_ = 0, lightY_ = 0, lightZ_ = 0;
   bool begun_ = false;
+  std::uint64_t pixelBytes_ = 0;           // bytes of one pixel over all bands
+  std::uint64_t heldBytes_ = 0;            // block bytes in memory, over the open tiles
+  std::deque<FullBlock> full_;             // full blocks in memory, oldest first (with a budget only)
+  std::size_t fullLive_ = 0;               // entries of full_ still in memory and of an open tile
+  std::unique_ptr<TempFile> spillFile_;    // created at the first spill
+  std::uint64_t spillEnd_ = 0;             // next free offset in it
+  std::vector<unsigned char> readBuffer_;  // a spilled block read back
 };
 
 }  // namespace tinbuild

@@ -1200,6 +1200,40 @@ TEST(Finalizer, DefaultDepthFollowsTheOccupiedArea) {
   EXPECT_EQ(checkStream(corridor, b.sink), "");
 }
 
+TEST(Finalizer, TableBudgetCoarsensTheFineTableThenTheLeaves) {
+  // 200k points: default depth 3 (64 cells), fine depth 5.  A table budget that cannot hold the fine
+  // table at depth 5 counts at depth 4, then 3 (one candidate a leaf); one that cannot hold the leaves'
+  // bookkeeping at depth 3 goes to depth 2.  Every stream is valid; the triangles are the same set.
+  auto pts = randomPoints(200000, 5);
+  Result full = finalize(pts, noFilter());
+  ASSERT_EQ(full.stats.grid.depth, 3);
+  EXPECT_EQ(full.stats.fineDepth, 5);
+  FinalizerOptions o = noFilter();
+  // Estimates (kFineCellBytes 80, 4 bytes a dense count, kLeafBytes 160): fine depth 5 (1,024 cells)
+  // 86,016 bytes, 4 (256 cells) 21,504, 3 5,376; the 64 leaves of depth 3 10,240, the 16 of depth 2 2,560.
+  o.tableBudget = 30000;  // fits depth 4's fine table, not depth 5's
+  Result fine4 = finalize(pts, o);
+  EXPECT_EQ(fine4.stats.fineDepth, 4);
+  EXPECT_EQ(fine4.stats.grid.depth, 3);
+  EXPECT_EQ(checkStream(pts, fine4.sink), "");
+  o.tableBudget = 12000;  // the leaves of depth 3 fit; no finer table does: one candidate a leaf
+  Result fine3 = finalize(pts, o);
+  EXPECT_EQ(fine3.stats.fineDepth, 3);
+  EXPECT_EQ(fine3.stats.grid.depth, 3);
+  EXPECT_EQ(checkStream(pts, fine3.sink), "");
+  o.tableBudget = 64 * 160 - 1;  // not even the leaves of depth 3: depth 2, chunks four times as big
+  Result coarse = finalize(pts, o);
+  EXPECT_EQ(coarse.stats.grid.depth, 2);
+  EXPECT_EQ(checkStream(pts, coarse.sink), "");
+  EXPECT_GT(coarse.stats.maxPerCell, 3 * full.stats.maxPerCell);
+  // A depth the user set is kept, whatever the budget.
+  o = noFilter(4);
+  o.tableBudget = 1;
+  Result set = finalize(pts, o);
+  EXPECT_EQ(set.stats.grid.depth, 4);
+  EXPECT_EQ(checkStream(pts, set.sink), "");
+}
+
 // ---- progress and concurrency -----------------------------------------------------------------------------
 
 TEST(Finalizer, ProgressIsMonotonicAndCancels) {

@@ -10,6 +10,7 @@
 #include <map>
 #include <random>
 #include <set>
+#include <string>
 #include <vector>
 
 #include "libterrain/core/diagnostics.h"
@@ -162,7 +163,9 @@ TEST(DemRasterizer, LayoutSnapsToTheGlobalGrid) {
   const DemLayout l3 = demLayout(o, b);
   EXPECT_EQ((l3.rowMax + 1 - l3.tileRow0) % 16, 0);
   EXPECT_EQ(l3.tileCol0, l3.colMin);
-  EXPECT_THROW(demLayout(DemOptions{.step = 0, .extent = {}}, b), UsageError);
+  DemOptions zeroStep;
+  zeroStep.step = 0;
+  EXPECT_THROW(demLayout(zeroStep, b), UsageError);
   DemOptions tiny;
   tiny.step = 1e-9;
   EXPECT_THROW(demLayout(tiny, b), UsageError);
@@ -390,6 +393,166 @@ TEST(DemRasterizer, EndStopsBetweenTilesWhenCancelled) {
   EXPECT_THROW(dem.end(), CancelledError);
   EXPECT_EQ(out.tiles, before + 1);
   EXPECT_FALSE(out.ended);
+}
+
+// The points' bounds shrunk by `margin`: every pixel centre of such an extent lies inside the TIN, so
+// every block fills.
+Box2 innerExtent(const std::vector<PointRecord>& pts, double margin) {
+  Bounds3 b;
+  for (const auto& p : pts) b.add(p.x, p.y, p.z);
+  return Box2{b.minX + margin, b.minY + margin, b.maxX - margin, b.maxY - margin};
+}
+
+// Keeps every tile handed over, whole (checks no tile comes twice).
+struct TileCollector : DemTileSink {
+  std::map<std::pair<std::int64_t, std::int64_t>, DemTile> tiles;
+  void begin(const DemLayout&, const MeshInfo&) override {}
+  void tile(const DemTile& t) override {
+    EXPECT_TRUE(tiles.emplace(std::pair{t.tx, t.ty}, t).second) << "tile handed over twice";
+  }
+  void end() override {}
+};
+
+// Streams `pts` through the triangulator into a rasterizer with options `o`.
+DemStats streamTiles(const std::vector<PointRecord>& pts, const DemOptions& o, TileCollector& out) {
+  VectorStream s(pts);
+  DemRasterizer dem(o, out);
+  MeshTee tee;
+  tee.add(dem);
+  StreamingDelaunay del(tee);
+  Diagnostics diag;
+  finalizePoints({&s}, FinalizerOptions{}, del, diag);
+  return dem.stats();
+}
+
+// Replays a recorded mesh into a non-streaming rasterizer (tiles wait for end() unless filled whole).
+DemStats replayTiles(const MeshRecorder& m, DemOptions o, TileCollector& out) {
+  o.streaming = false;
+  DemRasterizer dem(o, out);
+  dem.begin(m.info);
+  for (const auto& v : m.verts) dem.vertex(v);
+  for (const auto& t : m.tris) dem.triangle(t[0], t[1], t[2]);
+  dem.end();
+  return dem.stats();
+}
+
+// The same tiles, bit for bit: geometry, every band, validPixels and the partial mark.
+void expectSameTiles(const TileCollector& a, const TileCollector& b, const std::string& what) {
+  ASSERT_EQ(a.tiles.size(), b.tiles.size()) << what;
+  for (auto ia = a.tiles.begin(), ib = b.tiles.begin(); ia != a.tiles.end(); ++ia, ++ib) {
+    const DemTile& x = ia->second;
+    const DemTile& y = ib->second;
+    SCOPED_TRACE(what + ", tile " + std::to_string(x.tx) + "," + std::to_string(x.ty));
+    ASSERT_EQ(ia->first, ib->first);
+    EXPECT_EQ(x.col0, y.col0);
+    EXPECT_EQ(x.row0, y.row0);
+    EXPECT_EQ(x.width, y.width);
+    EXPECT_EQ(x.height, y.height);
+    EXPECT_EQ(x.validPixels, y.validPixels);
+    EXPECT_EQ(x.partial, y.partial);
+    EXPECT_TRUE(sameBits(x.z, y.z));
+    EXPECT_TRUE(sameBits(x.slope, y.slope));
+    EXPECT_TRUE(sameBits(x.aspect, y.aspect));
+    EXPECT_TRUE(sameBits(x.edgeLength, y.edgeLength));
+    EXPECT_EQ(x.hillshade, y.hillshade);
+    EXPECT_EQ(x.count, y.count);
+  }
+}
+
+// A budget spills the full blocks of open tiles and reads them back at completion: the tiles are those of
+// a run without a budget, bit for bit.  Tile sizes: one block per tile (64: a full block is a full tile,
+// handed over at once, so nothing is left to spill), a block and a clipped one (300: not a multiple of
+// 256), four blocks a side (1024: the tiles this is for, where far less is held at once).  The raster
+// (about 1500 pixels a side, within the TIN so every block fills) clips the last tiles too.
+TEST(DemRasterizer, MemoryBudgetSpillsFullBlocksWithoutChangingTiles) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
+  for (int tileSize : {64, 300, 1024}) {
+    SCOPED_TRACE("tile size " + std::to_string(tileSize));
+    DemOptions o;
+    o.step = 0.15;
+    o.tileSize = tileSize;
+    o.extent = innerExtent(pts, 2);
+    o.slope = o.aspect = o.hillshade = o.edgeLength = true;
+    o.maxEdge = 1;  // some pixels nodata in every band but edge_length
+    TileCollector unlimited;
+    const DemStats s0 = streamTiles(pts, o, unlimited);
+    ASSERT_GT(unlimited.tiles.size(), 3u);
+    EXPECT_EQ(s0.spilledBlocks, 0u);
+    EXPECT_EQ(s0.spilledBytes, 0u);
+    EXPECT_GT(s0.pixelsMaxEdge, 0u);
+
+    o.memoryBudget = 1;  // every full block is spilled
+    o.tempDir = ::testing::TempDir();
+    TileCollector tiny;
+    const DemStats s1 = streamTiles(pts, o, tiny);
+    expectSameTiles(unlimited, tiny, "budget 1");
+    EXPECT_EQ(s1.pixelsWritten, s0.pixelsWritten);
+    EXPECT_EQ(s1.tilesWritten, s0.tilesWritten);
+    EXPECT_LE(s1.peakTileBytes, s0.peakTileBytes);
+    if (tileSize < 256) {
+      EXPECT_EQ(s1.spilledBlocks, 0u);
+      continue;
+    }
+    EXPECT_GT(s1.spilledBlocks, 0u);
+    EXPECT_GE(s1.spilledBytes, s1.spilledBlocks * 17u);  // z, slope, aspect, edge_length, hillshade
+    if (tileSize < 1000) continue;
+    EXPECT_LT(s1.peakTileBytes * 2, s0.peakTileBytes);
+
+    // A budget between the two: some blocks spill, some stay.
+    o.memoryBudget = static_cast<std::size_t>(s0.peakTileBytes / 2);
+    TileCollector half;
+    const DemStats s2 = streamTiles(pts, o, half);
+    expectSameTiles(unlimited, half, "half budget");
+    EXPECT_GT(s2.spilledBlocks, 0u);
+    EXPECT_LE(s2.spilledBlocks, s1.spilledBlocks);
+  }
+}
+
+// Without streaming every tile not filled whole waits for end(): the most spilled data, all read back
+// there.  Also in a part of a plan (the tiles handed over partial).
+TEST(DemRasterizer, MemoryBudgetWithoutStreaming) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000, 5);
+  DemOptions o;
+  o.step = 0.15;
+  o.tileSize = 600;
+  o.extent = innerExtent(pts, 2);
+  o.slope = o.aspect = o.hillshade = o.edgeLength = true;
+  DemRun run;
+  runStreaming(pts, o, run);
+  for (bool partial : {false, true}) {
+    SCOPED_TRACE(partial ? "partial" : "whole");
+    o.partial = partial;
+    o.memoryBudget = 0;
+    TileCollector unlimited, tiny;
+    const DemStats s0 = replayTiles(run.mesh, o, unlimited);
+    o.memoryBudget = 1;
+    const DemStats s1 = replayTiles(run.mesh, o, tiny);
+    ASSERT_GT(unlimited.tiles.size(), 3u);
+    expectSameTiles(unlimited, tiny, "budget 1");
+    EXPECT_GT(s1.spilledBlocks, 0u);
+    EXPECT_LT(s1.peakTileBytes, s0.peakTileBytes);
+  }
+}
+
+// With the count band no block is ever full (a vertex may still come), so nothing spills, whatever the
+// budget; the tiles are the same.
+TEST(DemRasterizer, MemoryBudgetNeverSpillsTheCountBand) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
+  for (int tileSize : {64, 300}) {
+    DemOptions o;
+    o.step = 0.25;
+    o.tileSize = tileSize;
+    o.count = o.slope = o.hillshade = true;
+    TileCollector unlimited, tiny;
+    const DemStats s0 = streamTiles(pts, o, unlimited);
+    o.memoryBudget = 1;
+    const DemStats s1 = streamTiles(pts, o, tiny);
+    ASSERT_GT(unlimited.tiles.size(), 3u);
+    expectSameTiles(unlimited, tiny, "count band, tile size " + std::to_string(tileSize));
+    EXPECT_EQ(s1.spilledBlocks, 0u);
+    EXPECT_EQ(s1.spilledBytes, 0u);
+    EXPECT_EQ(s1.peakTileBytes, s0.peakTileBytes);
+  }
 }
 
 TEST(VertexTable, InsertFindEraseUnderChurn) {
