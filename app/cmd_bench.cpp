@@ -33,10 +33,15 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--side", "S", "lattice-vs-random: lattice side, S x S points (default 1000)"},
       {"--seed", "S", "generator seed (default 1)"},
       {"--input", "LAS", "threads: the survey to measure (default: the demo's four-strip survey of --points)"},
-      {"--keep-class", "LIST", "threads: the classes triangulated (default for the demo survey: 2,9)"},
+      {"--keep-class", "LIST",
+       "threads, parts, scale: the classes triangulated (default for the demo survey: 2,9)"},
       {"--list", "T,T,...",
-       "threads: the thread counts measured, starting with 1 (default 1,2,4,8); parts: the rank counts (1,2,4)"},
-      {"--step", "R", "parts: the DEM's pixel size (default 1)"},
+       "threads: the thread counts measured, starting with 1 (default 1,2,4,8); parts: the rank counts "
+       "(1,2,4); scale: the sizes in millions of points (10,100)"},
+      {"--tile-points", "M",
+       "scale: millions of points a tile: the demo writes round(sqrt(size / M))^2 tiles (default 10)"},
+      {"--no-verify", "", "scale: the mesh goes to /dev/null instead of into tinbuild verify"},
+      {"--step", "R", "parts: the DEM's pixel size (default 1); scale: (default 2)"},
       {"--ponds", "P", "hydro: water polygons drawn over the survey besides its river (default 40)"},
       {"--roads", "R", "hydro: roads as hard breaklines (default 12)"},
       {"--no-cgal", "", "skip the CGAL runs"},
@@ -45,7 +50,7 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
       {"--threads", "N",
        "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
-      {"--memory", "MB", "finalize: the finalizer's memory budget (tinbuild finalize --memory)"},
+      {"--memory", "MB", "finalize, scale: the run's memory budget (tinbuild finalize/build --memory)"},
       {"--stored-order", "", "finalize: pass 3 reads the file in its stored order (finalize --stored-order)"},
       {"--cold", "", "finalize: the raw read and every pass read from storage (finalize --drop-cache)"},
       {"--tiles", "K", "finalize: the survey as K x K tile files named in a shuffled order"},
@@ -154,6 +159,8 @@ Command benchCommand() {
       "       tinbuild bench parts [--input LAS] [--points N] [--keep-class LIST] [--list 1,2,4] [--step R]\n"
       "                      [--repeat R] [--no-cgal] [--dir DIR] [--keep]\n"
       "       tinbuild bench hydro [--points N] [--ponds P] [--roads R] [--repeat R] [--dir DIR] [--keep]\n"
+      "       tinbuild bench scale [--list 10,100,1000] [--tile-points 10] [--memory MB] [--keep-class 2,9]\n"
+      "                      [--step 2] [--repeat R] [--no-verify] [--dir DIR] [--keep]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -179,6 +186,11 @@ Command benchCommand() {
       "bench hydro: the same build (mesh and 1 m DEM of the four-strip survey, --points default 10M) with and\n"
       "without hydro-flattening (ponds drawn over it, its river and centreline, roads as breaklines), median\n"
       "of R alternating rounds (default 3): time and peak RSS ratios, vertices added, points left out.\n"
+      "bench scale: for each size of --list (millions of points, default 10,100) the demo's survey as LAZ\n"
+      "tiles of about --tile-points million points (untimed, deleted before the next size), built to a\n"
+      "DEM with the mesh piped into `tinbuild verify -`, R rounds (default 1): median wall time and\n"
+      "points/s, peak RSS (wait4) and peak anonymous memory (/proc, every 100 ms), width, spool, DEM peak\n"
+      "and spill, verify's result and RSS, and how RSS and time per point grow from size to size.\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

@@ -1,4 +1,8 @@
+#include <sys/resource.h>
+
+#include <algorithm>
 #include <chrono>
+#include <cstdio>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -26,6 +30,7 @@ namespace {
 // What the demo's own options bind to.
 struct DemoSettings {
   int millions = 2;
+  int tiles = 0;  // 0: one file
   double swath = 500;
   bool homeStrip = false, las = false, copc = false, surveyOnly = false;
   std::optional<int> pointFormat;
@@ -49,6 +54,10 @@ const cli::OptionTable<DemoSettings>& demoTable() {
         .integer(0, 8, [](D& d, int f) { d.pointFormat = f; });
     t.flag("--copc", "write the survey as COPC (survey.copc.laz: an octree of LAZ chunks) instead of LAZ")
         .set([](D& d) { d.copc = true; });
+    t.option("--tiles", "N",
+             "write the survey as N x N square tiles DIR/tiles/tile_RR_CC.laz (row from the south, column "
+             "from the west; 1-64)")
+        .integer(1, 64, [](D& d, int n) { d.tiles = n; });
     t.flag("--survey-only", "write the survey and stop (benchmark inputs)").set([](D& d) {
       d.surveyOnly = true;
     });
@@ -92,6 +101,134 @@ void writeDemoFeatures(const SurveyFeatures& f, const std::filesystem::path& dir
   write("roads.geojson", road + "]}");
 }
 
+// What writeSurveyTiles wrote: the tile files (row by row from the south), their bytes, the grid.
+struct SurveyTiles {
+  std::vector<std::string> files;
+  std::uint64_t bytes = 0;
+  double originX = 0, originY = 0, side = 0;  // the south-west corner and the side of a tile
+};
+
+// tile_RR_CC.laz (or .las): row from the south, column from the west, two digits (three beyond 99).
+std::string tileName(int n, int row, int column, bool laz) {
+  char name[48];
+  const int digits = n > 99 ? 3 : 2;
+  std::snprintf(name, sizeof name, "tile_%0*d_%0*d.%s", digits, row, digits, column, laz ? "laz" : "las");
+  return name;
+}
+
+// A name tileName() could make for some grid (an earlier run's tile): tile_RR_CC.las or .laz with two
+// or three digits each.
+bool isTileName(const std::string& name) {
+  const auto digits = [&name](std::size_t at) {
+    std::size_t end = at;
+    while (end < name.size() && name[end] >= '0' && name[end] <= '9') ++end;
+    return end - at;
+  };
+  if (name.rfind("tile_", 0) != 0) return false;
+  const std::size_t row = digits(5);
+  if ((row != 2 && row != 3) || 5 + row >= name.size() || name[5 + row] != '_') return false;
+  const std::size_t column = digits(6 + row);
+  const std::string rest = name.substr(6 + row + column);
+  return (column == 2 || column == 3) && (rest == ".laz" || rest == ".las");
+}
+
+// The survey as an agency delivers it: an n x n grid of square tiles over the generator's xy bounds (known
+// before the first point), of side max(width, height) / n from the south-west corner, each tile a file
+// in `dir` holding its points in generation (flight-line) order.  A tile's ranges are half-open,
+// [edge, next edge), the last row and column closed, so a point on an edge goes to exactly one tile.
+// Every writer stays open until the last point is written and is closed only then: a cancelled or failed
+// run destroys them unclosed, which removes their temporary files, so no tile is renamed into place; a
+// failure or a cancel while closing removes the tiles already closed.  A tile that gets no point is not
+// written.  `progress` as writeSyntheticSurveyLas's.
+SurveyTiles writeSurveyTiles(const SurveySpec& spec, const std::filesystem::path& dir, int n,
+                             const LasWriterOptions& options, int (*progress)(double, const char*, void*),
+                             void* progressData) {
+  SurveyGenerator generator(spec);
+  LasWriterOptions o = options;
+  for (int a = 0; a < 3; ++a) o.scale[a] = spec.quantum;  // every coordinate stored exactly
+  o.offset[0] = spec.originX;
+  o.offset[1] = spec.originY;
+  o.offset[2] = spec.originZ;
+  o.systemIdentifier = "tinbuild synthetic survey";
+  const auto count = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
+  // All n^2 writers are open at once: each holds a buffer (LAS) or one chunk of points (LAZ, 50,000
+  // records by default), which for a fine grid would take gigabytes.  LAS buffers shrink to 64 KiB
+  // (same bytes written); LAZ chunks shrink so that all of them hold at most 512 MiB (at least 5,000
+  // points a chunk: a chunk restarts the coder, so small ones compress worse), which keeps 50,000
+  // up to 19 x 19 tiles.  A LAZ writer's coder models take about 0.6 MiB more (measured: 10 x 10 tiles
+  // peak at 0.25 GiB, 19 x 19 at 0.8 GiB, 64 x 64 at 3.1 GiB).
+  o.bufferBytes = std::size_t{64} << 10;
+  if (o.laz && o.lazChunkSize > 0) {
+    const std::uint64_t budget = (std::uint64_t{512} << 20) /
+                                 (count * static_cast<std::uint64_t>(LasWriter::recordLength(o.pointFormat)));
+    o.lazChunkSize = static_cast<std::uint32_t>(std::clamp<std::uint64_t>(budget, 5000, o.lazChunkSize));
+  }
+  // One descriptor a tile: raise the soft limit when it is too low for the grid.
+  rlimit files{};
+  const rlim_t needed = static_cast<rlim_t>(count) + 64;
+  if (getrlimit(RLIMIT_NOFILE, &files) == 0 && files.rlim_cur != RLIM_INFINITY && files.rlim_cur < needed) {
+    if (files.rlim_max != RLIM_INFINITY && files.rlim_max < needed)
+      throw UsageError("demo: --tiles " + std::to_string(n) + " keeps " + std::to_string(count) +
+                       " files open at once; the open-file limit is " + std::to_string(files.rlim_max) +
+                       " (ulimit -n): give fewer tiles");
+    files.rlim_cur = needed;
+    setrlimit(RLIMIT_NOFILE, &files);
+  }
+
+  SurveyTiles out;
+  const Bounds3 b = generator.bounds();
+  out.originX = b.minX;
+  out.originY = b.minY;
+  out.side = std::max(b.maxX - b.minX, b.maxY - b.minY) / n;
+  // The n - 1 inner edges of each axis; a coordinate's tile is the number of them at or below it.
+  std::vector<double> xEdges, yEdges;
+  for (int i = 1; i < n; ++i) {
+    xEdges.push_back(b.minX + out.side * i);
+    yEdges.push_back(b.minY + out.side * i);
+  }
+  const auto tileOf = [&](const PointRecord& p) {
+    const auto index = [](const std::vector<double>& edges, double v) {
+      return static_cast<std::size_t>(std::upper_bound(edges.begin(), edges.end(), v) - edges.begin());
+    };
+    return index(yEdges, p.y) * static_cast<std::size_t>(n) + index(xEdges, p.x);
+  };
+  std::vector<std::unique_ptr<LasWriter>> writers(count);
+  std::vector<PointRecord> batch(std::size_t{1} << 16);
+  const char* message = "synthesizing survey tiles";
+  if (progress && !progress(0.0, message, progressData)) throw CancelledError();
+  const double total = static_cast<double>(std::max<std::uint64_t>(1, generator.total()));
+  for (std::size_t k; (k = generator.next(batch.data(), batch.size())) > 0;) {
+    // Runs of consecutive points in one tile (parts of scan lines) go to its writer as they are.
+    for (std::size_t i = 0, end; i < k; i = end) {
+      const std::size_t t = tileOf(batch[i]);
+      for (end = i + 1; end < k && tileOf(batch[end]) == t;) ++end;
+      if (!writers[t]) {
+        const int row = static_cast<int>(t) / n, column = static_cast<int>(t) % n;
+        writers[t] = std::make_unique<LasWriter>((dir / tileName(n, row, column, o.laz)).string(), o);
+      }
+      writers[t]->write(batch.data() + i, end - i);
+    }
+    if (progress &&
+        !progress(static_cast<double>(generator.produced()) / total * 0.999, message, progressData))
+      throw CancelledError();  // the writers' destructors remove their temporary files
+  }
+  try {
+    for (std::size_t t = 0; t < count; ++t) {
+      if (!writers[t]) continue;
+      if (progress && !progress(0.999, message, progressData)) throw CancelledError();
+      writers[t]->close();
+      out.files.push_back(writers[t]->path());
+      out.bytes += std::filesystem::file_size(out.files.back());
+    }
+  } catch (...) {
+    std::error_code ec;
+    for (const auto& f : out.files) std::filesystem::remove(f, ec);
+    throw;
+  }
+  if (progress) progress(1.0, message, progressData);
+  return out;
+}
+
 int runDemo(const cli::ParsedArgs& args) {
   if (args.positional.size() > 1) throw UsageError("demo: at most one output directory");
   const std::filesystem::path dir = args.positional.empty() ? "tinbuild-demo" : args.positional[0];
@@ -119,9 +256,18 @@ int runDemo(const cli::ParsedArgs& args) {
                                   : writeLaz    ? "survey.laz"
                                                 : "survey.las"))
                               .string();
+  // --tiles: the survey as an agency delivers it, square tiles in DIR/tiles (writeSurveyTiles).
+  const std::filesystem::path tilesDir = dir / "tiles";
+  if (d.tiles > 0 && writeCopcFile)
+    throw UsageError("demo: --tiles and --copc exclude each other (tiles are LAZ, or LAS with --las)");
   ProgressDisplay progress(parseProgressMode(d.progress, false));
   installCancelHandlers();
-  std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las << std::endl;
+  if (d.tiles > 0)
+    std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to "
+              << tilesDir.string() << " as " << d.tiles << " x " << d.tiles << " tiles" << std::endl;
+  else
+    std::cout << "tinbuild demo: writing a synthetic " << millions << "M-point survey to " << las
+              << std::endl;
   LasWriterOptions lo;
   lo.versionMinor = 4;
   lo.pointFormat = 1;
@@ -132,6 +278,7 @@ int runDemo(const cli::ParsedArgs& args) {
   if (lo.pointFormat >= 4 && lo.pointFormat <= 5)
     throw UsageError("demo: --point-format takes 0-3 or 6-8 (formats with waveforms are not synthesized)");
   if (writeCopcFile && lo.pointFormat < 6) throw UsageError("demo: COPC holds point formats 6-8 only");
+  SurveyTiles tiles;
   if (lo.pointFormat >= 6) lo.wkt = crsFromUser("EPSG:32610+5703").wkt;  // formats 6-10 carry WKT only
   if (writeCopcFile) {
     // COPC: the octree is built in memory (32 bytes a point), then written node by node.
@@ -156,23 +303,47 @@ int runDemo(const cli::ParsedArgs& args) {
               << std::chrono::duration<double>(synthesized - start).count() << " s, written in "
               << std::chrono::duration<double>(std::chrono::steady_clock::now() - synthesized).count() << " s"
               << std::endl;
+  } else if (d.tiles > 0) {
+    std::filesystem::create_directories(tilesDir, ec);
+    if (ec) throw DataError(tilesDir.string(), "cannot create the tiles directory: " + ec.message());
+    tiles = writeSurveyTiles(spec, tilesDir, d.tiles, lo, ProgressDisplay::callback, &progress);
   } else {
     writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   }
   progress.finish();
+  if (d.tiles > 0) {
+    // An earlier run's tiles of another grid or format would be read with these (tiles/*.laz): remove them.
+    std::size_t stale = 0;
+    for (const auto& e : std::filesystem::directory_iterator(tilesDir)) {
+      const std::string name = e.path().filename().string();
+      if (isTileName(name) &&
+          std::find(tiles.files.begin(), tiles.files.end(), e.path().string()) == tiles.files.end())
+        stale += std::filesystem::remove(e.path(), ec);
+    }
+    std::cout << "tinbuild demo: wrote " << tiles.files.size() << " tile files (" << d.tiles << " x "
+              << d.tiles << " squares of " << formatDouble("%.17g", tiles.side) << " m from "
+              << formatDouble("%.17g", tiles.originX) << ", " << formatDouble("%.17g", tiles.originY)
+              << "; a tile without points is not written), " << withCommas(tiles.bytes) << " bytes in "
+              << tilesDir.string() << (stale ? "; removed " + std::to_string(stale) + " older tiles" : "")
+              << std::endl;
+  }
   // The river and the road, digitised as a surveyor would (GeoJSON in the survey's CRS): the river's
   // water polygon and its centreline hydro-flatten the DEM, the road's crest is a hard breakline.
   writeDemoFeatures(SurveyGenerator(spec).features(5.0), dir);
+  // The survey's files: the one file, or the tiles row by row from the south.
+  const std::vector<std::string> inputs = d.tiles > 0 ? tiles.files : std::vector<std::string>{las};
+  const std::string surveyText =
+      d.tiles > 0 ? (tilesDir / (writeLaz ? "tile_*.laz" : "tile_*.las")).string() : las;
   if (d.surveyOnly) {
-    std::cout << "tinbuild demo: wrote " << las
-              << " and its river and road (water.geojson, flow.geojson, roads.geojson; --survey-only: nothing "
-                 "else)"
+    std::cout << "tinbuild demo: wrote " << surveyText
+              << " and its river and road (water.geojson, flow.geojson, roads.geojson; --survey-only: "
+                 "nothing else)"
               << std::endl;
     return 0;
   }
 
   InfoOptions info;
-  info.inputs = {las};
+  info.inputs = inputs;
   Diagnostics diag;
   diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
   InfoReport report = inspectSurvey(info, diag);
@@ -181,7 +352,9 @@ int runDemo(const cli::ParsedArgs& args) {
 
   // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
   // Parsed from the words of a `tinbuild build` command line by the build's own table.
-  PipelineArgs parsed = parseBuildWords(demoBuildWords(las, dir));
+  std::vector<std::string> words = demoBuildWords(inputs.front(), dir);
+  words.insert(words.begin() + 1, inputs.begin() + 1, inputs.end());
+  PipelineArgs parsed = parseBuildWords(words);
   PipelineOptions& build = parsed.options;
   build.overwrite = parsed.run.overwrite;
   build.finalizer.progress = ProgressDisplay::callback;
@@ -197,15 +370,17 @@ int runDemo(const cli::ParsedArgs& args) {
   writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png,
                     1024, build.contoursOutput);
   std::cout << "\ntinbuild demo: verifying the TIN (tinbuild verify " << build.meshOutput << " --points "
-            << las << ")\n";
+            << surveyText << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
   std::cout << formatVerifyText(check);
 
   std::cout
       << "\nwritten in " << dir.string() << ":\n"
-      << (writeCopcFile ? "  survey.copc.laz     the survey (COPC: LAZ 1.4 chunks of an octree)\n"
-          : writeLaz    ? "  survey.laz          the survey (LAZ: LAS 1.4, point format 1, compressed)\n"
-                        : "  survey.las          the survey (LAS 1.4, point format 1)\n")
+      << (d.tiles > 0
+              ? "  tiles/tile_*        the survey as square tiles (tile_ROW_COLUMN, from the south-west)\n"
+          : writeCopcFile ? "  survey.copc.laz     the survey (COPC: LAZ 1.4 chunks of an octree)\n"
+          : writeLaz      ? "  survey.laz          the survey (LAZ: LAS 1.4, point format 1, compressed)\n"
+                          : "  survey.las          the survey (LAS 1.4, point format 1)\n")
       << "  survey-info.json    `tinbuild info --json` of it\n"
       << "  tin.smb             the bare-earth TIN (ground and water points) as a binary streaming mesh\n"
       << "  tin.gpkg            the TIN as a GeoPackage layer of triangles (open it in QGIS)\n"
@@ -229,7 +404,10 @@ Command demoCommand() {
       "vegetation, water and noise classes, duplicates; WGS 84 / UTM 10N with NAVD88 heights) as LAZ in\n"
       "DIR (default ./tinbuild-demo), reports on it with `info`, runs `build` to a TIN (streaming mesh\n"
       "and GeoPackage), 1 m contours and a 1 m DEM with hillshade, draws a PNG quick-look, and verifies the "
-      "TIN.",
+      "TIN.\n"
+      "--tiles N writes the survey as an agency delivers it: an N x N grid of square tiles over its area,\n"
+      "DIR/tiles/tile_RR_CC.laz (row from the south, column from the west), each holding its points in\n"
+      "flight-line order; the build then reads them all.",
       demoTable().specs(),
       runDemo};
 }

@@ -185,12 +185,13 @@ struct ParallelDelaunay::Impl {
     mergeCv.wait(lock);
     mergerWaiting = false;
   }
-  std::size_t queuedPoints = 0;
+  std::size_t queuedPoints = 0;  // records the queued input's buffers hold (their capacity: the memory)
   std::size_t bufferedBytes = 0;
   // Recycled buffers (guarded by mutex): new ones would cost page faults on every hand-over.
   std::vector<std::vector<std::uint64_t>> spareWords;
   std::vector<std::vector<PointRecord>> sparePoints;
   static constexpr std::size_t kSpares = 16;
+  static constexpr std::size_t kSpareMinPoints = 256;
 
   struct Combined : ActiveRegion {
     const Impl& impl;
@@ -343,13 +344,15 @@ struct ParallelDelaunay::Impl {
         InItem item;
         item.kind = InItem::kPoints;
         item.seq = tagsDispatched;
-        queued += j - i;
         std::lock_guard<std::mutex> lock(mutex);
-        if (!sparePoints.empty()) {
+        // A recycled buffer only for a chunk: sprinkle points come in runs of one or two, and a run of one
+        // in a buffer sized for a chunk would hold its whole capacity in the queue.
+        if (j - i >= kSpareMinPoints && !sparePoints.empty()) {
           item.points = std::move(sparePoints.back());
           sparePoints.pop_back();
         }
         item.points.assign(p + i, p + j);
+        queued += item.points.capacity();
         r.in.push_back(std::move(item));
       }
       i = j;
@@ -513,10 +516,10 @@ struct ParallelDelaunay::Impl {
       for (InItem& item : items) {
         if (item.kind == InItem::kPoints) {
           r.tri->points(item.points.data(), item.points.size());
-          const std::size_t n = item.points.size();
+          const std::size_t n = item.points.capacity();
           std::lock_guard<std::mutex> g(mutex);
           queuedPoints -= n;
-          if (sparePoints.size() < kSpares && item.points.capacity() <= (std::size_t{1} << 14)) {
+          if (sparePoints.size() < kSpares && n >= kSpareMinPoints && n <= (std::size_t{1} << 14)) {
             item.points.clear();
             sparePoints.push_back(std::move(item.points));
           }

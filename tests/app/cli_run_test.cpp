@@ -21,7 +21,9 @@
 #include <string>
 #include <vector>
 
+#include "formats/pointcloud/las_reader.h"
 #include "formats/pointcloud/las_writer.h"
+#include "libterrain/core/diagnostics.h"
 #include "libterrain/synthetic/synthetic_survey.h"
 #include "cli_support.h"
 #include "test_support.h"
@@ -507,6 +509,113 @@ TEST(CliRun, DemoWritesEveryProductAndVerifies) {
     EXPECT_TRUE(fs::exists(out / "demo" / f)) << f;
   EXPECT_EQ(slurp(out / "demo" / "dem.png").substr(1, 3), "PNG");
   EXPECT_NE(slurp(out / "demo" / "build-report.json").find("\"tiles_written\""), std::string::npos);
+}
+
+// `demo --tiles 3` writes the survey as an agency delivers it, LAZ and (--las) LAS: 3 x 3 square tiles over
+// the generator's bounds, tile_RR_CC from the south-west, every point in exactly one tile (the counts sum
+// to the survey's) and each tile's header bounds inside its half-open square.  Built together, the tiles
+// give the TIN of the single file, but not its bytes: the finalizer's stream follows the input files (its
+// read order, and the order of the points within a cell, change with the tiling), so the TIN is checked
+// by `verify --points` of every tile and its vertex and triangle counts against the single file's.
+TEST(CliRun, DemoTilesHoldEveryPointOnceInTheirSquares) {
+  const auto out = test::scratchDir();
+  SurveySpec spec;  // the demo's survey (app/cmd_demo.cpp): the grid covers its bounds
+  spec.points = 1000000;
+  spec.seed = 2006;
+  spec.swath = 500;
+  const Bounds3 area = SurveyGenerator(spec).bounds();
+  const double side = std::max(area.maxX - area.minX, area.maxY - area.minY) / 3;
+  auto counts = [](const std::string& json) {
+    const auto at = json.find("\"triangulation\"");
+    const auto number = [&](const std::string& key) {
+      const auto k = json.find("\"" + key + "\": ", at);
+      return json.substr(k, json.find(',', k) - k);
+    };
+    return number("vertices") + ", " + number("triangles");
+  };
+  auto one = tinbuild("demo " + (out / "one").string() + " --points 1 --survey-only --progress none");
+  ASSERT_EQ(one.code, 0) << one.err;
+  auto y = tinbuild("build " + (out / "one" / "survey.laz").string() + " --keep-class 2,9 --mesh " +
+                    (out / "y.smb").string() + " -q --report " + (out / "y.json").string());
+  ASSERT_EQ(y.code, 0) << y.err;
+  for (const std::string ext : {"laz", "las"}) {
+    const fs::path dir = out / ext;
+    auto r = tinbuild("demo " + dir.string() + " --points 1 --survey-only --tiles 3 --progress none" +
+                      (ext == "las" ? " --las" : ""));
+    ASSERT_EQ(r.code, 0) << r.out << r.err;
+    EXPECT_NE(r.out.find("wrote 9 tile files"), std::string::npos) << r.out;
+    std::vector<std::string> names;
+    std::string tiles, points;
+    std::uint64_t total = 0;
+    for (int row = 0; row < 3; ++row)
+      for (int column = 0; column < 3; ++column) {
+        const std::string name = "tile_0" + std::to_string(row) + "_0" + std::to_string(column) + "." + ext;
+        names.push_back(name);
+        const std::string path = (dir / "tiles" / name).string();
+        tiles += " " + path;
+        points += " --points " + path;
+        ASSERT_TRUE(fs::exists(path)) << path;
+        Diagnostics diag;
+        LasReader reader(path, diag);
+        const SourceInfo& info = reader.info();
+        EXPECT_EQ(info.format, ext == "laz" ? "LAZ" : "LAS") << path;
+        EXPECT_GT(info.pointCount, 0u) << path;
+        total += info.pointCount;
+        // Half-open squares: at or beyond the tile's south and west edges, short of its north and east
+        // ones; the last row and column are closed at the survey's bounds.
+        const Bounds3& b = info.headerBounds;
+        EXPECT_GE(b.minX, area.minX + side * column) << path;
+        EXPECT_GE(b.minY, area.minY + side * row) << path;
+        if (column < 2)
+          EXPECT_LT(b.maxX, area.minX + side * (column + 1)) << path;
+        else
+          EXPECT_LE(b.maxX, area.maxX) << path;
+        if (row < 2)
+          EXPECT_LT(b.maxY, area.minY + side * (row + 1)) << path;
+        else
+          EXPECT_LE(b.maxY, area.maxY) << path;
+      }
+    EXPECT_EQ(total, 1000000u);
+    EXPECT_EQ(listDir(dir / "tiles"), names) << "no other file (no temporary one) in the tiles directory";
+    const std::string mesh = (out / ("x-" + ext + ".smb")).string();
+    const std::string report = (out / ("x-" + ext + ".json")).string();
+    auto x = tinbuild("build" + tiles + " --keep-class 2,9 --mesh " + mesh + " -q --report " + report);
+    ASSERT_EQ(x.code, 0) << x.err;
+    EXPECT_EQ(counts(slurp(report)), counts(slurp(out / "y.json")));
+    auto v = tinbuild("verify " + mesh + points + " --keep-class 2,9");
+    EXPECT_EQ(v.code, 0) << v.out << v.err;
+    EXPECT_NE(v.out.find("verify: OK"), std::string::npos) << v.out;
+  }
+  auto copc = tinbuild("demo " + (out / "copc").string() + " --points 1 --survey-only --tiles 2 --copc");
+  EXPECT_EQ(copc.code, 2);
+  EXPECT_NE(copc.err.find("--tiles and --copc"), std::string::npos) << copc.err;
+}
+
+// Ctrl-C while the tiles are being written: exit code 3 and not one tile file left, neither a temporary
+// one nor a tile renamed into place (every writer is closed only after the last point).
+TEST(CliRun, DemoTilesCancelledLeaveNoTile) {
+  const auto out = test::scratchDir();
+  const fs::path tiles = out / "demo" / "tiles";
+  Child c = spawnTinbuild({"demo", (out / "demo").string(), "--points", "20", "--survey-only", "--tiles", "3",
+                           "--progress=none"});
+  ASSERT_NE(c.err, nullptr);
+  // Signalled once the first tiles exist under their temporary names (or after ten seconds at most).
+  bool seen = false;
+  for (int i = 0; i < 1000 && !seen; ++i) {
+    seen = fs::exists(tiles) && !listDir(tiles).empty();
+    if (!seen) ::usleep(10000);
+  }
+  ::kill(c.pid, SIGINT);
+  std::string err;
+  char line[4096];
+  while (std::fgets(line, sizeof line, c.err)) err += line;
+  std::fclose(c.err);
+  int status = 0;
+  ASSERT_EQ(::waitpid(c.pid, &status, 0), c.pid);
+  EXPECT_TRUE(seen) << "no temporary tile appeared";
+  ASSERT_TRUE(WIFEXITED(status)) << err;
+  EXPECT_EQ(WEXITSTATUS(status), 3) << err;
+  EXPECT_EQ(listDir(tiles), std::vector<std::string>{}) << err;
 }
 
 // `tinbuild bench finalize` (forwarded to tinbuild-bench, built when CGAL is installed): a small survey,

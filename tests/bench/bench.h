@@ -26,6 +26,24 @@ struct ChildRun {
 // otherwise.  Throws BenchError when the child cannot be started, is killed or exits non-zero.
 ChildRun runChild(const std::string& exe, const std::vector<std::string>& args, bool captureStdout);
 
+// A program piped into another, both measured by the parent (runPipeline).
+struct PipelineRun {
+  ChildRun producer;                    // fork to its wait4 and its own ru_maxrss; output not captured
+  std::int64_t producerPeakAnonKb = 0;  // the largest RssAnon read from its /proc/PID/status
+  int samples = 0;                      // how many times RssAnon was read
+  bool consumed = false;                // a consumer ran
+  ChildRun consumer;                    // its ru_maxrss and captured stdout (seconds: fork to its wait4)
+  int consumerExit = 0;                 // its exit code, or 128 + the signal that killed it
+};
+
+// Runs `exe producerArgs` with stdout piped into `exe consumerArgs`, whose stdout is captured (stdout to
+// /dev/null when consumerArgs is empty), and reads the producer's anonymous resident memory (RssAnon,
+// the heap and stacks without file pages) from /proc every sampleMs while it runs: ru_maxrss counts the
+// file pages it maps as well.  stdin and stderr are inherited.  Throws BenchError when a child cannot be
+// started or the producer fails; the consumer's failure is a result (consumerExit, its output).
+PipelineRun runPipeline(const std::string& exe, const std::vector<std::string>& producerArgs,
+                        const std::vector<std::string>& consumerArgs, int sampleMs);
+
 // The running executable (readlink /proc/self/exe).
 std::string selfExecutable();
 

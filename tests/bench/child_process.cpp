@@ -1,9 +1,13 @@
 // Child processes (fork + execv + wait4) and command-line helpers for tinbuild-bench.
+#include <fcntl.h>
+#include <poll.h>
 #include <sys/resource.h>
 #include <sys/types.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include <algorithm>
+#include <atomic>
 #include <cerrno>
 #include <chrono>
 #include <cmath>
@@ -11,6 +15,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
+#include <thread>
 
 #include "tests/bench/bench.h"
 
@@ -85,6 +90,154 @@ ChildRun runChild(const std::string& exe, const std::vector<std::string>& args, 
                      commandLine(exe, args));
   run.seconds = std::chrono::duration<double>(stop - start).count();
   run.maxRssKb = usage.ru_maxrss;
+  return run;
+}
+
+namespace {
+
+// argv for execv: the strings stay in `store`.
+std::vector<char*> argvOf(const std::string& exe, const std::vector<std::string>& args,
+                          std::vector<std::string>& store) {
+  store.assign(1, exe);
+  store.insert(store.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : store) argv.push_back(a.data());
+  argv.push_back(nullptr);
+  return argv;
+}
+
+// In a forked child: only async-signal-safe calls until execv.
+[[noreturn]] void execChild(const std::string& exe, std::vector<char*>& argv) {
+  execv(exe.c_str(), argv.data());
+  const char msg[] = "tinbuild-bench: error: execv failed\n";
+  ssize_t ignored = write(STDERR_FILENO, msg, sizeof msg - 1);
+  (void)ignored;
+  _exit(127);
+}
+
+// The "RssAnon:" of a /proc/PID/status held open (KiB), -1 once the process has exited (a zombie has no
+// memory lines, a reaped process's file reads ESRCH).
+std::int64_t rssAnonKb(int statusFd) {
+  char buf[4096];
+  const ssize_t n = pread(statusFd, buf, sizeof buf - 1, 0);
+  if (n <= 0) return -1;
+  buf[n] = '\0';
+  const char* at = std::strstr(buf, "RssAnon:");
+  return at ? std::strtoll(at + 8, nullptr, 10) : -1;
+}
+
+}  // namespace
+
+PipelineRun runPipeline(const std::string& exe, const std::vector<std::string>& producerArgs,
+                        const std::vector<std::string>& consumerArgs, int sampleMs) {
+  PipelineRun run;
+  run.consumed = !consumerArgs.empty();
+  std::vector<std::string> producerStore, consumerStore;
+  std::vector<char*> producerArgv = argvOf(exe, producerArgs, producerStore);
+  std::vector<char*> consumerArgv = argvOf(exe, consumerArgs, consumerStore);
+  int link[2] = {-1, -1}, out[2] = {-1, -1};  // producer -> consumer, consumer -> here
+  if (run.consumed && (pipe2(link, O_CLOEXEC) != 0 || pipe2(out, O_CLOEXEC) != 0))
+    throw BenchError(std::string("pipe: ") + std::strerror(errno));
+  const int devNull = run.consumed ? -1 : open("/dev/null", O_WRONLY | O_CLOEXEC);
+  std::fflush(nullptr);  // nothing buffered in this process may be written twice
+
+  const auto start = std::chrono::steady_clock::now();
+  const pid_t producer = fork();
+  if (producer < 0) throw BenchError(std::string("fork: ") + std::strerror(errno));
+  if (producer == 0) {
+    dup2(run.consumed ? link[1] : devNull, STDOUT_FILENO);  // dup2 clears close-on-exec on the copy
+    execChild(exe, producerArgv);
+  }
+  pid_t consumer = -1;
+  if (run.consumed) {
+    consumer = fork();
+    if (consumer < 0) {
+      kill(producer, SIGKILL);
+      waitpid(producer, nullptr, 0);
+      throw BenchError(std::string("fork: ") + std::strerror(errno));
+    }
+    if (consumer == 0) {
+      dup2(link[0], STDIN_FILENO);
+      dup2(out[1], STDOUT_FILENO);
+      execChild(exe, consumerArgv);
+    }
+    // Only the children hold the link: the consumer sees end-of-file when the producer exits.
+    close(link[0]);
+    close(link[1]);
+    close(out[1]);
+  } else {
+    close(devNull);
+  }
+
+  // The producer is reaped by a thread of its own, so its wall time ends when it exits, not at the next
+  // sample; meanwhile this thread samples its memory and drains the consumer's output.
+  const std::string statusPath = "/proc/" + std::to_string(producer) + "/status";
+  const int statusFd = open(statusPath.c_str(), O_RDONLY | O_CLOEXEC);
+  int producerStatus = 0;
+  rusage producerUsage{};
+  std::chrono::steady_clock::time_point producerStop;
+  std::atomic<bool> producerDone{false};
+  std::thread reaper([&] {
+    while (wait4(producer, &producerStatus, 0, &producerUsage) < 0 && errno == EINTR) {
+    }
+    producerStop = std::chrono::steady_clock::now();
+    producerDone = true;
+  });
+  bool outputOpen = run.consumed;
+  for (;;) {
+    const bool done = producerDone;
+    if (!done && statusFd >= 0) {
+      const std::int64_t kb = rssAnonKb(statusFd);
+      if (kb >= 0) {
+        run.producerPeakAnonKb = std::max(run.producerPeakAnonKb, kb);
+        ++run.samples;
+      }
+    }
+    if (done && !outputOpen) break;
+    // Until the next sample: the consumer's output as it comes, or a plain wait.
+    const auto next = std::chrono::steady_clock::now() + std::chrono::milliseconds(sampleMs);
+    for (auto now = std::chrono::steady_clock::now(); now < next; now = std::chrono::steady_clock::now()) {
+      const int wait = static_cast<int>(std::chrono::ceil<std::chrono::milliseconds>(next - now).count());
+      if (!outputOpen) {
+        if (producerDone) break;
+        std::this_thread::sleep_for(std::chrono::milliseconds(std::min(wait, 10)));
+        continue;
+      }
+      pollfd p{out[0], POLLIN, 0};
+      if (poll(&p, 1, wait) <= 0) continue;
+      char buf[4096];
+      const ssize_t n = read(out[0], buf, sizeof buf);
+      if (n > 0) {
+        run.consumer.output.append(buf, static_cast<std::size_t>(n));
+      } else if (n == 0 || errno != EINTR) {
+        outputOpen = false;
+      }
+    }
+  }
+  reaper.join();
+  if (statusFd >= 0) close(statusFd);
+  if (run.consumed) {
+    close(out[0]);
+    int status = 0;
+    rusage usage{};
+    while (wait4(consumer, &status, 0, &usage) < 0 && errno == EINTR) {
+    }
+    run.consumer.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - start).count();
+    run.consumer.maxRssKb = usage.ru_maxrss;
+    run.consumerExit = WIFSIGNALED(status) ? 128 + WTERMSIG(status) : WEXITSTATUS(status);
+  }
+  const std::string failed = run.consumed && run.consumerExit != 0
+                                 ? " (the consumer exited with status " + std::to_string(run.consumerExit) +
+                                       ": " + run.consumer.output.substr(0, 2000) + ")"
+                                 : "";
+  if (WIFSIGNALED(producerStatus))
+    throw BenchError("child killed by signal " + std::to_string(WTERMSIG(producerStatus)) + " (" +
+                     strsignal(WTERMSIG(producerStatus)) + "): " + commandLine(exe, producerArgs) + failed);
+  if (!WIFEXITED(producerStatus) || WEXITSTATUS(producerStatus) != 0)
+    throw BenchError("child exited with status " + std::to_string(WEXITSTATUS(producerStatus)) + ": " +
+                     commandLine(exe, producerArgs) + failed);
+  run.producer.seconds = std::chrono::duration<double>(producerStop - start).count();
+  run.producer.maxRssKb = producerUsage.ru_maxrss;
   return run;
 }
 

@@ -46,18 +46,22 @@
 // against uniform points of the same count), stream (a synthetic finalized stream on stdout for the
 // billion-point pipe run; stream_generator.cpp), cgal-child (internal).  See usage() below.
 #include <sys/stat.h>
+#include <sys/statvfs.h>
 #include <unistd.h>
 
 #include <algorithm>
+#include <cerrno>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <initializer_list>
 #include <limits>
 #include <memory>
+#include <numeric>
 #include <optional>
 #include <random>
 #include <sstream>
@@ -142,6 +146,18 @@ const char* kUsage =
     "      slowest part and merge times, the peak RSS of the largest rank, the bytes sent between ranks,\n"
     "      the seam share, and CGAL's insertion of the same points.  Checks that every P wrote the same\n"
     "      DEM tiles (bytes) and as many triangles as one process.  Input as for `threads`.\n"
+    "  tinbuild-bench scale [--list 10,100,1000] [--tile-points 10] [--memory MB] [--keep-class 2,9]\n"
+    "                       [--step 2] [--repeat R] [--no-verify] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "      How time and memory grow with the survey.  For each size M (millions of points, default 10,100)\n"
+    "      `tinbuild demo --survey-only --tiles N` writes the demo's survey as N x N LAZ tiles, N =\n"
+    "      round(sqrt(M / tile points)) (untimed; refused when --dir lacks ~30 bytes a point for the tiles\n"
+    "      and the build's spool), then `tinbuild build TILES --keep-class LIST --mesh - --dem DIR --step R\n"
+    "      [--memory MB] --report` runs R rounds (default 1) with the mesh piped into `tinbuild verify -\n"
+    "      --json` (or /dev/null with --no-verify).  Prints per size the tiles and their bytes, the median\n"
+    "      wall time (min-max) and Mpoints/s, the build's peak RSS (wait4) and peak anonymous memory\n"
+    "      (RssAnon, /proc/PID/status read every 100 ms), the stream width, the spool, the DEM's peak and\n"
+    "      spill, verify's result and peak RSS; then the growth of peak RSS and time per point between\n"
+    "      sizes.  Each size's data is deleted before the next is generated unless --keep.\n"
     "  tinbuild-bench cgal-child LAS\n"
     "      Internal: the CGAL side of `delaunay`, run as a child process.\n"
     "\n"
@@ -1350,6 +1366,235 @@ int hydroMain(const std::vector<std::string>& argv) {
   return 0;
 }
 
+// ---- scale -------------------------------------------------------------------------------------------
+
+// Bytes an unprivileged writer may still use on the filesystem holding `path`, and that filesystem's id.
+std::pair<std::uint64_t, std::uint64_t> freeSpace(const std::string& path) {
+  struct statvfs v {};
+  struct stat st {};
+  if (::statvfs(path.c_str(), &v) != 0 || ::stat(path.c_str(), &st) != 0)
+    throw BenchError("scale: cannot read the free space of " + path + ": " + std::strerror(errno));
+  return {static_cast<std::uint64_t>(v.f_bavail) * v.f_frsize, static_cast<std::uint64_t>(st.st_dev)};
+}
+
+std::string gigabytes(double bytes) {
+  return fmt("%.2f GB", bytes / 1e9);
+}
+
+// `scale`: how time and memory grow with the survey.  Each size is delivered as tiles, written by the demo
+// (untimed) and deleted before the next size is generated; the build streams them into verify.
+int scaleMain(const std::vector<std::string>& argv) {
+  Args args("scale", argv);
+  Config cfg = makeConfig(args);
+  const std::vector<int> list = parseList(args.value("--list", "10,100"));
+  const double tilePoints = args.number("--tile-points", 10, 1e-3, 1e6);
+  const std::string memory = args.value("--memory", "");
+  const std::string keepClass = args.value("--keep-class", "2,9");
+  const std::string step = args.value("--step", "2");
+  const bool verify = !args.flag("--no-verify");
+  const std::string base = args.value("--dir", defaultTempDir());
+  args.finish();
+  if (list.empty()) throw BenchError("scale: --list names no size");
+  for (const int m : list)
+    if (m < 1 || m > 1000)
+      throw BenchError("scale: --list takes sizes of 1 to 1000 (millions of points, as demo --points), got " +
+                       std::to_string(m));
+  // The demo's grid for a size: about tilePoints million points a tile.
+  auto tilesFor = [&](int m) {
+    const long n = std::max(1L, std::lround(std::sqrt(m / tilePoints)));
+    if (n > 64)
+      throw BenchError("scale: " + std::to_string(m) + "M points in tiles of " + fmt("%g", tilePoints) +
+                       "M would need " + std::to_string(n) + " x " + std::to_string(n) +
+                       " tiles; tinbuild demo writes at most 64 x 64: give a larger --tile-points");
+    return static_cast<int>(n);
+  };
+  for (const int m : list) tilesFor(m);
+
+  // The disk `millions` points take: LAZ tiles (about 4.5 bytes a point) in --dir, the build's spool (32
+  // bytes a kept point; about 80 % of the demo's survey is ground and water) in its temporary directory.
+  // `size` names the size measured next (0: the whole list).
+  auto checkDisk = [&base](const std::string& dir, int millions, int size) {
+    const std::string spoolDir = defaultTempDir();
+    const auto [freeHere, deviceHere] = freeSpace(dir);
+    const auto [freeSpool, deviceSpool] = freeSpace(spoolDir);
+    const double tiles = 4.5e6 * millions, spool = 25.5e6 * millions;
+    const bool shared = deviceHere == deviceSpool;
+    if (shared ? tiles + spool <= static_cast<double>(freeHere)
+               : tiles <= static_cast<double>(freeHere) && spool <= static_cast<double>(freeSpool))
+      return;
+    throw BenchError("scale: " + (size ? std::to_string(size) + "M points need" : "--list needs") +
+                     " about " + gigabytes(tiles) + " of tiles in " + base + " and " + gigabytes(spool) +
+                     " of the build's spool in " + spoolDir + " (~30 bytes a point); " +
+                     gigabytes(static_cast<double>(freeHere)) + " free in " + base +
+                     (shared ? "" : ", " + gigabytes(static_cast<double>(freeSpool)) + " in " + spoolDir) +
+                     ": give --dir (or TMPDIR) on a larger disk, or smaller sizes");
+  };
+
+  struct Row {
+    int millions = 0, tiles = 0;
+    std::size_t files = 0;
+    std::uint64_t tileBytes = 0;
+    double generateSeconds = 0;
+    std::vector<double> seconds, rssMiB, anonMiB, verifyMiB;
+    std::string verdict = "skipped";  // OK, or the first failure seen
+    std::string report;               // the last round's (the counts do not change between rounds)
+  };
+  std::vector<Row> rows;
+  const std::string loadBefore = loadAverage();
+  {
+    TempDir dir(base, cfg.keep);
+    // Before anything is generated: the largest size (every size with --keep, all stay on disk); then
+    // again before each size.
+    checkDisk(
+        dir.path(),
+        cfg.keep ? std::accumulate(list.begin(), list.end(), 0) : *std::max_element(list.begin(), list.end()),
+        0);
+    for (const int m : list) {
+      Row row;
+      row.millions = m;
+      row.tiles = tilesFor(m);
+      const std::string d = dir.path() + "/" + std::to_string(m) + "M";
+      checkDisk(dir.path(), m, m);
+      progress("scale: generating " + std::to_string(m) + "M points as " + std::to_string(row.tiles) + " x " +
+               std::to_string(row.tiles) + " tiles (tinbuild demo, untimed)");
+      row.generateSeconds = runChild(cfg.tinbuild,
+                                     {"demo", d, "--points", std::to_string(m), "--survey-only", "--tiles",
+                                      std::to_string(row.tiles), "--progress", "none"},
+                                     true)
+                                .seconds;
+      std::vector<std::string> files;
+      for (const auto& e : fs::directory_iterator(d + "/tiles"))
+        if (e.path().extension() == ".laz") files.push_back(e.path().string());
+      std::sort(files.begin(), files.end());
+      if (files.empty()) throw BenchError("scale: tinbuild demo wrote no tile in " + d + "/tiles");
+      row.files = files.size();
+      for (const auto& f : files) row.tileBytes += fs::file_size(f);
+
+      const std::string dem = d + "/dem/", report = d + "/report.json";
+      std::vector<std::string> build{"build"};
+      build.insert(build.end(), files.begin(), files.end());
+      build.insert(build.end(), {"--keep-class", keepClass, "--mesh", "-", "--dem", dem, "--step", step});
+      if (!memory.empty()) build.insert(build.end(), {"--memory", memory});
+      build.insert(build.end(), {"--report", report, "--progress", "none", "--overwrite"});
+      addThreads(build, cfg.threads);
+      const std::vector<std::string> check =
+          verify ? std::vector<std::string>{"verify", "-", "--json"} : std::vector<std::string>{};
+      for (int round = 0; round < cfg.repeat; ++round) {
+        std::error_code ec;
+        fs::remove_all(dem, ec);
+        removeFiles({report});
+        const PipelineRun run = runPipeline(cfg.tinbuild, build, check, 100);
+        row.seconds.push_back(run.producer.seconds);
+        row.rssMiB.push_back(mib(run.producer.maxRssKb));
+        row.anonMiB.push_back(mib(run.producerPeakAnonKb));
+        std::string result;
+        if (verify) {
+          row.verifyMiB.push_back(mib(run.consumer.maxRssKb));
+          const std::string& out = run.consumer.output;
+          if (run.consumerExit == 0 && out.find("\"ok\": true") != std::string::npos) {
+            result = "OK";
+          } else {
+            const std::string kind = jsonString(out, "kind", "problems");
+            result = "FAILED (" + (kind.empty() ? "exit " + std::to_string(run.consumerExit) : kind) + ")";
+          }
+          if (row.verdict == "skipped" || row.verdict == "OK") row.verdict = result;
+        }
+        progress("  round " + std::to_string(round + 1) + "/" + std::to_string(cfg.repeat) + ": build " +
+                 fmt("%.3f s", run.producer.seconds) + ", peak RSS " + fmt("%.1f MiB", row.rssMiB.back()) +
+                 ", peak anon " + fmt("%.1f MiB", row.anonMiB.back()) + " (" + std::to_string(run.samples) +
+                 " samples)" +
+                 (verify ? "; verify " + result + ", " + fmt("%.1f MiB", row.verifyMiB.back()) : ""));
+        row.report = readFile(report);
+      }
+      if (!cfg.keep) {
+        std::error_code ec;
+        fs::remove_all(d, ec);  // tiles, DEM, report: free the disk for the next size
+      }
+      rows.push_back(row);
+    }
+  }
+  const std::string loadAfter = loadAverage();
+
+  std::printf("%s\n", joinCommand("tinbuild-bench scale", argv).c_str());
+  std::printf("  machine     %u cores (nproc), load average %s before, %s after; median of %d round%s\n",
+              std::thread::hardware_concurrency(), loadBefore.c_str(), loadAfter.c_str(), cfg.repeat,
+              cfg.repeat == 1 ? "" : "s");
+  std::printf("  tinbuild    %s, %s (an idle process, `tinbuild --version`, peaks at %.1f MiB)\n",
+              cfg.tinbuild.c_str(), threadsLabel(cfg).c_str(), baselineMiB(cfg));
+  std::printf("  survey      the demo's four-strip survey as LAZ tiles of about %g M points (demo --tiles)\n",
+              tilePoints);
+  std::printf("  build       --keep-class %s --mesh - --dem --step %s%s%s\n", keepClass.c_str(), step.c_str(),
+              memory.empty() ? "" : (" --memory " + memory).c_str(),
+              verify ? " | tinbuild verify - --json" : " > /dev/null");
+  std::printf("\n  %5s %10s %9s %7s %24s %7s %9s %9s %9s %9s %15s %8s %9s\n", "M pts", "tiles", "tile GB",
+              "gen s", "build s (min-max)", "Mpt/s", "RSS MiB", "anon MiB", "width", "spool GB",
+              "DEM peak/spill", "verify", "vfy MiB");
+  const auto median = medianOf;
+  auto range = [](const std::vector<double>& v, const char* f) {
+    return fmt(f, medianOf(v)) + " (" + fmt(f, *std::min_element(v.begin(), v.end())) + "-" +
+           fmt(f, *std::max_element(v.begin(), v.end())) + ")";
+  };
+  auto pointsRead = [](const Row& r) { return static_cast<double>(jsonCount(r.report, "points_read")); };
+  for (const Row& r : rows) {
+    const auto demSpill = jsonNumber(r.report, "spilled_bytes", "dem");
+    const std::string dem =
+        fmt("%.1f", static_cast<double>(jsonCount(r.report, "peak_tile_bytes", "dem")) / 1048576.0) + "/" +
+        (demSpill ? fmt("%.1f", *demSpill / 1048576.0) : "-");
+    std::printf(
+        "  %5d %10s %9s %7s %24s %7s %9s %9s %9s %9s %15s %8s %9s\n", r.millions,
+        (std::to_string(r.files) + " (" + std::to_string(r.tiles) + "x" + std::to_string(r.tiles) + ")")
+            .c_str(),
+        fmt("%.3f", static_cast<double>(r.tileBytes) / 1e9).c_str(), fmt("%.1f", r.generateSeconds).c_str(),
+        (r.seconds.size() > 1 ? range(r.seconds, "%.2f") : fmt("%.2f", r.seconds[0])).c_str(),
+        fmt("%.2f", pointsRead(r) / median(r.seconds) / 1e6).c_str(), fmt("%.1f", median(r.rssMiB)).c_str(),
+        fmt("%.1f", median(r.anonMiB)).c_str(), group(jsonCount(r.report, "width")).c_str(),
+        fmt("%.3f", static_cast<double>(jsonCount(r.report, "spooled_bytes")) / 1e9).c_str(), dem.c_str(),
+        r.verdict.c_str(), verify ? fmt("%.1f", median(r.verifyMiB)).c_str() : "-");
+  }
+  std::printf("\n  %5s %15s %15s %15s %16s %10s %10s\n", "M pts", "points read", "streamed", "triangles",
+              "finalizer spill", "RSS B/pt", "anon B/pt");
+  for (const Row& r : rows) {
+    const double read = pointsRead(r);
+    std::printf(
+        "  %5d %15s %15s %15s %16s %10s %10s\n", r.millions,
+        group(jsonCount(r.report, "points_read")).c_str(),
+        group(jsonCount(r.report, "points_streamed")).c_str(),
+        group(jsonCount(r.report, "triangles", "triangulation")).c_str(),
+        fmt("%.1f MiB", static_cast<double>(jsonCount(r.report, "spilled_bytes")) / 1048576.0).c_str(),
+        fmt("%.1f", median(r.rssMiB) * 1048576.0 / read).c_str(),
+        fmt("%.1f", median(r.anonMiB) * 1048576.0 / read).c_str());
+  }
+  // The growth between sizes: a flat memory curve has RSS ratios near 1 while the points grow tenfold.
+  auto growth = [&](const Row& a, const Row& b, const std::string& label) {
+    const double pa = pointsRead(a), pb = pointsRead(b);
+    std::printf("  %-16s %9s %9s %9s %12s\n", label.c_str(), fmt("%.2f", pb / pa).c_str(),
+                fmt("%.2f", median(b.rssMiB) / median(a.rssMiB)).c_str(),
+                fmt("%.2f", median(b.anonMiB) / median(a.anonMiB)).c_str(),
+                fmt("%.2f", (median(b.seconds) / pb) / (median(a.seconds) / pa)).c_str());
+  };
+  if (rows.size() > 1) {
+    std::printf("\n  %-16s %9s %9s %9s %12s\n", "growth", "points", "peak RSS", "peak anon", "time/point");
+    for (std::size_t i = 1; i < rows.size(); ++i)
+      growth(rows[i - 1], rows[i],
+             std::to_string(rows[i].millions) + "M / " + std::to_string(rows[i - 1].millions) + "M");
+    const auto [smallest, largest] = std::minmax_element(
+        rows.begin(), rows.end(), [](const Row& a, const Row& b) { return a.millions < b.millions; });
+    if (rows.size() > 2) growth(*smallest, *largest, "largest/smallest");
+  }
+  std::printf(
+      "\n  Each size: `tinbuild demo D --points M --survey-only --tiles N`, N = round(sqrt(M / tile\n"
+      "  points)) (untimed: gen s), then `tinbuild build D/tiles/*.laz --mesh - --dem D/dem/ --report`\n"
+      "  with the mesh %s; %d round%s, median (min-max).\n"
+      "  build s: the build's wall time; Mpt/s: points read / build s.  RSS: the build's peak resident\n"
+      "  set (wait4, file pages it maps included); anon: the largest RssAnon of /proc/PID/status read\n"
+      "  every 100 ms (heap and stacks).  width: points the finalizer held at once; spool: the kept points\n"
+      "  it copied to disk; DEM peak/spill: its largest open tiles and what it wrote aside (MiB).  vfy MiB:\n"
+      "  verify's peak RSS.  Each size's data was deleted before the next was generated%s.\n",
+      verify ? "piped into `tinbuild verify - --json`" : "to /dev/null (--no-verify)", cfg.repeat,
+      cfg.repeat == 1 ? "" : "s", cfg.keep ? " (not with --keep)" : "");
+  return 0;
+}
+
 }  // namespace
 
 }  // namespace tinbuild::bench
@@ -1381,6 +1626,7 @@ int main(int argc, char** argv) {
     if (command == "threads") return threadsMain(rest);
     if (command == "parts") return partsMain(rest);
     if (command == "hydro") return hydroMain(rest);
+    if (command == "scale") return scaleMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
     throw BenchError("unknown subcommand '" + command + "' (see tinbuild-bench --help)");
   } catch (const std::exception& e) {
