@@ -76,8 +76,8 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
 
 // How a run spends its memory budget (--memory, held in PipelineOptions::finalizer.memoryBudget): the
 // buffers that would otherwise grow with the survey get a share each, and spill or wait beyond it.
-//   chunks       the finalizer's waiting chunks (3/8; spilled to a temporary file beyond it)
-//   tables       the finalizer's per-cell tables (1/8; a coarser fine depth, then a coarser leaf depth)
+//   chunks       the finalizer's waiting chunks (5/16; spilled to a temporary file beyond it)
+//   tables       the finalizer's per-cell tables (3/16; a coarser fine depth, then a coarser leaf depth)
 //   demTiles     the DEM's open tiles (1/4; full blocks spilled to a temporary file beyond it)
 //   regionQueue  points queued for the triangulator's regions (1/32, 16,384 .. 262,144 points)
 // The rest (about a fifth) is left to what follows the stream's width without a knob: the triangulators'

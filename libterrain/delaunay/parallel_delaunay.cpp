@@ -549,7 +549,8 @@ struct ParallelDelaunay::Impl {
   void drain(Region& r) {
     decode(r, r.rec.words);
     r.rec.words.clear();
-    if (r.rec.words.capacity() > 4 * Recorder::kFlushWords) std::vector<std::uint64_t>().swap(r.rec.words);
+    if (r.ended || r.rec.words.capacity() > 4 * Recorder::kFlushWords)
+      std::vector<std::uint64_t>().swap(r.rec.words);
   }
   // Worker: hands the region's output so far to the merge (part of the current item's; `last`: all of it).
   void publish(Region& r, bool last) {
@@ -567,6 +568,7 @@ struct ParallelDelaunay::Impl {
       }
     }
     if (last) r.done = r.working + 1;
+    if (last && r.ended) std::vector<std::uint64_t>().swap(r.rec.words);  // nothing more will come
     wakeMerger();
   }
 

@@ -1772,6 +1772,11 @@ struct StreamingDelaunay::Impl {
           emit(t);
       }
     }
+    // Every vertex of the region is handed over or written: its whole cell is complete for the seam.
+    // (The tag that ended the region came here instead of to finalizeCell, so without this the seam step
+    // never learned that the region's last-finalized leaves were done, and kept its triangles there until
+    // the end of the run: a band along every region's last row, growing with the survey.)
+    if (regionMode) seam->seamTag(options.region.cell);
     assert(activeVerts == 0);
     updatePeak();
     warnDuplicates(options.diagnostics, options.duplicates, stats.duplicatesDropped);
@@ -1786,9 +1791,21 @@ struct StreamingDelaunay::Impl {
     tree.reset(grid.depth);
     std::vector<std::uint32_t>().swap(vleaf);
     std::vector<std::uint32_t>().swap(leafCount);
-    leafLive.clear();
-    seamWedges.clear();
-    pendingSeamTags.clear();
+    // Everything else too: a region's triangulator lives on after its end (its stats are read at the
+    // run's end), and 64 of them keeping their free lists and hash buckets grew with the survey.
+    std::vector<std::uint32_t>().swap(freeTris);
+    std::vector<std::uint32_t>().swap(freeVerts);
+    std::vector<std::uint32_t>().swap(pending);
+    std::vector<Frame>().swap(stack);
+    std::vector<BoundaryEdge>().swap(boundary);
+    std::vector<std::uint32_t>().swap(cavity);
+    std::vector<std::uint32_t>().swap(fresh);
+    decltype(found)().swap(found);
+    std::vector<std::uint64_t>().swap(jump);
+    decltype(leafLive)().swap(leafLive);
+    decltype(seamWedges)().swap(seamWedges);
+    decltype(pendingSeamTags)().swap(pendingSeamTags);
+    decltype(wedgeScratch)().swap(wedgeScratch);
   }
 };
 

@@ -30,9 +30,11 @@
 #include "libterrain/delaunay/predicates.h"
 #include "libterrain/delaunay/seam_step.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/finalizer/finalizer.h"
 #include "libterrain/finalizer/grid.h"
 #include "libterrain/mesh/mesh_tee.h"
 #include "libterrain/synthetic/synthetic_survey.h"
+#include "vector_stream.h"
 
 #if __has_include(<CGAL/Delaunay_triangulation_2.h>)
 #include <CGAL/Delaunay_triangulation_2.h>
@@ -1262,6 +1264,29 @@ TEST(ParallelDelaunay, SeamShareAndCheckpoints) {
   std::cout << "[ INFO     ] 100k uniform, 16 regions: seam vertices " << r.pstats.seamVertices
             << ", seam triangles written " << r.pstats.seamWritten << ", DT(S) triangles dropped "
             << r.pstats.seamDropped << ", tiles closed early " << r.closedTiles << "/64\n";
+}
+
+// The seam step holds the seam's width, not the survey's length.  A region ends at the tag that finalizes
+// its whole cell; its last leaves get no tag of their own then, and the seam step used to keep every
+// triangle touching them until the run ended: a band along each region's last-swept leaves, one more
+// for every row of regions the sweep passed.  A four-strip survey through the real finalizer, whose read
+// order sweeps rows: the seam step's peak stays a fraction of the seam.
+TEST(ParallelDelaunay, SeamPeakFollowsTheFrontNotTheSurveyLength) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 1000000, 2006);
+  test::VectorStream in(pts);
+  FinalizerOptions fo;
+  fo.filter.dropClasses.reset();
+  Diagnostics diag;
+  CountingSink sink;
+  ParallelDelaunayOptions popt;
+  popt.threads = 2;
+  popt.regionLevel = 3;
+  ParallelDelaunay dt(sink, popt);
+  finalizePoints({&in}, fo, dt, diag);
+  const std::uint64_t peak = dt.parallelStats().seam.maxActiveTriangles, n = dt.parallelStats().seamVertices;
+  std::cout << "[ INFO     ] 1M-point strips, 64 regions: seam vertices " << n << ", the seam step's peak "
+            << peak << " active triangles\n";
+  EXPECT_LT(peak, n / 3) << "the seam step holds more than a front's worth";
 }
 
 // Regions of more than 2^20 leaves keep their live-vertex counts in a map instead of an array.
