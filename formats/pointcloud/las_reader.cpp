@@ -1071,6 +1071,13 @@ std::size_t LasReader::readLaz(PointRecord* out, std::size_t n) {
     z.wait();
     finishPass();
     if (lazyFile_) closeFile();
+    // The pass is over: its buffers go too (a survey of a hundred tiles would otherwise keep a hundred
+    // groups of decoded chunks and decoders, 5-10 MB each, while the finalizer reads the spool).  The
+    // next pass allocates them again.
+    std::vector<std::uint8_t>().swap(z.raw);
+    std::vector<std::uint8_t>().swap(z.ahead);
+    z.rawPos = z.rawCount = z.aheadCount = 0;
+    while (z.decoders.size() > 1) z.decoders.pop_back();
   }
   return n;
 }
