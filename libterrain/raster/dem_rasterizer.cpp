@@ -116,6 +116,17 @@ constexpr int kBlockShift = 8;
 constexpr std::int64_t kBlockSize = std::int64_t{1} << kBlockShift;
 constexpr std::int64_t kBlockMask = kBlockSize - 1;
 
+// Sizes the bands the options ask for (a tile's or a block's) to n pixels of their empty value.
+template <class Bands>
+void assignBands(Bands& b, std::size_t n, const DemOptions& o) {
+  b.z.assign(n, o.nodata);
+  if (o.slope) b.slope.assign(n, o.nodata);
+  if (o.aspect) b.aspect.assign(n, o.nodata);
+  if (o.edgeLength) b.edgeLength.assign(n, o.nodata);
+  if (o.hillshade) b.hillshade.assign(n, 0);
+  if (o.count) b.count.assign(n, 0);
+}
+
 // Calls f(tileBand, blockBand) for every band, in the order of the spill file (the 4-byte bands first,
 // so each band starts aligned to its element).
 template <class Tile, class Block, class F>
@@ -302,13 +313,7 @@ DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
 }
 
 void DemRasterizer::allocate(Block& b) {
-  const std::size_t n = b.pixels;
-  b.z.assign(n, opt_.nodata);
-  if (opt_.slope) b.slope.assign(n, opt_.nodata);
-  if (opt_.aspect) b.aspect.assign(n, opt_.nodata);
-  if (opt_.edgeLength) b.edgeLength.assign(n, opt_.nodata);
-  if (opt_.hillshade) b.hillshade.assign(n, 0);
-  if (opt_.count) b.count.assign(n, 0);
+  assignBands(b, b.pixels, opt_);
   b.state = Block::State::InMemory;
   heldBytes_ += b.pixels * pixelBytes_;
   stats_.peakTileBytes = std::max(stats_.peakTileBytes, heldBytes_);
@@ -519,13 +524,7 @@ void DemRasterizer::complete(std::int64_t key) {
   const bool empty = o->dataPixels == 0;
   DemTile& t = o->tile;
   if (!empty) {
-    const std::size_t n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
-    t.z.assign(n, opt_.nodata);
-    if (opt_.slope) t.slope.assign(n, opt_.nodata);
-    if (opt_.aspect) t.aspect.assign(n, opt_.nodata);
-    if (opt_.edgeLength) t.edgeLength.assign(n, opt_.nodata);
-    if (opt_.hillshade) t.hillshade.assign(n, 0);
-    if (opt_.count) t.count.assign(n, 0);
+    assignBands(t, static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height), opt_);
   }
   // Each block into its place in the tile's bands (absent blocks are the defaults above), freed as it goes.
   const auto tileWidth = static_cast<std::size_t>(t.width);
