@@ -144,12 +144,7 @@ SurveyTiles writeSurveyTiles(const SurveySpec& spec, const std::filesystem::path
                              const LasWriterOptions& options, int (*progress)(double, const char*, void*),
                              void* progressData) {
   SurveyGenerator generator(spec);
-  LasWriterOptions o = options;
-  for (int a = 0; a < 3; ++a) o.scale[a] = spec.quantum;  // every coordinate stored exactly
-  o.offset[0] = spec.originX;
-  o.offset[1] = spec.originY;
-  o.offset[2] = spec.originZ;
-  o.systemIdentifier = "tinbuild synthetic survey";
+  LasWriterOptions o = syntheticSurveyWriterOptions(spec, options);
   const auto count = static_cast<std::size_t>(n) * static_cast<std::size_t>(n);
   // All n^2 writers are open at once: each holds a buffer (LAS) or one chunk of points (LAZ, 50,000
   // records by default), which for a fine grid would take gigabytes.  LAS buffers shrink to 64 KiB

@@ -550,9 +550,7 @@ void writeSyntheticSurveyLas(const SurveySpec& spec, const std::string& path, in
   writeSyntheticSurveyLas(spec, path, options);
 }
 
-void writeSyntheticSurveyLas(const SurveySpec& spec, const std::string& path, const LasWriterOptions& options,
-                             int (*progress)(double, const char*, void*), void* progressData) {
-  SurveyGenerator generator(spec);
+LasWriterOptions syntheticSurveyWriterOptions(const SurveySpec& spec, const LasWriterOptions& options) {
   LasWriterOptions o = options;
   for (int a = 0; a < 3; ++a) o.scale[a] = spec.quantum;
   o.offset[0] = spec.originX;
@@ -560,6 +558,13 @@ void writeSyntheticSurveyLas(const SurveySpec& spec, const std::string& path, co
   o.offset[2] = spec.originZ;
   if (o.systemIdentifier == LasWriterOptions().systemIdentifier)
     o.systemIdentifier = "tinbuild synthetic survey";
+  return o;
+}
+
+void writeSyntheticSurveyLas(const SurveySpec& spec, const std::string& path, const LasWriterOptions& options,
+                             int (*progress)(double, const char*, void*), void* progressData) {
+  SurveyGenerator generator(spec);
+  const LasWriterOptions o = syntheticSurveyWriterOptions(spec, options);
   const char* message = "synthesizing survey";
   if (progress && !progress(0.0, message, progressData)) throw CancelledError();
   LasWriter writer(path, o);

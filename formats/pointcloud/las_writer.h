@@ -191,6 +191,10 @@ class LasWriter {
   std::vector<std::uint8_t> compressed_;
 };
 
+// The options a synthetic survey is written with: `options` with scale = quantum and offset = origin (every
+// coordinate stored exactly) and, unless one is given, the system identifier "tinbuild synthetic survey".
+LasWriterOptions syntheticSurveyWriterOptions(const SurveySpec& spec, const LasWriterOptions& options);
+
 // Streams a synthetic survey into a LAS file: scale = quantum and offset = origin, so every coordinate is
 // stored exactly.  LAS 1.4 point format 1 (any number of points, GeoTIFF keys for the CRS).
 void writeSyntheticSurveyLas(const SurveySpec& spec, const std::string& path, int horizontalEpsg,
