@@ -21,35 +21,35 @@ inline std::size_t slotOf(std::uint64_t id, std::size_t mask) {
 }
 }  // namespace
 
-VertexTable::VertexTable() : slots_(1024), mask_(1023) {}
+VertexTable::VertexTable() : slots_(1024, MeshVertex{kFree, 0, 0, 0}), mask_(1023) {}
 
 void VertexTable::grow() {
-  std::vector<Slot> old;
+  std::vector<MeshVertex> old;
   old.swap(slots_);
-  slots_.assign(old.size() * 2, Slot{});
+  slots_.assign(old.size() * 2, MeshVertex{kFree, 0, 0, 0});
   mask_ = slots_.size() - 1;
   size_ = 0;
-  for (const Slot& s : old)
-    if (s.used) insert(s.v);
+  for (const MeshVertex& s : old)
+    if (s.id != kFree) insert(s);
 }
 
 void VertexTable::insert(const MeshVertex& v) {
+  if (v.id == kFree) throw Error("streaming mesh: vertex id " + std::to_string(v.id) + " too large");
   if ((size_ + 1) * 4 > slots_.size() * 3) grow();
   std::size_t i = slotOf(v.id, mask_);
-  while (slots_[i].used) {
-    if (slots_[i].v.id == v.id)
+  while (slots_[i].id != kFree) {
+    if (slots_[i].id == v.id)
       throw Error("streaming mesh: vertex " + std::to_string(v.id) + " announced twice");
     i = (i + 1) & mask_;
   }
-  slots_[i].v = v;
-  slots_[i].used = true;
+  slots_[i] = v;
   ++size_;
 }
 
 const MeshVertex& VertexTable::at(std::uint64_t id) const {
   std::size_t i = slotOf(id, mask_);
-  while (slots_[i].used) {
-    if (slots_[i].v.id == id) return slots_[i].v;
+  while (slots_[i].id != kFree) {
+    if (slots_[i].id == id) return slots_[i];
     i = (i + 1) & mask_;
   }
   throw Error("streaming mesh: triangle uses vertex " + std::to_string(id) + ", which is not live");
@@ -57,22 +57,23 @@ const MeshVertex& VertexTable::at(std::uint64_t id) const {
 
 void VertexTable::erase(std::uint64_t id) {
   std::size_t i = slotOf(id, mask_);
-  while (slots_[i].used && slots_[i].v.id != id) i = (i + 1) & mask_;
-  if (!slots_[i].used) throw Error("streaming mesh: vertex " + std::to_string(id) + " finalized twice");
+  while (slots_[i].id != kFree && slots_[i].id != id) i = (i + 1) & mask_;
+  if (slots_[i].id == kFree || id == kFree)
+    throw Error("streaming mesh: vertex " + std::to_string(id) + " finalized twice");
   // Backward-shift deletion: pull later members of the probe run into the hole when their home slot
   // does not lie cyclically in (hole, j].
   std::size_t hole = i, j = i;
   for (;;) {
     j = (j + 1) & mask_;
-    if (!slots_[j].used) break;
-    const std::size_t home = slotOf(slots_[j].v.id, mask_);
+    if (slots_[j].id == kFree) break;
+    const std::size_t home = slotOf(slots_[j].id, mask_);
     const bool between = hole <= j ? (hole < home && home <= j) : (hole < home || home <= j);
     if (!between) {
       slots_[hole] = slots_[j];
       hole = j;
     }
   }
-  slots_[hole].used = false;
+  slots_[hole].id = kFree;
   --size_;
 }
 
@@ -80,11 +81,12 @@ void VertexTable::erase(std::uint64_t id) {
 // MeshTee: events, the batch queue and the writer thread.
 
 // Threaded mode queues the events as 64-bit words, each event one tagged first word (kind in the top
-// two bits) and its operands: vertex = tag|id, x, y, z (bits); triangle = tag|a, b, c; finalization =
-// tag|id; complete = tag|sink, first key, end key (in the batch's key list).  That is 22 bytes per event
-// on average (40 as a fixed struct): the triangulator's thread writes them, the writer thread reads
-// them, and the cache lines between the two cores are the cost.  Triangles travel as ids; the writer
-// side resolves them in its own VertexTable, so the triangulator's thread copies as little as possible.
+// two bits) and its operands: vertex = tag|id, x, y, z (bits); triangle = tag|a, b, c, or, when there
+// are TriangleSinks, tag|a, xa, ya, za, b, xb, yb, zb, c, xc, yc, zc; finalization = tag|id; complete =
+// tag|sink, first key, end key (in the batch's key list).  The caller's side resolves a triangle's ids
+// in the one VertexTable (which its agents need anyway) and ships the coordinates: a second table on
+// the writer's side cost as much memory again and a second round of cache misses per triangle (three
+// random probes into a table of the mesh's width), about a quarter of the CPU of a build with a DEM.
 namespace {
 enum : std::uint64_t { kVertex = 0, kTriangle = 1, kFinalize = 2, kComplete = 3 };
 constexpr int kTagShift = 62;
@@ -104,8 +106,8 @@ inline double doubleOf(std::uint64_t b) {
 }  // namespace
 
 struct MeshTee::Batch {
-  // A fixed buffer of kBatchWords + 4 words (one event past the threshold fits), `used` of them filled.
-  std::unique_ptr<std::uint64_t[]> words = std::make_unique_for_overwrite<std::uint64_t[]>(kBatchWords + 4);
+  // A fixed buffer of kBatchWords + 12 words (one event past the threshold fits), `used` of them filled.
+  std::unique_ptr<std::uint64_t[]> words = std::make_unique_for_overwrite<std::uint64_t[]>(kBatchWords + 12);
   std::size_t used = 0;
   std::vector<std::int64_t> keys;
 };
@@ -170,7 +172,7 @@ class MeshTee::Writer {
         std::lock_guard lock(mutex_);
         busy_ = false;
         if (error) error_ = error;
-        if (spare_.size() < 2) spare_.push_back(std::move(batch));
+        if (spare_.size() < kMaxQueued) spare_.push_back(std::move(batch));  // never freed: a 128 KB batch is an mmap
       }
       changed_.notify_all();
       if (error) return;
@@ -190,12 +192,11 @@ class MeshTee::Writer {
 MeshTee::MeshTee() = default;
 MeshTee::~MeshTee() = default;  // a writer still running (the run failed) is stopped, its queue dropped
 
-// The consumer side: runs on the writer thread (threaded) or right away (not threaded).  It keeps its
-// own table of live vertices for the TriangleSinks; without a writer thread it also runs the agents.
+// The consumer side: runs on the writer thread (threaded) or right away (not threaded).  Without a writer
+// thread it also keeps the table of live vertices and runs the agents.
 void MeshTee::applyVertex(const MeshVertex& v) {
   for (auto* s : meshSinks_) s->vertex(v.id, v.x, v.y, v.z);
   if (triangleSinks_.empty()) return;
-  vertices_.insert(v);
   for (auto* s : triangleSinks_) s->vertex(v);
   if (agentsInApply_)
     for (auto* a : agents_) a->vertex(v);
@@ -203,10 +204,10 @@ void MeshTee::applyVertex(const MeshVertex& v) {
 
 void MeshTee::applyTriangle(std::uint64_t ia, std::uint64_t ib, std::uint64_t ic) {
   for (auto* s : meshSinks_) s->triangle(ia, ib, ic);
-  if (triangleSinks_.empty()) return;
-  const MeshVertex& a = vertices_.at(ia);
-  const MeshVertex& b = vertices_.at(ib);
-  const MeshVertex& c = vertices_.at(ic);
+}
+
+void MeshTee::applyTriangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) {
+  for (auto* s : meshSinks_) s->triangle(a.id, b.id, c.id);
   for (auto* s : triangleSinks_) s->triangle(a, b, c);
   if (agentsInApply_)
     for (auto* ag : agents_) ag->triangle(a, b, c);
@@ -214,7 +215,6 @@ void MeshTee::applyTriangle(std::uint64_t ia, std::uint64_t ib, std::uint64_t ic
 
 void MeshTee::applyFinalize(std::uint64_t id) {
   for (auto* s : meshSinks_) s->finalizeVertex(id);
-  if (!triangleSinks_.empty()) vertices_.erase(id);
 }
 
 void MeshTee::apply(const Batch& batch) {
@@ -229,8 +229,15 @@ void MeshTee::apply(const Batch& batch) {
         w += 4;
         break;
       case kTriangle:
-        applyTriangle(payload, w[1], w[2]);
-        w += 3;
+        if (triangleSinks_.empty()) {
+          applyTriangle(payload, w[1], w[2]);
+          w += 3;
+        } else {
+          applyTriangle(MeshVertex{payload, doubleOf(w[1]), doubleOf(w[2]), doubleOf(w[3])},
+                        MeshVertex{w[4], doubleOf(w[5]), doubleOf(w[6]), doubleOf(w[7])},
+                        MeshVertex{w[8], doubleOf(w[9]), doubleOf(w[10]), doubleOf(w[11])});
+          w += 12;
+        }
         break;
       case kFinalize:
         applyFinalize(payload);
@@ -261,7 +268,6 @@ void MeshTee::begin(const MeshInfo& info) {
   writer_.reset();
   batch_.reset();
   vertices_ = VertexTable();
-  agentVertices_ = VertexTable();
   agents_.clear();
   agentSink_.clear();
   for (auto* s : meshSinks_) s->begin(info);
@@ -282,29 +288,31 @@ void MeshTee::begin(const MeshInfo& info) {
 }
 
 void MeshTee::vertex(std::uint64_t id, double x, double y, double z) {
-  if (!writer_) return applyVertex(MeshVertex{id, x, y, z});  // no copy, no queue
-  if (!agents_.empty()) {
-    const MeshVertex v{id, x, y, z};
-    agentVertices_.insert(v);
-    for (auto* a : agents_) a->vertex(v);
-  }
+  const MeshVertex v{id, x, y, z};
+  if (!triangleSinks_.empty()) vertices_.insert(v);
+  if (!writer_) return applyVertex(v);  // no copy, no queue
+  for (auto* a : agents_) a->vertex(v);
   put(kVertex, id, {bitsOf(x), bitsOf(y), bitsOf(z)});
 }
 
 void MeshTee::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) {
-  if (!writer_) return applyTriangle(a, b, c);
-  if (!agents_.empty()) {
-    const MeshVertex& va = agentVertices_.at(a);
-    const MeshVertex& vb = agentVertices_.at(b);
-    const MeshVertex& vc = agentVertices_.at(c);
-    for (auto* ag : agents_) ag->triangle(va, vb, vc);
+  if (triangleSinks_.empty()) {
+    if (!writer_) return applyTriangle(a, b, c);
+    return put(kTriangle, a, {b, c});
   }
-  put(kTriangle, a, {b, c});
+  const MeshVertex& va = vertices_.at(a);
+  const MeshVertex& vb = vertices_.at(b);
+  const MeshVertex& vc = vertices_.at(c);
+  if (!writer_) return applyTriangle(va, vb, vc);
+  for (auto* ag : agents_) ag->triangle(va, vb, vc);
+  put(kTriangle, a,
+      {bitsOf(va.x), bitsOf(va.y), bitsOf(va.z), b, bitsOf(vb.x), bitsOf(vb.y), bitsOf(vb.z), c, bitsOf(vc.x),
+       bitsOf(vc.y), bitsOf(vc.z)});
 }
 
 void MeshTee::finalizeVertex(std::uint64_t id) {
+  if (!triangleSinks_.empty()) vertices_.erase(id);
   if (!writer_) return applyFinalize(id);
-  if (!agents_.empty()) agentVertices_.erase(id);
   put(kFinalize, id, {});
 }
 

@@ -84,7 +84,9 @@ class TriangleSink {
 };
 
 // id -> coordinates of the live vertices: open addressing with linear probing on a multiplicative hash
-// of the id, deletion by backward shift (no tombstones, so long runs never degrade the probes).
+// of the id, deletion by backward shift (no tombstones, so long runs never degrade the probes).  A slot
+// is the vertex itself (32 bytes, two to a cache line); a free slot holds the id kFree, which no stream
+// can use (ids stop at 2^62).
 class VertexTable {
  public:
   VertexTable();
@@ -93,15 +95,12 @@ class VertexTable {
   const MeshVertex& at(std::uint64_t id) const;
   void erase(std::uint64_t id);
   std::size_t size() const { return size_; }
-  std::size_t capacityBytes() const { return slots_.size() * sizeof(Slot); }
+  std::size_t capacityBytes() const { return slots_.size() * sizeof(MeshVertex); }
 
  private:
-  struct Slot {
-    MeshVertex v;
-    bool used = false;
-  };
+  static constexpr std::uint64_t kFree = ~std::uint64_t{0};
   void grow();
-  std::vector<Slot> slots_;
+  std::vector<MeshVertex> slots_;
   std::size_t mask_ = 0, size_ = 0;
 };
 
@@ -145,14 +144,16 @@ class MeshTee : public MeshSink {
   void apply(const Batch& batch);
   void applyVertex(const MeshVertex& v);
   void applyTriangle(std::uint64_t a, std::uint64_t b, std::uint64_t c);
+  void applyTriangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c);
   void applyFinalize(std::uint64_t id);
 
   std::vector<MeshSink*> meshSinks_;
   std::vector<TriangleSink*> triangleSinks_;
   std::vector<CheckpointAgent*> agents_;  // of the triangle sinks that have one
   std::vector<std::uint32_t> agentSink_;  // ... and which sink each belongs to
-  VertexTable vertices_;                  // live vertices, for the TriangleSinks (writer side)
-  VertexTable agentVertices_;  // live vertices, for the agents on the triangulator's side (threaded)
+  // Live vertices, for the TriangleSinks and the agents.  One table, on the caller's side: with a writer
+  // thread, triangles travel to it with their coordinates already resolved.
+  VertexTable vertices_;
   bool agentsInApply_ = true;  // not threaded: the agents run with the sinks
   bool threaded_ = false;
   ProgressFunc progress_ = nullptr;
