@@ -13,6 +13,9 @@ packages=(
   libgtest-dev libgmock-dev     # GoogleTest (tests only)
   libcgal-dev libgmp-dev        # CGAL (tests and benchmarks only: independent oracle and speed peer)
   clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)
+  python3-qgis                  # QGIS 3.22's Python bindings with Processing, GDAL/OGR/MDAL providers and Qt's
+                                # offscreen platform: the headless QGIS tests (tests/qgis) and the provider
+  fonts-dejavu-core             # a font for QGIS's widgets and maps rendered offscreen (share/qgis screenshots)
 )
 missing=()
 for p in "${packages[@]}"; do
