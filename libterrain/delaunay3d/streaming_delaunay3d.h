@@ -1,0 +1,95 @@
+// Streaming 3D Delaunay tetrahedralization: eats a finalized octree point stream, emits a streaming
+// tetrahedral mesh.  The paper's spdelaunay3d (Isenburg, Liu, Shewchuk & Snoeyink, SIGGRAPH 2006).
+//
+// Points are inserted one by one (Bowyer-Watson: locate, grow the cavity of tetrahedra whose circumsphere
+// holds the point, fill it with tetrahedra joining its boundary faces to the point).  Finalization tags
+// say which octree cells will receive no more points; a tetrahedron whose circumsphere provably touches
+// finalized space only can never be destroyed, so it is written to the TetMeshSink at once and its memory
+// reused.  Memory follows the stream's width (active tetrahedra), not its length.
+//
+// Output is canonical: every decision goes through the exact predicates of predicates3d.h with CGAL's
+// symbolic perturbation, and the outside of the hull is covered by ghost tetrahedra (a hull face and the
+// point at infinity, vertex 0), so the set of tetrahedra is that of CGAL's Delaunay_triangulation_3 of the
+// distinct points, whatever the octree depth, the cell order or the batch sizes.
+//
+// Conventions
+//   - A tetrahedron stores vertices v[0..3] and neighbours n[0..3], neighbour i across the face opposite
+//     v[i]; a neighbour is 4 * tet + (its face index), kNone when the neighbour was final and is gone.
+//     Finite tetrahedra are positive (orient3d > 0).  The face opposite v[i], taken in the order kFace[i],
+//     has v[i] on its positive side; for a ghost, whose v[i] is the point at infinity, that face is the
+//     hull face and infinity lies beyond it.
+//   - A point conflicts with a finite tetrahedron when inspherePerturbed > 0, with a ghost when it lies
+//     strictly beyond the hull face, or in its plane and inside its circumcircle (coplanarCircleSide):
+//     CGAL's rules.
+//   - Duplicates (equal x, y and z) are merged: the first survives, the others are counted.
+//
+// Lifecycle of a tetrahedron: active -> final -> written -> freed.
+//   active   created by an insertion and parked on the list of one unfinalized leaf that its circumsphere
+//            may touch (at creation, the leaf of the point that created it).
+//   final    when that leaf is finalized, the tetrahedron is examined: a conservative box around its
+//            circumsphere (rigorous floating-point error bounds; no bound for a nearly flat one, which then
+//            waits) is searched in the octree of finalized cells, every unfinalized cell grown by the stream
+//            tolerance; if an unfinalized leaf may meet it the tetrahedron is parked there, else it is final.
+//            A ghost uses its closed half-space instead (exact orient3d against grown cell corners).
+//   written  a final finite tetrahedron is passed to TetMeshSink::tetrahedron at once, each vertex just
+//            before its first tetrahedron.
+//   freed    its slot is reused; neighbours see kNone.  A vertex counts its live tetrahedra (ghosts
+//            included) and is finalized when that count reaches zero.
+// At end() everything is final: the remaining finite tetrahedra are written, all vertices finalized.
+//
+// Point location: a visibility walk (stochastic face order) with exact orient3d from the last tetrahedron
+// created; if it runs into freed space it restarts from a tetrahedron parked on the point's leaf, and as a
+// last resort scans every live tetrahedron (counted in the stats).
+//
+// Points before the first non-coplanar quadruple are held back; a stream that never leaves a plane gets
+// its distinct points written and finalized with no tetrahedra.
+//
+// Not thread-safe: one thread drives a StreamingDelaunay3d.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+
+#include "libterrain/delaunay3d/tet_mesh_sink.h"
+#include "libterrain/finalizer/octree_stream.h"
+
+namespace tinbuild {
+
+struct Delaunay3dStats {
+  std::uint64_t pointsIn = 0;
+  std::uint64_t verticesOut = 0;
+  std::uint64_t duplicatesDropped = 0;
+  std::uint64_t tetsEmitted = 0;
+  std::uint64_t tetsCreated = 0;       // finite and ghost, by all insertions
+  std::uint64_t maxActiveTets = 0;     // live tetrahedra at once, ghosts included
+  std::uint64_t maxActiveVertices = 0;
+  std::uint64_t walkSteps = 0;
+  std::uint64_t restartsLeaf = 0;        // walks restarted from the point's leaf
+  std::uint64_t restartsExhaustive = 0;  // ... by scanning the live tetrahedra
+  std::uint64_t certificationChecks = 0;
+  std::uint64_t unboundedSpheres = 0;  // nearly flat tetrahedra whose sphere could not be bounded
+  std::uint64_t peakBytes = 0;         // peak capacity of the tetrahedralizer's arrays
+  bool degenerate = false;             // the input never left a plane: no tetrahedra
+};
+
+class StreamingDelaunay3d : public PointSink3 {
+ public:
+  explicit StreamingDelaunay3d(TetMeshSink& out);
+  ~StreamingDelaunay3d() override;
+  StreamingDelaunay3d(const StreamingDelaunay3d&) = delete;
+  StreamingDelaunay3d& operator=(const StreamingDelaunay3d&) = delete;
+
+  void begin(const StreamInfo3& info) override;
+  // Throws Error for a non-finite coordinate, or a point in a leaf already finalized (stream contract).
+  void points(const PointRecord* p, std::size_t n) override;
+  void finalizeCell(const OctCellTag& cell) override;
+  void end() override;
+
+  const Delaunay3dStats& stats() const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace tinbuild

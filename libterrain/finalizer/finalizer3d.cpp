@@ -1,0 +1,259 @@
+#include "libterrain/finalizer/finalizer3d.h"
+
+#include <algorithm>
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <unordered_map>
+#include <unordered_set>
+
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+namespace {
+
+std::uint64_t mix(std::uint64_t x) {
+  x ^= x >> 30;
+  x *= 0xbf58476d1ce4e5b9ULL;
+  x ^= x >> 27;
+  x *= 0x94d049bb133111ebULL;
+  x ^= x >> 31;
+  return x;
+}
+
+struct Candidate {
+  PointRecord p;
+  std::uint64_t ordinal = ~std::uint64_t{0};
+  double dist = 0;
+};
+
+struct Leaf {
+  std::uint64_t remaining = 0;
+  Candidate sprinkle;
+  std::vector<PointRecord> chunk;
+};
+
+struct Node {
+  std::uint8_t childMask = 0;
+  std::uint8_t incomplete = 0;  // occupied children not yet complete
+  Candidate sprinkle;
+};
+
+// Key of an octree node: level in the top byte, Morton code below.
+std::uint64_t nodeKey(int level, std::uint64_t code) {
+  return std::uint64_t(level) << 58 | code;
+}
+
+template <class Fn>
+void readAll(PointStream& s, const PointFilter& filter, FilterCounts* counts, std::size_t batch, Fn fn) {
+  std::vector<PointRecord> buf(batch);
+  FilterCounts local;
+  for (;;) {
+    const std::size_t n = s.read(buf.data(), buf.size());
+    if (n == 0) break;
+    const std::size_t k = filter.apply(buf.data(), n, counts ? *counts : local);
+    fn(buf.data(), k);
+  }
+}
+
+}  // namespace
+
+Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const Finalizer3dOptions& o,
+                                  PointSink3& out) {
+  const auto t0 = std::chrono::steady_clock::now();
+  Finalizer3dStats st;
+  ConcatPointStream in(inputs);
+  if (!in.rewindable())
+    throw Error("the 3D finalizer reads its inputs three times: give files, not stdin");
+
+  // Pass 1: bounds and count.
+  readAll(in, o.filter, &st.filter, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i) st.bounds.add(p[i].x, p[i].y, p[i].z);
+    st.points += n;
+  });
+  if (st.points == 0) throw Error("no points left after filtering (" + std::to_string(st.filter.read) + " read)");
+  if (o.depth > 8) throw Error("the 3D finalizer's depth is at most 8");
+  st.grid = makeOctreeGrid(st.bounds, o.depth >= 0 ? o.depth : chooseOctreeDepth(st.points));
+  const OctreeGrid& g = st.grid;
+  const int D = g.depth;
+  const double cs = g.cellSize();
+  auto leafCode = [&](const PointRecord& p) { return mortonCode3(g.column(p.x), g.row(p.y), g.layer(p.z)); };
+  auto decode = [](std::uint64_t code, int level, std::uint32_t& x, std::uint32_t& y, std::uint32_t& z) {
+    x = y = z = 0;
+    for (int b = 0; b < level; ++b) {
+      x |= static_cast<std::uint32_t>((code >> (3 * b)) & 1) << b;
+      y |= static_cast<std::uint32_t>((code >> (3 * b + 1)) & 1) << b;
+      z |= static_cast<std::uint32_t>((code >> (3 * b + 2)) & 1) << b;
+    }
+  };
+  auto centreDist = [&](const PointRecord& p, int level, std::uint64_t code) {
+    std::uint32_t x, y, z;
+    decode(code, level, x, y, z);
+    const double s = g.size / static_cast<double>(1u << level);
+    const double dx = p.x - (g.originX + (x + 0.5) * s), dy = p.y - (g.originY + (y + 0.5) * s),
+                 dz = p.z - (g.originZ + (z + 0.5) * s);
+    return dx * dx + dy * dy + dz * dz;
+  };
+  auto better = [](const Candidate& a, const Candidate& b) {  // a preferred over b
+    return b.ordinal == ~std::uint64_t{0} || a.dist < b.dist || (a.dist == b.dist && a.ordinal < b.ordinal);
+  };
+
+  // Pass 2: counts and sprinkle candidates per leaf.
+  std::unordered_map<std::uint64_t, Leaf> leaves;
+  in.rewind();
+  std::uint64_t ordinal = 0;
+  readAll(in, o.filter, nullptr, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i, ++ordinal) {
+      const std::uint64_t code = leafCode(p[i]);
+      Leaf& L = leaves[code];
+      ++L.remaining;
+      const Candidate c{p[i], ordinal, centreDist(p[i], D, code)};
+      if (better(c, L.sprinkle)) L.sprinkle = c;
+    }
+  });
+  if (ordinal != st.points) throw Error("an input yielded different points in two passes");
+  st.occupiedCells = leaves.size();
+  // The occupied nodes above the leaves, their children and sprinkle points (coarse from fine).
+  std::unordered_map<std::uint64_t, Node> nodes;
+  for (const auto& [code, L] : leaves) {
+    st.maxPerCell = std::max(st.maxPerCell, L.remaining);
+    for (int l = D - 1; l >= 0; --l) {
+      const std::uint64_t c = code >> (3 * (D - l));
+      const int child = static_cast<int>((code >> (3 * (D - l - 1))) & 7);
+      Node& N = nodes[nodeKey(l, c)];
+      const bool fresh = !(N.childMask & (1u << child));
+      N.childMask = static_cast<std::uint8_t>(N.childMask | (1u << child));
+      if (fresh) ++N.incomplete;
+      if (!fresh && l < D - 1) break;  // the ancestors above have seen this branch already
+    }
+  }
+  // Node sprinkles, level by level from the bottom.
+  for (int l = D - 1; l >= 0; --l)
+    for (auto& [key, N] : nodes) {
+      if (static_cast<int>(key >> 58) != l) continue;
+      const std::uint64_t c = key & ((std::uint64_t{1} << 58) - 1);
+      for (int ch = 0; ch < 8; ++ch) {
+        if (!(N.childMask & (1u << ch))) continue;
+        const std::uint64_t cc = c << 3 | static_cast<std::uint64_t>(ch);
+        Candidate cand = l + 1 == D ? leaves[cc].sprinkle : nodes[nodeKey(l + 1, cc)].sprinkle;
+        cand.dist = centreDist(cand.p, l, c);
+        if (better(cand, N.sprinkle)) N.sprinkle = cand;
+      }
+    }
+
+  StreamInfo3 info;
+  info.grid = g;
+  info.bounds = st.bounds;
+  info.points = st.points;
+  info.crsWkt = o.crsWkt;
+  out.begin(info);
+
+  auto tag = [&](int level, std::uint64_t code) {
+    OctCellTag t;
+    t.level = static_cast<std::uint8_t>(level);
+    decode(code, level, t.x, t.y, t.z);
+    out.finalizeCell(t);
+    ++st.tags;
+  };
+  // Empty cells up front, coarse levels first, Morton order within a level.
+  if (D > 0) {
+    std::vector<std::uint64_t> empties;
+    for (int l = 0; l < D; ++l) {
+      empties.clear();
+      for (const auto& [key, N] : nodes) {
+        if (static_cast<int>(key >> 58) != l) continue;
+        const std::uint64_t c = key & ((std::uint64_t{1} << 58) - 1);
+        for (int ch = 0; ch < 8; ++ch)
+          if (!(N.childMask & (1u << ch))) empties.push_back(c << 3 | static_cast<std::uint64_t>(ch));
+      }
+      std::sort(empties.begin(), empties.end());
+      for (const std::uint64_t e : empties) {
+        tag(l + 1, e);
+        ++st.emptyTags;
+      }
+    }
+  }
+
+  // Pass 3.
+  std::unordered_set<std::uint64_t> sprinkleOrdinals, emitted;
+  for (const auto& [code, L] : leaves) sprinkleOrdinals.insert(L.sprinkle.ordinal);
+  std::vector<PointRecord> batch;
+  std::uint64_t waiting = 0;
+  auto emitSprinkle = [&](const Candidate& c) {
+    if (emitted.insert(c.ordinal).second) batch.push_back(c.p);
+  };
+  auto release = [&](std::uint64_t code, Leaf& L) {
+    batch.clear();
+    for (int l = 0; l < D; ++l) {
+      const std::uint64_t c = code >> (3 * (D - l));
+      const Node& N = nodes[nodeKey(l, c)];
+      if (l == 0) emitSprinkle(N.sprinkle);
+      for (int ch = 0; ch < 8; ++ch) {
+        if (!(N.childMask & (1u << ch))) continue;
+        const std::uint64_t cc = c << 3 | static_cast<std::uint64_t>(ch);
+        emitSprinkle(l + 1 == D ? leaves[cc].sprinkle : nodes[nodeKey(l + 1, cc)].sprinkle);
+      }
+    }
+    emitSprinkle(L.sprinkle);
+    st.sprinkled += batch.size();
+    // BRIO: rounds by trailing zeros of a hash, rarest first; Morton order over a 16^3 sub-grid within.
+    std::uint32_t lx, ly, lz;
+    decode(code, D, lx, ly, lz);
+    const double ox = g.originX + lx * cs, oy = g.originY + ly * cs, oz = g.originZ + lz * cs;
+    auto sub = [&](double v, double o0) {
+      const double f = (v - o0) / cs * 16.0;
+      return static_cast<std::uint32_t>(std::clamp(f, 0.0, 15.0));
+    };
+    std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(L.chunk.size());
+    for (std::uint32_t i = 0; i < L.chunk.size(); ++i) {
+      const std::uint64_t h = mix(o.seed ^ mix(code * 0x9E3779B97F4A7C15ULL + i));
+      const int round = std::min(std::countr_zero(h | (std::uint64_t{1} << 20)), 20);
+      const PointRecord& p = L.chunk[i];
+      const std::uint64_t m = mortonCode3(sub(p.x, ox), sub(p.y, oy), sub(p.z, oz));
+      keys[i] = {(std::uint64_t(20 - round) << 32) | (m << 20) | 0, i};
+    }
+    std::stable_sort(keys.begin(), keys.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+    for (const auto& k : keys) batch.push_back(L.chunk[k.second]);
+    if (!batch.empty()) out.points(batch.data(), batch.size());
+    waiting -= L.chunk.size();
+    // Completion: climb while this was the parent's last incomplete child.
+    int level = D;
+    std::uint64_t c = code;
+    while (level > 0) {
+      Node& N = nodes[nodeKey(level - 1, c >> 3)];
+      if (--N.incomplete != 0) break;
+      --level;
+      c >>= 3;
+    }
+    tag(level, c);
+  };
+  in.rewind();
+  ordinal = 0;
+  std::size_t released = 0;
+  readAll(in, o.filter, nullptr, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i, ++ordinal) {
+      const std::uint64_t code = leafCode(p[i]);
+      auto it = leaves.find(code);
+      if (it == leaves.end() || it->second.remaining == 0)
+        throw Error("an input yielded different points in two passes");
+      Leaf& L = it->second;
+      if (!sprinkleOrdinals.count(ordinal)) {
+        L.chunk.push_back(p[i]);
+        ++waiting;
+        st.width = std::max(st.width, waiting);
+      }
+      if (--L.remaining == 0) {
+        release(code, L);
+        std::vector<PointRecord>().swap(L.chunk);  // the leaf stays: its sprinkle candidate is still asked for
+        ++released;
+      }
+    }
+  });
+  if (released != leaves.size()) throw Error("an input yielded fewer points in its last pass");
+  out.end();
+  st.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return st;
+}
+
+}  // namespace tinbuild

@@ -1,0 +1,62 @@
+// The spatial finalizer in 3D: the octree counterpart of finalizer.h (the paper's spfinalize with an
+// octree, as its spdelaunay3d experiments use), feeding a PointSink3 (octree_stream.h).
+//
+// finalizePoints3d() reads the inputs (one survey, in the order given) three times:
+//   pass 1  bounds and count of the points the PointFilter keeps; the octree's cube is laid over them
+//           (makeOctreeGrid) at options.depth, or at chooseOctreeDepth(count) when it is -1.
+//   pass 2  points per occupied leaf (a hash of the occupied leaves only), and each leaf's sprinkle
+//           candidate: its point closest to the leaf centre (lowest ordinal on ties).  Every octree node
+//           takes the candidate of its children closest to its own centre.
+//   pass 3  streaming out: each point is appended to its leaf's chunk; when a leaf's count reaches zero
+//           its chunk is released: (a) walking from the root down to the leaf's parent, the not yet emitted
+//           sprinkle points of the root and of every child of each node on the path (one per octant: a
+//           coarse, well spread sample arrives before the dense chunks), (b) the chunk in BRIO order
+//           (rounds by the trailing zero bits of a hash of (seed, leaf, arrival), rarest first; within a
+//           round, Morton order over a 16^3 sub-grid of the leaf), (c) one tag: the highest completed cell
+//           (a parent completes with its last occupied child).  Empty cells (unoccupied children of
+//           occupied nodes) are tagged right after begin(), coarse levels first.
+// The stream is a pure function of the inputs, the options and the seed.
+//
+// Memory follows the stream's width: only the chunks of leaves still waiting for points are held (the
+// "width" reported is the most points waiting at once), plus about 100 bytes per occupied leaf.  Unlike
+// the 2D finalizer there is no spill file and no read-order optimisation yet: an incoherent survey is
+// held in memory.  Inputs must be rewindable (files; stdin is refused with a clear error).
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "libterrain/core/point.h"
+#include "libterrain/finalizer/octree_stream.h"
+#include "libterrain/finalizer/point_filter.h"
+#include "libterrain/finalizer/point_stream.h"
+
+namespace tinbuild {
+
+struct Finalizer3dOptions {
+  int depth = -1;  // -1: chooseOctreeDepth(points); else 0..8
+  PointFilter filter;
+  std::uint64_t seed = 0x5eed2006;
+  std::string crsWkt;
+  std::size_t batchPoints = std::size_t{1} << 15;
+};
+
+struct Finalizer3dStats {
+  FilterCounts filter;
+  std::uint64_t points = 0;
+  Bounds3 bounds;
+  OctreeGrid grid;
+  std::uint64_t occupiedCells = 0;
+  std::uint64_t maxPerCell = 0;
+  std::uint64_t width = 0;  // most chunk points waiting at once
+  std::uint64_t sprinkled = 0;
+  std::uint64_t emptyTags = 0;
+  std::uint64_t tags = 0;
+  double seconds = 0;
+};
+
+Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const Finalizer3dOptions& options,
+                                  PointSink3& out);
+
+}  // namespace tinbuild

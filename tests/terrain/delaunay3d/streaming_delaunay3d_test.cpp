@@ -1,0 +1,327 @@
+// StreamingDelaunay3d behind the 3D finalizer: the emitted tetrahedra must be exactly CGAL's
+// Delaunay_triangulation_3 (exact predicates kernel) of the distinct points, as a set, for input in
+// general position; for cospherical input (lattices) the result must be a valid Delaunay
+// tetrahedralization by the exact local criterion (every interior face locally Delaunay under the
+// perturbation), cover the convex hull (its volume is CGAL's), and use every distinct point.  The stream
+// itself is checked as it arrives: vertices announced before use, never used after finalization, every
+// tetrahedron positive.
+#include "libterrain/delaunay3d/streaming_delaunay3d.h"
+
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <map>
+#include <random>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "formats/pointcloud/las_reader.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/delaunay3d/predicates3d.h"
+#include "libterrain/finalizer/finalizer3d.h"
+#include "test_support.h"
+#include "vector_stream.h"
+
+#if __has_include(<CGAL/Delaunay_triangulation_3.h>)
+#include <CGAL/Delaunay_triangulation_3.h>
+#include <CGAL/Exact_predicates_inexact_constructions_kernel.h>
+#define TINBUILD_TEST_HAVE_CGAL 1
+#endif
+
+namespace {
+
+using namespace tinbuild;
+using Tet4 = std::array<std::array<double, 3>, 4>;  // sorted vertex coordinates
+
+Tet4 canonical(const Point3 (&p)[4]) {
+  Tet4 t;
+  for (int i = 0; i < 4; ++i) t[i] = {p[i].x, p[i].y, p[i].z};
+  std::sort(t.begin(), t.end());
+  return t;
+}
+
+// Records the stream and checks its contract as it goes.
+class TetCollector : public TetMeshSink {
+ public:
+  void begin(const TetMeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    EXPECT_EQ(id, points.size());
+    points.push_back({x, y, z});
+    live.push_back(true);
+  }
+  void tetrahedron(std::uint64_t a, std::uint64_t b, std::uint64_t c, std::uint64_t d) override {
+    const std::uint64_t v[4] = {a, b, c, d};
+    Point3 p[4];
+    for (int i = 0; i < 4; ++i) {
+      ASSERT_LT(v[i], points.size());
+      ASSERT_TRUE(live[v[i]]) << "vertex used after finalization";
+      p[i] = points[v[i]];
+    }
+    if (!(orient3d(p[0], p[1], p[2], p[3]) > 0)) ++nonPositive;
+    tets.push_back({a, b, c, d});
+  }
+  void finalizeVertex(std::uint64_t id) override {
+    ASSERT_LT(id, points.size());
+    EXPECT_TRUE(live[id]);
+    live[id] = false;
+  }
+  void end() override { ended = true; }
+
+  std::vector<Tet4> sortedTets() const {
+    std::vector<Tet4> out;
+    for (const auto& t : tets) {
+      const Point3 p[4] = {points[t[0]], points[t[1]], points[t[2]], points[t[3]]};
+      out.push_back(canonical(p));
+    }
+    std::sort(out.begin(), out.end());
+    return out;
+  }
+
+  std::vector<Point3> points;
+  std::vector<bool> live;
+  std::vector<std::array<std::uint64_t, 4>> tets;
+  int nonPositive = 0;
+  bool ended = false;
+};
+
+struct TetRun {
+  TetCollector mesh;
+  Delaunay3dStats stats;
+  Finalizer3dStats fin;
+};
+
+void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = -1) {
+  test::VectorStream in(pts, 777);
+  StreamingDelaunay3d dt(r.mesh);
+  Finalizer3dOptions fo;
+  fo.filter = PointFilter::none();
+  fo.depth = depth;
+  std::vector<PointStream*> inputs{&in};
+  r.fin = finalizePoints3d(inputs, fo, dt);
+  r.stats = dt.stats();
+}
+
+std::vector<PointRecord> records(const std::vector<Point3>& p) {
+  std::vector<PointRecord> r(p.size());
+  for (std::size_t i = 0; i < p.size(); ++i) {
+    r[i].x = p[i].x;
+    r[i].y = p[i].y;
+    r[i].z = p[i].z;
+  }
+  return r;
+}
+
+// Exact local Delaunay check of every interior face, and the faces used once (hull) counted.
+struct LocalCheck {
+  std::uint64_t interiorFaces = 0, hullFaces = 0, violations = 0, overShared = 0;
+};
+LocalCheck localDelaunay(const TetCollector& m) {
+  LocalCheck c;
+  std::map<std::array<std::uint64_t, 3>, std::vector<std::pair<std::size_t, int>>> faces;
+  for (std::size_t t = 0; t < m.tets.size(); ++t)
+    for (int i = 0; i < 4; ++i) {
+      std::array<std::uint64_t, 3> f;
+      for (int j = 0, k = 0; j < 4; ++j)
+        if (j != i) f[k++] = m.tets[t][j];
+      std::sort(f.begin(), f.end());
+      faces[f].push_back({t, i});
+    }
+  for (const auto& [f, uses] : faces) {
+    if (uses.size() == 1) {
+      ++c.hullFaces;
+      continue;
+    }
+    if (uses.size() > 2) {
+      ++c.overShared;
+      continue;
+    }
+    ++c.interiorFaces;
+    for (int s = 0; s < 2; ++s) {
+      const auto& t = m.tets[uses[s].first];
+      const std::uint64_t opposite = m.tets[uses[1 - s].first][uses[1 - s].second];
+      const Point3 p[4] = {m.points[t[0]], m.points[t[1]], m.points[t[2]], m.points[t[3]]};
+      if (inspherePerturbed(p[0], p[1], p[2], p[3], m.points[opposite]) > 0) ++c.violations;
+    }
+  }
+  return c;
+}
+
+double volume(const TetCollector& m) {
+  double v = 0;
+  for (const auto& t : m.tets) {
+    const Point3& a = m.points[t[0]];
+    const Point3 &b = m.points[t[1]], &c = m.points[t[2]], &d = m.points[t[3]];
+    const double u[3] = {b.x - a.x, b.y - a.y, b.z - a.z}, w1[3] = {c.x - a.x, c.y - a.y, c.z - a.z},
+                 w2[3] = {d.x - a.x, d.y - a.y, d.z - a.z};
+    v += (u[0] * (w1[1] * w2[2] - w1[2] * w2[1]) - u[1] * (w1[0] * w2[2] - w1[2] * w2[0]) +
+          u[2] * (w1[0] * w2[1] - w1[1] * w2[0])) /
+         6.0;
+  }
+  return v;
+}
+
+std::size_t distinctCount(const std::vector<PointRecord>& pts) {
+  std::set<std::array<double, 3>> s;
+  for (const auto& p : pts) s.insert({p.x, p.y, p.z});
+  return s.size();
+}
+
+#ifdef TINBUILD_TEST_HAVE_CGAL
+using K = CGAL::Exact_predicates_inexact_constructions_kernel;
+using Dt3 = CGAL::Delaunay_triangulation_3<K>;
+
+std::vector<Tet4> cgalTets(const std::vector<PointRecord>& pts, double* vol = nullptr) {
+  std::vector<K::Point_3> p;
+  for (const auto& r : pts) p.emplace_back(r.x, r.y, r.z);
+  Dt3 dt(p.begin(), p.end());
+  std::vector<Tet4> out;
+  double v = 0;
+  for (auto c = dt.finite_cells_begin(); c != dt.finite_cells_end(); ++c) {
+    Point3 q[4];
+    for (int i = 0; i < 4; ++i) {
+      const auto& x = c->vertex(i)->point();
+      q[i] = {x.x(), x.y(), x.z()};
+    }
+    v += dt.tetrahedron(c).volume();
+    out.push_back(canonical(q));
+  }
+  std::sort(out.begin(), out.end());
+  if (vol) *vol = v;
+  return out;
+}
+#endif
+
+// The full check: stream contract, equality with CGAL (general position) or local Delaunay + hull volume.
+void check(const std::vector<PointRecord>& pts, bool generalPosition, int depth = -1) {
+  TetRun r;
+  tetrahedralize(pts, r, depth);
+  EXPECT_TRUE(r.mesh.ended);
+  EXPECT_EQ(r.mesh.nonPositive, 0);
+  for (std::size_t i = 0; i < r.mesh.live.size(); ++i) ASSERT_FALSE(r.mesh.live[i]) << "vertex never finalized";
+  EXPECT_EQ(r.mesh.points.size(), distinctCount(pts)) << "every distinct point is a vertex";
+  EXPECT_EQ(r.stats.duplicatesDropped, pts.size() - distinctCount(pts));
+  const LocalCheck lc = localDelaunay(r.mesh);
+  EXPECT_EQ(lc.violations, 0u);
+  EXPECT_EQ(lc.overShared, 0u);
+#ifdef TINBUILD_TEST_HAVE_CGAL
+  double cgalVolume = 0;
+  const std::vector<Tet4> theirs = cgalTets(pts, &cgalVolume);
+  EXPECT_NEAR(volume(r.mesh), cgalVolume, 1e-9 * std::fabs(cgalVolume)) << "hull covered";
+  if (generalPosition) {
+    const std::vector<Tet4> ours = r.mesh.sortedTets();
+    EXPECT_EQ(ours.size(), theirs.size());
+    EXPECT_TRUE(ours == theirs) << "tetrahedra differ from CGAL's";
+  }
+#else
+  (void)generalPosition;
+#endif
+}
+
+std::vector<PointRecord> randomCube(std::size_t n, unsigned seed, double offset = 0) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0, 100);
+  std::vector<Point3> p(n);
+  for (auto& q : p) q = {offset + u(rng), offset / 2 + u(rng), u(rng)};
+  return records(p);
+}
+
+TEST(StreamingDelaunay3d, RandomCubeMatchesCgal) {
+  check(randomCube(4000, 1), true);
+}
+
+TEST(StreamingDelaunay3d, RandomCubeAtUtmOffsetsMatchesCgal) {
+  check(randomCube(3000, 2, 500000.0), true);
+}
+
+TEST(StreamingDelaunay3d, DepthDoesNotChangeTetrahedra) {
+  const auto pts = randomCube(2000, 3);
+  TetRun a, b;
+  tetrahedralize(pts, a, 0);
+  tetrahedralize(pts, b, 3);
+  EXPECT_TRUE(a.mesh.sortedTets() == b.mesh.sortedTets());
+  EXPECT_LT(b.stats.maxActiveTets, a.stats.maxActiveTets);  // streaming frees memory
+}
+
+TEST(StreamingDelaunay3d, ClusteredPointsMatchCgal) {
+  std::mt19937_64 rng(4);
+  std::normal_distribution<double> g(0, 1);
+  std::uniform_real_distribution<double> u(0, 1000);
+  std::vector<Point3> p;
+  for (int c = 0; c < 12; ++c) {
+    const Point3 centre{u(rng), u(rng), u(rng) / 10};
+    const double s = c % 3 == 0 ? 0.01 : 5.0;
+    for (int i = 0; i < 300; ++i) p.push_back({centre.x + s * g(rng), centre.y + s * g(rng), centre.z + s * g(rng)});
+  }
+  check(records(p), true);
+}
+
+TEST(StreamingDelaunay3d, LatticeIsValidDelaunay) {
+  // A 9 x 9 x 9 lattice: cospherical everywhere (8 points on every cube's sphere), coplanar hull faces.
+  std::vector<Point3> p;
+  for (int i = 0; i < 9; ++i)
+    for (int j = 0; j < 9; ++j)
+      for (int k = 0; k < 9; ++k) p.push_back({500000.0 + i * 0.5, 4000000.0 + j * 0.5, 100.0 + k * 0.5});
+  std::shuffle(p.begin(), p.end(), std::mt19937_64(5));
+  check(records(p), false);
+  check(records(p), false, 2);
+}
+
+TEST(StreamingDelaunay3d, LatticeMatchesCgalPerturbation) {
+  // CGAL perturbs cospherical ties symbolically the same way: the tetrahedra agree even here.
+  std::vector<Point3> p;
+  for (int i = 0; i < 6; ++i)
+    for (int j = 0; j < 6; ++j)
+      for (int k = 0; k < 6; ++k) p.push_back({i * 1.0, j * 1.0, k * 1.0});
+  std::shuffle(p.begin(), p.end(), std::mt19937_64(6));
+  check(records(p), true);
+}
+
+TEST(StreamingDelaunay3d, DuplicatesAreMergedAndCounted) {
+  auto pts = randomCube(1500, 7);
+  const std::size_t n = pts.size();
+  for (std::size_t i = 0; i < n; i += 3) pts.push_back(pts[i]);
+  for (std::size_t i = 0; i < 50; ++i) pts.push_back(pts[i]);
+  check(pts, true);
+}
+
+TEST(StreamingDelaunay3d, CoplanarAndCollinearSubsets) {
+  std::mt19937_64 rng(8);
+  std::uniform_real_distribution<double> u(0, 10);
+  std::vector<Point3> p;
+  for (int i = 0; i < 600; ++i) p.push_back({u(rng), u(rng), u(rng)});
+  for (int i = 0; i < 300; ++i) p.push_back({u(rng), u(rng), 5.0});         // a plane (inside)
+  for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), 0.0});         // a hull plane
+  for (int i = 0; i < 100; ++i) {
+    const double t = u(rng);
+    p.push_back({t, t, t});  // a line
+  }
+  for (int i = 0; i < 100; ++i) p.push_back({std::floor(u(rng)), 10.0, std::floor(u(rng))});  // hull lattice
+  check(records(p), false);
+}
+
+TEST(StreamingDelaunay3d, PlanarInputHasNoTetrahedra) {
+  std::vector<Point3> p;
+  for (int i = 0; i < 50; ++i) p.push_back({i * 1.0, (i * 7 % 13) * 1.0, 3.0});
+  TetRun r;
+  tetrahedralize(records(p), r);
+  EXPECT_TRUE(r.stats.degenerate);
+  EXPECT_EQ(r.mesh.tets.size(), 0u);
+  EXPECT_EQ(r.mesh.points.size(), 50u);
+}
+
+TEST(StreamingDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
+  TINBUILD_REQUIRE_DATA();
+  Diagnostics diag;
+  LasReader reader(test::dataPath("las/simple.las"), diag);
+  std::vector<PointRecord> pts, batch(4096);
+  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  ASSERT_GT(pts.size(), 1000u);
+  // Quantized to 0.01: cospherical ties are frequent, and CGAL's perturbation is ours.
+  check(pts, true);
+}
+
+}  // namespace
