@@ -10,6 +10,7 @@
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
 #include "formats/io/plan_file.h"
+#include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -189,6 +190,9 @@ void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInf
   d.maxEdge = parseLength(o.dem.maxEdge, crs, "--max-edge");
   d.tileSize = o.dem.tileSize;
   d.memoryBudget = memoryShares(o.finalizer.memoryBudget).demTiles;
+  // GDAL's cache would keep a whole tile's written blocks (16 MiB for 2048 x 2048 floats) until the file
+  // closes: a quarter of the tiles' share lets it write them out as it goes.
+  if (d.memoryBudget > 0) limitGdalBlockCache(d.memoryBudget / 4);
   d.tempDir = o.finalizer.tempDir;
   if (!o.dem.tileSizeLength.empty()) {
     const double len = parseLength(o.dem.tileSizeLength, crs, "--tile-size-m");

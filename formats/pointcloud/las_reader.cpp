@@ -777,6 +777,9 @@ void LasReader::setupLaz(const LasVlr& vlr) {
   } catch (const laz::LazError& e) {
     throw DataError(file, e.what());
   }
+  // A decoder holds ~650 KB of models; a survey of a hundred tiles opens every file at the start, so the
+  // decoders are made when a pass reads the file and given back at its end.
+  z->decoders.clear();
   info_.format = "LAZ";
   if (!vlrs_.empty() && vlrs_.front().userId == kCopcUserId && vlrs_.front().recordId == kCopcInfoRecordId) {
     // COPC: the octree's hierarchy (an EVLR) says which chunk holds which node's points.
@@ -950,6 +953,7 @@ std::size_t LasReader::findNextLazChunk() {
   chunk.resize(static_cast<std::size_t>(window));
   readLazBytes(chunk.data(), chunk.size(), pos);
   z.raw.assign(static_cast<std::size_t>(n) * stride, 0);
+  if (z.decoders.empty()) z.decoders.emplace_back(z.info);
   const std::size_t used =
       decodeLazChunk(z.decoders[0], index, pos, chunk.data(), chunk.size(), n, z.raw.data());
   checkLazChunkBounds(index, pos, z.raw.data(), static_cast<std::size_t>(n));
@@ -1077,7 +1081,7 @@ std::size_t LasReader::readLaz(PointRecord* out, std::size_t n) {
     std::vector<std::uint8_t>().swap(z.raw);
     std::vector<std::uint8_t>().swap(z.ahead);
     z.rawPos = z.rawCount = z.aheadCount = 0;
-    while (z.decoders.size() > 1) z.decoders.pop_back();
+    std::vector<laz::ChunkDecoder>().swap(z.decoders);
   }
   return n;
 }

@@ -34,6 +34,11 @@ void registerGdalWriters() {
   std::call_once(once, [] { GDALAllRegister(); });
 }
 
+void limitGdalBlockCache(std::size_t bytes) {
+  if (CPLGetConfigOption("GDAL_CACHEMAX", nullptr) != nullptr) return;
+  GDALSetCacheMax64(static_cast<GIntBig>(std::max<std::size_t>(bytes, std::size_t{1} << 20)));
+}
+
 namespace {
 
 // GDAL's progress convention over a CancelFlag (data; null: never cancelled): 0 stops the copy.

@@ -97,5 +97,9 @@ class DemWriter : public DemTileSink {
 
 // Registers the GDAL drivers the writers use (GTiff, COG, VRT, MEM, GPKG).  Idempotent, thread-safe.
 void registerGdalWriters();
+// Caps GDAL's block cache (process-wide; by default 5% of the machine's memory) at `bytes`, unless the
+// user set GDAL_CACHEMAX.  The writers hand GDAL whole tiles, so a larger cache only holds a tile's
+// written blocks until its file is closed.
+void limitGdalBlockCache(std::size_t bytes);
 
 }  // namespace tinbuild
