@@ -17,6 +17,7 @@
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
 #include "formats/io/run_lock.h"
+#include "formats/mesh/tet_mesh_files.h"
 #include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
 
@@ -181,6 +182,8 @@ int runVerifyCommand(const cli::ParsedArgs& args) {
   if (words.empty() && args.positional.size() > 1)
     throw UsageError("verify: give one mesh; name the inputs with --points INPUT...");
   words.insert(words.end(), args.positional.begin() + 1, args.positional.end());
+  if (isTetMeshFile(args.positional[0]))  // a tetrahedral mesh (tinbuild tetrahedralize)
+    return verifyTetMesh(args.positional[0], words, a.options, a.run.json);
   a.options.inputs = expandInputs(words);
   const bool quiet = a.run.quiet || a.run.json;
   Diagnostics diag;

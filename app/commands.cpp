@@ -4,7 +4,7 @@ namespace tinbuild::app {
 
 const std::vector<Command>& commands() {
   static const std::vector<Command> all = {infoCommand(),        buildCommand(),  finalizeCommand(),
-                                           triangulateCommand(), verifyCommand(), planCommand(),
+                                           triangulateCommand(), tetrahedralizeCommand(), verifyCommand(), planCommand(),
                                            mergeCommand(),       demoCommand(),   benchCommand()};
   return all;
 }

@@ -29,5 +29,15 @@ Command buildCommand();
 Command planCommand();
 Command mergeCommand();
 Command verifyCommand();
+Command tetrahedralizeCommand();
+
+}  // namespace tinbuild::app
+namespace tinbuild {
+struct PipelineOptions;
+}
+namespace tinbuild::app {
+// `tinbuild verify` on a tetrahedral mesh (app/cmd_tetrahedralize.cpp): exit code 0 when it holds.
+int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& points, const PipelineOptions& o,
+                  bool json);
 
 }  // namespace tinbuild::app

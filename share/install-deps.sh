@@ -15,6 +15,8 @@ packages=(
   clang libclang-rt-14-dev      # clang and libFuzzer: the bounded fuzz run of the LAZ reader (tests/fuzz)
   python3-qgis                  # QGIS 3.22's Python bindings with Processing, GDAL/OGR/MDAL providers and Qt's
                                 # offscreen platform: the headless QGIS tests (tests/qgis) and the provider
+  python3-vtk9                  # VTK's Python bindings: the .vtu written by `tetrahedralize` read back by
+                                # vtkXMLUnstructuredGridReader (tests/formats/mesh/check_vtu.py)
   fonts-dejavu-core             # a font for QGIS's widgets and maps rendered offscreen (share/qgis screenshots)
 )
 missing=()

@@ -1,0 +1,150 @@
+// tinbuild tetrahedralize: the streaming 3D Delaunay tetrahedralization of point clouds (issue 32), and
+// the verification of tetrahedral meshes that `tinbuild verify` hands over (verifyTetMesh).
+//
+// The inputs are opened as `build` opens them (app/jobs/survey.h: LAS/LAZ/COPC/XYZ, CRS handling) and take
+// the same filters (finalizeTable's options: --keep-class, --drop-class, --first-only, --clip, ...); the
+// 3D finalizer (libterrain/finalizer/finalizer3d.h) streams them into StreamingDelaunay3d, which writes
+// the tetrahedra as they become final.  One thread for now: the finalizer drives the tetrahedralizer.
+#include <chrono>
+#include <cstdio>
+#include <iostream>
+#include <string>
+#include <unordered_set>
+
+#include "app/commands.h"
+#include "app/jobs/survey.h"
+#include "app/pipeline_options.h"
+#include "formats/mesh/tet_mesh_files.h"
+#include "formats/registry/input_list.h"
+#include "libterrain/core/diagnostics.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/delaunay3d/streaming_delaunay3d.h"
+#include "libterrain/delaunay3d/tet_mesh_verifier.h"
+#include "libterrain/finalizer/finalizer3d.h"
+
+namespace tinbuild::app {
+
+namespace {
+
+// Forwards to a writer and counts what it receives.
+int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
+  PipelineArgs a;
+  a.options.inputs = expandInputs(args.positional);
+  finalizeTable().bind(args, a);
+  if (a.options.inputs.empty()) throw UsageError("tetrahedralize: give at least one input file");
+  if (a.run.output.empty()) throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
+  const std::string output = a.run.output;
+  tetMeshFormatForPath(output);  // a usage error before any work
+  if (a.options.finalizer.depth > 8) throw UsageError("tetrahedralize: --depth is at most 8 (an octree)");
+  const auto t0 = std::chrono::steady_clock::now();
+  Diagnostics diag;
+  if (!a.run.quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  Survey in = openSurvey(a.options, diag, false);
+  Finalizer3dOptions fo;
+  fo.depth = a.options.finalizer.depth;
+  fo.filter = a.options.finalizer.filter;
+  fo.crsWkt = in.crs.wkt;
+  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output);
+  StreamingDelaunay3d dt(*writer);
+  const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, dt);
+  const Delaunay3dStats& ds = dt.stats();
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!a.run.quiet) {
+    std::cerr << "tetrahedralize: " << withCommas(fs.points) << " points (" << withCommas(ds.duplicatesDropped)
+              << " duplicates merged) -> " << withCommas(ds.verticesOut) << " vertices, " << withCommas(ds.tetsEmitted)
+              << " tetrahedra in " << formatDouble("%.2f s", seconds) << "\n"
+              << "  octree depth " << fs.grid.depth << ", " << withCommas(fs.occupiedCells)
+              << " occupied cells, stream width " << withCommas(fs.width) << " points\n"
+              << "  peak active tetrahedra " << withCommas(ds.maxActiveTets) << " ("
+              << formatDouble("%.2f", ds.tetsEmitted ? 100.0 * static_cast<double>(ds.maxActiveTets) /
+                                                          static_cast<double>(ds.tetsEmitted)
+                                                    : 0.0)
+              << "% of the output), peak active vertices " << withCommas(ds.maxActiveVertices) << "\n";
+    if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
+  }
+  return 0;
+}
+
+}  // namespace
+
+// `tinbuild verify` on a tetrahedral mesh (called by runVerifyCommand when the mesh is one).
+int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& points, const PipelineOptions& o,
+                  bool json) {
+  const auto t0 = std::chrono::steady_clock::now();
+  TetMeshVerifier v;
+  readTetMesh(mesh, v);
+  const TetCheckReport& r = v.report();
+  bool pointsChecked = false, pointsMatch = false;
+  std::uint64_t inputPoints = 0, distinct = 0;
+  if (!points.empty()) {
+    PipelineOptions po = o;
+    po.inputs = expandInputs(points);
+    Diagnostics diag;
+    Survey in = openSurvey(po, diag, false);
+    std::unordered_set<std::string> seen;
+    PointSetFingerprint3 fp;
+    std::vector<PointRecord> batch(1 << 15);
+    FilterCounts counts;
+    for (PointStream* s : in.streams)
+      for (std::size_t n; (n = s->read(batch.data(), batch.size())) > 0;) {
+        const std::size_t k = po.finalizer.filter.apply(batch.data(), n, counts);
+        for (std::size_t i = 0; i < k; ++i) {
+          ++inputPoints;
+          const double key[3] = {batch[i].x, batch[i].y, batch[i].z};
+          if (seen.insert(std::string(reinterpret_cast<const char*>(key), sizeof key)).second)
+            fp.add(key[0], key[1], key[2]);
+        }
+      }
+    distinct = fp.count;
+    pointsChecked = true;
+    pointsMatch = fp == r.fingerprint;
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  const bool ok = r.ok() && (!pointsChecked || pointsMatch);
+  if (json) {
+    std::cout << "{\"mesh\": \"" << mesh << "\", \"ok\": " << (ok ? "true" : "false") << ", \"vertices\": " << r.vertices
+              << ", \"tetrahedra\": " << r.tetrahedra << ", \"interior_faces\": " << r.interiorFaces
+              << ", \"hull_faces\": " << r.hullFaces << ", \"volume\": " << formatDouble("%.17g", r.volume)
+              << ", \"hull_volume\": " << formatDouble("%.17g", r.hullVolume) << ", \"problems\": " << r.problems.size()
+              << ", \"points_match\": " << (pointsChecked ? (pointsMatch ? "true" : "false") : "null") << "}\n";
+  } else {
+    std::cout << mesh << ": " << withCommas(r.vertices) << " vertices, " << withCommas(r.tetrahedra) << " tetrahedra, "
+              << withCommas(r.interiorFaces) << " interior faces checked locally Delaunay (exact), "
+              << withCommas(r.hullFaces) << " hull faces; at most " << withCommas(r.maxLiveVertices)
+              << " live vertices and " << withCommas(r.maxOpenFaces) << " open faces; "
+              << formatDouble("%.2f s", seconds) << "\n";
+    if (r.ok())
+      std::cout << "  mesh: valid streaming tetrahedral mesh, positive, Delaunay, convex hull covered (hull volume "
+                << formatDouble("%.10g", r.hullVolume) << " = sum of tetrahedra " << formatDouble("%.10g", r.volume)
+                << ")\n";
+    for (const auto& p : r.problems)
+      std::cout << "  problem: " << p.kind << " (" << withCommas(p.count) << "x): " << p.first << "\n";
+    if (pointsChecked)
+      std::cout << (pointsMatch ? "  points: every input point is used: the " : "  points: MISMATCH: the ")
+                << withCommas(distinct) << " distinct points of " << withCommas(inputPoints)
+                << " input points (after filters) " << (pointsMatch ? "are exactly" : "differ from")
+                << " the mesh's vertices\n";
+    std::cout << (ok ? "verify: OK\n" : "verify: FAILED\n");
+  }
+  return ok ? 0 : 1;
+}
+
+Command tetrahedralizeCommand() {
+  return Command{
+      "tetrahedralize",
+      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.vtu|MESH.ele [--depth K] [--keep-class LIST] "
+      "[--drop-class LIST] [-q]",
+      "streaming 3D Delaunay tetrahedralization of point clouds (the paper's spdelaunay3d)",
+      "Reads the inputs (LAS/LAZ/COPC/XYZ, several files as one survey, with the readers and filters of\n"
+      "`build`) as a 3D point cloud, finalizes them over an octree (counts per cell, sprinkle points, BRIO\n"
+      "chunks, finalization tags) and tetrahedralizes them incrementally (Bowyer-Watson, exact orient3d and\n"
+      "insphere with CGAL's symbolic perturbation), writing each tetrahedron as soon as its circumsphere\n"
+      "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines), a VTK XML\n"
+      "unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele writes both); coordinates\n"
+      "exact.  --depth is the octree's (0..8).  Check the result with `tinbuild verify MESH --points INPUT...`.",
+      finalizeTable().specs(),
+      runTetrahedralizeCommand};
+}
+
+}  // namespace tinbuild::app

@@ -1,0 +1,45 @@
+// Tetrahedral mesh files: the streaming ASCII tet mesh (.sma with tetrahedra), VTK XML unstructured grid
+// (.vtu, for ParaView) and TetGen's .node/.ele pair.  Writers are TetMeshSinks; readers replay a file into
+// one (vertex ids = the file's 0-based vertex numbers), so every format reads back for the round-trip tests
+// and for `tinbuild verify`.  docs/formats.md documents the layouts.
+//
+// Streaming tet SMA: the SMA of Isenburg & Lindstrom (streaming_mesh.h) with `t a b c d` lines instead of
+// `f a b c`: 1-based vertex numbers, a negative -k names the k-th most recent vertex and finalizes it;
+// `x i` finalizes vertex i.  The header says `# tinbuild streaming tetrahedral mesh`, then `# crs WKT`,
+// `# bb_min`, `# bb_max`; the file ends with `# end V T`.  Coordinates in the shortest decimal form that
+// round-trips (exact).  Memory follows the mesh's width, on both sides.
+//
+// .vtu and .node/.ele carry their counts before their data, so their writers keep the mesh (coordinates and
+// connectivity: 24 bytes a vertex, 32 a tetrahedron) until end().  Coordinates are written as shortest
+// round-trip decimals (Float64 in the .vtu, ascii), so they are exact too.  -o mesh.ele (or .node) writes
+// both mesh.node and mesh.ele.  Every writer stages PATH.tmp-XXXXXX and renames at end().
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <string>
+
+#include "libterrain/delaunay3d/tet_mesh_sink.h"
+
+namespace tinbuild {
+
+enum class TetMeshFormat { Sma, Vtu, TetGen };
+
+// By extension (.sma, .vtu, .node or .ele; case-insensitive); throws UsageError otherwise.
+TetMeshFormat tetMeshFormatForPath(const std::string& path);
+
+// Opens a writer for PATH ("-" only for .sma: stdout).
+std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path);
+
+struct TetMeshFileSummary {
+  std::uint64_t vertices = 0, tetrahedra = 0;
+  std::string crsWkt;
+};
+// Reads a tet mesh written by openTetMeshWriter (the format by extension; for TetGen either name) into
+// `sink`.  Throws DataError naming the file when it is malformed or truncated.
+TetMeshFileSummary readTetMesh(const std::string& path, TetMeshSink& sink);
+
+// Does this file hold a streaming tet SMA (its first line)?  For `verify`, which reads both kinds.
+bool isTetMeshFile(const std::string& path);
+
+}  // namespace tinbuild
