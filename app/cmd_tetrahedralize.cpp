@@ -61,6 +61,13 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
                                                           static_cast<double>(ds.tetsEmitted)
                                                     : 0.0)
               << "% of the output), peak active vertices " << withCommas(ds.maxActiveVertices) << "\n";
+    std::cerr << "  walk steps per point " << formatDouble("%.2f", ds.pointsIn ? double(ds.walkSteps) / double(ds.pointsIn) : 0.0)
+              << ", restarts " << withCommas(ds.restartsLeaf) << " (exhaustive " << withCommas(ds.restartsExhaustive)
+              << "), tetrahedra created per point "
+              << formatDouble("%.2f", ds.pointsIn ? double(ds.tetsCreated) / double(ds.pointsIn) : 0.0)
+              << ", certification checks per written tetrahedron "
+              << formatDouble("%.2f", ds.tetsEmitted ? double(ds.certificationChecks) / double(ds.tetsEmitted) : 0.0)
+              << ", tetrahedralizer arrays " << formatDouble("%.1f MB", double(ds.peakBytes) / 1e6) << "\n";
     if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
   }
   return 0;

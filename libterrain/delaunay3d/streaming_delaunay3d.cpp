@@ -34,8 +34,11 @@ struct Vertex {
 struct Tet {
   std::uint32_t v[4];
   std::uint32_t n[4];
-  std::uint32_t gen = 0;    // bumped when the slot is freed (park entries carry it)
   std::uint32_t stamp = 0;  // cavity search marks
+  // The park list the tetrahedron waits on (kNone: none) and its neighbours there.  Intrusive and doubly
+  // linked, so a tetrahedron destroyed by a cavity leaves its list at once and a finalization tag visits
+  // live tetrahedra only; siblings of one insertion are list neighbours, so unlinking touches hot lines.
+  std::uint32_t list = kNone, prev = kNone, next = kNone;
   bool alive() const { return v[0] != kNone; }
   bool ghost() const { return v[0] == kInf || v[1] == kInf || v[2] == kInf || v[3] == kInf; }
   int infIndex() const {
@@ -45,13 +48,11 @@ struct Tet {
   }
 };
 
-struct ParkEntry {
-  std::uint32_t tet, gen;
-};
 
 struct ParkList {
-  std::vector<ParkEntry> entries;
-  std::size_t compacted = 64;
+  std::uint64_t leaf = 0;
+  std::uint32_t head = kNone;
+  std::uint32_t size = 0;
 };
 
 struct Box {
@@ -67,8 +68,7 @@ class FaceMatcher {
     if (slots_.size() < cap) slots_.assign(cap, Slot{});
     for (const std::size_t u : used_) slots_[u] = Slot{};
     used_.clear();
-    mask_ = cap - 1;
-    if (slots_.size() > cap) mask_ = slots_.size() - 1;
+    mask_ = cap - 1;  // probe the small prefix only: a table grown by one big cavity stays cache-friendly
   }
   // Returns the partner's reference when the face was seen before (and removes it), else records it.
   std::uint32_t match(std::uint32_t a, std::uint32_t b, std::uint32_t c, std::uint32_t ref) {
@@ -102,6 +102,66 @@ class FaceMatcher {
   std::size_t mask_ = 0;
 };
 
+// Links the new tetrahedra of one insertion.  Each has the new point p and a cavity boundary face; its face
+// opposite boundary vertex k is (p, x, y) in positive order, and the new tetrahedron across it holds the
+// same face as (p, y, x).  So the directed edge (x, y) names the face: register it, look for (y, x).
+// Every directed edge of the cavity boundary occurs once.  Slots carry the stamp of the insertion that
+// wrote them, so nothing is cleared between insertions.
+class EdgeMatcher {
+ public:
+  void reset(std::size_t edges) {
+    std::size_t cap = 64;
+    while (cap < 2 * edges) cap <<= 1;
+    if (slots_.size() < cap) slots_.resize(cap);
+    mask_ = cap - 1;
+    if (++stamp_ == 0) {
+      for (Slot& s : slots_) s.stamp = 0;
+      stamp_ = 1;
+    }
+  }
+  // The reference registered under (y, x), or kNone after registering `ref` under (x, y).
+  std::uint32_t match(std::uint32_t x, std::uint32_t y, std::uint32_t ref) {
+    const std::uint64_t want = std::uint64_t{y} << 32 | x;
+    for (std::size_t i = slotOf(want);; i = (i + 1) & mask_) {
+      const Slot& s = slots_[i];
+      if (s.stamp != stamp_) break;
+      if (s.key == want) return s.ref;
+    }
+    const std::uint64_t key = std::uint64_t{x} << 32 | y;
+    std::size_t i = slotOf(key);
+    while (slots_[i].stamp == stamp_) i = (i + 1) & mask_;
+    slots_[i] = {key, ref, stamp_};
+    return kNone;
+  }
+
+ private:
+  struct Slot {
+    std::uint64_t key = 0;
+    std::uint32_t ref = 0, stamp = 0;
+  };
+  std::size_t slotOf(std::uint64_t key) const { return ((key * 0x9E3779B97F4A7C15ULL) >> 32) & mask_; }
+  std::vector<Slot> slots_;
+  std::size_t mask_ = 0;
+  std::uint32_t stamp_ = 0;
+};
+
+// kEdgeOf[j][k]: for a new tetrahedron with p at v[j], the positions (x, y) of the face opposite v[k]
+// (k != j) that follow p in that face's positive order kFace[k].
+struct EdgeTable {
+  int x[4][4], y[4][4];
+  constexpr EdgeTable() : x{}, y{} {
+    for (int j = 0; j < 4; ++j)
+      for (int k = 0; k < 4; ++k) {
+        if (k == j) continue;
+        int pos = 0;
+        while (kFace[k][pos] != j) ++pos;
+        x[j][k] = kFace[k][(pos + 1) % 3];
+        y[j][k] = kFace[k][(pos + 2) % 3];
+      }
+  }
+};
+constexpr EdgeTable kEdgeOf;
+
 }  // namespace
 
 struct StreamingDelaunay3d::Impl {
@@ -110,7 +170,9 @@ struct StreamingDelaunay3d::Impl {
   OctreeGrid grid;
   double growth = 0;
   std::vector<std::vector<std::uint8_t>> finalFlags;  // per level, 8^level cells
-  std::map<std::uint64_t, ParkList> parked;           // by the leaf's Morton code
+  std::map<std::uint64_t, std::uint32_t> parked;      // the leaf's Morton code -> its list in `lists`
+  std::vector<ParkList> lists;
+  std::vector<std::uint32_t> freeLists;
   std::vector<Vertex> verts;
   std::vector<std::uint32_t> freeVerts;
   std::vector<Tet> tets;
@@ -127,9 +189,10 @@ struct StreamingDelaunay3d::Impl {
   std::vector<std::uint32_t> cavity, newTets;
   std::vector<std::pair<std::uint32_t, int>> boundary;
   FaceMatcher matcher;
-  std::vector<ParkEntry> work;
+  EdgeMatcher edges;
+  std::vector<std::uint32_t> work;
   bool deferCertification = false;
-  std::vector<ParkEntry> deferred;
+  std::uint32_t deferredList = kNone;  // a park list of no leaf: the tetrahedra of the start, certified last
 
   explicit Impl(TetMeshSink& o) : out(o) {}
 
@@ -194,8 +257,8 @@ struct StreamingDelaunay3d::Impl {
     Tet& T = tets[t];
     std::uint32_t v[4];
     std::memcpy(v, T.v, sizeof v);
+    unpark(t);
     T.v[0] = kNone;
-    ++T.gen;
     freeTets.push_back(t);
     --liveTets;
     for (const std::uint32_t x : v) releaseVertexRef(x);
@@ -253,7 +316,7 @@ struct StreamingDelaunay3d::Impl {
       leaf = mortonCode3(x, y, z);
       return true;
     }
-    for (int i = 0; i < 8; ++i)
+    for (int i = 7; i >= 0; --i)
       if (findOpen(level + 1, 2 * x + (i & 1), 2 * y + ((i >> 1) & 1), 2 * z + (i >> 2), touches, leaf))
         return true;
     return false;
@@ -341,16 +404,46 @@ struct StreamingDelaunay3d::Impl {
     return findOpen(0, 0, 0, 0, [&](const Box& bx) { return overlaps(bx, s); }, leaf);
   }
 
-  void park(std::uint32_t t, std::uint64_t leaf) {
-    ParkList& L = parked[leaf];
-    L.entries.push_back({t, tets[t].gen});
-    if (L.entries.size() >= 2 * L.compacted) {
-      std::size_t k = 0;
-      for (const ParkEntry& e : L.entries)
-        if (tets[e.tet].gen == e.gen && tets[e.tet].alive()) L.entries[k++] = e;
-      L.entries.resize(k);
-      L.compacted = std::max<std::size_t>(64, k);
+  // The park list of `leaf`, made when it has none.
+  std::uint32_t listOf(std::uint64_t leaf) {
+    auto [it, fresh] = parked.try_emplace(leaf, kNone);
+    if (fresh) {
+      if (!freeLists.empty()) {
+        it->second = freeLists.back();
+        freeLists.pop_back();
+      } else {
+        it->second = static_cast<std::uint32_t>(lists.size());
+        lists.emplace_back();
+      }
+      lists[it->second] = ParkList{leaf, kNone, 0};
     }
+    return it->second;
+  }
+
+  void parkOn(std::uint32_t t, std::uint32_t list) {
+    Tet& T = tets[t];
+    ParkList& L = lists[list];
+    T.list = list;
+    T.prev = kNone;
+    T.next = L.head;
+    if (L.head != kNone) tets[L.head].prev = t;
+    L.head = t;
+    ++L.size;
+  }
+
+  void park(std::uint32_t t, std::uint64_t leaf) { parkOn(t, listOf(leaf)); }
+
+  void unpark(std::uint32_t t) {
+    Tet& T = tets[t];
+    if (T.list == kNone) return;
+    ParkList& L = lists[T.list];
+    if (T.prev != kNone)
+      tets[T.prev].next = T.next;
+    else
+      L.head = T.next;
+    if (T.next != kNone) tets[T.next].prev = T.prev;
+    --L.size;
+    T.list = T.prev = T.next = kNone;
   }
 
   void emit(std::uint32_t t) {
@@ -374,14 +467,15 @@ struct StreamingDelaunay3d::Impl {
     freeTet(t);
   }
 
-  void examine(const ParkEntry& e) {
-    if (tets[e.tet].gen != e.gen || !tets[e.tet].alive()) return;
+  // Certifies live, unparked tetrahedron t: parks it on an open leaf its conflict region may reach, or
+  // writes it.
+  void examine(std::uint32_t t) {
     ++stats.certificationChecks;
     std::uint64_t leaf;
-    if (openLeafFor(tets[e.tet], leaf))
-      park(e.tet, leaf);
+    if (openLeafFor(tets[t], leaf))
+      park(t, leaf);
     else
-      emit(e.tet);
+      emit(t);
   }
 
   // ----- insertion -----
@@ -407,20 +501,25 @@ struct StreamingDelaunay3d::Impl {
       ++stats.walkSteps;
       const Tet& T = tets[t];
       if (T.ghost()) return t;  // entered across its hull face: p lies strictly beyond it
+      // Stochastic face order; a face whose far side is gone (final) is passed over while another face
+      // also sees p, so the walk goes round written space instead of giving up at its first wall.
       const std::uint32_t r = nextRandom();
-      bool moved = false;
+      bool sees = false;
+      std::uint32_t next = kNone;
       for (int k = 0; k < 4; ++k) {
         const int j = static_cast<int>((r + k) & 3);
         const int* f = kFace[j];
         if (orient3d(P(T.v[f[0]]), P(T.v[f[1]]), P(T.v[f[2]]), p) < 0) {
-          const std::uint32_t n = T.n[j];
-          if (n == kNone) return kNone;
-          t = n >> 2;
-          moved = true;
-          break;
+          sees = true;
+          if (T.n[j] != kNone) {
+            next = T.n[j] >> 2;
+            break;
+          }
         }
       }
-      if (!moved) return t;
+      if (!sees) return t;
+      if (next == kNone) return kNone;
+      t = next;
     }
     return kNone;
   }
@@ -448,15 +547,28 @@ struct StreamingDelaunay3d::Impl {
     std::uint32_t t = walk(hint, p);
     if (t != kNone) return t;
     ++stats.restartsLeaf;
-    auto it = parked.find(leaf);
-    if (it != parked.end()) {
-      const auto& es = it->second.entries;
+    // From the newest tetrahedra parked on the point's leaf, then on the leaves nearest it in Morton order
+    // (a sprinkle point lands far from the last chunk, often past written space).
+    auto tryList = [&](std::uint32_t list, int maxTries) {
       int tries = 0;
-      for (auto e = es.rbegin(); e != es.rend() && tries < 4; ++e) {
-        if (tets[e->tet].gen != e->gen || !tets[e->tet].alive()) continue;
+      for (std::uint32_t e = lists[list].head; e != kNone && tries < maxTries; e = tets[e].next) {
         ++tries;
-        t = walk(e->tet, p);
-        if (t != kNone) return t;
+        const std::uint32_t r = walk(e, p);
+        if (r != kNone) return r;
+      }
+      return kNone;
+    };
+    auto it = parked.lower_bound(leaf);
+    if (it != parked.end() && it->first == leaf && (t = tryList(it->second, 8)) != kNone) return t;
+    auto up = it, down = it;
+    for (int k = 0; k < 32 && (up != parked.end() || down != parked.begin()); ++k) {
+      if (up != parked.end()) {
+        if (up->first != leaf && (t = tryList(up->second, 2)) != kNone) return t;
+        ++up;
+      }
+      if (down != parked.begin()) {
+        --down;
+        if ((t = tryList(down->second, 2)) != kNone) return t;
       }
     }
     return exhaustiveLocate(p);
@@ -499,7 +611,7 @@ struct StreamingDelaunay3d::Impl {
       }
     }
     newTets.clear();
-    matcher.reset(3 * boundary.size());
+    edges.reset(3 * boundary.size());
     for (const auto& [t, j] : boundary) {
       std::uint32_t v[4];
       std::memcpy(v, tets[t].v, sizeof v);
@@ -511,8 +623,8 @@ struct StreamingDelaunay3d::Impl {
       if (outer != kNone) tets[outer >> 2].n[outer & 3] = 4 * nt + static_cast<std::uint32_t>(j);
       for (int k = 0; k < 4; ++k) {
         if (k == j) continue;
-        const int* f = kFace[k];
-        const std::uint32_t partner = matcher.match(N.v[f[0]], N.v[f[1]], N.v[f[2]], 4 * nt + k);
+        const std::uint32_t partner =
+            edges.match(N.v[kEdgeOf.x[j][k]], N.v[kEdgeOf.y[j][k]], 4 * nt + static_cast<std::uint32_t>(k));
         if (partner != kNone) {
           N.n[k] = partner;
           tets[partner >> 2].n[partner & 3] = 4 * nt + static_cast<std::uint32_t>(k);
@@ -521,11 +633,11 @@ struct StreamingDelaunay3d::Impl {
       newTets.push_back(nt);
     }
     for (const std::uint32_t t : cavity) freeTet(t);
-    for (const std::uint32_t t : newTets) {
-      if (deferCertification)
-        deferred.push_back({t, tets[t].gen});
-      else
-        park(t, leaf);
+    if (deferCertification) {
+      for (const std::uint32_t t : newTets) parkOn(t, deferredList);
+    } else {
+      const std::uint32_t list = listOf(leaf);
+      for (const std::uint32_t t : newTets) parkOn(t, list);
     }
     hint = newTets.back();
     stats.peakBytes = std::max<std::uint64_t>(
@@ -578,7 +690,9 @@ struct StreamingDelaunay3d::Impl {
     // The other held-back points, in their order; their leaves may be final already, so certification
     // waits until all of them are in.
     deferCertification = true;
-    for (const std::uint32_t x : all) deferred.push_back({x, tets[x].gen});
+    deferredList = static_cast<std::uint32_t>(lists.size());
+    lists.emplace_back();
+    for (const std::uint32_t x : all) parkOn(x, deferredList);
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint32_t pv = pending[i];
       if (pv == a || pv == b || pv == c || pv == d) continue;
@@ -591,12 +705,17 @@ struct StreamingDelaunay3d::Impl {
     deferCertification = false;
     pending.clear();
     pendingKeys.clear();
-    std::vector<ParkEntry> d2;
-    d2.swap(deferred);
-    for (const ParkEntry& e : d2) {
-      if (tets[e.tet].gen != e.gen || !tets[e.tet].alive()) continue;
-      examine(e);
+    // The start's survivors (destroyed ones left the list when freed), unparked, then certified.
+    work.clear();
+    for (std::uint32_t x = lists[deferredList].head; x != kNone;) {
+      const std::uint32_t next = tets[x].next;
+      tets[x].list = tets[x].prev = tets[x].next = kNone;
+      work.push_back(x);
+      x = next;
     }
+    lists[deferredList] = ParkList{};
+    freeLists.push_back(deferredList);
+    for (const std::uint32_t x : work) examine(x);
   }
 
   std::uint64_t leafOf(const Point3& p) const {
@@ -642,10 +761,18 @@ struct StreamingDelaunay3d::Impl {
     const std::uint64_t hi = (mortonCode3(c.x, c.y, c.z) + 1) << shift;
     work.clear();
     for (auto it = parked.lower_bound(lo); it != parked.end() && it->first < hi;) {
-      work.insert(work.end(), it->second.entries.begin(), it->second.entries.end());
+      const std::uint32_t list = it->second;
+      for (std::uint32_t t = lists[list].head; t != kNone;) {
+        const std::uint32_t next = tets[t].next;
+        tets[t].list = tets[t].prev = tets[t].next = kNone;
+        work.push_back(t);
+        t = next;
+      }
+      freeLists.push_back(list);
       it = parked.erase(it);
     }
-    for (const ParkEntry& e : work) examine(e);
+    // (emit frees only the tetrahedron it writes, so every entry of `work` stays live.)
+    for (const std::uint32_t t : work) examine(t);
   }
 
   void finish() {

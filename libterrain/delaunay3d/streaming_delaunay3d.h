@@ -38,8 +38,16 @@
 // At end() everything is final: the remaining finite tetrahedra are written, all vertices finalized.
 //
 // Point location: a visibility walk (stochastic face order) with exact orient3d from the last tetrahedron
-// created; if it runs into freed space it restarts from a tetrahedron parked on the point's leaf, and as a
-// last resort scans every live tetrahedron (counted in the stats).
+// created; a face whose far side was written is passed over while another face also sees the point.  If
+// the walk is still walled in it restarts from tetrahedra parked on the point's leaf, then on the leaves
+// nearest it in Morton order, and as a last resort scans every live tetrahedron (counted in the stats).
+//
+// Park lists are intrusive (prev/next in the tetrahedron, one list per unfinalized leaf that has any):
+// a tetrahedron destroyed by a cavity leaves its list at once, so a tag examines live tetrahedra only.
+// A tetrahedron re-parked after a tag goes to the open leaf of highest Morton code its sphere may touch
+// (coherent streams finalize leaves roughly in Morton order, so it waits for fewer tags).  The new
+// tetrahedra of an insertion are linked to each other through the directed edges of the cavity's
+// boundary (a small stamped hash table), not by sorting vertex triples.
 //
 // Points before the first non-coplanar quadruple are held back; a stream that never leaves a plane gets
 // its distinct points written and finalized with no tetrahedra.
