@@ -37,7 +37,7 @@ std::vector<cli::OptionSpec> benchOptions() {
        "threads, parts, scale: the classes triangulated (default for the demo survey: 2,9)"},
       {"--list", "T,T,...",
        "threads: the thread counts measured, starting with 1 (default 1,2,4,8); parts: the rank counts "
-       "(1,2,4); scale: the sizes in millions of points (10,100)"},
+       "(1,2,4); scale, tet: the sizes in millions of points (scale 10,100; tet 1,5,10)"},
       {"--tile-points", "M",
        "scale: millions of points a tile: the demo writes round(sqrt(size / M))^2 tiles (default 10)"},
       {"--no-verify", "", "scale: the mesh goes to /dev/null instead of into tinbuild verify"},
@@ -57,7 +57,9 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--columns", "SPEC", "read: XYZ input column mapping"},
       {"--tin-layers", "", "read: LAZ point formats 6-10 decode only what a TIN needs (as build does)"},
       {"--cell-points", "M", "stream: points per cell (default 4000)"},
-      {"--order", "ORDER", "stream: cell order, hilbert (default) or serpentine"},
+      {"--order", "ORDER",
+       "stream: cell order, hilbert (default) or serpentine; tet: point order, coherent (default), random, both"},
+      {"--lidar", "N", "tet: also the demo's survey of N million points as a 3D cloud"},
       {"--within", "ORDER", "stream: point order within a cell, brio (default) or random"},
       {"-o", "FILE", "stream: output (default stdout)", "--output"},
       {"-q", "", "stream: no progress on stderr", "--quiet"}};
@@ -161,6 +163,7 @@ Command benchCommand() {
       "       tinbuild bench hydro [--points N] [--ponds P] [--roads R] [--repeat R] [--dir DIR] [--keep]\n"
       "       tinbuild bench scale [--list 10,100,1000] [--tile-points 10] [--memory MB] [--keep-class 2,9]\n"
       "                      [--step 2] [--repeat R] [--no-verify] [--dir DIR] [--keep]\n"
+      "       tinbuild bench tet [--list 1,5,10] [--order coherent|random|both] [--lidar N] [--repeat R]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",
@@ -191,6 +194,10 @@ Command benchCommand() {
       "DEM with the mesh piped into `tinbuild verify -`, R rounds (default 1): median wall time and\n"
       "points/s, peak RSS (wait4) and peak anonymous memory (/proc, every 100 ms), width, spool, DEM peak\n"
       "and spill, verify's result and RSS, and how RSS and time per point grow from size to size.\n"
+      "bench tet: `tinbuild tetrahedralize` against CGAL's Delaunay_triangulation_3 (compute only) on\n"
+      "uniform points in a cube (millions of --list, coherent or random order) and --lidar N, the demo's\n"
+      "survey as a 3D cloud: median of R alternating rounds (default 3), wall time, peak RSS, ratios,\n"
+      "peak active tetrahedra against the output, the finalizer's width.\n"
       "bench stream: a synthetic finalized stream on stdout, to pipe into `tinbuild triangulate -`.\n"
       "All of these run the tinbuild-bench executable beside tinbuild (it links CGAL, tinbuild never\n"
       "does); it is built when CGAL is installed (apt-get install libcgal-dev, then rebuild).\n"

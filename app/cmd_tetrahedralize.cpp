@@ -7,11 +7,13 @@
 // the tetrahedra as they become final.  One thread for now: the finalizer drives the tetrahedralizer.
 #include <chrono>
 #include <cstdio>
+#include <fstream>
 #include <iostream>
 #include <string>
 #include <unordered_set>
 
 #include "app/commands.h"
+#include "app/jobs/run_report.h"
 #include "app/jobs/survey.h"
 #include "app/pipeline_options.h"
 #include "formats/mesh/tet_mesh_files.h"
@@ -50,6 +52,22 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, dt);
   const Delaunay3dStats& ds = dt.stats();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!a.run.report.empty()) {
+    // The run's counts for scripts and `tinbuild bench tet` (flat JSON, one object per section).
+    std::ofstream r(a.run.report);
+    if (!r) throw Error(a.run.report + ": cannot write the report");
+    r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
+      << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
+      << ", \"depth\": " << fs.grid.depth << ", \"occupied_cells\": " << fs.occupiedCells
+      << ", \"width\": " << fs.width << ", \"tags\": " << fs.tags << "},\n  \"tetrahedralizer\": {\"points\": "
+      << ds.pointsIn << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
+      << ", \"tetrahedra\": " << ds.tetsEmitted << ", \"created\": " << ds.tetsCreated
+      << ", \"max_active_tets\": " << ds.maxActiveTets << ", \"max_active_vertices\": " << ds.maxActiveVertices
+      << ", \"walk_steps\": " << ds.walkSteps << ", \"restarts\": " << ds.restartsLeaf
+      << ", \"exhaustive\": " << ds.restartsExhaustive << ", \"checks\": " << ds.certificationChecks
+      << ", \"array_bytes\": " << ds.peakBytes << "}\n}\n";
+    if (!r.flush()) throw Error(a.run.report + ": cannot write the report");
+  }
   if (!a.run.quiet) {
     std::cerr << "tetrahedralize: " << withCommas(fs.points) << " points (" << withCommas(ds.duplicatesDropped)
               << " duplicates merged) -> " << withCommas(ds.verticesOut) << " vertices, " << withCommas(ds.tetsEmitted)

@@ -55,6 +55,10 @@ int cgalChildMain(const std::vector<std::string>& args);
 // `tinbuild-bench stream ...`: a finalized stream of uniform random points on stdout (stream_generator.cpp).
 int streamMain(const std::vector<std::string>& args);
 
+// tet_bench.cpp: `tet` (tetrahedralize against CGAL's Delaunay_triangulation_3) and its CGAL child.
+int tetMain(const std::vector<std::string>& args);
+int cgal3ChildMain(const std::vector<std::string>& args);
+
 // Small command-line helpers shared by the subcommands.
 class Args {
  public:

@@ -110,6 +110,12 @@ const char* kUsage =
     "                                   [--dir DIR] [--keep] [--tinbuild EXE]\n"
     "      Builds an S x S lattice in row order (massively cocircular) and a uniform random survey of the\n"
     "      same count; prints both build times and their ratio, with CGAL on both for reference.\n"
+    "  tinbuild-bench tet [--list 1,5,10] [--order coherent|random|both] [--lidar N] [--repeat R]\n"
+    "                     [--seed S] [--no-cgal] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "      `tinbuild tetrahedralize` against CGAL's Delaunay_triangulation_3 on uniform points in a cube\n"
+    "      (millions of --list; coherent order: cell by cell, or random) and the demo's N-million-point\n"
+    "      LIDAR survey as a 3D cloud: median wall time and peak RSS, ratios, tetrahedra, peak active\n"
+    "      tetrahedra against the output, the finalizer's width (tet_bench.cpp).\n"
     "  tinbuild-bench stream --points N [--cell-points M] [--seed S] [--order hilbert|serpentine]\n"
     "                        [--within brio|random] [-o FILE] [-q]\n"
     "      Writes a finalized point stream of N uniform random points (4 points/m^2, 0.01 m quantum) to\n"
@@ -1628,6 +1634,8 @@ int main(int argc, char** argv) {
     if (command == "hydro") return hydroMain(rest);
     if (command == "scale") return scaleMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
+    if (command == "tet") return tetMain(rest);
+    if (command == "cgal3-child") return cgal3ChildMain(rest);
     throw BenchError("unknown subcommand '" + command + "' (see tinbuild-bench --help)");
   } catch (const std::exception& e) {
     std::fprintf(stderr, "tinbuild-bench: error: %s\n", e.what());
