@@ -4,12 +4,15 @@
 // The inputs are opened as `build` opens them (app/jobs/survey.h: LAS/LAZ/COPC/XYZ, CRS handling) and take
 // the same filters (finalizeTable's options: --keep-class, --drop-class, --first-only, --clip, ...); the
 // 3D finalizer (libterrain/finalizer/finalizer3d.h) streams them into StreamingDelaunay3d, which writes
-// the tetrahedra as they become final.  One thread for now: the finalizer drives the tetrahedralizer.
+// the tetrahedra as they become final.  With more than one thread (--threads, default: the cores) the
+// tetrahedralizer and its writer run on a second thread behind a bounded queue (queued_point_sink3.h).
+#include <algorithm>
 #include <chrono>
 #include <cstdio>
 #include <fstream>
 #include <iostream>
 #include <string>
+#include <thread>
 #include <unordered_set>
 
 #include "app/commands.h"
@@ -24,6 +27,7 @@
 #include "libterrain/delaunay3d/streaming_delaunay3d.h"
 #include "libterrain/delaunay3d/tet_mesh_verifier.h"
 #include "libterrain/finalizer/finalizer3d.h"
+#include "libterrain/finalizer/queued_point_sink3.h"
 
 namespace tinbuild::app {
 
@@ -49,7 +53,17 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   fo.crsWkt = in.crs.wkt;
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output);
   StreamingDelaunay3d dt(*writer);
-  const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, dt);
+  // Two threads unless --threads 1: the finalizer reads and sorts while the tetrahedralizer inserts (the
+  // stream they exchange is the same either way, so is the output).
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  const int threads = a.run.threads > 0 ? a.run.threads : static_cast<int>(cores);
+  Finalizer3dStats fs;
+  if (threads > 1) {
+    QueuedPointSink3 queue(dt);
+    fs = finalizePoints3d(in.streams, fo, queue);
+  } else {
+    fs = finalizePoints3d(in.streams, fo, dt);
+  }
   const Delaunay3dStats& ds = dt.stats();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!a.run.report.empty()) {

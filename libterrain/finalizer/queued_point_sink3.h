@@ -1,0 +1,135 @@
+// A PointSink3 that hands the stream to another thread: the finalizer (reading, counting, BRIO sorting)
+// runs on the caller's thread while the downstream sink (the tetrahedralizer and its writer) runs on a
+// thread of its own, as the 2D pipeline overlaps its stages.
+//
+// Events (begin, point batches, tags, end) are appended to a block; a block is handed over when it holds
+// `blockPoints` points or more, or at end().  At most `maxBlocks` blocks wait, so the queue holds about
+// maxBlocks * blockPoints points (32 bytes each): memory stays bounded whatever the speeds.  The
+// downstream sink sees exactly the calls the producer made, in the same order and with the same batch
+// boundaries, so the output does not depend on thread timing.
+//
+// Errors: an exception thrown downstream stops the consumer; the producer's next call (or end()) rethrows
+// it.  If the producer throws instead, the destructor tells the consumer to stop and joins it.
+#pragma once
+
+#include <condition_variable>
+#include <cstddef>
+#include <deque>
+#include <exception>
+#include <mutex>
+#include <thread>
+#include <vector>
+
+#include "libterrain/finalizer/octree_stream.h"
+
+namespace tinbuild {
+
+class QueuedPointSink3 : public PointSink3 {
+ public:
+  explicit QueuedPointSink3(PointSink3& downstream, std::size_t blockPoints = std::size_t{1} << 13,
+                            std::size_t maxBlocks = 4)
+      : down_(downstream), blockPoints_(blockPoints), maxBlocks_(maxBlocks), worker_([this] { consume(); }) {}
+
+  ~QueuedPointSink3() override {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
+    if (worker_.joinable()) worker_.join();
+  }
+
+  QueuedPointSink3(const QueuedPointSink3&) = delete;
+  QueuedPointSink3& operator=(const QueuedPointSink3&) = delete;
+
+  void begin(const StreamInfo3& info) override {
+    info_ = info;
+    current_.events.push_back({Kind::Begin, 0, 0, {}});
+  }
+  void points(const PointRecord* p, std::size_t n) override {
+    current_.events.push_back({Kind::Points, current_.points.size(), n, {}});
+    current_.points.insert(current_.points.end(), p, p + n);
+    if (current_.points.size() >= blockPoints_) handOver(false);
+  }
+  void finalizeCell(const OctCellTag& cell) override { current_.events.push_back({Kind::Tag, 0, 0, cell}); }
+  void end() override {
+    current_.events.push_back({Kind::End, 0, 0, {}});
+    handOver(true);
+    std::unique_lock<std::mutex> lock(mutex_);
+    changed_.wait(lock, [this] { return finished_ || error_; });
+    if (error_) std::rethrow_exception(error_);
+  }
+
+ private:
+  enum class Kind { Begin, Points, Tag, End };
+  struct Event {
+    Kind kind;
+    std::size_t first, count;  // Points: the range in Block::points
+    OctCellTag tag;
+  };
+  struct Block {
+    std::vector<Event> events;
+    std::vector<PointRecord> points;
+  };
+
+  void handOver(bool last) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    changed_.wait(lock, [&] { return queue_.size() < maxBlocks_ || error_; });
+    if (error_) std::rethrow_exception(error_);
+    queue_.push_back(std::move(current_));
+    current_ = Block{};
+    if (!last) current_.points.reserve(blockPoints_ + 4096);
+    changed_.notify_all();
+  }
+
+  void consume() {
+    for (;;) {
+      Block b;
+      {
+        std::unique_lock<std::mutex> lock(mutex_);
+        changed_.wait(lock, [this] { return !queue_.empty() || stop_; });
+        if (stop_) return;  // the producer gave up (its exception is on its way)
+        b = std::move(queue_.front());
+        queue_.pop_front();
+      }
+      changed_.notify_all();
+      try {
+        bool ended = false;
+        for (const Event& e : b.events) switch (e.kind) {
+            case Kind::Begin: down_.begin(info_); break;
+            case Kind::Points: down_.points(b.points.data() + e.first, e.count); break;
+            case Kind::Tag: down_.finalizeCell(e.tag); break;
+            case Kind::End:
+              down_.end();
+              ended = true;
+              break;
+          }
+        if (ended) {
+          std::lock_guard<std::mutex> lock(mutex_);
+          finished_ = true;
+          changed_.notify_all();
+          return;
+        }
+      } catch (...) {
+        std::lock_guard<std::mutex> lock(mutex_);
+        error_ = std::current_exception();
+        queue_.clear();
+        changed_.notify_all();
+        return;
+      }
+    }
+  }
+
+  PointSink3& down_;
+  const std::size_t blockPoints_, maxBlocks_;
+  StreamInfo3 info_;  // written by begin() before the first block is handed over (the mutex orders it)
+  Block current_;
+  std::mutex mutex_;
+  std::condition_variable changed_;
+  std::deque<Block> queue_;
+  bool stop_ = false, finished_ = false;
+  std::exception_ptr error_;
+  std::thread worker_;  // last: starts once everything above is constructed
+};
+
+}  // namespace tinbuild
