@@ -83,6 +83,7 @@ int runWithReport(PipelineArgs& a, Run run) {
 }
 
 int runFinalizeCommand(const cli::ParsedArgs& args) {
+  if (args.has("--3d")) return runFinalize3dCommand(args);
   PipelineArgs a;
   a.options.inputs = expandInputs(args.positional);
   finalizeTable().bind(args, a);
@@ -216,7 +217,7 @@ Command verifyCommand() {
 Command finalizeCommand() {
   return Command{
       "finalize",
-      "tinbuild finalize INPUT... -o FILE|- [--depth K] [--memory MB] [--keep-class LIST] [--drop-class "
+      "tinbuild finalize INPUT... [--3d] -o FILE|- [--depth K] [--memory MB] [--keep-class LIST] [--drop-class "
       "LIST]\n"
       "                  [--first-only] [--last-only] [--clip xmin,ymin,xmax,ymax] [--report FILE.json] [-q]",
       "write the finalized point stream (the paper's spfinalize)",
@@ -225,8 +226,14 @@ Command finalizeCommand() {
       "grid, then the stream -- and writes the finalized point stream: points in spatially coherent chunks\n"
       "(one per grid cell, in a biased randomized insertion order, sprinkle points first), each followed by\n"
       "a finalization tag, exact coordinates; `tinbuild triangulate` reads it.  Incoherent input spills\n"
-      "waiting chunks to a temporary file beyond --memory.  Stdin is spooled to a temporary file.",
-      finalizeTable().specs(),
+      "waiting chunks to a temporary file beyond --memory.  Stdin is spooled to a temporary file.\n"
+      "--3d: the octree stream of `tinbuild tetrahedralize` instead (3D finalizer: cubes of 2^K per side,\n"
+      "--depth 0..8; no spill yet, inputs must be files); `tinbuild tetrahedralize FILE|-` reads it.",
+      [] {
+        auto specs = finalizeTable().specs();
+        specs.emplace_back("--3d", "", "write the 3D (octree) finalized stream that tetrahedralize reads");
+        return specs;
+      }(),
       runFinalizeCommand};
 }
 

@@ -6,7 +6,9 @@
 // 3D finalizer (libterrain/finalizer/finalizer3d.h) streams them into StreamingDelaunay3d, which writes
 // the tetrahedra as they become final.  With more than one thread (--threads, default: the cores) the
 // tetrahedralizer and its writer run on a second thread behind a bounded queue (queued_point_sink3.h).
+#include <unistd.h>
 #include <algorithm>
+
 #include <chrono>
 #include <cstdio>
 #include <fstream>
@@ -20,6 +22,7 @@
 #include "app/jobs/survey.h"
 #include "app/pipeline_options.h"
 #include "formats/mesh/tet_mesh_files.h"
+#include "formats/pointcloud/finalized_stream3.h"
 #include "formats/registry/input_list.h"
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
@@ -33,19 +36,78 @@ namespace tinbuild::app {
 
 namespace {
 
-// Forwards to a writer and counts what it receives.
+void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, double seconds) {
+  std::cerr << "tetrahedralize: " << withCommas(ds.pointsIn) << " points ("
+            << withCommas(ds.duplicatesDropped) << " duplicates merged) -> " << withCommas(ds.verticesOut)
+            << " vertices, " << withCommas(ds.tetsEmitted) << " tetrahedra in "
+            << formatDouble("%.2f s", seconds) << "\n";
+  if (fs)
+    std::cerr << "  octree depth " << fs->grid.depth << ", " << withCommas(fs->occupiedCells)
+              << " occupied cells, stream width " << withCommas(fs->width) << " points\n";
+  std::cerr << "  peak active tetrahedra " << withCommas(ds.maxActiveTets) << " ("
+            << formatDouble("%.2f", ds.tetsEmitted ? 100.0 * static_cast<double>(ds.maxActiveTets) /
+                                                         static_cast<double>(ds.tetsEmitted)
+                                                   : 0.0)
+            << "% of the output), peak active vertices " << withCommas(ds.maxActiveVertices) << "\n";
+  std::cerr << "  walk steps per point "
+            << formatDouble("%.2f", ds.pointsIn ? double(ds.walkSteps) / double(ds.pointsIn) : 0.0)
+            << ", restarts " << withCommas(ds.restartsLeaf) << " (exhaustive "
+            << withCommas(ds.restartsExhaustive) << "), tetrahedra created per point "
+            << formatDouble("%.2f", ds.pointsIn ? double(ds.tetsCreated) / double(ds.pointsIn) : 0.0)
+            << ", certification checks per written tetrahedron "
+            << formatDouble("%.2f",
+                            ds.tetsEmitted ? double(ds.certificationChecks) / double(ds.tetsEmitted) : 0.0)
+            << ", tetrahedralizer arrays " << formatDouble("%.1f MB", double(ds.peakBytes) / 1e6) << "\n";
+  if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
+}
+
+// `tetrahedralize FILE|-` on a 3D finalized stream: the tetrahedralizer alone (on its own thread behind
+// the reader unless --threads 1), the same output as the in-process run of the same stream.
+int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
+  if (a.run.output.empty())
+    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
+  tetMeshFormatForPath(a.run.output);
+  const auto t0 = std::chrono::steady_clock::now();
+  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output);
+  StreamingDelaunay3d dt(*writer);
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  if ((a.run.threads > 0 ? a.run.threads : static_cast<int>(cores)) > 1) {
+    QueuedPointSink3 queue(dt);
+    readFinalizedStream3(input, queue);
+  } else {
+    readFinalizedStream3(input, dt);
+  }
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!a.run.quiet) printTetSummary(nullptr, dt.stats(), seconds);
+  return 0;
+}
+
+// A 3D finalized stream (`tinbuild finalize --3d`) rather than a survey: "-" or a file with its magic.
+bool isFinalizedStream3(const std::vector<std::string>& positional) {
+  if (positional.size() != 1) return false;
+  if (positional[0] == "-") return true;
+  std::ifstream f(positional[0], std::ios::binary);
+  unsigned char head[8] = {};
+  f.read(reinterpret_cast<char*>(head), sizeof head);
+  return f.gcount() == 8 && looksLikeFinalizedStream3(head, 8);
+}
+
 int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   PipelineArgs a;
-  a.options.inputs = expandInputs(args.positional);
+  const bool fromStream = isFinalizedStream3(args.positional);
+  if (!fromStream) a.options.inputs = expandInputs(args.positional);
   finalizeTable().bind(args, a);
+  if (fromStream) return tetrahedralizeStream(args.positional[0], a);
   if (a.options.inputs.empty()) throw UsageError("tetrahedralize: give at least one input file");
-  if (a.run.output.empty()) throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
+  if (a.run.output.empty())
+    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
   const std::string output = a.run.output;
   tetMeshFormatForPath(output);  // a usage error before any work
   if (a.options.finalizer.depth > 8) throw UsageError("tetrahedralize: --depth is at most 8 (an octree)");
   const auto t0 = std::chrono::steady_clock::now();
   Diagnostics diag;
-  if (!a.run.quiet) diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  if (!a.run.quiet)
+    diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
   Survey in = openSurvey(a.options, diag, false);
   Finalizer3dOptions fo;
   fo.depth = a.options.finalizer.depth;
@@ -73,39 +135,52 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
     r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
       << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
       << ", \"depth\": " << fs.grid.depth << ", \"occupied_cells\": " << fs.occupiedCells
-      << ", \"width\": " << fs.width << ", \"tags\": " << fs.tags << "},\n  \"tetrahedralizer\": {\"points\": "
-      << ds.pointsIn << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
+      << ", \"width\": " << fs.width << ", \"tags\": " << fs.tags
+      << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
+      << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
       << ", \"tetrahedra\": " << ds.tetsEmitted << ", \"created\": " << ds.tetsCreated
-      << ", \"max_active_tets\": " << ds.maxActiveTets << ", \"max_active_vertices\": " << ds.maxActiveVertices
-      << ", \"walk_steps\": " << ds.walkSteps << ", \"restarts\": " << ds.restartsLeaf
-      << ", \"exhaustive\": " << ds.restartsExhaustive << ", \"checks\": " << ds.certificationChecks
-      << ", \"array_bytes\": " << ds.peakBytes << "}\n}\n";
+      << ", \"max_active_tets\": " << ds.maxActiveTets
+      << ", \"max_active_vertices\": " << ds.maxActiveVertices << ", \"walk_steps\": " << ds.walkSteps
+      << ", \"restarts\": " << ds.restartsLeaf << ", \"exhaustive\": " << ds.restartsExhaustive
+      << ", \"checks\": " << ds.certificationChecks << ", \"array_bytes\": " << ds.peakBytes << "}\n}\n";
     if (!r.flush()) throw Error(a.run.report + ": cannot write the report");
   }
-  if (!a.run.quiet) {
-    std::cerr << "tetrahedralize: " << withCommas(fs.points) << " points (" << withCommas(ds.duplicatesDropped)
-              << " duplicates merged) -> " << withCommas(ds.verticesOut) << " vertices, " << withCommas(ds.tetsEmitted)
-              << " tetrahedra in " << formatDouble("%.2f s", seconds) << "\n"
-              << "  octree depth " << fs.grid.depth << ", " << withCommas(fs.occupiedCells)
-              << " occupied cells, stream width " << withCommas(fs.width) << " points\n"
-              << "  peak active tetrahedra " << withCommas(ds.maxActiveTets) << " ("
-              << formatDouble("%.2f", ds.tetsEmitted ? 100.0 * static_cast<double>(ds.maxActiveTets) /
-                                                          static_cast<double>(ds.tetsEmitted)
-                                                    : 0.0)
-              << "% of the output), peak active vertices " << withCommas(ds.maxActiveVertices) << "\n";
-    std::cerr << "  walk steps per point " << formatDouble("%.2f", ds.pointsIn ? double(ds.walkSteps) / double(ds.pointsIn) : 0.0)
-              << ", restarts " << withCommas(ds.restartsLeaf) << " (exhaustive " << withCommas(ds.restartsExhaustive)
-              << "), tetrahedra created per point "
-              << formatDouble("%.2f", ds.pointsIn ? double(ds.tetsCreated) / double(ds.pointsIn) : 0.0)
-              << ", certification checks per written tetrahedron "
-              << formatDouble("%.2f", ds.tetsEmitted ? double(ds.certificationChecks) / double(ds.tetsEmitted) : 0.0)
-              << ", tetrahedralizer arrays " << formatDouble("%.1f MB", double(ds.peakBytes) / 1e6) << "\n";
-    if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
-  }
+  if (!a.run.quiet) printTetSummary(&fs, ds, seconds);
   return 0;
 }
 
 }  // namespace
+
+// `tinbuild finalize --3d`: the 3D finalizer into a 3D finalized stream file or stdout.
+int runFinalize3dCommand(const cli::ParsedArgs& args) {
+  PipelineArgs a;
+  a.options.inputs = expandInputs(args.positional);
+  finalizeTable().bind(args, a);
+  if (a.options.inputs.empty()) throw UsageError("finalize --3d: give at least one input file");
+  if (a.run.output.empty()) throw UsageError("finalize --3d: give the output: -o FILE, or -o - for stdout");
+  if (a.run.output == "-" && ::isatty(STDOUT_FILENO))
+    throw UsageError(
+        "finalize --3d: refusing to write a binary stream to a terminal (redirect it or use -o FILE)");
+  if (a.options.finalizer.depth > 8) throw UsageError("finalize --3d: --depth is at most 8 (an octree)");
+  const auto t0 = std::chrono::steady_clock::now();
+  Diagnostics diag;
+  if (!a.run.quiet)
+    diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  Survey in = openSurvey(a.options, diag, false);
+  Finalizer3dOptions fo;
+  fo.depth = a.options.finalizer.depth;
+  fo.filter = a.options.finalizer.filter;
+  fo.crsWkt = in.crs.wkt;
+  FinalizedStream3Writer writer(a.run.output);
+  const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, writer);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!a.run.quiet)
+    std::cerr << "finalize --3d: " << withCommas(fs.points) << " points, octree depth " << fs.grid.depth
+              << ", " << withCommas(fs.occupiedCells) << " occupied cells, " << withCommas(fs.tags)
+              << " tags, width " << withCommas(fs.width) << " points, " << formatDouble("%.2f s", seconds)
+              << "\n";
+  return 0;
+}
 
 // `tinbuild verify` on a tetrahedral mesh (called by runVerifyCommand when the mesh is one).
 int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& points, const PipelineOptions& o,
@@ -142,21 +217,25 @@ int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& point
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   const bool ok = r.ok() && (!pointsChecked || pointsMatch);
   if (json) {
-    std::cout << "{\"mesh\": \"" << mesh << "\", \"ok\": " << (ok ? "true" : "false") << ", \"vertices\": " << r.vertices
-              << ", \"tetrahedra\": " << r.tetrahedra << ", \"interior_faces\": " << r.interiorFaces
-              << ", \"hull_faces\": " << r.hullFaces << ", \"volume\": " << formatDouble("%.17g", r.volume)
-              << ", \"hull_volume\": " << formatDouble("%.17g", r.hullVolume) << ", \"problems\": " << r.problems.size()
-              << ", \"points_match\": " << (pointsChecked ? (pointsMatch ? "true" : "false") : "null") << "}\n";
+    std::cout << "{\"mesh\": \"" << mesh << "\", \"ok\": " << (ok ? "true" : "false")
+              << ", \"vertices\": " << r.vertices << ", \"tetrahedra\": " << r.tetrahedra
+              << ", \"interior_faces\": " << r.interiorFaces << ", \"hull_faces\": " << r.hullFaces
+              << ", \"volume\": " << formatDouble("%.17g", r.volume)
+              << ", \"hull_volume\": " << formatDouble("%.17g", r.hullVolume)
+              << ", \"problems\": " << r.problems.size()
+              << ", \"points_match\": " << (pointsChecked ? (pointsMatch ? "true" : "false") : "null")
+              << "}\n";
   } else {
-    std::cout << mesh << ": " << withCommas(r.vertices) << " vertices, " << withCommas(r.tetrahedra) << " tetrahedra, "
-              << withCommas(r.interiorFaces) << " interior faces checked locally Delaunay (exact), "
-              << withCommas(r.hullFaces) << " hull faces; at most " << withCommas(r.maxLiveVertices)
-              << " live vertices and " << withCommas(r.maxOpenFaces) << " open faces; "
-              << formatDouble("%.2f s", seconds) << "\n";
+    std::cout << mesh << ": " << withCommas(r.vertices) << " vertices, " << withCommas(r.tetrahedra)
+              << " tetrahedra, " << withCommas(r.interiorFaces)
+              << " interior faces checked locally Delaunay (exact), " << withCommas(r.hullFaces)
+              << " hull faces; at most " << withCommas(r.maxLiveVertices) << " live vertices and "
+              << withCommas(r.maxOpenFaces) << " open faces; " << formatDouble("%.2f s", seconds) << "\n";
     if (r.ok())
-      std::cout << "  mesh: valid streaming tetrahedral mesh, positive, Delaunay, convex hull covered (hull volume "
-                << formatDouble("%.10g", r.hullVolume) << " = sum of tetrahedra " << formatDouble("%.10g", r.volume)
-                << ")\n";
+      std::cout
+          << "  mesh: valid streaming tetrahedral mesh, positive, Delaunay, convex hull covered (hull volume "
+          << formatDouble("%.10g", r.hullVolume) << " = sum of tetrahedra " << formatDouble("%.10g", r.volume)
+          << ")\n";
     for (const auto& p : r.problems)
       std::cout << "  problem: " << p.kind << " (" << withCommas(p.count) << "x): " << p.first << "\n";
     if (pointsChecked)
@@ -181,7 +260,8 @@ Command tetrahedralizeCommand() {
       "insphere with CGAL's symbolic perturbation), writing each tetrahedron as soon as its circumsphere\n"
       "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines), a VTK XML\n"
       "unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele writes both); coordinates\n"
-      "exact.  --depth is the octree's (0..8).  Check the result with `tinbuild verify MESH --points INPUT...`.",
+      "exact.  --depth is the octree's (0..8).  Check the result with `tinbuild verify MESH --points "
+      "INPUT...`.",
       finalizeTable().specs(),
       runTetrahedralizeCommand};
 }

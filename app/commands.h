@@ -39,5 +39,7 @@ namespace tinbuild::app {
 // `tinbuild verify` on a tetrahedral mesh (app/cmd_tetrahedralize.cpp): exit code 0 when it holds.
 int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& points, const PipelineOptions& o,
                   bool json);
+// `tinbuild finalize --3d` (app/cmd_tetrahedralize.cpp): the 3D finalized stream.
+int runFinalize3dCommand(const cli::ParsedArgs& args);
 
 }  // namespace tinbuild::app

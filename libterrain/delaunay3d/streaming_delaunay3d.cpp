@@ -48,7 +48,6 @@ struct Tet {
   }
 };
 
-
 struct ParkList {
   std::uint64_t leaf = 0;
   std::uint32_t head = kNone;
@@ -75,8 +74,8 @@ class FaceMatcher {
     if (a > b) std::swap(a, b);
     if (b > c) std::swap(b, c);
     if (a > b) std::swap(a, b);
-    std::uint64_t h = (std::uint64_t{a} * 0x9E3779B97F4A7C15ULL) ^ (std::uint64_t{b} * 0xC2B2AE3D27D4EB4FULL) ^
-                      (std::uint64_t{c} * 0x165667B19E3779F9ULL);
+    std::uint64_t h = (std::uint64_t{a} * 0x9E3779B97F4A7C15ULL) ^
+                      (std::uint64_t{b} * 0xC2B2AE3D27D4EB4FULL) ^ (std::uint64_t{c} * 0x165667B19E3779F9ULL);
     h ^= h >> 29;
     for (std::size_t i = h & mask_;; i = (i + 1) & mask_) {
       Slot& s = slots_[i];
@@ -385,23 +384,26 @@ struct StreamingDelaunay3d::Impl {
     const int inf = T.infIndex();
     if (inf >= 0) {
       const Point3 &a = P(T.v[kFace[inf][0]]), &b = P(T.v[kFace[inf][1]]), &c = P(T.v[kFace[inf][2]]);
-      return findOpen(0, 0, 0, 0,
-                      [&](const Box& bx) {
-                        for (int i = 0; i < 8; ++i) {
-                          const Point3 q{(i & 1) ? bx.hi[0] : bx.lo[0], (i & 2) ? bx.hi[1] : bx.lo[1],
-                                         (i & 4) ? bx.hi[2] : bx.lo[2]};
-                          if (orient3d(a, b, c, q) >= 0) return true;
-                        }
-                        return false;
-                      },
-                      leaf);
+      return findOpen(
+          0, 0, 0, 0,
+          [&](const Box& bx) {
+            for (int i = 0; i < 8; ++i) {
+              const Point3 q{(i & 1) ? bx.hi[0] : bx.lo[0], (i & 2) ? bx.hi[1] : bx.lo[1],
+                             (i & 4) ? bx.hi[2] : bx.lo[2]};
+              if (orient3d(a, b, c, q) >= 0) return true;
+            }
+            return false;
+          },
+          leaf);
     }
     Box s;
     if (!sphereBox(T, s)) {
       ++stats.unboundedSpheres;
-      return findOpen(0, 0, 0, 0, [](const Box&) { return true; }, leaf);
+      return findOpen(
+          0, 0, 0, 0, [](const Box&) { return true; }, leaf);
     }
-    return findOpen(0, 0, 0, 0, [&](const Box& bx) { return overlaps(bx, s); }, leaf);
+    return findOpen(
+        0, 0, 0, 0, [&](const Box& bx) { return overlaps(bx, s); }, leaf);
   }
 
   // The park list of `leaf`, made when it has none.
@@ -732,8 +734,10 @@ struct StreamingDelaunay3d::Impl {
     const double q[3] = {p.x, p.y, p.z};
     for (int i = 0; i < 3; ++i)
       if (q[i] < cell.lo[i] || q[i] > cell.hi[i])
-        throw Error("3D Delaunay: a point lies outside its octree cell (the stream's grid does not cover it)");
-    if (leafFinal(cx, cy, cz)) throw Error("3D Delaunay: a point arrived in an octree cell already finalized");
+        throw Error(
+            "3D Delaunay: a point lies outside its octree cell (the stream's grid does not cover it)");
+    if (leafFinal(cx, cy, cz))
+      throw Error("3D Delaunay: a point arrived in an octree cell already finalized");
     if (!started) {
       if (!pendingKeys.insert(key(p)).second) {
         ++stats.duplicatesDropped;

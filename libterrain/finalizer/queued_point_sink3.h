@@ -96,9 +96,15 @@ class QueuedPointSink3 : public PointSink3 {
       try {
         bool ended = false;
         for (const Event& e : b.events) switch (e.kind) {
-            case Kind::Begin: down_.begin(info_); break;
-            case Kind::Points: down_.points(b.points.data() + e.first, e.count); break;
-            case Kind::Tag: down_.finalizeCell(e.tag); break;
+            case Kind::Begin:
+              down_.begin(info_);
+              break;
+            case Kind::Points:
+              down_.points(b.points.data() + e.first, e.count);
+              break;
+            case Kind::Tag:
+              down_.finalizeCell(e.tag);
+              break;
             case Kind::End:
               down_.end();
               ended = true;

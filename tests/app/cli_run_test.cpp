@@ -659,7 +659,7 @@ TEST(CliRun, HelpMatchesTheDocs) {
     std::set<std::string> helpOptions;
     // An option row starts with two spaces and a dash; its names (an alias may follow the name, e.g.
     // "-o, --output") come before the first double space.  One of them must be documented.
-    const std::regex opt(R"((^|[\s,])(--?[a-zA-Z][a-z0-9_-]*))");
+    const std::regex opt(R"((^|[\s,])(--[a-zA-Z0-9][a-z0-9_-]*|-[a-zA-Z][a-z0-9_-]*))");  // (--3d)
     std::istringstream lines(h.out);
     int rows = 0;
     for (std::string l; std::getline(lines, l);) {

@@ -5,6 +5,8 @@
 
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
+#include <sstream>
 #include <string>
 
 #include "test_support.h"
@@ -30,6 +32,44 @@ TEST(Tetrahedralize, RealSurveyIntoEveryFormatVerifies) {
   EXPECT_TRUE(std::filesystem::exists(dir + "/m.node"));
   // Another filter than the mesh was built with: the vertex set no longer matches.
   EXPECT_EQ(run("verify " + dir + "/m.sma --points " + las + " --keep-class 2"), 1);
+}
+
+std::string slurp(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  std::ostringstream s;
+  s << in.rdbuf();
+  return s.str();
+}
+
+// `finalize --3d | tetrahedralize -` and the stream file write the bytes of the one-process run, whatever
+// the threads (the tetrahedralizer behind a queue or not) and the depth.
+TEST(Tetrahedralize, PipeAndStreamFileEqualOneProcess) {
+  TINBUILD_REQUIRE_DATA();
+  const std::string las = tinbuild::test::dataPath("las/autzen_trim.las");
+  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_pipe";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  const std::string opts = " --depth 2 --keep-class 2 -q";
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/one.sma" + opts), 0);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/one1.sma --threads 1" + opts), 0);
+  ASSERT_EQ(run("finalize --3d " + las + " -o " + dir + "/s.tbfp3" + opts), 0);
+  ASSERT_EQ(run("tetrahedralize " + dir + "/s.tbfp3 -o " + dir + "/file.sma -q"), 0);
+  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o -" + opts + " | " +
+                           TINBUILD_EXE + " tetrahedralize - -o " + dir + "/pipe.sma --threads 1 -q";
+  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  const std::string one = slurp(dir + "/one.sma");
+  ASSERT_GT(one.size(), 1000u);
+  EXPECT_EQ(slurp(dir + "/one1.sma"), one);
+  EXPECT_EQ(slurp(dir + "/file.sma"), one);
+  EXPECT_EQ(slurp(dir + "/pipe.sma"), one);
+  EXPECT_EQ(run("verify " + dir + "/pipe.sma --points " + las + " --keep-class 2"), 0);
+  // A clipped stream is refused (exit 1), and nothing is written to the terminal by finalize --3d.
+  const std::string whole = slurp(dir + "/s.tbfp3");
+  {
+    std::ofstream cut(dir + "/cut.tbfp3", std::ios::binary);
+    cut.write(whole.data(), static_cast<std::streamsize>(whole.size() / 2));
+  }
+  EXPECT_EQ(run("tetrahedralize " + dir + "/cut.tbfp3 -o " + dir + "/cut.sma -q"), 1);
 }
 
 TEST(Tetrahedralize, UsageErrors) {

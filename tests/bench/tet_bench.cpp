@@ -138,7 +138,8 @@ void writeUniformLas(const std::string& path, std::uint64_t n, bool coherent, st
     auto morton = [](std::uint32_t c) {
       return spread3(c % kSide) | spread3((c / kSide) % kSide) << 1 | spread3(c / (kSide * kSide)) << 2;
     };
-    std::sort(cells.begin(), cells.end(), [&](std::uint32_t a, std::uint32_t b) { return morton(a) < morton(b); });
+    std::sort(cells.begin(), cells.end(),
+              [&](std::uint32_t a, std::uint32_t b) { return morton(a) < morton(b); });
     std::uniform_int_distribution<std::uint32_t> u(0, kCellUnits - 1);
     const std::uint64_t total = cells.size();
     for (std::uint64_t k = 0; k < total; ++k) {
@@ -165,8 +166,8 @@ struct Row {
   std::vector<double> allSeconds;
 };
 
-Row measure(const std::string& tinbuild, const std::string& self, const std::string& las, const std::string& label,
-            const std::string& dir, int rounds, bool noCgal) {
+Row measure(const std::string& tinbuild, const std::string& self, const std::string& las,
+            const std::string& label, const std::string& dir, int rounds, bool noCgal) {
   Row row;
   row.label = label;
   std::vector<double> secs, rss, csecs, crss, cload;
@@ -174,7 +175,8 @@ Row measure(const std::string& tinbuild, const std::string& self, const std::str
   std::string json;
   for (int r = 0; r < rounds; ++r) {
     fs::remove(report);
-    const ChildRun t = runChild(tinbuild, {"tetrahedralize", las, "-o", "/dev/null", "-q", "--report", report}, false);
+    const ChildRun t =
+        runChild(tinbuild, {"tetrahedralize", las, "-o", "/dev/null", "-q", "--report", report}, false);
     secs.push_back(t.seconds);
     rss.push_back(static_cast<double>(t.maxRssKb) / 1024.0);
     json = slurp(report);
@@ -192,7 +194,8 @@ Row measure(const std::string& tinbuild, const std::string& self, const std::str
       cload.push_back(load);
       crss.push_back(static_cast<double>(c.maxRssKb) / 1024.0);
       row.cgalTets = cellsOut;
-      line += ", CGAL " + fmt("%.2f s", insert) + " " + fmt("%.1f MiB", static_cast<double>(c.maxRssKb) / 1024.0);
+      line +=
+          ", CGAL " + fmt("%.2f s", insert) + " " + fmt("%.1f MiB", static_cast<double>(c.maxRssKb) / 1024.0);
     }
     say(line);
   }
@@ -260,9 +263,10 @@ int tetMain(const std::vector<std::string>& argv) {
       }
     if (lidar > 0) {
       say("writing the demo's " + std::to_string(lidar) + "M-point survey (untimed)");
-      runChild(tinbuild, {"demo", dir + "/demo", "--points", std::to_string(lidar), "--survey-only", "--las"}, false);
-      rows.push_back(measure(tinbuild, self, dir + "/demo/survey.las", std::to_string(lidar) + "M LIDAR (demo)", dir,
-                             rounds, noCgal));
+      runChild(tinbuild, {"demo", dir + "/demo", "--points", std::to_string(lidar), "--survey-only", "--las"},
+               false);
+      rows.push_back(measure(tinbuild, self, dir + "/demo/survey.las",
+                             std::to_string(lidar) + "M LIDAR (demo)", dir, rounds, noCgal));
     }
   } catch (...) {
     if (!keep) fs::remove_all(dir);
@@ -272,21 +276,26 @@ int tetMain(const std::vector<std::string>& argv) {
 
   double load[3] = {0, 0, 0};
   getloadavg(load, 3);
-  std::printf("tinbuild-bench tet: median of %d alternating rounds; %u cores, load average %.2f after\n", rounds,
-              std::thread::hardware_concurrency(), load[0]);
+  std::printf("tinbuild-bench tet: median of %d alternating rounds; %u cores, load average %.2f after\n",
+              rounds, std::thread::hardware_concurrency(), load[0]);
   std::printf("%-26s %11s %12s %9s %9s %6s %9s %9s %6s %10s %7s %9s %5s\n", "input", "points", "tetrahedra",
-              "ours s", "CGAL s", "ratio", "ours MiB", "CGAL MiB", "ratio", "active", "%out", "width", "depth");
+              "ours s", "CGAL s", "ratio", "ours MiB", "CGAL MiB", "ratio", "active", "%out", "width",
+              "depth");
   for (const Row& r : rows)
     std::printf("%-26s %11s %12s %9.2f %9.2f %6.2f %9.1f %9.1f %6.3f %10s %7.2f %9s %5d\n", r.label.c_str(),
-                group(r.points).c_str(), group(r.tets).c_str(), r.seconds, r.cgalSeconds, r.seconds / r.cgalSeconds,
-                r.rssMiB, r.cgalMiB, r.rssMiB / r.cgalMiB, group(r.maxActive).c_str(),
+                group(r.points).c_str(), group(r.tets).c_str(), r.seconds, r.cgalSeconds,
+                r.seconds / r.cgalSeconds, r.rssMiB, r.cgalMiB, r.rssMiB / r.cgalMiB,
+                group(r.maxActive).c_str(),
                 r.tets ? 100.0 * static_cast<double>(r.maxActive) / static_cast<double>(r.tets) : 0.0,
                 group(r.width).c_str(), r.depth);
   std::printf(
       "ours: `tinbuild tetrahedralize LAS -o /dev/null` (whole job, wall, wait4 peak RSS); CGAL: "
-      "Delaunay_triangulation_3<Epick>::insert(range), compute only (reading untimed; RSS includes the points).\n"
-      "ratio: ours / CGAL (goals: time <= 1, memory <= 0.1).  active: peak live tetrahedra (ghosts included), "
-      "%%out: of the output;\nwidth: most points the finalizer held at once.  Tetrahedron counts equal CGAL's.\n");
+      "Delaunay_triangulation_3<Epick>::insert(range), compute only (reading untimed; RSS includes the "
+      "points).\n"
+      "ratio: ours / CGAL (goals: time <= 1, memory <= 0.1).  active: peak live tetrahedra (ghosts "
+      "included), "
+      "%%out: of the output;\nwidth: most points the finalizer held at once.  Tetrahedron counts equal "
+      "CGAL's.\n");
   return 0;
 }
 
