@@ -134,7 +134,8 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
     if (!r) throw Error(a.run.report + ": cannot write the report");
     r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
       << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
-      << ", \"depth\": " << fs.grid.depth << ", \"occupied_cells\": " << fs.occupiedCells
+      << ", \"depth\": " << fs.grid.depth << ", \"depth_refinements\": " << fs.depthRefinements
+      << ", \"occupied_cells\": " << fs.occupiedCells
       << ", \"width\": " << fs.width << ", \"tags\": " << fs.tags
       << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
       << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut

@@ -3,7 +3,9 @@
 //
 // finalizePoints3d() reads the inputs (one survey, in the order given) three times:
 //   pass 1  bounds and count of the points the PointFilter keeps; the octree's cube is laid over them
-//           (makeOctreeGrid) at options.depth, or at chooseOctreeDepth(count) when it is -1.
+//           (makeOctreeGrid) at options.depth, or at chooseOctreeDepth(count) when it is -1 (then pass 2
+//           is repeated one level finer while the occupied leaves average 2048 points or more: a
+//           surface fills ~4x more cells a level, not 8x; at most 4 times, depth at most 8).
 //   pass 2  points per occupied leaf (a hash of the occupied leaves only), and each leaf's sprinkle
 //           candidate: its point closest to the leaf centre (lowest ordinal on ties).  Every octree node
 //           takes the candidate of its children closest to its own centre.
@@ -53,6 +55,7 @@ struct Finalizer3dStats {
   std::uint64_t sprinkled = 0;
   std::uint64_t emptyTags = 0;
   std::uint64_t tags = 0;
+  int depthRefinements = 0;  // extra counting passes that raised the default depth (surfaces)
   double seconds = 0;
 };
 
