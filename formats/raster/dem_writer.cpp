@@ -109,7 +109,7 @@ DemTarget demTargetForPath(const std::string& path) {
 
 struct DemWriter::Band {
   int kind = kZ;
-  GDALDatasetH ds = nullptr;  // single-file targets: open for the whole run
+  GDALDatasetH ds = nullptr;  // single-file targets: open for the whole run; a directory: the tile in strips
   std::string tempPath, finalPath;
   std::vector<std::pair<std::string, std::string>> staged;  // tile directory: staged -> final
 };
@@ -217,16 +217,34 @@ struct DemWriter::Impl {
         gdalFailure(reportAs, "cannot write the Cloud Optimized GeoTIFF");
       }
     } else {
-      CPLStringList opts = gtiffOptions(kind, false);
-      ds = GDALCreate(driver("GTiff"), path.c_str(), w, h, 1, type, opts.List());
-      if (!ds) gdalFailure(reportAs, "cannot create the GeoTIFF");
-      describe(ds, west, north, kind, path);
-      if (GDALRasterIO(GDALGetRasterBand(ds, 1), GF_Write, 0, 0, w, h, const_cast<void*>(data), w, h, type, 0,
-                       0) != CE_None) {
-        GDALClose(ds);
-        gdalFailure(reportAs, "cannot write the raster");
-      }
+      ds = createTileFile(path, reportAs, w, h, kind, west, north);
+      writeRows(ds, reportAs, data, w, 0, h, kind);
     }
+    closeTileFile(ds, reportAs);
+  }
+
+  // A tile's GeoTIFF, created empty (written in strips by writeRows, then closeTileFile).
+  GDALDatasetH createTileFile(const std::string& path, const std::string& reportAs, int w, int h, int kind,
+                              double west, double north) {
+    QuietGdal quiet;
+    CPLStringList opts = gtiffOptions(kind, false);
+    GDALDatasetH ds = GDALCreate(driver("GTiff"), path.c_str(), w, h, 1, bandType(kind), opts.List());
+    if (!ds) gdalFailure(reportAs, "cannot create the GeoTIFF");
+    describe(ds, west, north, kind, path);
+    return ds;
+  }
+
+  void writeRows(GDALDatasetH ds, const std::string& reportAs, const void* data, int w, int y0, int h, int kind) {
+    QuietGdal quiet;
+    if (GDALRasterIO(GDALGetRasterBand(ds, 1), GF_Write, 0, y0, w, h, const_cast<void*>(data), w, h,
+                     bandType(kind), 0, 0) != CE_None) {
+      GDALClose(ds);
+      gdalFailure(reportAs, "cannot write the raster");
+    }
+  }
+
+  void closeTileFile(GDALDatasetH ds, const std::string& reportAs) {
+    QuietGdal quiet;
     CPLErrorReset();
     GDALClose(ds);
     if (CPLGetLastErrorType() >= CE_Failure) gdalFailure(reportAs, "cannot finish the raster (disk full?)");
@@ -303,21 +321,24 @@ void DemWriter::begin(const DemLayout& layout, const MeshInfo& info) {
   }
 }
 
+// A tile file's staged and final paths: named by the south-west corner of the tile's lattice cell (not of
+// the part inside this raster), so the same cell has the same name in every run.
+static std::pair<std::string, std::string> tilePaths(const DemWriterOptions& o, const std::string& stagingDir,
+                                                     const DemLayout& L, const DemTile& t, const char* band) {
+  const double cellWest = L.originX + static_cast<double>(L.tileCol0 + t.tx * L.tileSize) * L.step;
+  const double cellSouth = L.originY + static_cast<double>(L.tileRow0 + t.ty * L.tileSize) * L.step;
+  const std::string name = std::string(band) + "_" + coordText(cellWest) + "_" + coordText(cellSouth) + ".tif";
+  return {stagingDir + "/" + name, (fs::path(o.path) / name).string()};
+}
+
 void DemWriter::tile(const DemTile& t) {
   Impl& m = *impl_;
   const DemLayout& L = m.layout;
   if (m.target == DemTarget::TileDirectory) {
     const double west = L.originX + static_cast<double>(t.col0) * L.step;
     const double north = L.originY + static_cast<double>(t.row0 + t.height) * L.step;
-    // Named by the south-west corner of the tile's lattice cell (not of the part inside this raster), so
-    // the same cell has the same name in every run.
-    const double cellWest = L.originX + static_cast<double>(L.tileCol0 + t.tx * L.tileSize) * L.step;
-    const double cellSouth = L.originY + static_cast<double>(L.tileRow0 + t.ty * L.tileSize) * L.step;
     for (Band& b : m.bands) {
-      const std::string name =
-          std::string(kBandName[b.kind]) + "_" + coordText(cellWest) + "_" + coordText(cellSouth) + ".tif";
-      const std::string staged = m.stagingDir + "/" + name;
-      const std::string final = (fs::path(m.o.path) / name).string();
+      auto [staged, final] = tilePaths(m.o, m.stagingDir, L, t, kBandName[b.kind]);
       m.writeTileFile(staged, final, bandData(t, b.kind), t.width, t.height, b.kind, west, north);
       b.staged.emplace_back(staged, final);
     }
@@ -332,6 +353,33 @@ void DemWriter::tile(const DemTile& t) {
       gdalFailure(b.finalPath, "cannot write a tile");
     // Write the blocks now and drop them from GDAL's cache: memory stays at the open tiles.
     if (GDALFlushRasterCache(band) != CE_None) gdalFailure(b.finalPath, "cannot write a tile (disk full?)");
+  }
+}
+
+bool DemWriter::takesStrips() const { return impl_->target == DemTarget::TileDirectory && !impl_->o.cog; }
+
+// The tile's files are created at its first strip and closed (complete) at its last; the same bytes as
+// tile() writes, since GDAL writes the same 256 x 256 blocks.
+void DemWriter::tileStrip(const DemTile& t, int y0, const DemTile& strip) {
+  Impl& m = *impl_;
+  const DemLayout& L = m.layout;
+  const bool first = y0 == 0, last = y0 + strip.height >= t.height;
+  for (Band& b : m.bands) {
+    auto [staged, final] = tilePaths(m.o, m.stagingDir, L, t, kBandName[b.kind]);
+    if (first) {
+      const double west = L.originX + static_cast<double>(t.col0) * L.step;
+      const double north = L.originY + static_cast<double>(t.row0 + t.height) * L.step;
+      b.ds = m.createTileFile(staged, final, t.width, t.height, b.kind, west, north);
+    }
+    GDALDatasetH ds = b.ds;
+    b.ds = nullptr;  // writeRows closes it when it fails, so ~Impl must not
+    m.writeRows(ds, final, bandData(strip, b.kind), strip.width, y0, strip.height, b.kind);
+    if (!last) {
+      b.ds = ds;
+      continue;
+    }
+    m.closeTileFile(ds, final);
+    b.staged.emplace_back(staged, final);
   }
 }
 

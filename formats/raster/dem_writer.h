@@ -77,6 +77,9 @@ class DemWriter : public DemTileSink {
 
   void begin(const DemLayout& layout, const MeshInfo& info) override;
   void tile(const DemTile& tile) override;
+  // A directory of GeoTIFF tiles takes tiles in strips (a COG, built by a copy, and single files do not).
+  bool takesStrips() const override;
+  void tileStrip(const DemTile& tile, int y0, const DemTile& strip) override;
   void end() override;
 
   // Files written (final names), after end().

@@ -523,46 +523,65 @@ void DemRasterizer::complete(std::int64_t key) {
   open_.erase(it);
   const bool empty = o->dataPixels == 0;
   DemTile& t = o->tile;
-  if (!empty) {
-    assignBands(t, static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height), opt_);
-  }
-  // Each block into its place in the tile's bands (absent blocks are the defaults above), freed as it goes.
-  const auto tileWidth = static_cast<std::size_t>(t.width);
-  for (std::size_t k = 0; k < o->blocks.size(); ++k) {
+  t.partial = opt_.partial && !begun_;  // still open at end(): see DemOptions::partial
+  const bool strips = !empty && !t.partial && out_.takesStrips();
+  const auto blocksY = static_cast<std::int64_t>(o->blocks.size()) / o->blocksX;
+  // Block k into `into` (the tile, or the strip of its block row), then freed (or its spill discarded).
+  auto place = [&](std::size_t k, DemTile& into, std::size_t rowOffset) {
     Block& b = o->blocks[k];
     if (b.queued) --fullLive_;
-    if (b.state == Block::State::Absent) continue;
+    if (b.state == Block::State::Absent) return;
     const std::uint64_t bytes = b.pixels * pixelBytes_;
     const std::size_t bw = b.width, bh = b.pixels / b.width;
+    const auto width = static_cast<std::size_t>(into.width);
     const auto x0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) % o->blocksX) << kBlockShift;
-    const auto y0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShift;
+    const auto y0 = (static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShift) - rowOffset;
     if (b.state == Block::State::Spilled) {
       if (!empty) {
         readBuffer_.resize(static_cast<std::size_t>(bytes));
         spillFile_->readAt(b.offset, readBuffer_.data(), readBuffer_.size());
         const unsigned char* src = readBuffer_.data();
-        forBands(t, b, [&](auto& tileBand, auto&) {
+        forBands(into, b, [&](auto& tileBand, auto&) {
           if (tileBand.empty()) return;
-          placeBlock(tileBand, tileWidth, src, bw, bh, x0, y0);
+          placeBlock(tileBand, width, src, bw, bh, x0, y0);
           src += b.pixels * sizeof(tileBand[0]);
         });
       }
       spillFile_->discard(b.offset, bytes);
     } else {
-      forBands(t, b, [&](auto& tileBand, auto& blockBand) {
+      forBands(into, b, [&](auto& tileBand, auto& blockBand) {
         if (!empty && !tileBand.empty())
-          placeBlock(tileBand, tileWidth, reinterpret_cast<const unsigned char*>(blockBand.data()), bw, bh,
-                     x0, y0);
+          placeBlock(tileBand, width, reinterpret_cast<const unsigned char*>(blockBand.data()), bw, bh, x0, y0);
         freeBand(blockBand);
       });
       heldBytes_ -= bytes;
     }
+  };
+  if (strips) {
+    DemTile strip;
+    strip.tx = t.tx;
+    strip.ty = t.ty;
+    strip.col0 = t.col0;
+    strip.width = t.width;
+    for (std::int64_t by = 0; by < blocksY; ++by) {
+      const int y0 = static_cast<int>(by << kBlockShift);
+      strip.height = std::min(t.height - y0, static_cast<int>(kBlockMask + 1));
+      strip.row0 = t.row0 + (t.height - y0 - strip.height);
+      assignBands(strip, static_cast<std::size_t>(strip.width) * static_cast<std::size_t>(strip.height), opt_);
+      for (std::int64_t bx = 0; bx < o->blocksX; ++bx)
+        place(static_cast<std::size_t>(by * o->blocksX + bx), strip, static_cast<std::size_t>(y0));
+      out_.tileStrip(t, y0, strip);
+    }
+    ++stats_.tilesWritten;
+    return;
   }
+  if (!empty) assignBands(t, static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height), opt_);
+  // Each block into its place in the tile's bands (absent blocks are the defaults above), freed as it goes.
+  for (std::size_t k = 0; k < o->blocks.size(); ++k) place(k, t, 0);
   if (empty) {
     ++stats_.tilesEmpty;
     return;
   }
-  t.partial = opt_.partial && !begun_;  // still open at end(): see DemOptions::partial
   out_.tile(t);
   ++stats_.tilesWritten;
 }

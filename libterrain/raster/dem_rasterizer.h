@@ -130,6 +130,18 @@ class DemTileSink {
   virtual void begin(const DemLayout& layout, const MeshInfo& info) = 0;
   virtual void tile(const DemTile& tile) = 0;
   virtual void end() = 0;
+  // A sink that answers true takes each complete tile in strips, one per row of the rasterizer's
+  // 256-pixel blocks from north to south, instead of whole: tileStrip(tile, y0, strip), where `tile` has
+  // the tile's place, size and validPixels (its bands empty) and `strip` holds its rows [y0, y0 +
+  // strip.height) (north-up; strip.row0 is the strip's own south row).  The tile is then never held
+  // whole (a 2048 x 2048 tile is 16 MiB a float band; a strip is 2 MiB).  Partial tiles
+  // (DemOptions::partial) always come whole.
+  virtual bool takesStrips() const { return false; }
+  virtual void tileStrip(const DemTile& tile, int y0, const DemTile& strip) {
+    (void)tile;
+    (void)y0;
+    (void)strip;
+  }
 };
 
 struct DemStats {

@@ -151,6 +151,9 @@ TEST(DemWriter, SingleTiffCogAndGeoPackageEqualTheTiles) {
   const fs::path dir = test::scratchDir();
   const std::string las = test::dataPath("las/Topography.las");
   build(las, (dir / "tiles").string(), "2", "", "100", [](PipelineOptions& o) { o.dem.tileSize = 100; });
+  // Tiles of several 256-row strips (DemWriter::tileStrip): the same values.
+  build(las, (dir / "strips").string(), "0.5", "", "100", [](PipelineOptions& o) { o.dem.tileSize = 700; });
+  build(las, (dir / "one05.tif").string(), "0.5");
   build(las, (dir / "one.tif").string(), "2");
   build(las, (dir / "cog.tif").string(), "2", "", "100", [](PipelineOptions& o) { o.dem.cog = true; });
   build(las, (dir / "dem.gpkg").string(), "2");
@@ -183,6 +186,23 @@ TEST(DemWriter, SingleTiffCogAndGeoPackageEqualTheTiles) {
       }
     }
   EXPECT_GT(compared, 1000u);
+  const Raster strips = readRaster((dir / "strips" / "mosaic.vrt").string());
+  const Raster one05 = readRaster((dir / "one05.tif").string());
+  ASSERT_GT(one05.height, 512) << "the strips case wants tiles of three strips";
+  std::size_t comparedStrips = 0;
+  for (int r = 0; r < one05.height; ++r)
+    for (int c = 0; c < one05.width; ++c) {
+      const double x = one05.gt[0] + (c + 0.5) * one05.gt[1], y = one05.gt[3] + (r + 0.5) * one05.gt[5];
+      const double v = one05.values[static_cast<std::size_t>(r) * one05.width + c];
+      const double t = strips.at(x, y);
+      if (std::isnan(t)) {
+        EXPECT_EQ(v, -9999);
+      } else {
+        EXPECT_EQ(v, t);
+        ++comparedStrips;
+      }
+    }
+  EXPECT_GT(comparedStrips, 100000u);
   GDALDatasetH ds = GDALOpen((dir / "cog.tif").c_str(), GA_ReadOnly);
   ASSERT_TRUE(ds);
   EXPECT_STREQ(GDALGetMetadataItem(ds, "LAYOUT", "IMAGE_STRUCTURE"), "COG");

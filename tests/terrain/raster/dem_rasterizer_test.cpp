@@ -413,6 +413,47 @@ struct TileCollector : DemTileSink {
   void end() override {}
 };
 
+// Takes the tiles in strips (DemTileSink::takesStrips) and puts each tile together again, checking that
+// the strips come north to south, one block row (256 pixels) each, and cover the tile exactly.
+struct StripCollector : TileCollector {
+  DemTile building;
+  int nextY = 0;
+  std::size_t strips = 0;
+  bool takesStrips() const override { return true; }
+  void tileStrip(const DemTile& t, int y0, const DemTile& s) override {
+    ++strips;
+    EXPECT_TRUE(t.z.empty());  // the tile's header: no bands
+    if (y0 == 0) {
+      building = t;
+      const auto n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
+      auto size = [n](auto& band, const auto& from) { band.resize(from.empty() ? 0 : n); };
+      size(building.z, s.z);
+      size(building.slope, s.slope);
+      size(building.aspect, s.aspect);
+      size(building.edgeLength, s.edgeLength);
+      size(building.hillshade, s.hillshade);
+      size(building.count, s.count);
+      nextY = 0;
+    }
+    ASSERT_EQ(y0, nextY);
+    EXPECT_EQ(s.width, t.width);
+    EXPECT_EQ(s.height, std::min(256, t.height - y0));
+    EXPECT_EQ(s.row0, t.row0 + t.height - y0 - s.height);
+    EXPECT_EQ(s.col0, t.col0);
+    auto copy = [&](auto& into, const auto& from) {
+      if (!from.empty()) std::copy(from.begin(), from.end(), into.begin() + static_cast<std::ptrdiff_t>(y0) * t.width);
+    };
+    copy(building.z, s.z);
+    copy(building.slope, s.slope);
+    copy(building.aspect, s.aspect);
+    copy(building.edgeLength, s.edgeLength);
+    copy(building.hillshade, s.hillshade);
+    copy(building.count, s.count);
+    nextY = y0 + s.height;
+    if (nextY == t.height) tile(building);
+  }
+};
+
 // Streams `pts` through the triangulator into a rasterizer with options `o`.
 DemStats streamTiles(const std::vector<PointRecord>& pts, const DemOptions& o, TileCollector& out) {
   VectorStream s(pts);
@@ -505,6 +546,36 @@ TEST(DemRasterizer, MemoryBudgetSpillsFullBlocksWithoutChangingTiles) {
     expectSameTiles(unlimited, half, "half budget");
     EXPECT_GT(s2.spilledBlocks, 0u);
     EXPECT_LE(s2.spilledBlocks, s1.spilledBlocks);
+  }
+}
+
+// A sink that takes strips gets the same tiles as one that takes them whole, with and without a budget
+// (blocks spilled and read back a strip at a time), for tiles of a block and a clipped one, and of 4 x 4.
+TEST(DemRasterizer, StripsAreTheWholeTilesRowByRow) {
+  const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
+  for (std::size_t budget : {std::size_t{0}, std::size_t{1}}) {
+    for (int tileSize : {300, 1024}) {
+      SCOPED_TRACE("tile size " + std::to_string(tileSize) + ", budget " + std::to_string(budget));
+      DemOptions o;
+      o.step = 0.15;
+      o.tileSize = tileSize;
+      o.extent = innerExtent(pts, 2);
+      o.slope = o.aspect = o.hillshade = o.edgeLength = o.count = true;
+      o.maxEdge = 1;
+      o.memoryBudget = budget;
+      o.tempDir = ::testing::TempDir();
+      TileCollector whole;
+      StripCollector strips;
+      const DemStats s0 = streamTiles(pts, o, whole);
+      const DemStats s1 = streamTiles(pts, o, strips);
+      expectSameTiles(whole, strips, "strips");
+      EXPECT_EQ(s1.tilesWritten, s0.tilesWritten);
+      EXPECT_EQ(s1.tilesEmpty, s0.tilesEmpty);
+      EXPECT_GE(strips.strips, strips.tiles.size());
+      if (tileSize == 1024) {
+        EXPECT_GT(strips.strips, strips.tiles.size());
+      }
+    }
   }
 }
 
