@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cctype>
+#include <cerrno>
 #include <charconv>
 #include <cstdio>
 #include <cstring>
@@ -93,58 +94,110 @@ class SmaTetWriter : public TetMeshSink {
 };
 
 // ----- whole-mesh writers (.vtu, .node/.ele) -----
-class BufferedTetWriter : public TetMeshSink {
+// Binary spool of fixed-size records in an unnamed temporary file (std::tmpfile: gone when closed or the
+// process dies), written in order and read back once, in chunks.
+class Spool {
+ public:
+  Spool() : f_(std::tmpfile()) {
+    if (!f_)
+      throw Error(std::string("tet mesh writer: cannot create a temporary file: ") + std::strerror(errno));
+    std::setvbuf(f_, nullptr, _IOFBF, std::size_t{1} << 20);
+  }
+  ~Spool() { std::fclose(f_); }
+  Spool(const Spool&) = delete;
+  Spool& operator=(const Spool&) = delete;
+  void put(const void* p, std::size_t bytes) {
+    if (std::fwrite(p, 1, bytes, f_) != bytes)
+      throw Error(std::string("tet mesh writer: cannot write its temporary file: ") + std::strerror(errno));
+  }
+  // Calls fn(items, n) for consecutive chunks of the `count` records of T written.
+  template <class T, class Fn>
+  void replay(std::uint64_t count, Fn fn) {
+    if (std::fflush(f_) != 0 || std::fseek(f_, 0, SEEK_SET) != 0)
+      throw Error(std::string("tet mesh writer: cannot reread its temporary file: ") + std::strerror(errno));
+    std::vector<T> buf(std::size_t{1} << 14);
+    for (std::uint64_t done = 0; done < count;) {
+      const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), count - done));
+      if (std::fread(buf.data(), sizeof(T), n, f_) != n)
+        throw Error("tet mesh writer: its temporary file is short");
+      fn(buf.data(), n);
+      done += n;
+    }
+  }
+
+ private:
+  std::FILE* f_;
+};
+
+// The .vtu and TetGen formats put their counts first, so vertices and tetrahedra are spooled to temporary
+// files (24 and 32 bytes each) and the output is assembled at end(): memory stays at the stream's width.
+class SpooledTetWriter : public TetMeshSink {
  public:
   void begin(const TetMeshInfo& info) override { crs_ = info.crsWkt; }
   void vertex(std::uint64_t id, double x, double y, double z) override {
-    if (id != xyz_.size() / 3) throw Error("tet mesh writer: vertex ids must be 0, 1, 2, ...");
-    xyz_.insert(xyz_.end(), {x, y, z});
+    if (id != nv_) throw Error("tet mesh writer: vertex ids must be 0, 1, 2, ...");
+    const double v[3] = {x, y, z};
+    points_.put(v, sizeof v);
+    ++nv_;
   }
   void tetrahedron(std::uint64_t a, std::uint64_t b, std::uint64_t c, std::uint64_t d) override {
-    tets_.insert(tets_.end(), {a, b, c, d});
+    const std::uint64_t t[4] = {a, b, c, d};
+    cells_.put(t, sizeof t);
+    ++nt_;
   }
   void finalizeVertex(std::uint64_t) override {}
 
  protected:
+  struct Xyz {
+    double v[3];
+  };
+  struct Tet4 {
+    std::uint64_t v[4];
+  };
   std::string crs_;
-  std::vector<double> xyz_;
-  std::vector<std::uint64_t> tets_;
+  std::uint64_t nv_ = 0, nt_ = 0;
+  Spool points_, cells_;
 };
 
-class VtuWriter : public BufferedTetWriter {
+class VtuWriter : public SpooledTetWriter {
  public:
   explicit VtuWriter(std::string path) : path_(std::move(path)) {}
   void end() override {
     OutputFile f(path_);
-    const std::size_t nv = xyz_.size() / 3, nt = tets_.size() / 4;
     std::string s;
-    s += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" byte_order=\"LittleEndian\" "
+    s += "<?xml version=\"1.0\"?>\n<VTKFile type=\"UnstructuredGrid\" version=\"1.0\" "
+         "byte_order=\"LittleEndian\" "
          "header_type=\"UInt64\">\n  <UnstructuredGrid>\n    <Piece NumberOfPoints=\"";
-    appendUint(s, nv), s += "\" NumberOfCells=\"", appendUint(s, nt), s += "\">\n";
+    appendUint(s, nv_), s += "\" NumberOfCells=\"", appendUint(s, nt_), s += "\">\n";
     s += "      <Points>\n        <DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n";
     f.write(s);
-    for (std::size_t i = 0; i < nv; ++i) {
-      s.clear();
-      appendDouble(s, xyz_[3 * i]), s += ' ', appendDouble(s, xyz_[3 * i + 1]), s += ' ';
-      appendDouble(s, xyz_[3 * i + 2]), s += '\n';
-      f.write(s);
-    }
-    f.write("        </DataArray>\n      </Points>\n      <Cells>\n"
-            "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n");
-    for (std::size_t i = 0; i < nt; ++i) {
-      s.clear();
-      for (int k = 0; k < 4; ++k) appendUint(s, tets_[4 * i + k]), s += ' ';
-      s.back() = '\n';
-      f.write(s);
-    }
+    points_.replay<Xyz>(nv_, [&](const Xyz* p, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i) {
+        s.clear();
+        appendDouble(s, p[i].v[0]), s += ' ', appendDouble(s, p[i].v[1]), s += ' ';
+        appendDouble(s, p[i].v[2]), s += '\n';
+        f.write(s);
+      }
+    });
+    f.write(
+        "        </DataArray>\n      </Points>\n      <Cells>\n"
+        "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n");
+    cells_.replay<Tet4>(nt_, [&](const Tet4* t, std::size_t n) {
+      for (std::size_t i = 0; i < n; ++i) {
+        s.clear();
+        for (int k = 0; k < 4; ++k) appendUint(s, t[i].v[k]), s += ' ';
+        s.back() = '\n';
+        f.write(s);
+      }
+    });
     f.write("        </DataArray>\n        <DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n");
-    for (std::size_t i = 0; i < nt; ++i) {
+    for (std::uint64_t i = 0; i < nt_; ++i) {
       s.clear();
       appendUint(s, 4 * (i + 1)), s += '\n';
       f.write(s);
     }
     f.write("        </DataArray>\n        <DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
-    for (std::size_t i = 0; i < nt; ++i) f.write("10\n");  // VTK_TETRA
+    for (std::uint64_t i = 0; i < nt_; ++i) f.write("10\n");  // VTK_TETRA
     f.write("        </DataArray>\n      </Cells>\n    </Piece>\n  </UnstructuredGrid>\n</VTKFile>\n");
     f.commit();
   }
@@ -153,33 +206,38 @@ class VtuWriter : public BufferedTetWriter {
   std::string path_;
 };
 
-class TetGenWriter : public BufferedTetWriter {
+class TetGenWriter : public SpooledTetWriter {
  public:
   explicit TetGenWriter(const std::string& path) : base_(stem(path)) {}
   void end() override {
     OutputFile node(base_ + ".node"), ele(base_ + ".ele");
-    const std::size_t nv = xyz_.size() / 3, nt = tets_.size() / 4;
     std::string s;
-    appendUint(s, nv), s += "  3  0  0\n";
+    appendUint(s, nv_), s += "  3  0  0\n";
     node.write(s);
-    for (std::size_t i = 0; i < nv; ++i) {
-      s.clear();
-      appendUint(s, i + 1);
-      for (int k = 0; k < 3; ++k) s += "  ", appendDouble(s, xyz_[3 * i + k]);
-      s += '\n';
-      node.write(s);
-    }
+    std::uint64_t i = 0;
+    points_.replay<Xyz>(nv_, [&](const Xyz* p, std::size_t n) {
+      for (std::size_t j = 0; j < n; ++j) {
+        s.clear();
+        appendUint(s, ++i);
+        for (int k = 0; k < 3; ++k) s += "  ", appendDouble(s, p[j].v[k]);
+        s += '\n';
+        node.write(s);
+      }
+    });
     node.write("# written by tinbuild tetrahedralize; coordinates exact (shortest round-trip decimals)\n");
     s.clear();
-    appendUint(s, nt), s += "  4  0\n";
+    appendUint(s, nt_), s += "  4  0\n";
     ele.write(s);
-    for (std::size_t i = 0; i < nt; ++i) {
-      s.clear();
-      appendUint(s, i + 1);
-      for (int k = 0; k < 4; ++k) s += "  ", appendUint(s, tets_[4 * i + k] + 1);
-      s += '\n';
-      ele.write(s);
-    }
+    i = 0;
+    cells_.replay<Tet4>(nt_, [&](const Tet4* t, std::size_t n) {
+      for (std::size_t j = 0; j < n; ++j) {
+        s.clear();
+        appendUint(s, ++i);
+        for (int k = 0; k < 4; ++k) s += "  ", appendUint(s, t[j].v[k] + 1);
+        s += '\n';
+        ele.write(s);
+      }
+    });
     node.commit();
     ele.commit();
   }
@@ -232,7 +290,8 @@ TetMeshFileSummary readSma(const std::string& path, TetMeshSink& sink) {
       if (line.rfind("# crs ", 0) == 0) info.crsWkt = s.crsWkt = line.substr(6);
       if (line.rfind("# end ", 0) == 0) {
         std::uint64_t v = 0, t = 0;
-        if (!parseNum(p = line.data() + 6, e, v) || !parseNum(p, e, t) || v != s.vertices || t != s.tetrahedra)
+        if (!parseNum(p = line.data() + 6, e, v) || !parseNum(p, e, t) || v != s.vertices ||
+            t != s.tetrahedra)
           r.fail("the end record does not match the mesh");
         ended = true;
       }
@@ -250,7 +309,8 @@ TetMeshFileSummary readSma(const std::string& path, TetMeshSink& sink) {
       for (int k = 0; k < 4; ++k) {
         if (!parseNum(p, e, v[k]) || v[k] == 0) r.fail("bad tetrahedron line");
         const std::int64_t i = v[k] > 0 ? v[k] - 1 : static_cast<std::int64_t>(s.vertices) + v[k];
-        if (i < 0 || static_cast<std::uint64_t>(i) >= s.vertices || !live[i]) r.fail("a tetrahedron refers to no live vertex");
+        if (i < 0 || static_cast<std::uint64_t>(i) >= s.vertices || !live[i])
+          r.fail("a tetrahedron refers to no live vertex");
         id[k] = static_cast<std::uint64_t>(i);
       }
       sink.tetrahedron(id[0], id[1], id[2], id[3]);
@@ -282,7 +342,9 @@ TetMeshFileSummary replay(const std::vector<double>& xyz, const std::vector<std:
   std::vector<std::uint64_t> last(nv, ~std::uint64_t{0});
   for (std::size_t t = 0; t < nt; ++t)
     for (int k = 0; k < 4; ++k) {
-      if (tets[4 * t + k] >= nv) throw DataError(path, "a tetrahedron refers to vertex " + std::to_string(tets[4 * t + k]) + " of " + std::to_string(nv));
+      if (tets[4 * t + k] >= nv)
+        throw DataError(path, "a tetrahedron refers to vertex " + std::to_string(tets[4 * t + k]) + " of " +
+                                  std::to_string(nv));
       last[tets[4 * t + k]] = t;
     }
   TetMeshInfo info;
@@ -332,7 +394,8 @@ TetMeshFileSummary readVtu(const std::string& path, TetMeshSink& sink) {
   const auto xyz = vtuArray<double>(text, "NumberOfComponents=\"3\"", path);
   const auto conn = vtuArray<std::uint64_t>(text, "Name=\"connectivity\"", path);
   const auto types = vtuArray<int>(text, "Name=\"types\"", path);
-  if (conn.size() != 4 * types.size() || std::any_of(types.begin(), types.end(), [](int t) { return t != 10; }))
+  if (conn.size() != 4 * types.size() ||
+      std::any_of(types.begin(), types.end(), [](int t) { return t != 10; }))
     throw DataError(path, "cells are not all tetrahedra");
   return replay(xyz, conn, path, sink);
 }
@@ -371,7 +434,8 @@ TetMeshFileSummary readTetGen(const std::string& path, TetMeshSink& sink) {
 
 TetMeshFormat tetMeshFormatForPath(const std::string& path) {
   const std::string e = lowerExtension(path);
-  if (e == "sma" || path == "-" || path == "/dev/null") return TetMeshFormat::Sma;  // (benchmarks: text made, not kept)
+  if (e == "sma" || path == "-" || path == "/dev/null")
+    return TetMeshFormat::Sma;  // (benchmarks: text made, not kept)
   if (e == "vtu") return TetMeshFormat::Vtu;
   if (e == "ele" || e == "node") return TetMeshFormat::TetGen;
   throw UsageError(path + ": a tetrahedral mesh is written as .sma, .vtu or .node/.ele");
@@ -379,18 +443,24 @@ TetMeshFormat tetMeshFormatForPath(const std::string& path) {
 
 std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path) {
   switch (tetMeshFormatForPath(path)) {
-    case TetMeshFormat::Sma: return std::make_unique<SmaTetWriter>(path);
-    case TetMeshFormat::Vtu: return std::make_unique<VtuWriter>(path);
-    case TetMeshFormat::TetGen: return std::make_unique<TetGenWriter>(path);
+    case TetMeshFormat::Sma:
+      return std::make_unique<SmaTetWriter>(path);
+    case TetMeshFormat::Vtu:
+      return std::make_unique<VtuWriter>(path);
+    case TetMeshFormat::TetGen:
+      return std::make_unique<TetGenWriter>(path);
   }
   return nullptr;
 }
 
 TetMeshFileSummary readTetMesh(const std::string& path, TetMeshSink& sink) {
   switch (tetMeshFormatForPath(path)) {
-    case TetMeshFormat::Sma: return readSma(path, sink);
-    case TetMeshFormat::Vtu: return readVtu(path, sink);
-    case TetMeshFormat::TetGen: return readTetGen(path, sink);
+    case TetMeshFormat::Sma:
+      return readSma(path, sink);
+    case TetMeshFormat::Vtu:
+      return readVtu(path, sink);
+    case TetMeshFormat::TetGen:
+      return readTetGen(path, sink);
   }
   return {};
 }

@@ -9,8 +9,9 @@
 // `# bb_min`, `# bb_max`; the file ends with `# end V T`.  Coordinates in the shortest decimal form that
 // round-trips (exact).  Memory follows the mesh's width, on both sides.
 //
-// .vtu and .node/.ele carry their counts before their data, so their writers keep the mesh (coordinates and
-// connectivity: 24 bytes a vertex, 32 a tetrahedron) until end().  Coordinates are written as shortest
+// .vtu and .node/.ele carry their counts before their data, so their writers spool the mesh (coordinates
+// and connectivity: 24 bytes a vertex, 32 a tetrahedron) to unnamed temporary files (std::tmpfile) and
+// assemble the file at end(): memory stays at the stream's width, the disk holds about the mesh twice.  Coordinates are written as shortest
 // round-trip decimals (Float64 in the .vtu, ascii), so they are exact too.  -o mesh.ele (or .node) writes
 // both mesh.node and mesh.ele.  Every writer stages PATH.tmp-XXXXXX and renames at end().
 #pragma once
