@@ -285,10 +285,26 @@ struct MpiSession {
 
 }  // namespace
 
+static RunReport runMpiSteps(const MpiSession& mpi, const PipelineOptions& options,
+                      const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag);
+
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag) {
-  const auto t0 = std::chrono::steady_clock::now();
   MpiSession mpi;
+  try {
+    return runMpiSteps(mpi, options, buildArgs, command, diag);
+  } catch (...) {
+    // A stopped or failed run cleans up on every rank before MPI_Finalize (~MpiSession), whose fence keeps
+    // the ranks together until all are done: mpirun stops the job at the first rank that exits non-zero,
+    // which would kill a rank still removing its files.
+    if (OutputTransaction* t = OutputTransaction::current()) t->rollback();
+    throw;
+  }
+}
+
+static RunReport runMpiSteps(const MpiSession& mpi, const PipelineOptions& options,
+                      const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag) {
+  const auto t0 = std::chrono::steady_clock::now();
   const int rank = mpi.rank, size = mpi.size;
   {
     const RunOutputs outputs = resolveOutputs(options);

@@ -74,6 +74,11 @@ OutputTransaction::OutputTransaction() : previous_(g_current.exchange(this)) {}
 
 OutputTransaction::~OutputTransaction() {
   g_current.store(previous_);
+  rollback();
+}
+
+void OutputTransaction::rollback() {
+  std::lock_guard<std::mutex> lock(mutex_);
   // Rolled back (what no commit took): every staged temporary goes, so do the files committed only
   // provisionally, and the undo steps run.
   for (auto it = renames_.rbegin(); it != renames_.rend(); ++it) {
@@ -91,6 +96,11 @@ OutputTransaction::~OutputTransaction() {
       } catch (...) {
       }
     }
+  renames_.clear();
+  provisional_.clear();
+  after_.clear();
+  locks_.clear();  // (their lock files go)
+  lockedPaths_.clear();
 }
 
 OutputTransaction* OutputTransaction::current() {

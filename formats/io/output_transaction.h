@@ -58,6 +58,11 @@ class OutputTransaction {
   // error, a cancellation), these files are removed again, so a stopped run leaves none of them.  Only
   // commit() makes them the run's for good.  (A run killed outright leaves them: docs/usage.md.)
   void commitProvisionally();
+  // Rolls back now what the destructor would (staged temporaries, provisional files, undo steps) and
+  // releases the run's locks; the transaction is then empty.  An MPI rank calls it before MPI_Finalize,
+  // whose fence holds every rank until all have cleaned up: mpirun stops the whole job at the first rank
+  // that exits non-zero, and would otherwise kill a slower rank in the middle of its cleanup.
+  void rollback();
   std::size_t stagedCount() const;
 
  private:
