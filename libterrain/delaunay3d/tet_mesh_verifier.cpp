@@ -8,26 +8,18 @@
 #include <unordered_map>
 
 #include "libterrain/delaunay3d/predicates3d.h"
+#include "libterrain/core/mix_bits.h"
 
 namespace tinbuild {
 
 namespace {
-
-std::uint64_t mix(std::uint64_t x) {
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ULL;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebULL;
-  x ^= x >> 31;
-  return x;
-}
 
 struct FaceKey {
   std::uint64_t a, b, c;
   bool operator==(const FaceKey&) const = default;
 };
 struct FaceHash {
-  std::size_t operator()(const FaceKey& k) const { return mix(k.a * 3 + mix(k.b * 5 + mix(k.c))); }
+  std::size_t operator()(const FaceKey& k) const { return mixBits(k.a * 3 + mixBits(k.b * 5 + mixBits(k.c))); }
 };
 struct OpenFace {
   Point3 tet[4];  // the first tetrahedron, positive
@@ -48,7 +40,7 @@ double det3(const Point3& a, const Point3& b, const Point3& c, const Point3& o) 
 
 void PointSetFingerprint3::add(double x, double y, double z) {
   ++count;
-  hash += mix(std::bit_cast<std::uint64_t>(x) ^ mix(std::bit_cast<std::uint64_t>(y) ^ mix(std::bit_cast<std::uint64_t>(z))));
+  hash += mixBits(std::bit_cast<std::uint64_t>(x) ^ mixBits(std::bit_cast<std::uint64_t>(y) ^ mixBits(std::bit_cast<std::uint64_t>(z))));
 }
 
 struct TetMeshVerifier::Impl {

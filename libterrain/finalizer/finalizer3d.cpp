@@ -8,19 +8,11 @@
 #include <unordered_set>
 
 #include "libterrain/core/error.h"
+#include "libterrain/core/mix_bits.h"
 
 namespace tinbuild {
 
 namespace {
-
-std::uint64_t mix(std::uint64_t x) {
-  x ^= x >> 30;
-  x *= 0xbf58476d1ce4e5b9ULL;
-  x ^= x >> 27;
-  x *= 0x94d049bb133111ebULL;
-  x ^= x >> 31;
-  return x;
-}
 
 struct Candidate {
   PointRecord p;
@@ -223,7 +215,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
     };
     std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(L.chunk.size());
     for (std::uint32_t i = 0; i < L.chunk.size(); ++i) {
-      const std::uint64_t h = mix(o.seed ^ mix(code * 0x9E3779B97F4A7C15ULL + i));
+      const std::uint64_t h = mixBits(o.seed ^ mixBits(code * 0x9E3779B97F4A7C15ULL + i));
       const int round = std::min(std::countr_zero(h | (std::uint64_t{1} << 20)), 20);
       const PointRecord& p = L.chunk[i];
       const std::uint64_t m = mortonCode3(sub(p.x, ox), sub(p.y, oy), sub(p.z, oz));
