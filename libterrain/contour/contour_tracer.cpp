@@ -11,6 +11,7 @@
 #include "libterrain/core/report_text.h"
 #include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay/predicates.h"
+#include "libterrain/mesh/live_id_table.h"
 
 namespace tinbuild {
 
@@ -98,12 +99,14 @@ struct Poly {
 
 constexpr std::uint32_t kNoNode = 0xFFFFFFFFu;
 
-// A live vertex: its coordinates and the head of the list of open ends created on its incident edges
-// (the map's slots are plain data, so a lookup touches one cache line).
+// A live vertex: its id, coordinates and band (the first level strictly above z; kNoBand for a z that
+// is not finite), 40 bytes, in a LiveIdTable (mesh/live_id_table.h).
 struct Vert {
-  double x = 0, y = 0, z = 0;
-  std::uint32_t keys = kNoNode;
+  std::uint64_t id;
+  double x, y, z;
+  std::int64_t band;
 };
+constexpr std::int64_t kNoBand = INT64_MIN;
 
 // One entry of a vertex's list of open-end keys (may be stale, checked on use), in a node pool.
 struct KeyNode {
@@ -201,7 +204,8 @@ struct ContourTracer::Impl {
   bool simplifying = false;
   std::size_t spillRun = 128;
 
-  FlatMap<std::uint64_t, Vert, IdHash> verts;  // live vertices
+  LiveIdTable<Vert> verts;                                 // live vertices
+  FlatMap<std::uint64_t, std::uint32_t, IdHash> keyHeads;  // vertex -> head of its list of open-end keys
   std::vector<KeyNode> keyNodes;
   std::uint32_t freeKeyNode = kNoNode;
 
@@ -229,6 +233,7 @@ struct ContourTracer::Impl {
   void reset() {
     stats = {};
     verts.clear();
+    keyHeads.clear();
     keyNodes.clear();
     freeKeyNode = kNoNode;
     ends.clear();
@@ -240,13 +245,13 @@ struct ContourTracer::Impl {
   }
 
   // Valid until the next vertex() or finalizeVertex().
-  Vert& vert(std::uint64_t id) {
-    Vert* v = verts.find(id);
+  const Vert& vert(std::uint64_t id) const {
+    const Vert* v = verts.find(id);
     if (!v) throw Error("contour tracer: triangle uses unknown or finalized vertex " + std::to_string(id));
     return *v;
   }
 
-  void addKey(Vert& v, const Key& kk) {
+  void addKey(std::uint64_t vid, const Key& kk) {
     std::uint32_t node;
     if (freeKeyNode != kNoNode) {
       node = freeKeyNode;
@@ -255,8 +260,13 @@ struct ContourTracer::Impl {
       node = static_cast<std::uint32_t>(keyNodes.size());
       keyNodes.push_back({});
     }
-    keyNodes[node] = KeyNode{kk, v.keys};
-    v.keys = node;
+    std::uint32_t* head = keyHeads.find(vid);
+    if (!head) {
+      keyHeads.insert(vid, kNoNode);
+      head = keyHeads.find(vid);
+    }
+    keyNodes[node] = KeyNode{kk, *head};
+    *head = node;
   }
 
   // The crossing of level L on edge (a, b): computed from the endpoints ordered by position (x, then y;
@@ -303,8 +313,8 @@ struct ContourTracer::Impl {
 
   // The vertices of a key's edge (either order).
   struct EdgeVerts {
-    Vert* u;
-    Vert* v;
+    const Vert* u;
+    const Vert* v;
   };
 
   static Portal portalOf(EdgeVerts ev, double L) {
@@ -376,8 +386,9 @@ struct ContourTracer::Impl {
 
   void addEnd(const Key& kk, std::uint32_t poly, bool isStart, EdgeVerts ev) {
     ends.insert(kk, EndRef{poly, isStart});
-    addKey(*ev.u, kk);
-    addKey(*ev.v, kk);
+    (void)ev;
+    addKey(kk.lo, kk);
+    addKey(kk.hi, kk);
     if (ends.size() > stats.peakOpenEnds) stats.peakOpenEnds = ends.size();
   }
 
@@ -672,20 +683,28 @@ struct ContourTracer::Impl {
     }
   }
 
+  // The first level strictly above z: the levels in (zmin, zmax] of a triangle are those of the bands
+  // from band(zmin) to band(zmax) - 1, so a triangle with one band at its three vertices (most of them)
+  // crosses none, and that is decided without any arithmetic on z.
+  std::int64_t bandOf(double z) const {
+    if (!std::isfinite(z)) return kNoBand;
+    std::int64_t k = static_cast<std::int64_t>(std::floor((z - opt.base) / opt.interval));
+    while (level(k) <= z) ++k;
+    while (level(k - 1) > z) --k;
+    return k;
+  }
+
   void triangle(std::uint64_t ia, std::uint64_t ib, std::uint64_t ic) {
-    Vert& a = vert(ia);
-    Vert& b = vert(ib);
-    Vert& c = vert(ic);
-    const double zmin = std::min({a.z, b.z, c.z});
-    const double zmax = std::max({a.z, b.z, c.z});
-    if (!(zmin < zmax)) return;  // flat (or NaN): no level has vertices on both sides
-    // First level strictly above zmin.
-    std::int64_t k = static_cast<std::int64_t>(std::floor((zmin - opt.base) / opt.interval));
-    while (level(k) <= zmin) ++k;
-    while (level(k - 1) > zmin) --k;
+    const Vert& a = vert(ia);
+    const Vert& b = vert(ib);
+    const Vert& c = vert(ic);
+    if (a.band == b.band && a.band == c.band) return;  // no level in (zmin, zmax] (flat ones included)
+    if (a.band == kNoBand || b.band == kNoBand || c.band == kNoBand) return;  // NaN or infinite z
+    const std::int64_t kEnd = std::max({a.band, b.band, c.band});
+    std::int64_t k = std::min({a.band, b.band, c.band});
     const std::uint64_t id[3] = {ia, ib, ic};
-    Vert* v[3] = {&a, &b, &c};
-    for (; level(k) <= zmax; ++k) {
+    const Vert* v[3] = {&a, &b, &c};
+    for (; k < kEnd; ++k) {
       const double L = level(k);
       const bool up[3] = {a.z >= L, b.z >= L, c.z >= L};
       // The lone vertex: the one on the side the other two are not.
@@ -706,8 +725,11 @@ struct ContourTracer::Impl {
   }
 
   void finalize(std::uint64_t vid) {
-    if (Vert* v = verts.find(vid)) {
-      std::uint32_t node = v->keys;
+    verts.erase(vid);
+    if (keyHeads.size() == 0) return;
+    if (const std::uint32_t* head = keyHeads.find(vid)) {
+      std::uint32_t node = *head;
+      keyHeads.erase(vid);
       while (node != kNoNode) {
         const Key kk = keyNodes[node].key;
         const std::uint32_t next = keyNodes[node].next;
@@ -717,7 +739,6 @@ struct ContourTracer::Impl {
         finalEnd(kk);
       }
     }
-    verts.erase(vid);
   }
 
   // The edge of open end kk has a finalized vertex: no later triangle reaches it, so the end is final.
@@ -744,6 +765,7 @@ struct ContourTracer::Impl {
       emit(i, false);
     }
     verts.clear();
+    keyHeads.clear();
     keyNodes.clear();
     freeKeyNode = kNoNode;
     spill.reset();
@@ -780,7 +802,8 @@ void ContourTracer::begin(const MeshInfo& info) {
 }
 
 void ContourTracer::vertex(std::uint64_t id, double x, double y, double z) {
-  impl_->verts.insert(id, Vert{x, y, z});
+  if (!impl_->verts.insert(Vert{id, x, y, z, impl_->bandOf(z)}))
+    throw Error("contour tracer: vertex " + std::to_string(id) + " announced twice");
 }
 
 void ContourTracer::triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) { impl_->triangle(a, b, c); }

@@ -13,68 +13,18 @@
 
 namespace tinbuild {
 
-namespace {
-// Ids are dense and mostly sequential; a multiplicative mix keeps clusters of ids apart anyway when the
-// live set is a few ranges far apart.
-inline std::size_t slotOf(std::uint64_t id, std::size_t mask) {
-  return static_cast<std::size_t>((id * 0x9E3779B97F4A7C15ull) >> 20) & mask;
-}
-}  // namespace
-
-VertexTable::VertexTable() : slots_(1024, MeshVertex{kFree, 0, 0, 0}), mask_(1023) {}
-
-void VertexTable::grow() {
-  std::vector<MeshVertex> old;
-  old.swap(slots_);
-  slots_.assign(old.size() * 2, MeshVertex{kFree, 0, 0, 0});
-  mask_ = slots_.size() - 1;
-  size_ = 0;
-  for (const MeshVertex& s : old)
-    if (s.id != kFree) insert(s);
-}
-
 void VertexTable::insert(const MeshVertex& v) {
-  if (v.id == kFree) throw Error("streaming mesh: vertex id " + std::to_string(v.id) + " too large");
-  if ((size_ + 1) * 4 > slots_.size() * 3) grow();
-  std::size_t i = slotOf(v.id, mask_);
-  while (slots_[i].id != kFree) {
-    if (slots_[i].id == v.id)
-      throw Error("streaming mesh: vertex " + std::to_string(v.id) + " announced twice");
-    i = (i + 1) & mask_;
-  }
-  slots_[i] = v;
-  ++size_;
+  if (v.id == LiveIdTable<MeshVertex>::kFreeId)
+    throw Error("streaming mesh: vertex id " + std::to_string(v.id) + " too large");
+  if (!table_.insert(v)) throw Error("streaming mesh: vertex " + std::to_string(v.id) + " announced twice");
 }
 
-const MeshVertex& VertexTable::at(std::uint64_t id) const {
-  std::size_t i = slotOf(id, mask_);
-  while (slots_[i].id != kFree) {
-    if (slots_[i].id == id) return slots_[i];
-    i = (i + 1) & mask_;
-  }
+void VertexTable::notLive(std::uint64_t id) {
   throw Error("streaming mesh: triangle uses vertex " + std::to_string(id) + ", which is not live");
 }
 
 void VertexTable::erase(std::uint64_t id) {
-  std::size_t i = slotOf(id, mask_);
-  while (slots_[i].id != kFree && slots_[i].id != id) i = (i + 1) & mask_;
-  if (slots_[i].id == kFree || id == kFree)
-    throw Error("streaming mesh: vertex " + std::to_string(id) + " finalized twice");
-  // Backward-shift deletion: pull later members of the probe run into the hole when their home slot
-  // does not lie cyclically in (hole, j].
-  std::size_t hole = i, j = i;
-  for (;;) {
-    j = (j + 1) & mask_;
-    if (slots_[j].id == kFree) break;
-    const std::size_t home = slotOf(slots_[j].id, mask_);
-    const bool between = hole <= j ? (hole < home && home <= j) : (hole < home || home <= j);
-    if (!between) {
-      slots_[hole] = slots_[j];
-      hole = j;
-    }
-  }
-  slots_[hole].id = kFree;
-  --size_;
+  if (!table_.erase(id)) throw Error("streaming mesh: vertex " + std::to_string(id) + " finalized twice");
 }
 
 // ---------------------------------------------------------------------------------------------------

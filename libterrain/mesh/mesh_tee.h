@@ -24,6 +24,7 @@
 #include <vector>
 
 #include "libterrain/core/progress.h"
+#include "libterrain/mesh/live_id_table.h"
 #include "libterrain/mesh/mesh_sink.h"
 
 namespace tinbuild {
@@ -83,25 +84,25 @@ class TriangleSink {
   virtual void end() = 0;
 };
 
-// id -> coordinates of the live vertices: open addressing with linear probing on a multiplicative hash
-// of the id, deletion by backward shift (no tombstones, so long runs never degrade the probes).  A slot
-// is the vertex itself (32 bytes, two to a cache line); a free slot holds the id kFree, which no stream
-// can use (ids stop at 2^62).
+// id -> coordinates of the live vertices (live_id_table.h: a ring by id for the recent ones, a hash for
+// the stragglers).  A slot is the vertex itself, 32 bytes.
 class VertexTable {
  public:
-  VertexTable();
+  // Throws Error when the id is live already or too large.
   void insert(const MeshVertex& v);
   // Throws Error when the id is not live (a broken stream).
-  const MeshVertex& at(std::uint64_t id) const;
+  const MeshVertex& at(std::uint64_t id) const {
+    if (const MeshVertex* v = table_.find(id)) return *v;
+    notLive(id);
+  }
+  // Throws Error when the id is not live.
   void erase(std::uint64_t id);
-  std::size_t size() const { return size_; }
-  std::size_t capacityBytes() const { return slots_.size() * sizeof(MeshVertex); }
+  std::size_t size() const { return table_.size(); }
+  std::size_t capacityBytes() const { return table_.capacityBytes(); }
 
  private:
-  static constexpr std::uint64_t kFree = ~std::uint64_t{0};
-  void grow();
-  std::vector<MeshVertex> slots_;
-  std::size_t mask_ = 0, size_ = 0;
+  [[noreturn]] static void notLive(std::uint64_t id);
+  LiveIdTable<MeshVertex> table_;
 };
 
 // Threads.  By default every output runs on the caller's (the triangulator's) thread.  setThreaded(true)
