@@ -37,18 +37,6 @@ struct KeyHash {
     return static_cast<std::size_t>(h);
   }
 };
-// Vertex ids of a streaming mesh are numbered in stream order, so the live ones are mostly a sliding
-// window of consecutive ids.  Runs of 16 consecutive ids go to 16 consecutive slots (a triangle's
-// vertices and successive lookups share cache lines, where a fully scattering hash costs a miss per
-// lookup), and the runs themselves are scattered, so no cluster grows long (an identity hash would make
-// the whole window one cluster, and each backward-shift erase would scan it).
-struct IdHash {
-  std::size_t operator()(std::uint64_t id) const {
-    const std::uint64_t run = (id >> 4) * 0x9E3779B97F4A7C15ull;
-    return static_cast<std::size_t>(((run ^ (run >> 29)) << 4) | (id & 15));
-  }
-};
-
 // Where a line point was cut: the TIN edge it lies on (both endpoints, with z) and whether it is a vertex
 // exactly on the level (such points are never simplified away).  Kept only with --simplify.
 struct Portal {
@@ -99,12 +87,14 @@ struct Poly {
 
 constexpr std::uint32_t kNoNode = 0xFFFFFFFFu;
 
-// A live vertex: its id, coordinates and band (the first level strictly above z; kNoBand for a z that
-// is not finite), 40 bytes, in a LiveIdTable (mesh/live_id_table.h).
+// A live vertex: its id, coordinates, band (the first level strictly above z; kNoBand for a z that is
+// not finite) and the head of the list of open ends created on its incident edges, in a LiveIdTable
+// (mesh/live_id_table.h).
 struct Vert {
   std::uint64_t id;
   double x, y, z;
   std::int64_t band;
+  std::uint32_t keys;
 };
 constexpr std::int64_t kNoBand = INT64_MIN;
 
@@ -205,7 +195,6 @@ struct ContourTracer::Impl {
   std::size_t spillRun = 128;
 
   LiveIdTable<Vert> verts;                                 // live vertices
-  FlatMap<std::uint64_t, std::uint32_t, IdHash> keyHeads;  // vertex -> head of its list of open-end keys
   std::vector<KeyNode> keyNodes;
   std::uint32_t freeKeyNode = kNoNode;
 
@@ -233,7 +222,6 @@ struct ContourTracer::Impl {
   void reset() {
     stats = {};
     verts.clear();
-    keyHeads.clear();
     keyNodes.clear();
     freeKeyNode = kNoNode;
     ends.clear();
@@ -260,13 +248,9 @@ struct ContourTracer::Impl {
       node = static_cast<std::uint32_t>(keyNodes.size());
       keyNodes.push_back({});
     }
-    std::uint32_t* head = keyHeads.find(vid);
-    if (!head) {
-      keyHeads.insert(vid, kNoNode);
-      head = keyHeads.find(vid);
-    }
-    keyNodes[node] = KeyNode{kk, *head};
-    *head = node;
+    Vert* v = verts.find(vid);  // live: a triangle of this call uses it
+    keyNodes[node] = KeyNode{kk, v->keys};
+    v->keys = node;
   }
 
   // The crossing of level L on edge (a, b): computed from the endpoints ordered by position (x, then y;
@@ -725,19 +709,17 @@ struct ContourTracer::Impl {
   }
 
   void finalize(std::uint64_t vid) {
+    const Vert* v = verts.find(vid);
+    if (!v) return;
+    std::uint32_t node = v->keys;
     verts.erase(vid);
-    if (keyHeads.size() == 0) return;
-    if (const std::uint32_t* head = keyHeads.find(vid)) {
-      std::uint32_t node = *head;
-      keyHeads.erase(vid);
-      while (node != kNoNode) {
-        const Key kk = keyNodes[node].key;
-        const std::uint32_t next = keyNodes[node].next;
-        keyNodes[node].next = freeKeyNode;
-        freeKeyNode = node;
-        node = next;
-        finalEnd(kk);
-      }
+    while (node != kNoNode) {
+      const Key kk = keyNodes[node].key;
+      const std::uint32_t next = keyNodes[node].next;
+      keyNodes[node].next = freeKeyNode;
+      freeKeyNode = node;
+      node = next;
+      finalEnd(kk);
     }
   }
 
@@ -765,7 +747,6 @@ struct ContourTracer::Impl {
       emit(i, false);
     }
     verts.clear();
-    keyHeads.clear();
     keyNodes.clear();
     freeKeyNode = kNoNode;
     spill.reset();
@@ -802,7 +783,7 @@ void ContourTracer::begin(const MeshInfo& info) {
 }
 
 void ContourTracer::vertex(std::uint64_t id, double x, double y, double z) {
-  if (!impl_->verts.insert(Vert{id, x, y, z, impl_->bandOf(z)}))
+  if (!impl_->verts.insert(Vert{id, x, y, z, impl_->bandOf(z), kNoNode}))
     throw Error("contour tracer: vertex " + std::to_string(id) + " announced twice");
 }
 
