@@ -8,8 +8,10 @@
 // erasing a recent vertex touch one slot and compute no hash, plus a small hash table (linear probing,
 // backward-shift deletion) for the stragglers: a vertex whose ring slot is wanted by a newer id moves
 // there, as does a vertex inserted out of order.  When the stragglers outnumber an eighth of the ring
-// the ring doubles (never beyond twice the live count, so memory stays proportional to the live set,
-// about 2-3 slots per live vertex), and everything in reach of the larger window moves back to it.
+// and the ring has fewer slots than there are live vertices, the ring doubles and everything in reach of
+// the larger window moves back to it.  So the ring ends at most about twice the peak live count, and the
+// whole table holds about as many bytes as one hash table of the live set would (10^8-point build with
+// a DEM: 4 MiB either way; 47.7 s against 52.8 s with that hash table).
 //
 // Slot: a trivially copyable struct with a std::uint64_t member `id`; an unused slot has id kFreeId,
 // which no stream can use.  Pointers returned by find() are valid until the next insert or erase.
@@ -70,7 +72,7 @@ class LiveIdTable {
     } else {
       hashInsert(v);  // inserted out of order: an older id than the slot's
     }
-    if (hashSize_ * 8 > ring_.size() && ring_.size() < 2 * size()) growRing();
+    if (hashSize_ * 8 > ring_.size() && ring_.size() < size()) growRing();
     return true;
   }
 
