@@ -29,12 +29,17 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
 #include "libterrain/finalizer/point_sink.h"
 
 namespace tinbuild {
+
+namespace record_stream {
+class RecordWriter;  // record_stream.h
+}
 
 // The first 8 bytes of every finalized stream.
 inline constexpr char kFinalizedStreamMagic[8] = {'T', 'B', 'F', 'P', 'S', '\r', '\n', '\x1a'};
@@ -77,25 +82,15 @@ class FinalizedStreamWriter : public PointSink {
   // Writes the end record, flushes, syncs and renames the temporary file onto the target.
   void end() override;
 
-  std::uint64_t bytesWritten() const { return written_ + used_; }
+  std::uint64_t bytesWritten() const;
   const std::string& path() const { return path_; }
 
  private:
-  void need(std::size_t bytes);
-  void flush();
-  void fail() noexcept;
-
-  std::string path_, tempPath_;
-  FinalizedStreamWriterOptions options_;
-  int fd_ = -1;
-  bool ownFd_ = false;
-  bool begun_ = false, ended_ = false, failed_ = false;
-  std::vector<unsigned char> buffer_;
-  std::size_t used_ = 0;
-  std::uint64_t written_ = 0;
-  std::uint64_t expectedPoints_ = 0, points_ = 0, tags_ = 0;
+  std::string path_;
+  std::unique_ptr<record_stream::RecordWriter> out_;  // the file, its buffer and checksum
+  bool begun_ = false, ended_ = false;
+  std::uint64_t expectedPoints_ = 0;
   int depth_ = 0;
-  FinalizedStreamChecksum checksum_;
 };
 
 // Reads a finalized stream from PATH ("-" = stdin) and pushes it into `sink`: begin(), then points and

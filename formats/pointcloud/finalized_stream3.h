@@ -22,6 +22,7 @@
 
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -51,24 +52,14 @@ class FinalizedStream3Writer : public PointSink3 {
   void finalizeCell(const OctCellTag& cell) override;
   void end() override;  // the end record; flush, sync, rename
 
-  std::uint64_t bytesWritten() const { return written_ + used_; }
+  std::uint64_t bytesWritten() const;
 
  private:
-  void need(std::size_t bytes);
-  void flush();
-  void fail() noexcept;
-
-  std::string path_, tempPath_;
-  FinalizedStream3WriterOptions options_;
-  int fd_ = -1;
-  bool ownFd_ = false;
-  bool begun_ = false, ended_ = false, failed_ = false;
-  std::vector<unsigned char> buffer_;
-  std::size_t used_ = 0;
-  std::uint64_t written_ = 0;
-  std::uint64_t expectedPoints_ = 0, points_ = 0, tags_ = 0;
+  std::string path_;
+  std::unique_ptr<record_stream::RecordWriter> out_;  // the file, its buffer and checksum
+  bool begun_ = false, ended_ = false;
+  std::uint64_t expectedPoints_ = 0;
   int depth_ = 0;
-  FinalizedStreamChecksum checksum_;
 };
 
 // Reads a 3D finalized stream from PATH ("-" = stdin) into `sink`: begin(), batches and tags as stored,
