@@ -61,6 +61,26 @@ void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, doub
   if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
 }
 
+// Threads for the 3D pipeline: two stages (reader/finalizer, tetrahedralizer) unless --threads 1.
+int tetThreads(const PipelineArgs& a) {
+  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
+  return a.run.threads > 0 ? a.run.threads : static_cast<int>(cores);
+}
+
+// What tetrahedralize and finalize --3d start with: --depth checked (an octree: at most 8), warnings on
+// stderr unless --quiet, the inputs opened into `in`, and the 3D finalizer's options.
+Finalizer3dOptions openSurvey3d(const PipelineArgs& a, const std::string& command, Diagnostics& diag, Survey& in) {
+  if (a.options.finalizer.depth > 8) throw UsageError(command + ": --depth is at most 8 (an octree)");
+  if (!a.run.quiet)
+    diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
+  in = openSurvey(a.options, diag, false);
+  Finalizer3dOptions fo;
+  fo.depth = a.options.finalizer.depth;
+  fo.filter = a.options.finalizer.filter;
+  fo.crsWkt = in.crs.wkt;
+  return fo;
+}
+
 // `tetrahedralize FILE|-` on a 3D finalized stream: the tetrahedralizer alone (on its own thread behind
 // the reader unless --threads 1), the same output as the in-process run of the same stream.
 int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
@@ -70,8 +90,7 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
   const auto t0 = std::chrono::steady_clock::now();
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output);
   StreamingDelaunay3d dt(*writer);
-  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
-  if ((a.run.threads > 0 ? a.run.threads : static_cast<int>(cores)) > 1) {
+  if (tetThreads(a) > 1) {
     QueuedPointSink3 queue(dt);
     readFinalizedStream3(input, queue);
   } else {
@@ -103,24 +122,16 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
     throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
   const std::string output = a.run.output;
   tetMeshFormatForPath(output);  // a usage error before any work
-  if (a.options.finalizer.depth > 8) throw UsageError("tetrahedralize: --depth is at most 8 (an octree)");
   const auto t0 = std::chrono::steady_clock::now();
   Diagnostics diag;
-  if (!a.run.quiet)
-    diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
-  Survey in = openSurvey(a.options, diag, false);
-  Finalizer3dOptions fo;
-  fo.depth = a.options.finalizer.depth;
-  fo.filter = a.options.finalizer.filter;
-  fo.crsWkt = in.crs.wkt;
+  Survey in;
+  const Finalizer3dOptions fo = openSurvey3d(a, "tetrahedralize", diag, in);
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output);
   StreamingDelaunay3d dt(*writer);
   // Two threads unless --threads 1: the finalizer reads and sorts while the tetrahedralizer inserts (the
   // stream they exchange is the same either way, so is the output).
-  const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
-  const int threads = a.run.threads > 0 ? a.run.threads : static_cast<int>(cores);
   Finalizer3dStats fs;
-  if (threads > 1) {
+  if (tetThreads(a) > 1) {
     QueuedPointSink3 queue(dt);
     fs = finalizePoints3d(in.streams, fo, queue);
   } else {
@@ -162,16 +173,10 @@ int runFinalize3dCommand(const cli::ParsedArgs& args) {
   if (a.run.output == "-" && ::isatty(STDOUT_FILENO))
     throw UsageError(
         "finalize --3d: refusing to write a binary stream to a terminal (redirect it or use -o FILE)");
-  if (a.options.finalizer.depth > 8) throw UsageError("finalize --3d: --depth is at most 8 (an octree)");
   const auto t0 = std::chrono::steady_clock::now();
   Diagnostics diag;
-  if (!a.run.quiet)
-    diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
-  Survey in = openSurvey(a.options, diag, false);
-  Finalizer3dOptions fo;
-  fo.depth = a.options.finalizer.depth;
-  fo.filter = a.options.finalizer.filter;
-  fo.crsWkt = in.crs.wkt;
+  Survey in;
+  const Finalizer3dOptions fo = openSurvey3d(a, "finalize --3d", diag, in);
   FinalizedStream3Writer writer(a.run.output);
   const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, writer);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
