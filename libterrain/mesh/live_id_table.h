@@ -63,16 +63,7 @@ class LiveIdTable {
     } else if (r.id == v.id || (hashSize_ != 0 && hashFind(v.id))) {
       return false;
     }
-    if (r.id == kFreeId) {
-      r = v;
-      ++ringSize_;
-    } else if (r.id < v.id) {
-      // The slot's older vertex becomes a straggler.
-      hashInsert(r);
-      r = v;
-    } else {
-      hashInsert(v);  // inserted out of order: an older id than the slot's
-    }
+    file(r, v);
     if (hashSize_ * 8 > ring_.size() && ring_.size() * 2 < size()) growRing();
     return true;
   }
@@ -97,6 +88,20 @@ class LiveIdTable {
   }
   static std::size_t home(std::uint64_t id, std::size_t mask) {
     return static_cast<std::size_t>((id * 0x9E3779B97F4A7C15ull) >> 20) & mask;
+  }
+
+  // Puts v in its ring slot r: a free slot takes it; a slot holding an older id gives that one to the
+  // hash (a straggler) and takes v; a slot holding a newer id leaves v to the hash (v came out of order).
+  void file(Slot& r, const Slot& v) {
+    if (r.id == kFreeId) {
+      r = v;
+      ++ringSize_;
+    } else if (r.id < v.id) {
+      hashInsert(r);
+      r = v;
+    } else {
+      hashInsert(v);
+    }
   }
 
   const Slot* hashFind(std::uint64_t id) const {
@@ -155,22 +160,10 @@ class LiveIdTable {
     hash_.assign(16, free());
     hashMask_ = 15;
     hashSize_ = 0;
-    auto file = [&](const Slot& v) {
-      Slot& r = ring_[v.id & ringMask_];
-      if (r.id == kFreeId) {
-        r = v;
-        ++ringSize_;
-      } else if (r.id < v.id) {
-        hashInsert(r);
-        r = v;
-      } else {
-        hashInsert(v);
-      }
-    };
     for (const Slot& s : oldRing)
-      if (s.id != kFreeId) file(s);
+      if (s.id != kFreeId) file(ring_[s.id & ringMask_], s);
     for (const Slot& s : oldHash)
-      if (s.id != kFreeId) file(s);
+      if (s.id != kFreeId) file(ring_[s.id & ringMask_], s);
   }
 
   std::vector<Slot> ring_;
