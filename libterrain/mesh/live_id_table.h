@@ -44,10 +44,11 @@ class LiveIdTable {
   std::size_t size() const { return ringSize_ + hashSize_; }
   std::size_t capacityBytes() const { return (ring_.size() + hash_.size()) * sizeof(Slot); }
 
+  // nullptr when the id is not live (kFreeId never is: it marks the free slots).
   const Slot* find(std::uint64_t id) const {
     const Slot& r = ring_[id & ringMask_];
-    if (r.id == id) return &r;
-    if (hashSize_ == 0) return nullptr;
+    if (r.id == id) return id == kFreeId ? nullptr : &r;
+    if (hashSize_ == 0 || id == kFreeId) return nullptr;
     return hashFind(id);
   }
   Slot* find(std::uint64_t id) {
@@ -70,8 +71,9 @@ class LiveIdTable {
 
   // false when the id is not live.
   bool erase(std::uint64_t id) {
+    if (id == kFreeId) return false;
     Slot& r = ring_[id & ringMask_];
-    if (r.id == id && id != kFreeId) {
+    if (r.id == id) {
       r.id = kFreeId;
       --ringSize_;
       return true;

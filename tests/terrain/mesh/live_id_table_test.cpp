@@ -70,6 +70,8 @@ TEST(LiveIdTable, MatchesAMapUnderStreamingChurn) {
     expectSame(t, ref, next);
     EXPECT_LT(t.capacityBytes(), 16 * sizeof(Slot) * (ref.size() + 1024)) << "memory follows the live set";
     EXPECT_FALSE(t.insert(Slot{LiveIdTable<Slot>::kFreeId, 0}));
+    EXPECT_EQ(t.find(LiveIdTable<Slot>::kFreeId), nullptr) << "the free-slot mark is never a live id";
+    EXPECT_FALSE(t.erase(LiveIdTable<Slot>::kFreeId));
     t.clear();
     EXPECT_EQ(t.size(), 0u);
     EXPECT_EQ(t.find(0), nullptr);

@@ -646,6 +646,9 @@ TEST(VertexTable, InsertFindEraseUnderChurn) {
   EXPECT_EQ(t.size(), ref.size());
   for (const auto& [id, x] : ref) EXPECT_EQ(t.at(id).x, x);
   EXPECT_THROW(t.at(next + 5), Error);
+  EXPECT_THROW(t.at(~std::uint64_t{0}), Error);  // the free-slot mark is never live
+  EXPECT_THROW(t.erase(~std::uint64_t{0}), Error);
+  EXPECT_EQ(t.size(), ref.size());
 }
 
 }  // namespace
