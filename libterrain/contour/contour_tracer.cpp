@@ -233,13 +233,13 @@ struct ContourTracer::Impl {
   }
 
   // Valid until the next vertex() or finalizeVertex().
-  const Vert& vert(std::uint64_t id) const {
-    const Vert* v = verts.find(id);
+  Vert& vert(std::uint64_t id) {
+    Vert* v = verts.find(id);
     if (!v) throw Error("contour tracer: triangle uses unknown or finalized vertex " + std::to_string(id));
     return *v;
   }
 
-  void addKey(std::uint64_t vid, const Key& kk) {
+  void addKey(Vert& v, const Key& kk) {
     std::uint32_t node;
     if (freeKeyNode != kNoNode) {
       node = freeKeyNode;
@@ -248,9 +248,8 @@ struct ContourTracer::Impl {
       node = static_cast<std::uint32_t>(keyNodes.size());
       keyNodes.push_back({});
     }
-    Vert* v = verts.find(vid);  // live: a triangle of this call uses it
-    keyNodes[node] = KeyNode{kk, v->keys};
-    v->keys = node;
+    keyNodes[node] = KeyNode{kk, v.keys};
+    v.keys = node;
   }
 
   // The crossing of level L on edge (a, b): computed from the endpoints ordered by position (x, then y;
@@ -297,8 +296,8 @@ struct ContourTracer::Impl {
 
   // The vertices of a key's edge (either order).
   struct EdgeVerts {
-    const Vert* u;
-    const Vert* v;
+    Vert* u;
+    Vert* v;
   };
 
   static Portal portalOf(EdgeVerts ev, double L) {
@@ -370,9 +369,8 @@ struct ContourTracer::Impl {
 
   void addEnd(const Key& kk, std::uint32_t poly, bool isStart, EdgeVerts ev) {
     ends.insert(kk, EndRef{poly, isStart});
-    (void)ev;
-    addKey(kk.lo, kk);
-    addKey(kk.hi, kk);
+    addKey(*ev.u, kk);
+    addKey(*ev.v, kk);
     if (ends.size() > stats.peakOpenEnds) stats.peakOpenEnds = ends.size();
   }
 
@@ -679,15 +677,15 @@ struct ContourTracer::Impl {
   }
 
   void triangle(std::uint64_t ia, std::uint64_t ib, std::uint64_t ic) {
-    const Vert& a = vert(ia);
-    const Vert& b = vert(ib);
-    const Vert& c = vert(ic);
+    Vert& a = vert(ia);
+    Vert& b = vert(ib);
+    Vert& c = vert(ic);
     if (a.band == b.band && a.band == c.band) return;  // no level in (zmin, zmax] (flat ones included)
     if (a.band == kNoBand || b.band == kNoBand || c.band == kNoBand) return;  // NaN or infinite z
     const std::int64_t kEnd = std::max({a.band, b.band, c.band});
     std::int64_t k = std::min({a.band, b.band, c.band});
     const std::uint64_t id[3] = {ia, ib, ic};
-    const Vert* v[3] = {&a, &b, &c};
+    Vert* v[3] = {&a, &b, &c};
     for (; k < kEnd; ++k) {
       const double L = level(k);
       const bool up[3] = {a.z >= L, b.z >= L, c.z >= L};
