@@ -127,18 +127,6 @@ void assignBands(Bands& b, std::size_t n, const DemOptions& o) {
   if (o.count) b.count.assign(n, 0);
 }
 
-// Calls f(tileBand, blockBand) for every band, in the order of the spill file (the 4-byte bands first,
-// so each band starts aligned to its element).
-template <class Tile, class Block, class F>
-void forBands(Tile& t, Block& b, F&& f) {
-  f(t.z, b.z);
-  f(t.slope, b.slope);
-  f(t.aspect, b.aspect);
-  f(t.edgeLength, b.edgeLength);
-  f(t.count, b.count);
-  f(t.hillshade, b.hillshade);
-}
-
 // Copies a block's rows (bw x bh elements, row-major, from raw bytes) into a tile band at column x0, row y0.
 template <class T>
 void placeBlock(std::vector<T>& band, std::size_t tileWidth, const unsigned char* src, std::size_t bw,
@@ -351,13 +339,13 @@ void DemRasterizer::spill() {
     if (!spillFile_) spillFile_ = std::make_unique<TempFile>(opt_.tempDir, "dem");
     const std::uint64_t bytes = b.pixels * pixelBytes_;
     iov.clear();
-    forBands(b, b, [&iov](auto& band, auto&) {
+    forEachDemBand(b, b, [&iov](auto& band, auto&) {
       if (!band.empty()) iov.push_back({band.data(), band.size() * sizeof(band[0])});
     });
     spillFile_->writeAt(spillEnd_, iov);
     b.offset = spillEnd_;
     spillEnd_ += bytes;
-    forBands(b, b, [](auto& band, auto&) { freeBand(band); });
+    forEachDemBand(b, b, [](auto& band, auto&) { freeBand(band); });
     b.state = Block::State::Spilled;
     heldBytes_ -= bytes;
     stats_.spilledBytes += bytes;
@@ -541,7 +529,7 @@ void DemRasterizer::complete(std::int64_t key) {
         readBuffer_.resize(static_cast<std::size_t>(bytes));
         spillFile_->readAt(b.offset, readBuffer_.data(), readBuffer_.size());
         const unsigned char* src = readBuffer_.data();
-        forBands(into, b, [&](auto& tileBand, auto&) {
+        forEachDemBand(into, b, [&](auto& tileBand, auto&) {
           if (tileBand.empty()) return;
           placeBlock(tileBand, width, src, bw, bh, x0, y0);
           src += b.pixels * sizeof(tileBand[0]);
@@ -549,7 +537,7 @@ void DemRasterizer::complete(std::int64_t key) {
       }
       spillFile_->discard(b.offset, bytes);
     } else {
-      forBands(into, b, [&](auto& tileBand, auto& blockBand) {
+      forEachDemBand(into, b, [&](auto& tileBand, auto& blockBand) {
         if (!empty && !tileBand.empty())
           placeBlock(tileBand, width, reinterpret_cast<const unsigned char*>(blockBand.data()), bw, bh, x0, y0);
         freeBand(blockBand);

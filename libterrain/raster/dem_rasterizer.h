@@ -124,6 +124,19 @@ struct DemTile {
   std::int64_t rasterY(const DemLayout& l) const { return l.rowMax - (row0 + height - 1); }
 };
 
+// Calls f(a's band, b's band) for each of the six DEM bands, the same member of both: z, slope, aspect,
+// edgeLength, count, hillshade (the rasterizer's spill-file order: the 4-byte bands first, so each band
+// starts aligned to its element).  A and B: DemTile, or any struct with those six members.
+template <class A, class B, class F>
+void forEachDemBand(A& a, B& b, F&& f) {
+  f(a.z, b.z);
+  f(a.slope, b.slope);
+  f(a.aspect, b.aspect);
+  f(a.edgeLength, b.edgeLength);
+  f(a.count, b.count);
+  f(a.hillshade, b.hillshade);
+}
+
 class DemTileSink {
  public:
   virtual ~DemTileSink() = default;

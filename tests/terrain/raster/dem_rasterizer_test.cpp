@@ -426,13 +426,7 @@ struct StripCollector : TileCollector {
     if (y0 == 0) {
       building = t;
       const auto n = static_cast<std::size_t>(t.width) * static_cast<std::size_t>(t.height);
-      auto size = [n](auto& band, const auto& from) { band.resize(from.empty() ? 0 : n); };
-      size(building.z, s.z);
-      size(building.slope, s.slope);
-      size(building.aspect, s.aspect);
-      size(building.edgeLength, s.edgeLength);
-      size(building.hillshade, s.hillshade);
-      size(building.count, s.count);
+      forEachDemBand(building, s, [n](auto& band, const auto& from) { band.resize(from.empty() ? 0 : n); });
       nextY = 0;
     }
     ASSERT_EQ(y0, nextY);
@@ -440,15 +434,9 @@ struct StripCollector : TileCollector {
     EXPECT_EQ(s.height, std::min(256, t.height - y0));
     EXPECT_EQ(s.row0, t.row0 + t.height - y0 - s.height);
     EXPECT_EQ(s.col0, t.col0);
-    auto copy = [&](auto& into, const auto& from) {
+    forEachDemBand(building, s, [&](auto& into, const auto& from) {
       if (!from.empty()) std::copy(from.begin(), from.end(), into.begin() + static_cast<std::ptrdiff_t>(y0) * t.width);
-    };
-    copy(building.z, s.z);
-    copy(building.slope, s.slope);
-    copy(building.aspect, s.aspect);
-    copy(building.edgeLength, s.edgeLength);
-    copy(building.hillshade, s.hillshade);
-    copy(building.count, s.count);
+    });
     nextY = y0 + s.height;
     if (nextY == t.height) tile(building);
   }
