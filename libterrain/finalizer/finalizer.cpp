@@ -45,7 +45,7 @@ constexpr std::uint64_t kNoCandidate = ~std::uint64_t{0};  // a fine cell or lea
 // its sprinkle record, its chunk, the index; measured 128 bytes).
 constexpr std::uint64_t kFineCellBytes = 80;
 constexpr std::uint64_t kLeafBytes = 160;
-constexpr double kTargetPerCell = 2000;  // default depth: occupied cells hold at least this many on average
+constexpr double kTargetPerCell = 1000;  // default depth: occupied cells hold at least this many on average
 
 std::uint64_t mix64(std::uint64_t z) {
   z += 0x9e3779b97f4a7c15ULL;
@@ -959,7 +959,8 @@ class Finalizer {
     return options_.tableBudget == 0 || occupied * kLeafBytes <= options_.tableBudget;
   }
 
-  // Two levels below the leaves (16 candidates per leaf), without exceeding depth 12 unless asked to.
+  // One level below the expected leaves (4 candidates per leaf, a level finer for an L-shaped or corridor
+  // survey, whose occupied cells are fewer), without exceeding depth 12 unless asked to.
   // Under options.tableBudget, as many levels fewer as the table needs to fit (down to the expected leaf
   // depth: one candidate, the first point, per leaf): it costs 4 bytes per fine cell (dense up to
   // kDenseFineDepth) and about 80 bytes per occupied one (the candidate, its key, the growth of the
@@ -968,7 +969,7 @@ class Finalizer {
     if (options_.depth >= 0) return std::min(options_.depth + 2, std::max(options_.depth, kMaxAutoDepth));
     if (expected == 0) return 10;
     const int leaf = chooseDepth(expected);
-    int fine = std::min(kMaxAutoDepth, leaf + 2);
+    int fine = std::min(kMaxAutoDepth, leaf + 1);
     while (fine > leaf && options_.tableBudget > 0 && fineTableEstimate(fine, expected) > options_.tableBudget)
       --fine;
     return fine;

@@ -15,8 +15,8 @@
 //           options.spoolCostlyInputs is off; if their spool cannot be written, or would leave less than
 //           options.spoolReserve free on its disk, a warning says so and they are read again in each
 //           pass.
-//   pass 2  points per cell.  Counts are taken at a "fine" depth F two levels below the leaf depth (at
-//           most 12 unless --depth asks for more; as few as zero levels below when that table would not
+//   pass 2  points per cell.  Counts are taken at a "fine" depth F one level below the expected leaf depth
+//           (two below a --depth, at most 12 unless --depth asks for more; as few as zero levels below when that table would not
 //           fit options.tableBudget) in an array of 4-byte counts (F <= 11) or a hash of
 //           the occupied cells only, together with one sprinkle candidate per occupied fine cell: its
 //           first point (the array's hot loop touches only the counts).  The pass also
@@ -24,7 +24,7 @@
 //           knownBounds by more than kCellTolerance (or the data fill less than half the header's
 //           extent), a warning goes to Diagnostics and pass 2 is run again over the real bounds; nothing
 //           fails.
-//           Default depth k: the largest k <= F at which the OCCUPIED cells hold at least 2000 points on
+//           Default depth k: the largest k <= F at which the OCCUPIED cells hold at least 1000 points on
 //           average (and whose leaves' bookkeeping fits options.tableBudget), so a survey filling its bounding square gets chooseDepth(points) (grid.h), the same
 //           as `tinbuild info`, and an L-shaped or corridor survey gets finer cells.  Fine cells nest
 //           exactly in level-k cells (scaling by 2^(F-k) is exact in floating point), so the counts are

@@ -46,11 +46,13 @@ inline GridSpec makeGrid(const Bounds3& b, int depth) {
   return g;
 }
 
-// Default depth: cells should hold a few thousand points (about 2000 on average over the whole grid),
-// capped at 12 (16.7M cells: occupied cells are hashed, so only those cost memory).
+// Default depth: cells should hold a thousand points or more (1000 to 4000 on average over the whole
+// grid), capped at 12 (16.7M cells: occupied cells are hashed, so only those cost memory).  Smaller cells
+// make a narrower stream (a front a cell high) at the same speed: on the 10M four-strip survey, cells of
+// 1,875 points instead of 7,502 take the build from 80 to 70 MiB (docs/benchmarks.md, fifth round).
 inline int chooseDepth(std::uint64_t points) {
   int k = 0;
-  while (k < 12 && (points >> (2 * (k + 1))) >= 2000) ++k;
+  while (k < 12 && (points >> (2 * (k + 1))) >= 1000) ++k;
   return k;
 }
 
