@@ -261,7 +261,7 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
   if (sameScale)
     for (int i = 0; i < 3; ++i) in.scale[i] = first.scale[i];
   // The run carries the CRS as WKT from here on: give PROJ's caches back before the buffers grow.
-  releaseCrsCaches();
+  releaseCrsCaches(in.transforms.empty());
   return in;
 }
 

@@ -8,6 +8,7 @@
 #include <gdal_priv.h>
 #include <ogr_spatialref.h>
 #include <ogr_srs_api.h>
+#include <proj.h>
 
 #include <atomic>
 #include <cmath>
@@ -556,8 +557,12 @@ void checkCoordinatesPlausible(const CrsInfo& crs, double minX, double minY, dou
   }
 }
 
-void releaseCrsCaches() {
+void releaseCrsCaches(bool noTransformAlive) {
   OSRCleanup();
+  // GDAL's cleanup destroys its PROJ context, but PROJ keeps the database's SQLite handle (about 3.4 MB
+  // of schema and page cache) in a process-wide cache until proj_cleanup(), which also empties the grid
+  // caches: only safe when no transformation can be using a grid.
+  if (noTransformAlive) proj_cleanup();
 }
 
 bool sameCrs(const CrsInfo& a, const CrsInfo& b) {

@@ -90,7 +90,9 @@ void checkCoordinatesPlausible(const CrsInfo& crs, double minX, double minY, dou
 // no CRS work is expected for a while, e.g. after the inputs of a long streaming run are opened: the
 // ~10 MB it returns to the allocator is then reused by the run instead of adding to its peak.  Later
 // CRS calls still work (they reopen what they need).  Not thread-safe with other CRS calls.
-void releaseCrsCaches();
+// noTransformAlive: no PointTransform (or other PROJ transformation) exists, so PROJ's process-wide
+// caches (the database handle, grids) may go too.
+void releaseCrsCaches(bool noTransformAlive);
 
 // True when both describe the same CRS (OGRSpatialReference::IsSame, ignoring data axis order).
 bool sameCrs(const CrsInfo& a, const CrsInfo& b);
