@@ -42,7 +42,8 @@ std::uint64_t fileSizeOrZero(const std::string& path);
 
 class OutputFile {
  public:
-  explicit OutputFile(std::string path, std::size_t bufferSize = std::size_t{1} << 20);
+  // 256 KiB: four times a pipe's capacity, and a quarter of the 1 MiB it was (as fast at 10M, 0.75 MiB less).
+  explicit OutputFile(std::string path, std::size_t bufferSize = std::size_t{1} << 18);
   ~OutputFile();
   OutputFile(const OutputFile&) = delete;
   OutputFile& operator=(const OutputFile&) = delete;
