@@ -367,7 +367,7 @@ MemoryShares memoryShares(std::size_t budget) {
   m.tables = std::max<std::size_t>(budget / 16 * 3, std::size_t{1} << 20);
   m.demTiles = std::max<std::size_t>(budget / 4, std::size_t{1} << 20);
   m.regionQueuePoints = std::clamp<std::size_t>(budget / 32 / sizeof(PointRecord), std::size_t{1} << 14,
-                                                std::size_t{1} << 15);
+                                                std::size_t{1} << 16);
   return m;
 }
 
