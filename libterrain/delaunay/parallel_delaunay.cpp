@@ -186,12 +186,6 @@ struct ParallelDelaunay::Impl {
     mergerWaiting = false;
   }
   std::size_t queuedPoints = 0;  // records the queued input's buffers hold (their capacity: the memory)
-  // Back-pressure limit: options.maxQueuedPoints, but at most kQueuePerRegion records a region.  With 16
-  // regions (the 10M four-strip survey) 2^15 records are as many as 2^16 give 64 regions: 1 MiB less at
-  // 10M for 5% of its time, while the 64 regions of 10^8 and 10^9 points keep 2^16 (2^15 there cost 6-10%
-  // of the build's time; docs/benchmarks.md, fifth round).
-  static constexpr std::size_t kQueuePerRegion = 2048;
-  std::size_t queueLimit = 0;
   std::size_t bufferedBytes = 0;
   // Recycled buffers (guarded by mutex): new ones would cost page faults on every hand-over.
   std::vector<std::vector<std::uint64_t>> spareWords;
@@ -264,7 +258,6 @@ struct ParallelDelaunay::Impl {
     partFirst = partMode() ? std::min(options.partFirst, count) : 0;
     partEnd = partMode() ? std::min(options.partEnd, count) : count;
     regions = std::vector<Region>(count);
-    queueLimit = std::min(options.maxQueuedPoints, kQueuePerRegion * count);
     for (std::size_t m = 0; m < count; ++m) {
       Region& r = regions[m];
       r.cell = regionGrid.cell(m);
@@ -373,11 +366,11 @@ struct ParallelDelaunay::Impl {
     merge(tagsDispatched, false);
     // Back-pressure: wait (merging what is ready) while too much input is queued.
     std::unique_lock<std::mutex> lock(mutex);
-    while (queuedPoints > queueLimit && !failure) {
+    while (queuedPoints > options.maxQueuedPoints && !failure) {
       lock.unlock();
       const bool progressed = merge(tagsDispatched, false);
       lock.lock();
-      if (!progressed && queuedPoints > queueLimit && !failure && !runSome(lock))
+      if (!progressed && queuedPoints > options.maxQueuedPoints && !failure && !runSome(lock))
         waitForWorkers(lock);
     }
     lock.unlock();
