@@ -15,8 +15,10 @@
 #include "libterrain/core/error.h"
 
 #ifdef TINBUILD_HAVE_MPI
-#include <mpi.h>
+#include <dlfcn.h>
 #include <unistd.h>
+
+#include "app/jobs/mpi_api.h"
 #endif
 
 namespace tinbuild {
@@ -50,6 +52,41 @@ bool mpiAvailable() {
 
 namespace {
 
+// tinbuild-mpi.so (mpi_api.h), loaded on the first call: from $TINBUILD_MPI_MODULE when set, else beside
+// the executable, else from ../lib/tinbuild beside it.  A module that cannot be loaded is a usage error
+// naming the paths tried and the loader's reason.
+const TinbuildMpiApi& mpi() {
+  static const TinbuildMpiApi* api = [] {
+    std::vector<std::string> tried;
+    if (const char* env = std::getenv("TINBUILD_MPI_MODULE"); env && *env) {
+      tried.emplace_back(env);
+    } else {
+      std::error_code ec;
+      const fs::path exe = fs::read_symlink("/proc/self/exe", ec);
+      const fs::path dir = ec ? fs::path(".") : exe.parent_path();
+      tried.push_back((dir / "tinbuild-mpi.so").string());
+      tried.push_back((dir / ".." / "lib" / "tinbuild" / "tinbuild-mpi.so").string());
+    }
+    std::string reasons;
+    for (const std::string& path : tried) {
+      // RTLD_GLOBAL: Open MPI's own plugins, which it loads in turn, resolve their symbols in libmpi.
+      if (void* handle = ::dlopen(path.c_str(), RTLD_NOW | RTLD_GLOBAL)) {
+        using Entry = const TinbuildMpiApi* (*)();
+        auto entry = reinterpret_cast<Entry>(::dlsym(handle, "tinbuild_mpi_api"));
+        const TinbuildMpiApi* table = entry ? entry() : nullptr;
+        if (table && table->version == kTinbuildMpiApiVersion) return table;
+        reasons += (reasons.empty() ? "" : "; ") + path + ": not a tinbuild MPI module of this version";
+        continue;
+      }
+      const char* why = ::dlerror();
+      reasons += (reasons.empty() ? "" : "; ") + std::string(why ? why : path + ": cannot be loaded");
+    }
+    throw UsageError("--mpi: cannot load tinbuild's MPI module (" + reasons +
+                     "); it is built beside tinbuild when CMake finds MPI (set TINBUILD_MPI_MODULE to its path)");
+  }();
+  return *api;
+}
+
 std::string readWhole(const std::string& path) {
   std::ifstream in(path, std::ios::binary);
   std::ostringstream s;
@@ -80,11 +117,11 @@ void collective(int rank, int size, const std::string& what, Step step) {
     message = e.what();
     if (message.empty()) message = "failed";
   }
-  MPI_Allreduce(MPI_IN_PLACE, &cancelled, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  mpi().allreduceInPlace(&cancelled, 1, kTinbuildMpiInt, kTinbuildMpiMax);
   if (cancelled) throw CancelledError();
   int length = static_cast<int>(message.size());
   std::vector<int> lengths(static_cast<std::size_t>(size));
-  MPI_Allgather(&length, 1, MPI_INT, lengths.data(), 1, MPI_INT, MPI_COMM_WORLD);
+  mpi().allgather(&length, 1, lengths.data(), kTinbuildMpiInt);
   std::vector<int> offsets(static_cast<std::size_t>(size), 0);
   int total = 0;
   for (int i = 0; i < size; ++i) {
@@ -93,8 +130,7 @@ void collective(int rank, int size, const std::string& what, Step step) {
   }
   if (total == 0) return;
   std::string all(static_cast<std::size_t>(total), '\0');
-  MPI_Allgatherv(message.data(), length, MPI_CHAR, all.data(), lengths.data(), offsets.data(), MPI_CHAR,
-                 MPI_COMM_WORLD);
+  mpi().allgatherv(message.data(), length, all.data(), lengths.data(), offsets.data(), kTinbuildMpiChar);
   std::string report;
   for (int i = 0; i < size; ++i) {
     if (lengths[static_cast<std::size_t>(i)] == 0) continue;
@@ -126,7 +162,7 @@ constexpr int kGoOn = 0, kStopCancelled = 1, kStopFailed = 2;
 // Both ranks' states -> the worse one.
 int pairVote(int peer, int tag, int mine) {
   int theirs = kGoOn;
-  MPI_Sendrecv(&mine, 1, MPI_INT, peer, tag, &theirs, 1, MPI_INT, peer, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  mpi().sendrecv(&mine, &theirs, 1, kTinbuildMpiInt, peer, tag);
   return std::max(mine, theirs);
 }
 
@@ -146,7 +182,7 @@ std::uint64_t sendFile(const std::string& path, int tag, const CancelFlag* cance
   std::error_code ec;
   const std::uint64_t size = in ? fs::file_size(path, ec) : 0;
   const std::uint64_t header[2] = {in && !ec ? 1u : 0u, size};
-  MPI_Send(header, 2, MPI_UINT64_T, 0, tag, MPI_COMM_WORLD);
+  mpi().send(header, 2, kTinbuildMpiUint64, 0, tag);
   if (!header[0]) return 0;
   std::vector<char> buffer(static_cast<std::size_t>(std::min(kChunk, size)));
   std::string error;
@@ -156,7 +192,7 @@ std::uint64_t sendFile(const std::string& path, int tag, const CancelFlag* cance
       error = path + ": cannot read the file to send it to rank 0";
     stopOnVote(pairVote(0, tag, stateOf(error, cancel)), error, 0);
     if (n == 0) return size;
-    MPI_Send(buffer.data(), static_cast<int>(n), MPI_CHAR, 0, tag, MPI_COMM_WORLD);
+    mpi().send(buffer.data(), static_cast<int>(n), kTinbuildMpiChar, 0, tag);
     at += n;
   }
 }
@@ -164,7 +200,7 @@ std::uint64_t sendFile(const std::string& path, int tag, const CancelFlag* cance
 // Rank 0: receives what `from` sends (sendFile) into `path`; returns the bytes received.
 std::uint64_t receiveFile(const std::string& path, int from, int tag, const CancelFlag* cancel) {
   std::uint64_t header[2] = {0, 0};
-  MPI_Recv(header, 2, MPI_UINT64_T, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+  mpi().recv(header, 2, kTinbuildMpiUint64, from, tag);
   if (!header[0]) return 0;
   const std::uint64_t size = header[1];
   std::string error;
@@ -186,7 +222,7 @@ std::uint64_t receiveFile(const std::string& path, int from, int tag, const Canc
     }
     stopOnVote(pairVote(from, tag, stateOf(error, cancel)), error, from);
     if (n == 0) return size;
-    MPI_Recv(buffer.data(), static_cast<int>(n), MPI_CHAR, from, tag, MPI_COMM_WORLD, MPI_STATUS_IGNORE);
+    mpi().recv(buffer.data(), static_cast<int>(n), kTinbuildMpiChar, from, tag);
     if (error.empty()) {
       try {
         out->write(buffer.data(), static_cast<std::size_t>(n));
@@ -202,10 +238,10 @@ std::uint64_t receiveFile(const std::string& path, int from, int tag, const Canc
 std::string broadcastFile(int rank, const std::string& path) {
   std::string bytes = rank == 0 ? readWhole(path) : std::string();
   std::uint64_t n = bytes.size();
-  MPI_Bcast(&n, 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+  mpi().bcast(&n, 1, kTinbuildMpiUint64, 0);
   bytes.resize(n);
   for (std::uint64_t at = 0; at < n; at += kChunk)
-    MPI_Bcast(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), MPI_CHAR, 0, MPI_COMM_WORLD);
+    mpi().bcast(bytes.data() + at, static_cast<int>(std::min(kChunk, n - at)), kTinbuildMpiChar, 0);
   return bytes;
 }
 
@@ -234,8 +270,8 @@ class MpiReducer : public PlanReducer {
       if (!error.empty()) throw Error(error);
     });
     double mins[3] = {c.bounds.minX, c.bounds.minY, c.bounds.minZ}, maxs[3] = {c.bounds.maxX, c.bounds.maxY, c.bounds.maxZ};
-    MPI_Allreduce(MPI_IN_PLACE, mins, 3, MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);
-    MPI_Allreduce(MPI_IN_PLACE, maxs, 3, MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+    mpi().allreduceInPlace(mins, 3, kTinbuildMpiDouble, kTinbuildMpiMin);
+    mpi().allreduceInPlace(maxs, 3, kTinbuildMpiDouble, kTinbuildMpiMax);
     c.bounds.minX = mins[0];
     c.bounds.minY = mins[1];
     c.bounds.minZ = mins[2];
@@ -243,8 +279,8 @@ class MpiReducer : public PlanReducer {
     c.bounds.maxY = maxs[1];
     c.bounds.maxZ = maxs[2];
     if (!c.segMin.empty()) {
-      MPI_Allreduce(MPI_IN_PLACE, c.segMin.data(), static_cast<int>(c.segMin.size()), MPI_DOUBLE, MPI_MIN, MPI_COMM_WORLD);
-      MPI_Allreduce(MPI_IN_PLACE, c.segMax.data(), static_cast<int>(c.segMax.size()), MPI_DOUBLE, MPI_MAX, MPI_COMM_WORLD);
+      mpi().allreduceInPlace(c.segMin.data(), static_cast<int>(c.segMin.size()), kTinbuildMpiDouble, kTinbuildMpiMin);
+      mpi().allreduceInPlace(c.segMax.data(), static_cast<int>(c.segMax.size()), kTinbuildMpiDouble, kTinbuildMpiMax);
       bytes_ += (c.segMin.size() + c.segMax.size()) * 8;
     }
     FilterCounts& f = c.filter;
@@ -252,7 +288,7 @@ class MpiReducer : public PlanReducer {
     f.forEachCounter([&v](std::uint64_t& x) { v.push_back(x); });
     v.insert(v.end(), c.regions.begin(), c.regions.end());
     bytes_ += (v.size() + 6) * 8;
-    MPI_Allreduce(MPI_IN_PLACE, v.data(), static_cast<int>(v.size()), MPI_UINT64_T, MPI_SUM, MPI_COMM_WORLD);
+    mpi().allreduceInPlace(v.data(), static_cast<int>(v.size()), kTinbuildMpiUint64, kTinbuildMpiSum);
     std::size_t k = 0;
     c.points = v[k++];
     f.forEachCounter([&](std::uint64_t& x) { x = v[k++]; });
@@ -269,30 +305,25 @@ struct MpiSession {
   int rank = 0, size = 1;
   bool owned = false;
   MpiSession() {
-    int initialized = 0;
-    MPI_Initialized(&initialized);
-    if (!initialized) {
-      MPI_Init(nullptr, nullptr);
-      owned = true;
-    }
-    MPI_Comm_rank(MPI_COMM_WORLD, &rank);
-    MPI_Comm_size(MPI_COMM_WORLD, &size);
+    int own = 0;
+    mpi().init(&rank, &size, &own);
+    owned = own != 0;
   }
   ~MpiSession() {
-    if (owned) MPI_Finalize();
+    if (owned) mpi().finalize();
   }
 };
 
 }  // namespace
 
-static RunReport runMpiSteps(const MpiSession& mpi, const PipelineOptions& options,
+static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
                       const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag);
 
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag) {
-  MpiSession mpi;
+  MpiSession session;
   try {
-    return runMpiSteps(mpi, options, buildArgs, command, diag);
+    return runMpiSteps(session, options, buildArgs, command, diag);
   } catch (...) {
     // A stopped or failed run cleans up on every rank before MPI_Finalize (~MpiSession), whose fence keeps
     // the ranks together until all are done: mpirun stops the job at the first rank that exits non-zero,
@@ -302,10 +333,10 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
   }
 }
 
-static RunReport runMpiSteps(const MpiSession& mpi, const PipelineOptions& options,
+static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
                       const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag) {
   const auto t0 = std::chrono::steady_clock::now();
-  const int rank = mpi.rank, size = mpi.size;
+  const int rank = session.rank, size = session.size;
   {
     const RunOutputs outputs = resolveOutputs(options);
     checkPlannedOutputs(outputs);
@@ -436,18 +467,18 @@ static RunReport runMpiSteps(const MpiSession& mpi, const PipelineOptions& optio
   });
   const double mergeSeconds = since(tMerge);
   std::vector<double> partTimes(static_cast<std::size_t>(size));
-  MPI_Gather(&partSeconds, 1, MPI_DOUBLE, partTimes.data(), 1, MPI_DOUBLE, 0, MPI_COMM_WORLD);
+  mpi().gather(&partSeconds, 1, partTimes.data(), kTinbuildMpiDouble, 0);
   std::uint64_t peak = peakRssBytes();
   std::vector<std::uint64_t> peaks(static_cast<std::size_t>(size));
-  MPI_Gather(&peak, 1, MPI_UINT64_T, peaks.data(), 1, MPI_UINT64_T, 0, MPI_COMM_WORLD);
+  mpi().gather(&peak, 1, peaks.data(), kTinbuildMpiUint64, 0);
   std::uint64_t exchangedAll = 0;
-  MPI_Reduce(&exchanged, &exchangedAll, 1, MPI_UINT64_T, MPI_SUM, 0, MPI_COMM_WORLD);
+  mpi().reduce(&exchanged, &exchangedAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   // 5. The decision: one last vote.  A cancellation that has reached any rank by now stops all of them
   // (exit 3, nothing of the merge committed).  After the vote the run is decided: rank 0 commits and
   // every rank exits 0, whatever signal arrives later (as a single process past its commit).  Without
   // it, a late SIGTERM could stop one rank with exit 3 while rank 0 committed a whole result.
   int stop = cancelRequested(options.finalizer.cancel) ? 1 : 0;
-  MPI_Allreduce(MPI_IN_PLACE, &stop, 1, MPI_INT, MPI_MAX, MPI_COMM_WORLD);
+  mpi().allreduceInPlace(&stop, 1, kTinbuildMpiInt, kTinbuildMpiMax);
   if (stop) throw CancelledError();
   if (rank != 0) {
     partReport.command = "build --mpi";

@@ -278,5 +278,19 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   EXPECT_NE(f.err.find("missing.las"), std::string::npos) << f.err;
 }
 
+// The MPI calls are in a module that only `--mpi` loads: one that cannot be loaded is a usage error
+// naming the path and the loader's reason, and nothing is written.
+TEST(Parts, MpiModuleThatCannotLoadIsAClearError) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  auto r = tinbuild("build " + test::dataPath("las/simple.las") + " --mesh x.smb --mpi -q",
+                    "cd " + out.string() + " && TINBUILD_MPI_MODULE=" + (out / "absent-mpi.so").string() + " ");
+  if (r.err.find("built without MPI") != std::string::npos) GTEST_SKIP() << "tinbuild built without MPI";
+  EXPECT_EQ(r.code, 2) << r.err;
+  EXPECT_NE(r.err.find("absent-mpi.so"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("MPI module"), std::string::npos) << r.err;
+  EXPECT_TRUE(listDir(out).empty()) << listDir(out).front();
+}
+
 }  // namespace
 }  // namespace tinbuild

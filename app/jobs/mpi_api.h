@@ -1,0 +1,37 @@
+// The few MPI calls `build --mpi` makes, as a table of plain functions (a C ABI).  The table lives in a
+// module of its own, tinbuild-mpi.so (mpi_module.cpp), the only code linked to MPI: tinbuild loads it
+// (dlopen) when a run asks for MPI, so that every other run starts without Open MPI's libraries (about
+// 1.3 MiB of resident pages and their relocations on each start).  Only the types and operations
+// tinbuild uses are in it.
+#pragma once
+
+#include <cstdint>
+
+extern "C" {
+
+enum TinbuildMpiType { kTinbuildMpiInt = 0, kTinbuildMpiDouble = 1, kTinbuildMpiUint64 = 2, kTinbuildMpiChar = 3 };
+enum TinbuildMpiOp { kTinbuildMpiMin = 0, kTinbuildMpiMax = 1, kTinbuildMpiSum = 2 };
+
+// Every call works on MPI_COMM_WORLD; `type` is a TinbuildMpiType, `op` a TinbuildMpiOp.  A failing MPI
+// call ends the job (MPI's default error handler), as a direct call would.
+struct TinbuildMpiApi {
+  int version;  // kTinbuildMpiApiVersion
+  // MPI_Init unless it was already initialised; *owned says whether finalize() must end it.
+  void (*init)(int* rank, int* size, int* owned);
+  void (*finalize)();
+  void (*allreduceInPlace)(void* buffer, int count, int type, int op);
+  void (*allgather)(const void* send, int count, void* receive, int type);
+  void (*allgatherv)(const void* send, int count, void* receive, const int* counts, const int* offsets, int type);
+  void (*sendrecv)(const void* send, void* receive, int count, int type, int peer, int tag);
+  void (*send)(const void* buffer, int count, int type, int to, int tag);
+  void (*recv)(void* buffer, int count, int type, int from, int tag);
+  void (*bcast)(void* buffer, int count, int type, int root);
+  void (*gather)(const void* send, int count, void* receive, int type, int root);
+  void (*reduce)(const void* send, void* receive, int count, int type, int op, int root);
+};
+
+constexpr int kTinbuildMpiApiVersion = 1;
+
+// The module's one exported symbol.
+const TinbuildMpiApi* tinbuild_mpi_api();
+}
