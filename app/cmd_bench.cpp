@@ -50,7 +50,7 @@ std::vector<cli::OptionSpec> benchOptions() {
       {"--tinbuild", "EXE", "the tinbuild to measure (default: the one beside tinbuild-bench)"},
       {"--threads", "N",
        "read: decode threads (default: all cores); others: the measured tinbuild's threads"},
-      {"--memory", "MB", "finalize, scale: the run's memory budget (tinbuild finalize/build --memory)"},
+      {"--memory", "MB", "finalize, scale, tet: the run's memory budget (tinbuild finalize/build/tetrahedralize --memory)"},
       {"--stored-order", "", "finalize: pass 3 reads the file in its stored order (finalize --stored-order)"},
       {"--cold", "", "finalize: the raw read and every pass read from storage (finalize --drop-cache)"},
       {"--tiles", "K", "finalize: the survey as K x K tile files named in a shuffled order"},
@@ -163,7 +163,7 @@ Command benchCommand() {
       "       tinbuild bench hydro [--points N] [--ponds P] [--roads R] [--repeat R] [--dir DIR] [--keep]\n"
       "       tinbuild bench scale [--list 10,100,1000] [--tile-points 10] [--memory MB] [--keep-class 2,9]\n"
       "                      [--step 2] [--repeat R] [--no-verify] [--dir DIR] [--keep]\n"
-      "       tinbuild bench tet [--list 1,5,10] [--order coherent|random|both] [--lidar N] [--repeat R]\n"
+      "       tinbuild bench tet [--list 1,5,10] [--order coherent|random|both] [--lidar N] [--memory MB] [--repeat R]\n"
       "       tinbuild bench stream --points N [--cell-points M] [--order hilbert|serpentine] [-o FILE]\n"
       "       tinbuild bench read FILE... [--repeat N] [--threads N] [--columns SPEC]",
       "benchmarks: our pipeline against CGAL's in-core Delaunay on generated surveys; reader speed",

@@ -43,7 +43,11 @@ void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, doub
             << formatDouble("%.2f s", seconds) << "\n";
   if (fs)
     std::cerr << "  octree depth " << fs->grid.depth << ", " << withCommas(fs->occupiedCells)
-              << " occupied cells, stream width " << withCommas(fs->width) << " points\n";
+              << " occupied cells, stream width " << withCommas(fs->width) << " points"
+              << (fs->spilledPoints ? ", " + withCommas(fs->spilledPoints) + " spilled (at most " +
+                                          withCommas(fs->maxInMemory) + " in memory)"
+                                    : std::string())
+              << "\n";
   std::cerr << "  peak active tetrahedra " << withCommas(ds.maxActiveTets) << " ("
             << formatDouble("%.2f", ds.tetsEmitted ? 100.0 * static_cast<double>(ds.maxActiveTets) /
                                                          static_cast<double>(ds.tetsEmitted)
@@ -78,6 +82,8 @@ Finalizer3dOptions openSurvey3d(const PipelineArgs& a, const std::string& comman
   fo.depth = a.options.finalizer.depth;
   fo.filter = a.options.finalizer.filter;
   fo.crsWkt = in.crs.wkt;
+  fo.memoryBudget = a.options.finalizer.memoryBudget;  // (--memory: the waiting chunks, then the spill file)
+  fo.tempDir = a.options.finalizer.tempDir;
   return fo;
 }
 
@@ -147,7 +153,9 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
       << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
       << ", \"depth\": " << fs.grid.depth << ", \"depth_refinements\": " << fs.depthRefinements
       << ", \"occupied_cells\": " << fs.occupiedCells
-      << ", \"width\": " << fs.width << ", \"tags\": " << fs.tags
+      << ", \"width\": " << fs.width << ", \"max_in_memory\": " << fs.maxInMemory
+      << ", \"spilled_points\": " << fs.spilledPoints << ", \"spill_events\": " << fs.spillEvents
+      << ", \"tags\": " << fs.tags
       << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
       << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
       << ", \"tetrahedra\": " << ds.tetsEmitted << ", \"created\": " << ds.tetsCreated

@@ -3,12 +3,14 @@
 #include <algorithm>
 #include <bit>
 #include <chrono>
+#include <memory>
 #include <cmath>
 #include <unordered_map>
 #include <unordered_set>
 
 #include "libterrain/core/error.h"
 #include "libterrain/core/mix_bits.h"
+#include "libterrain/core/temp_file.h"
 
 namespace tinbuild {
 
@@ -20,10 +22,15 @@ struct Candidate {
   double dist = 0;
 };
 
+struct Extent {
+  std::uint64_t offset = 0, count = 0;
+};
+
 struct Leaf {
   std::uint64_t remaining = 0;
   Candidate sprinkle;
-  std::vector<PointRecord> chunk;
+  std::vector<PointRecord> chunk;  // the points held in memory, the newest of the chunk
+  std::vector<Extent> spilled;     // older runs of the chunk in the spill file, in arrival order
 };
 
 struct Node {
@@ -187,7 +194,10 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   std::unordered_set<std::uint64_t> sprinkleOrdinals, emitted;
   for (const auto& [code, L] : leaves) sprinkleOrdinals.insert(L.sprinkle.ordinal);
   std::vector<PointRecord> batch;
-  std::uint64_t waiting = 0;
+  std::uint64_t waiting = 0;         // chunk points held, in memory or spilled
+  std::uint64_t spilledWaiting = 0;  // of which in the spill file
+  std::unique_ptr<TempFile> spill;   // created by the first spill
+  std::uint64_t spillEnd = 0;
   auto emitSprinkle = [&](const Candidate& c) {
     if (emitted.insert(c.ordinal).second) batch.push_back(c.p);
   };
@@ -213,6 +223,23 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
       const double f = (v - o0) / cs * 16.0;
       return static_cast<std::uint32_t>(std::clamp(f, 0.0, 15.0));
     };
+    // The spilled runs come back first (they are the older points): the chunk in arrival order, as if it
+    // had stayed in memory, so the stream does not depend on the budget.
+    if (!L.spilled.empty()) {
+      std::uint64_t count = 0;
+      for (const Extent& e : L.spilled) count += e.count;
+      std::vector<PointRecord> whole(static_cast<std::size_t>(count));
+      std::size_t at = 0;
+      for (const Extent& e : L.spilled) {
+        spill->readAt(e.offset, whole.data() + at, static_cast<std::size_t>(e.count) * sizeof(PointRecord));
+        spill->discard(e.offset, e.count * sizeof(PointRecord));
+        at += static_cast<std::size_t>(e.count);
+      }
+      whole.insert(whole.end(), L.chunk.begin(), L.chunk.end());
+      L.chunk.swap(whole);
+      std::vector<Extent>().swap(L.spilled);
+      spilledWaiting -= count;
+    }
     std::vector<std::pair<std::uint64_t, std::uint32_t>> keys(L.chunk.size());
     for (std::uint32_t i = 0; i < L.chunk.size(); ++i) {
       const std::uint64_t h = mixBits(o.seed ^ mixBits(code * 0x9E3779B97F4A7C15ULL + i));
@@ -237,11 +264,57 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
     }
     tag(level, c);
   };
+  // Over the budget: the largest chunks held in memory go to the spill file, until 3/4 of it is left.
+  const std::uint64_t budgetPoints = std::max<std::uint64_t>(o.memoryBudget / sizeof(PointRecord), 1024);
+  auto spillChunks = [&] {
+    ++st.spillEvents;
+    if (!spill) spill = std::make_unique<TempFile>(o.tempDir, "spill3d");
+    std::vector<std::pair<std::uint64_t, std::uint64_t>> bySize;  // (points in memory, leaf code)
+    for (const auto& [code, L] : leaves)
+      if (!L.chunk.empty()) bySize.push_back({L.chunk.size(), code});
+    std::sort(bySize.begin(), bySize.end(), [](const auto& a, const auto& b) {
+      return a.first > b.first || (a.first == b.first && a.second < b.second);
+    });
+    for (const auto& [size, code] : bySize) {
+      if (waiting - spilledWaiting <= budgetPoints * 3 / 4) break;
+      Leaf& L = leaves[code];
+      const std::uint64_t bytes = size * sizeof(PointRecord);
+      spill->writeAt(spillEnd, L.chunk.data(), static_cast<std::size_t>(bytes));
+      L.spilled.push_back({spillEnd, size});
+      spillEnd += bytes;
+      spilledWaiting += size;
+      st.spilledPoints += size;
+      std::vector<PointRecord>().swap(L.chunk);
+    }
+  };
+  // Completed leaves are released at the ends of windows of W input points, counted back from the last
+  // point, in Morton order within a window: a point order with no locality (every leaf completes in the
+  // last moments of the read, in random order) then streams out leaf by leaf in Morton order, as coherent
+  // input does, and the tetrahedralizer's active set stays small.  A coherent input waits at most W
+  // points longer.  In random order a leaf of k = N/L points (L leaves) completes before the last window
+  // with probability about e^(-kW/N) = e^(-W/L): W = max(N/128, 16 L), at most N/4, makes that e^-16
+  // while k >= 64, and costs a coherent input at most N/128 points or 16 a leaf.  The order depends on
+  // the inputs only (not on the budget), so the stream stays a pure function of inputs and options.
+  const std::uint64_t window = std::max<std::uint64_t>(
+      std::min<std::uint64_t>(std::max<std::uint64_t>(st.points / 128, 16 * leaves.size()), st.points / 4), 1);
+  const std::uint64_t firstEnd = st.points % window;  // window ends: firstEnd + j * window, and st.points
+  std::uint64_t nextEnd = firstEnd == 0 ? window : firstEnd;
+  std::vector<std::uint64_t> ready;
+  std::size_t released = 0;
+  auto releaseReady = [&] {
+    std::sort(ready.begin(), ready.end());
+    for (const std::uint64_t code : ready) {
+      Leaf& L = leaves[code];
+      release(code, L);
+      std::vector<PointRecord>().swap(L.chunk);  // the leaf stays: its sprinkle candidate is still asked for
+      ++released;
+    }
+    ready.clear();
+  };
   in.rewind();
   ordinal = 0;
-  std::size_t released = 0;
   readAll(in, o.filter, nullptr, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
-    for (std::size_t i = 0; i < n; ++i, ++ordinal) {
+    for (std::size_t i = 0; i < n; ++i) {
       const std::uint64_t code = leafCode(p[i]);
       auto it = leaves.find(code);
       if (it == leaves.end() || it->second.remaining == 0)
@@ -251,15 +324,17 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
         L.chunk.push_back(p[i]);
         ++waiting;
         st.width = std::max(st.width, waiting);
+        if (waiting - spilledWaiting > budgetPoints) spillChunks();
+        st.maxInMemory = std::max(st.maxInMemory, waiting - spilledWaiting);
       }
-      if (--L.remaining == 0) {
-        release(code, L);
-        std::vector<PointRecord>().swap(
-            L.chunk);  // the leaf stays: its sprinkle candidate is still asked for
-        ++released;
+      if (--L.remaining == 0) ready.push_back(code);
+      if (++ordinal == nextEnd) {
+        releaseReady();
+        nextEnd += window;
       }
     }
   });
+  releaseReady();
   if (released != leaves.size()) throw Error("an input yielded fewer points in its last pass");
   out.end();
   st.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();

@@ -9,8 +9,12 @@
 //   pass 2  points per occupied leaf (a hash of the occupied leaves only), and each leaf's sprinkle
 //           candidate: its point closest to the leaf centre (lowest ordinal on ties).  Every octree node
 //           takes the candidate of its children closest to its own centre.
-//   pass 3  streaming out: each point is appended to its leaf's chunk; when a leaf's count reaches zero
-//           its chunk is released: (a) walking from the root down to the leaf's parent, the not yet emitted
+//   pass 3  streaming out: each point is appended to its leaf's chunk; a leaf whose count reaches zero
+//           is complete, and the complete leaves are released at the end of each window of W input
+//           points (counted back from the last point; W = max(N/128, 16 per leaf), at most N/4), in
+//           Morton order: a survey in no spatial order,
+//           whose leaves all complete in the read's last moments, then streams out as a coherent one.
+//           A leaf's release: (a) walking from the root down to the leaf's parent, the not yet emitted
 //           sprinkle points of the root and of every child of each node on the path (one per octant: a
 //           coarse, well spread sample arrives before the dense chunks), (b) the chunk in BRIO order
 //           (rounds by the trailing zero bits of a hash of (seed, leaf, arrival), rarest first; within a
@@ -19,10 +23,11 @@
 //           occupied nodes) are tagged right after begin(), coarse levels first.
 // The stream is a pure function of the inputs, the options and the seed.
 //
-// Memory follows the stream's width: only the chunks of leaves still waiting for points are held (the
-// "width" reported is the most points waiting at once), plus about 100 bytes per occupied leaf.  Unlike
-// the 2D finalizer there is no spill file and no read-order optimisation yet: an incoherent survey is
-// held in memory.  Inputs must be rewindable (files; stdin is refused with a clear error).
+// Memory follows the stream's width: only the chunks of leaves not yet released are held (the "width"
+// reported is the most points waiting at once), plus about 100 bytes per occupied leaf; beyond
+// options.memoryBudget the largest chunks wait in a spill file (the same stream for any budget).  Unlike
+// the 2D finalizer there is no read-order optimisation.  Inputs must be rewindable (files; stdin is
+// refused with a clear error).
 #pragma once
 
 #include <cstdint>
@@ -42,6 +47,11 @@ struct Finalizer3dOptions {
   std::uint64_t seed = 0x5eed2006;
   std::string crsWkt;
   std::size_t batchPoints = std::size_t{1} << 15;
+  // Bytes of waiting chunk points held in memory; beyond it the largest chunks go to a spill file in
+  // tempDir ("" = $TMPDIR or /tmp) and come back when their leaf is released.  The stream is the same
+  // for any budget.
+  std::size_t memoryBudget = std::size_t{512} << 20;
+  std::string tempDir;
 };
 
 struct Finalizer3dStats {
@@ -51,7 +61,10 @@ struct Finalizer3dStats {
   OctreeGrid grid;
   std::uint64_t occupiedCells = 0;
   std::uint64_t maxPerCell = 0;
-  std::uint64_t width = 0;  // most chunk points waiting at once
+  std::uint64_t width = 0;        // most chunk points waiting at once (in memory or spilled)
+  std::uint64_t maxInMemory = 0;  // most of them held in memory at once (memoryBudget bounds it)
+  std::uint64_t spilledPoints = 0;
+  std::uint64_t spillEvents = 0;
   std::uint64_t sprinkled = 0;
   std::uint64_t emptyTags = 0;
   std::uint64_t tags = 0;

@@ -167,7 +167,8 @@ struct Row {
 };
 
 Row measure(const std::string& tinbuild, const std::string& self, const std::string& las,
-            const std::string& label, const std::string& dir, int rounds, bool noCgal) {
+            const std::string& label, const std::string& dir, int rounds, bool noCgal,
+            const std::string& memoryMb) {
   Row row;
   row.label = label;
   std::vector<double> secs, rss, csecs, crss, cload;
@@ -175,8 +176,9 @@ Row measure(const std::string& tinbuild, const std::string& self, const std::str
   std::string json;
   for (int r = 0; r < rounds; ++r) {
     fs::remove(report);
-    const ChildRun t =
-        runChild(tinbuild, {"tetrahedralize", las, "-o", "/dev/null", "-q", "--report", report}, false);
+    std::vector<std::string> run{"tetrahedralize", las, "-o", "/dev/null", "-q", "--report", report};
+    if (!memoryMb.empty()) run.insert(run.end(), {"--memory", memoryMb});
+    const ChildRun t = runChild(tinbuild, run, false);
     secs.push_back(t.seconds);
     rss.push_back(static_cast<double>(t.maxRssKb) / 1024.0);
     json = slurp(report);
@@ -239,6 +241,7 @@ int tetMain(const std::vector<std::string>& argv) {
   const std::uint64_t seed = args.count("--seed", 1, 0, std::numeric_limits<std::uint32_t>::max());
   const bool noCgal = args.flag("--no-cgal");
   const bool keep = args.flag("--keep");
+  const std::string memoryMb = args.value("--memory", "");  // tetrahedralize --memory (default: its own)
   const char* tmp = std::getenv("TMPDIR");
   const std::string base = args.value("--dir", tmp && *tmp ? tmp : "/tmp");
   args.finish();
@@ -258,7 +261,7 @@ int tetMain(const std::vector<std::string>& argv) {
         const std::string label = std::to_string(m) + "M uniform, " + (coherent ? "coherent" : "random");
         say("writing " + label + " points (untimed)");
         writeUniformLas(las, static_cast<std::uint64_t>(m) * 1000000, coherent, seed);
-        rows.push_back(measure(tinbuild, self, las, label, dir, rounds, noCgal));
+        rows.push_back(measure(tinbuild, self, las, label, dir, rounds, noCgal, memoryMb));
         if (!keep) fs::remove(las);
       }
     if (lidar > 0) {
@@ -266,7 +269,7 @@ int tetMain(const std::vector<std::string>& argv) {
       runChild(tinbuild, {"demo", dir + "/demo", "--points", std::to_string(lidar), "--survey-only", "--las"},
                false);
       rows.push_back(measure(tinbuild, self, dir + "/demo/survey.las",
-                             std::to_string(lidar) + "M LIDAR (demo)", dir, rounds, noCgal));
+                             std::to_string(lidar) + "M LIDAR (demo)", dir, rounds, noCgal, memoryMb));
     }
   } catch (...) {
     if (!keep) fs::remove_all(dir);
@@ -289,13 +292,14 @@ int tetMain(const std::vector<std::string>& argv) {
                 r.tets ? 100.0 * static_cast<double>(r.maxActive) / static_cast<double>(r.tets) : 0.0,
                 group(r.width).c_str(), r.depth);
   std::printf(
-      "ours: `tinbuild tetrahedralize LAS -o /dev/null` (whole job, wall, wait4 peak RSS); CGAL: "
+      "ours: `tinbuild tetrahedralize LAS -o /dev/null%s` (whole job, wall, wait4 peak RSS); CGAL: "
       "Delaunay_triangulation_3<Epick>::insert(range), compute only (reading untimed; RSS includes the "
       "points).\n"
       "ratio: ours / CGAL (goals: time <= 1, memory <= 0.1).  active: peak live tetrahedra (ghosts "
       "included), "
-      "%%out: of the output;\nwidth: most points the finalizer held at once.  Tetrahedron counts equal "
-      "CGAL's.\n");
+      "%%out: of the output;\nwidth: most points the finalizer held at once (beyond --memory in a spill "
+      "file).  Tetrahedron counts equal CGAL's.\n",
+      memoryMb.empty() ? "" : (" --memory " + memoryMb).c_str());
   return 0;
 }
 

@@ -93,12 +93,14 @@ struct TetRun {
   Finalizer3dStats fin;
 };
 
-void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = -1) {
+void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = -1,
+                    std::size_t memoryBudget = std::size_t{512} << 20) {
   test::VectorStream in(pts, 777);
   StreamingDelaunay3d dt(r.mesh);
   Finalizer3dOptions fo;
   fo.filter = PointFilter::none();
   fo.depth = depth;
+  fo.memoryBudget = memoryBudget;
   std::vector<PointStream*> inputs{&in};
   r.fin = finalizePoints3d(inputs, fo, dt);
   r.stats = dt.stats();
@@ -243,6 +245,49 @@ TEST(StreamingDelaunay3d, DepthDoesNotChangeTetrahedra) {
   tetrahedralize(pts, b, 3);
   EXPECT_TRUE(a.mesh.sortedTets() == b.mesh.sortedTets());
   EXPECT_LT(b.stats.maxActiveTets, a.stats.maxActiveTets);  // streaming frees memory
+}
+
+// Beyond the finalizer's memory budget the largest waiting chunks go to a spill file and come back in
+// arrival order: the same stream (vertices in the same order, the same tetrahedra) for any budget.
+TEST(StreamingDelaunay3d, SpillFileGivesTheSameStream) {
+  const auto pts = randomCube(40000, 11);  // no spatial order: every chunk waits to the end
+  TetRun held, spilled;
+  tetrahedralize(pts, held, 3);
+  tetrahedralize(pts, spilled, 3, 1);  // (at least 1,024 points)
+  EXPECT_EQ(held.fin.spilledPoints, 0u);
+  EXPECT_GT(spilled.fin.spilledPoints, 30000u);
+  EXPECT_GT(spilled.fin.spillEvents, 10u);
+  EXPECT_LE(spilled.fin.maxInMemory, 1024u);
+  EXPECT_GT(held.fin.maxInMemory, 30000u);
+  EXPECT_EQ(spilled.fin.width, held.fin.width);
+  ASSERT_EQ(spilled.mesh.points.size(), held.mesh.points.size());
+  EXPECT_TRUE(spilled.mesh.points == held.mesh.points);
+  EXPECT_TRUE(spilled.mesh.tets == held.mesh.tets);
+}
+
+// A survey in no spatial order completes all its leaves in the read's last moments; they are released
+// in Morton order, so the tetrahedralizer holds about what it holds for the same points in a coherent
+// order (here: sorted by octree leaf), not a large share of the mesh.
+TEST(StreamingDelaunay3d, RandomOrderStreamsLikeCoherentOrder) {
+  auto pts = randomCube(60000, 12);
+  TetRun random, coherent;
+  tetrahedralize(pts, random, 3);
+  auto leafKey = [](const PointRecord& p) {
+    std::uint64_t k = 0;
+    const auto c = [](double v) { return static_cast<std::uint32_t>(std::clamp(v / 12.5, 0.0, 7.0)); };
+    const std::uint32_t x = c(p.x), y = c(p.y), z = c(p.z);
+    for (int b = 0; b < 3; ++b)
+      k |= static_cast<std::uint64_t>((x >> b & 1) | (y >> b & 1) << 1 | (z >> b & 1) << 2) << (3 * b);
+    return k;
+  };
+  std::stable_sort(pts.begin(), pts.end(), [&](const PointRecord& a, const PointRecord& b) { return leafKey(a) < leafKey(b); });
+  tetrahedralize(pts, coherent, 3);
+  EXPECT_TRUE(random.mesh.sortedTets() == coherent.mesh.sortedTets());
+  EXPECT_GT(random.fin.width, 50000u);  // every chunk waited
+  EXPECT_LT(coherent.fin.width, 20000u);
+  EXPECT_LT(random.stats.maxActiveTets, coherent.stats.maxActiveTets * 3 / 2)
+      << random.stats.maxActiveTets << " against " << coherent.stats.maxActiveTets;
+  EXPECT_LT(random.stats.maxActiveTets, random.stats.tetsEmitted / 10);
 }
 
 TEST(StreamingDelaunay3d, ClusteredPointsMatchCgal) {
