@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <filesystem>
 #include <limits>
+#include <memory>
 
 #include "app/jobs/build_job.h"
 #include "app/jobs/run_outputs.h"
@@ -10,6 +11,7 @@
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/temp_file.h"
 #include "libterrain/finalizer/regions.h"
 
 namespace tinbuild {
@@ -303,6 +305,74 @@ void readSlice(const Survey& in, const std::vector<SlicePiece>& pieces, const Po
   }
 }
 
+// The kept points' positions of a plan's slice, written as pass 1 decodes them (16 bytes a point, to an
+// unlinked temporary file), so that pass 2 counts the regions without decoding the slice again: when an
+// input is costly to read again (LAZ, XYZ text, reprojection: PointStream::cheapToReread), as the
+// finalizer spools its first pass.  Not used when the copy would leave less than the finalizer's
+// spoolReserve free, and given up (pass 2 reads the inputs again) if a write fails.
+class XySpool {
+ public:
+  void open(const Survey& in, const std::vector<SlicePiece>& pieces, const FinalizerOptions& fo) {
+    if (!fo.spoolCostlyInputs) return;
+    bool costly = false;
+    std::uint64_t records = 0;
+    for (const SlicePiece& p : pieces) {
+      costly = costly || !in.streams[p.input]->cheapToReread();
+      const SourceInfo& si = in.readers[p.input]->info();
+      records += p.count ? p.count : si.pointCountKnown ? si.pointCount : 0;
+    }
+    if (!costly) return;
+    try {
+      file_ = std::make_unique<TempFile>(fo.tempDir, "plan-xy");
+      if (file_->freeBytes() < fo.spoolReserve + records * 16) file_.reset();
+    } catch (const std::exception&) {
+      file_.reset();
+    }
+    buffer_.reserve(kBuffer);
+  }
+  void add(const PointRecord* p, std::size_t n) {
+    if (!file_) return;
+    for (std::size_t i = 0; i < n; ++i) {
+      buffer_.push_back(p[i].x);
+      buffer_.push_back(p[i].y);
+      if (buffer_.size() == kBuffer) flush();
+    }
+  }
+  // Every point of pass 1 is in the file.
+  bool complete() {
+    if (file_) flush();
+    return file_ != nullptr;
+  }
+  // fn(x, y) for each point in pass 1's order; returns how many.
+  template <class Fn>
+  std::uint64_t forEach(Fn fn) {
+    std::vector<double> b(kBuffer);
+    for (std::uint64_t at = 0; at < points_;) {
+      const std::uint64_t n = std::min<std::uint64_t>(kBuffer / 2, points_ - at);
+      file_->readAt(at * 16, b.data(), static_cast<std::size_t>(n * 16));
+      for (std::size_t i = 0; i < n; ++i) fn(b[2 * i], b[2 * i + 1]);
+      at += n;
+    }
+    return points_;
+  }
+
+ private:
+  static constexpr std::size_t kBuffer = std::size_t{1} << 17;  // doubles: 64k points, 1 MiB
+  void flush() {
+    if (buffer_.empty()) return;
+    try {
+      file_->writeAt(points_ * 16, buffer_.data(), buffer_.size() * sizeof(double));
+      points_ += buffer_.size() / 2;
+    } catch (const std::exception&) {
+      file_.reset();  // (pass 2 reads the inputs again)
+    }
+    buffer_.clear();
+  }
+  std::unique_ptr<TempFile> file_;
+  std::vector<double> buffer_;
+  std::uint64_t points_ = 0;
+};
+
 // Per cut input, the index of its first segment in the survey's list (and the total at the end).
 std::vector<std::uint64_t> segmentOffsets(const Survey& in, std::uint64_t kSegmentRecords) {
   std::vector<std::uint64_t> first(in.streams.size() + 1, 0);
@@ -329,6 +399,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   std::vector<SlicePiece> pieces;
   std::vector<std::uint64_t> segmentFirst;
   PlanCounts bounds;
+  XySpool spool;
   try {
     r.crs = in.crs;
     r.filter = fo.filter.describe();
@@ -340,8 +411,10 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
     constexpr double inf = std::numeric_limits<double>::infinity();
     bounds.segMin.assign(2 * segmentFirst.back(), inf);
     bounds.segMax.assign(2 * segmentFirst.back(), -inf);
+    spool.open(in, pieces, fo);
     readSlice(in, pieces, fo.filter, kSegmentRecords, bounds.filter,
               [&](std::size_t input, std::uint64_t segment, const PointRecord* p, std::size_t n) {
+                spool.add(p, n);
                 Bounds3 b;
                 for (std::size_t i = 0; i < n; ++i) b.add(p[i].x, p[i].y, p[i].z);
                 bounds.bounds.add(b);
@@ -369,11 +442,16 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   counts.regions.assign(std::size_t{1} << (2 * level), 0);
   const RegionGrid regions{grid, level};
   try {
-    readSlice(in, pieces, fo.filter, kSegmentRecords, counts.filter, [&](std::size_t, std::uint64_t, const PointRecord* p, std::size_t n) {
-      for (std::size_t i = 0; i < n; ++i)
-        ++counts.regions[regions.ofPoint(p[i].x, p[i].y)];
-      counts.points += n;
-    });
+    if (spool.complete()) {  // the slice's positions as pass 1 decoded them: nothing is decoded again
+      counts.filter = bounds.filter;
+      counts.points = spool.forEach([&](double x, double y) { ++counts.regions[regions.ofPoint(x, y)]; });
+    } else {
+      readSlice(in, pieces, fo.filter, kSegmentRecords, counts.filter, [&](std::size_t, std::uint64_t, const PointRecord* p, std::size_t n) {
+        for (std::size_t i = 0; i < n; ++i)
+          ++counts.regions[regions.ofPoint(p[i].x, p[i].y)];
+        counts.points += n;
+      });
+    }
   } catch (const std::exception& e) {
     counts.error = e.what();
   }

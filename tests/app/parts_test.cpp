@@ -278,6 +278,23 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   EXPECT_NE(f.err.find("missing.las"), std::string::npos) << f.err;
 }
 
+// A plan of a LAZ survey keeps its first read's positions in a temporary file and counts the regions from
+// it (nothing decoded twice); where that file cannot be written it reads the survey again: the same plan.
+TEST(Parts, PlanCountsFromItsCopyAsFromTheSurvey) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  const std::string las = test::dataPath("laz/autzen_trim.laz");
+  const std::string cd = "cd " + out.string() + " && ";
+  ASSERT_EQ(tinbuild("plan " + las + " --mesh a.smb --parts 3 -o a.json -q", cd).code, 0);
+  auto b = tinbuild("plan " + las + " --mesh b.smb --parts 3 -o b.json -q --temp-dir " + (out / "absent").string(), cd);
+  ASSERT_EQ(b.code, 0) << b.err;
+  const std::string pa = slurp(out / "a.json"), pb = slurp(out / "b.json");
+  const auto partsOf = [](const std::string& j) { return j.substr(j.find("\"parts\"")); };
+  ASSERT_NE(pa.find("\"parts\""), std::string::npos) << pa;
+  EXPECT_EQ(partsOf(pa), partsOf(pb));
+  EXPECT_NE(pa.find("\"points\": 110000"), std::string::npos) << pa;
+}
+
 // The MPI calls are in a module that only `--mpi` loads: one that cannot be loaded is a usage error
 // naming the path and the loader's reason, and nothing is written.
 TEST(Parts, MpiModuleThatCannotLoadIsAClearError) {
