@@ -321,6 +321,13 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
         throw Error("an input yielded different points in two passes");
       Leaf& L = it->second;
       if (!sprinkleOrdinals.count(ordinal)) {
+        // Growth by a quarter, never beyond the points the leaf still has to come: a survey in no spatial
+        // order holds every chunk to the end, and doubling would hold up to twice its points.
+        if (L.chunk.size() == L.chunk.capacity()) {
+          const std::size_t cap = L.chunk.capacity();
+          L.chunk.reserve(static_cast<std::size_t>(std::min<std::uint64_t>(
+              std::max<std::size_t>(cap + cap / 4, 64), L.chunk.size() + L.remaining)));
+        }
         L.chunk.push_back(p[i]);
         ++waiting;
         st.width = std::max(st.width, waiting);
