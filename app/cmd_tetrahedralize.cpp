@@ -21,6 +21,7 @@
 #include "app/jobs/run_report.h"
 #include "app/jobs/survey.h"
 #include "app/pipeline_options.h"
+#include "app/progress_display.h"
 #include "formats/mesh/tet_mesh_files.h"
 #include "formats/pointcloud/finalized_stream3.h"
 #include "formats/registry/input_list.h"
@@ -82,10 +83,35 @@ Finalizer3dOptions openSurvey3d(const PipelineArgs& a, const std::string& comman
   fo.depth = a.options.finalizer.depth;
   fo.filter = a.options.finalizer.filter;
   fo.crsWkt = in.crs.wkt;
+  fo.cancel = cancelFlag();  // (SIGTERM, Ctrl-C: the run stops within a batch and leaves no output)
   fo.memoryBudget = a.options.finalizer.memoryBudget;  // (--memory: the waiting chunks, then the spill file)
   fo.tempDir = a.options.finalizer.tempDir;
   return fo;
 }
+
+// Passes a 3D stream on, throwing CancelledError at the first call after SIGTERM or Ctrl-C (the stream
+// reader's loop has no flag of its own).
+class CancellableSink3 : public PointSink3 {
+ public:
+  CancellableSink3(PointSink3& out, const CancelFlag* cancel) : out_(out), cancel_(cancel) {}
+  void begin(const StreamInfo3& info) override { out_.begin(info); }
+  void points(const PointRecord* p, std::size_t n) override {
+    throwIfCancelled(cancel_);
+    out_.points(p, n);
+  }
+  void finalizeCell(const OctCellTag& cell) override {
+    throwIfCancelled(cancel_);
+    out_.finalizeCell(cell);
+  }
+  void end() override {
+    throwIfCancelled(cancel_);
+    out_.end();
+  }
+
+ private:
+  PointSink3& out_;
+  const CancelFlag* cancel_;
+};
 
 // `tetrahedralize FILE|-` on a 3D finalized stream: the tetrahedralizer alone (on its own thread behind
 // the reader unless --threads 1), the same output as the in-process run of the same stream.
@@ -98,9 +124,11 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
   StreamingDelaunay3d dt(*writer);
   if (tetThreads(a) > 1) {
     QueuedPointSink3 queue(dt);
-    readFinalizedStream3(input, queue);
+    CancellableSink3 in(queue, cancelFlag());
+    readFinalizedStream3(input, in);
   } else {
-    readFinalizedStream3(input, dt);
+    CancellableSink3 in(dt, cancelFlag());
+    readFinalizedStream3(input, in);
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!a.run.quiet) printTetSummary(nullptr, dt.stats(), seconds);

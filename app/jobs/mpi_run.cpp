@@ -355,6 +355,15 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   while (base.size() > 1 && base.back() == '/') base.pop_back();
   const std::string rootPlanPath = base + ".mpi-plan.json";
   std::string localDir;
+  // A rank's private directory goes on every way out: a failed or stopped run's too (before, each failed
+  // MPI run left one in $TMPDIR on every rank but the first).
+  struct RemoveOnExit {
+    const std::string& dir;
+    ~RemoveOnExit() {
+      std::error_code ec;
+      if (!dir.empty()) fs::remove_all(dir, ec);
+    }
+  } removeLocalDir{localDir};
   Plan plan;
   plan.buildArgs = buildArgs;
   plan.command = command;
@@ -454,6 +463,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   if (!localDir.empty()) {
     std::error_code ec;
     fs::remove_all(localDir, ec);
+    localDir.clear();
   }
 
   // 4. The merge on rank 0.

@@ -45,10 +45,12 @@ std::uint64_t nodeKey(int level, std::uint64_t code) {
 }
 
 template <class Fn>
-void readAll(PointStream& s, const PointFilter& filter, FilterCounts* counts, std::size_t batch, Fn fn) {
+void readAll(PointStream& s, const PointFilter& filter, FilterCounts* counts, std::size_t batch,
+             const CancelFlag* cancel, Fn fn) {
   std::vector<PointRecord> buf(batch);
   FilterCounts local;
   for (;;) {
+    throwIfCancelled(cancel);
     const std::size_t n = s.read(buf.data(), buf.size());
     if (n == 0) break;
     const std::size_t k = filter.apply(buf.data(), n, counts ? *counts : local);
@@ -66,7 +68,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   if (!in.rewindable()) throw Error("the 3D finalizer reads its inputs three times: give files, not stdin");
 
   // Pass 1: bounds and count.
-  readAll(in, o.filter, &st.filter, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+  readAll(in, o.filter, &st.filter, o.batchPoints, o.cancel, [&](const PointRecord* p, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) st.bounds.add(p[i].x, p[i].y, p[i].z);
     st.points += n;
   });
@@ -111,7 +113,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
     leaves.clear();
     in.rewind();
     ordinal = 0;
-    readAll(in, o.filter, nullptr, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+    readAll(in, o.filter, nullptr, o.batchPoints, o.cancel, [&](const PointRecord* p, std::size_t n) {
       for (std::size_t i = 0; i < n; ++i, ++ordinal) {
         const std::uint64_t code = leafCode(p[i]);
         Leaf& L = leaves[code];
@@ -313,7 +315,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   };
   in.rewind();
   ordinal = 0;
-  readAll(in, o.filter, nullptr, o.batchPoints, [&](const PointRecord* p, std::size_t n) {
+  readAll(in, o.filter, nullptr, o.batchPoints, o.cancel, [&](const PointRecord* p, std::size_t n) {
     for (std::size_t i = 0; i < n; ++i) {
       const std::uint64_t code = leafCode(p[i]);
       auto it = leaves.find(code);

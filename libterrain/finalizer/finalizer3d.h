@@ -34,6 +34,7 @@
 #include <string>
 #include <vector>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/core/point.h"
 #include "libterrain/finalizer/octree_stream.h"
 #include "libterrain/finalizer/point_filter.h"
@@ -52,6 +53,8 @@ struct Finalizer3dOptions {
   // for any budget.
   std::size_t memoryBudget = std::size_t{512} << 20;
   std::string tempDir;
+  // Polled once a batch in every pass: when set, finalizePoints3d throws CancelledError (SIGTERM, Ctrl-C).
+  const CancelFlag* cancel = nullptr;
 };
 
 struct Finalizer3dStats {

@@ -118,6 +118,36 @@ TEST(Faults, SignalsAnywhereLeaveTheWholeResultOrNothing) {
   (void)finished;  // (how many finish first depends on the machine's load; each outcome was checked above)
 }
 
+// SIGTERM stops `tetrahedralize` promptly, with exit 3 and no output, in every pass of its finalizer, in
+// the tetrahedralizer and when it reads a 3D stream file.
+TEST(Faults, SigtermStopsTetrahedralizeAndLeavesNothing) {
+  const Survey s = prepare();
+  fs::create_directories(s.dir / "o");
+  int stopped = 0;
+  for (const double delay : {0.1, 0.5, 1.5}) {
+    const auto t0 = Clock::now();
+    const int code = runWith(s.dir, "tetrahedralize s/survey.las -o o/cloud.vtu --memory 4 -q", delay);
+    const double took = std::chrono::duration<double>(Clock::now() - t0).count();
+    if (code == 0) {
+      EXPECT_TRUE(fs::exists(s.dir / "o/cloud.vtu"));
+    } else {
+      ++stopped;
+      EXPECT_EQ(code, 3) << "delay " << delay;
+      EXPECT_LT(took, delay + 2.0) << "delay " << delay << ": not prompt";
+      EXPECT_TRUE(filesBelow(s.dir / "o").empty()) << filesBelow(s.dir / "o").front();
+    }
+    fs::remove_all(s.dir / "o");
+    fs::create_directories(s.dir / "o");
+  }
+  EXPECT_GT(stopped, 0);
+  ASSERT_EQ(runWith(s.dir, "finalize --3d s/survey.las -o s3.tfs -q"), 0);
+  const int code = runWith(s.dir, "tetrahedralize s3.tfs -o o/cloud.ele -q", 0.3);
+  if (code != 0) {
+    EXPECT_EQ(code, 3);
+    EXPECT_TRUE(filesBelow(s.dir / "o").empty()) << filesBelow(s.dir / "o").front();
+  }
+}
+
 TEST(Faults, AKilledCommitIsFinishedByTheNextRun) {
   const Survey s = prepare();
   for (int after : {0, 1, 3}) {

@@ -272,10 +272,13 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   for (const auto& f : listDir(out / "mpi")) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << f;
   // A failing part stops every rank, naming it: an unreadable input.
   fs::create_directories(out / "fail");
+  fs::create_directories(out / "tmp");
   auto f = tinbuild("build " + (out / "missing.las").string() + " --mesh tin.smb --mpi -q",
-                    "cd " + (out / "fail").string() + " && " + mpirun);
+                    "cd " + (out / "fail").string() + " && TMPDIR=" + (out / "tmp").string() + " " + mpirun);
   EXPECT_NE(f.code, 0);
   EXPECT_NE(f.err.find("missing.las"), std::string::npos) << f.err;
+  // The ranks' private directories go with the failed run.
+  for (const auto& d : listDir(out / "tmp")) EXPECT_EQ(d.find("tinbuild-mpi"), std::string::npos) << d;
 }
 
 // A plan of a LAZ survey keeps its first read's positions in a temporary file and counts the regions from
