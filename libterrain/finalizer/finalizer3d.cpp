@@ -3,8 +3,8 @@
 #include <algorithm>
 #include <bit>
 #include <chrono>
-#include <memory>
 #include <cmath>
+#include <memory>
 #include <unordered_map>
 #include <unordered_set>
 
