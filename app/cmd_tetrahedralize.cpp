@@ -117,7 +117,7 @@ class CancellableSink3 : public PointSink3 {
 // the reader unless --threads 1), the same output as the in-process run of the same stream.
 int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
   if (a.run.output.empty())
-    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
+    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
   tetMeshFormatForPath(a.run.output);
   const auto t0 = std::chrono::steady_clock::now();
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output);
@@ -153,7 +153,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   if (fromStream) return tetrahedralizeStream(args.positional[0], a);
   if (a.options.inputs.empty()) throw UsageError("tetrahedralize: give at least one input file");
   if (a.run.output.empty())
-    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.vtu|FILE.ele");
+    throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
   const std::string output = a.run.output;
   tetMeshFormatForPath(output);  // a usage error before any work
   const auto t0 = std::chrono::steady_clock::now();
@@ -293,17 +293,17 @@ int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& point
 Command tetrahedralizeCommand() {
   return Command{
       "tetrahedralize",
-      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.vtu|MESH.ele [--depth K] [--keep-class LIST] "
+      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] [--keep-class LIST] "
       "[--drop-class LIST] [-q]",
       "streaming 3D Delaunay tetrahedralization of point clouds (the paper's spdelaunay3d)",
       "Reads the inputs (LAS/LAZ/COPC/XYZ, several files as one survey, with the readers and filters of\n"
       "`build`) as a 3D point cloud, finalizes them over an octree (counts per cell, sprinkle points, BRIO\n"
       "chunks, finalization tags) and tetrahedralizes them incrementally (Bowyer-Watson, exact orient3d and\n"
       "insphere with CGAL's symbolic perturbation), writing each tetrahedron as soon as its circumsphere\n"
-      "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines), a VTK XML\n"
-      "unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele writes both); coordinates\n"
-      "exact.  --depth is the octree's (0..8).  Check the result with `tinbuild verify MESH --points "
-      "INPUT...`.",
+      "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines, or .smb,\n"
+      "its binary form), a VTK XML unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele\n"
+      "writes both); coordinates exact.  --depth is the octree's (0..8).  Check the result with\n"
+      "`tinbuild verify MESH --points INPUT...`.",
       finalizeTable().specs(),
       runTetrahedralizeCommand};
 }

@@ -93,6 +93,79 @@ class SmaTetWriter : public TetMeshSink {
   std::uint64_t vertices_ = 0, tets_ = 0;
 };
 
+// ----- streaming tet SMB -----
+// Binary: magic, flags, bounds, the CRS; then records, each an opcode byte (docs/formats.md).  Vertex
+// references are LEB128 varints counting back from the newest vertex (1 = the newest), so a tetrahedron
+// takes about 10 bytes.
+constexpr char kTetSmbMagic[8] = {'T', 'I', 'N', 'S', 'M', 'T', '0', '1'};
+constexpr unsigned char kOpVertex = 0x01, kOpFinalize = 0x03, kOpTetrahedron = 0x04, kOpEnd = 0x7F;
+
+void putU32(std::string& s, std::uint32_t v) {
+  for (int i = 0; i < 4; ++i) s += static_cast<char>(v >> (8 * i) & 0xff);
+}
+void putU64(std::string& s, std::uint64_t v) {
+  for (int i = 0; i < 8; ++i) s += static_cast<char>(v >> (8 * i) & 0xff);
+}
+void putDouble(std::string& s, double v) {
+  std::uint64_t u;
+  std::memcpy(&u, &v, 8);
+  putU64(s, u);
+}
+void putVarint(std::string& s, std::uint64_t v) {
+  while (v >= 0x80) {
+    s += static_cast<char>((v & 0x7f) | 0x80);
+    v >>= 7;
+  }
+  s += static_cast<char>(v);
+}
+
+class SmbTetWriter : public TetMeshSink {
+ public:
+  explicit SmbTetWriter(const std::string& path) : file_(path) {}
+  void begin(const TetMeshInfo& info) override {
+    std::string h(kTetSmbMagic, 8);
+    putU32(h, info.bounds.empty() ? 0 : 1);  // flags: bit 0, the bounds are given
+    const Bounds3& b = info.bounds;
+    for (const double v : {b.minX, b.minY, b.minZ, b.maxX, b.maxY, b.maxZ}) putDouble(h, b.empty() ? 0.0 : v);
+    putU32(h, static_cast<std::uint32_t>(info.crsWkt.size()));
+    h += info.crsWkt;
+    file_.write(h);
+  }
+  void vertex(std::uint64_t, double x, double y, double z) override {
+    buf_ += static_cast<char>(kOpVertex);
+    putDouble(buf_, x), putDouble(buf_, y), putDouble(buf_, z);
+    ++vertices_;
+    flushIfFull();
+  }
+  void tetrahedron(std::uint64_t a, std::uint64_t b, std::uint64_t c, std::uint64_t d) override {
+    buf_ += static_cast<char>(kOpTetrahedron);
+    for (const std::uint64_t v : {a, b, c, d}) putVarint(buf_, vertices_ - v);
+    ++tets_;
+    flushIfFull();
+  }
+  void finalizeVertex(std::uint64_t id) override {
+    buf_ += static_cast<char>(kOpFinalize);
+    putVarint(buf_, vertices_ - id);
+    flushIfFull();
+  }
+  void end() override {
+    buf_ += static_cast<char>(kOpEnd);
+    putU64(buf_, vertices_), putU64(buf_, tets_);
+    file_.write(buf_);
+    file_.commit();
+  }
+
+ private:
+  void flushIfFull() {
+    if (buf_.size() < (std::size_t{1} << 16)) return;
+    file_.write(buf_);
+    buf_.clear();
+  }
+  OutputFile file_;
+  std::string buf_;
+  std::uint64_t vertices_ = 0, tets_ = 0;
+};
+
 // ----- whole-mesh writers (.vtu, .node/.ele) -----
 // Binary spool of fixed-size records in an unnamed temporary file (std::tmpfile: gone when closed or the
 // process dies), written in order and read back once, in chunks.
@@ -334,6 +407,112 @@ TetMeshFileSummary readSma(const std::string& path, TetMeshSink& sink) {
   return s;
 }
 
+// A file read in 1 MiB blocks, byte by byte; a read past the end is a truncation error naming the file.
+class ByteReader {
+ public:
+  explicit ByteReader(const std::string& path) : path_(path), in_(path, std::ios::binary), buf_(std::size_t{1} << 20) {
+    if (!in_) throw DataError(path, "cannot open");
+  }
+  bool atEnd() {
+    return at_ == size_ && !refill();
+  }
+  unsigned char byte() {
+    if (at_ == size_ && !refill()) throw DataError(path_, "truncated at byte " + std::to_string(offset_));
+    ++offset_;
+    return static_cast<unsigned char>(buf_[at_++]);
+  }
+  std::uint64_t u(int bytes) {
+    std::uint64_t v = 0;
+    for (int i = 0; i < bytes; ++i) v |= std::uint64_t{byte()} << (8 * i);
+    return v;
+  }
+  double f64() {
+    const std::uint64_t u64 = u(8);
+    double v;
+    std::memcpy(&v, &u64, 8);
+    return v;
+  }
+  std::uint64_t varint() {
+    std::uint64_t v = 0;
+    for (int shift = 0; shift < 64; shift += 7) {
+      const unsigned char b = byte();
+      v |= std::uint64_t{b & 0x7fu} << shift;
+      if (!(b & 0x80)) return v;
+    }
+    throw DataError(path_, "malformed varint at byte " + std::to_string(offset_));
+  }
+  std::uint64_t offset() const { return offset_; }
+  const std::string& path() const { return path_; }
+
+ private:
+  bool refill() {
+    in_.read(buf_.data(), static_cast<std::streamsize>(buf_.size()));
+    size_ = static_cast<std::size_t>(in_.gcount());
+    at_ = 0;
+    return size_ > 0;
+  }
+  std::string path_;
+  std::ifstream in_;
+  std::vector<char> buf_;
+  std::size_t at_ = 0, size_ = 0;
+  std::uint64_t offset_ = 0;
+};
+
+TetMeshFileSummary readSmbTet(const std::string& path, TetMeshSink& sink) {
+  ByteReader r(path);
+  char magic[8];
+  for (char& c : magic) c = static_cast<char>(r.byte());
+  if (std::memcmp(magic, kTetSmbMagic, 8) != 0) throw DataError(path, "not a tinbuild tetrahedral SMB (magic)");
+  const std::uint64_t flags = r.u(4);
+  if (flags & ~std::uint64_t{1}) throw DataError(path, "unknown flags in the tetrahedral SMB header");
+  TetMeshInfo info;
+  double b[6];
+  for (double& v : b) v = r.f64();
+  if (flags & 1) {
+    info.bounds.add(b[0], b[1], b[2]);
+    info.bounds.add(b[3], b[4], b[5]);
+  }
+  const std::uint64_t crsLength = r.u(4);
+  for (std::uint64_t i = 0; i < crsLength; ++i) info.crsWkt += static_cast<char>(r.byte());
+  TetMeshFileSummary s;
+  s.crsWkt = info.crsWkt;
+  sink.begin(info);
+  std::vector<bool> live;
+  auto vertexBack = [&](const char* what) {
+    const std::uint64_t back = r.varint();
+    if (back == 0 || back > s.vertices || !live[s.vertices - back])
+      throw DataError(path, std::string(what) + " refers to no live vertex (byte " + std::to_string(r.offset()) + ")");
+    return s.vertices - back;
+  };
+  for (;;) {
+    const unsigned char op = r.byte();
+    if (op == kOpVertex) {
+      const double x = r.f64(), y = r.f64(), z = r.f64();
+      sink.vertex(s.vertices++, x, y, z);
+      live.push_back(true);
+    } else if (op == kOpTetrahedron) {
+      std::uint64_t id[4];
+      for (std::uint64_t& v : id) v = vertexBack("a tetrahedron");
+      sink.tetrahedron(id[0], id[1], id[2], id[3]);
+      ++s.tetrahedra;
+    } else if (op == kOpFinalize) {
+      const std::uint64_t id = vertexBack("a finalization");
+      live[id] = false;
+      sink.finalizeVertex(id);
+    } else if (op == kOpEnd) {
+      if (r.u(8) != s.vertices || r.u(8) != s.tetrahedra) throw DataError(path, "the end record does not match the mesh");
+      if (!r.atEnd()) throw DataError(path, "data after the end record");
+      break;
+    } else {
+      throw DataError(path, "unknown record " + std::to_string(op) + " at byte " + std::to_string(r.offset()));
+    }
+  }
+  for (std::uint64_t i = 0; i < live.size(); ++i)
+    if (live[i]) throw DataError(path, "vertex " + std::to_string(i + 1) + " is never finalized");
+  sink.end();
+  return s;
+}
+
 // Replays a whole mesh (coordinates, then tetrahedra) into a sink, in streaming order: each vertex
 // announced before its first tetrahedron, finalized after its last.
 TetMeshFileSummary replay(const std::vector<double>& xyz, const std::vector<std::uint64_t>& tets,
@@ -436,15 +615,18 @@ TetMeshFormat tetMeshFormatForPath(const std::string& path) {
   const std::string e = lowerExtension(path);
   if (e == "sma" || path == "-" || path == "/dev/null")
     return TetMeshFormat::Sma;  // (benchmarks: text made, not kept)
+  if (e == "smb") return TetMeshFormat::Smb;
   if (e == "vtu") return TetMeshFormat::Vtu;
   if (e == "ele" || e == "node") return TetMeshFormat::TetGen;
-  throw UsageError(path + ": a tetrahedral mesh is written as .sma, .vtu or .node/.ele");
+  throw UsageError(path + ": a tetrahedral mesh is written as .sma, .smb, .vtu or .node/.ele");
 }
 
 std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path) {
   switch (tetMeshFormatForPath(path)) {
     case TetMeshFormat::Sma:
       return std::make_unique<SmaTetWriter>(path);
+    case TetMeshFormat::Smb:
+      return std::make_unique<SmbTetWriter>(path);
     case TetMeshFormat::Vtu:
       return std::make_unique<VtuWriter>(path);
     case TetMeshFormat::TetGen:
@@ -457,6 +639,8 @@ TetMeshFileSummary readTetMesh(const std::string& path, TetMeshSink& sink) {
   switch (tetMeshFormatForPath(path)) {
     case TetMeshFormat::Sma:
       return readSma(path, sink);
+    case TetMeshFormat::Smb:
+      return readSmbTet(path, sink);
     case TetMeshFormat::Vtu:
       return readVtu(path, sink);
     case TetMeshFormat::TetGen:
@@ -468,6 +652,12 @@ TetMeshFileSummary readTetMesh(const std::string& path, TetMeshSink& sink) {
 bool isTetMeshFile(const std::string& path) {
   const std::string e = lowerExtension(path);
   if (e == "vtu" || e == "ele" || e == "node") return true;
+  if (e == "smb") {  // the tetrahedral SMB by its magic (a triangle SMB has its own)
+    std::ifstream in(path, std::ios::binary);
+    char magic[8] = {};
+    in.read(magic, 8);
+    return in.gcount() == 8 && std::memcmp(magic, kTetSmbMagic, 8) == 0;
+  }
   if (e != "sma") return false;
   std::ifstream in(path);
   std::string first;

@@ -1,4 +1,6 @@
-// Tetrahedral mesh files: the streaming ASCII tet mesh (.sma with tetrahedra), VTK XML unstructured grid
+// Tetrahedral mesh files: the streaming ASCII tet mesh (.sma with tetrahedra), its binary form (.smb with
+// the magic TINSMT01: vertices as three doubles, tetrahedra as four varints counting back from the newest
+// vertex, finalizations, an end record with the counts), VTK XML unstructured grid
 // (.vtu, for ParaView) and TetGen's .node/.ele pair.  Writers are TetMeshSinks; readers replay a file into
 // one (vertex ids = the file's 0-based vertex numbers), so every format reads back for the round-trip tests
 // and for `tinbuild verify`.  docs/formats.md documents the layouts.
@@ -24,9 +26,9 @@
 
 namespace tinbuild {
 
-enum class TetMeshFormat { Sma, Vtu, TetGen };
+enum class TetMeshFormat { Sma, Smb, Vtu, TetGen };
 
-// By extension (.sma, .vtu, .node or .ele; case-insensitive); throws UsageError otherwise.
+// By extension (.sma, .smb, .vtu, .node or .ele; case-insensitive); throws UsageError otherwise.
 TetMeshFormat tetMeshFormatForPath(const std::string& path);
 
 // Opens a writer for PATH ("-" only for .sma: stdout).

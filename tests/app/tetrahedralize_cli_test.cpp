@@ -25,7 +25,7 @@ TEST(Tetrahedralize, RealSurveyIntoEveryFormatVerifies) {
   const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_cli";
   std::filesystem::remove_all(dir);
   std::filesystem::create_directories(dir);
-  for (const std::string out : {"m.sma", "m.vtu", "m.ele"}) {
+  for (const std::string out : {"m.sma", "m.smb", "m.vtu", "m.ele"}) {
     ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/" + out + " -q"), 0) << out;
     EXPECT_EQ(run("verify " + dir + "/" + out + " --points " + las), 0) << out;
   }

@@ -10,7 +10,9 @@
 #include <cstdio>
 #include <cstdlib>
 #include <filesystem>
+#include <fstream>
 #include <random>
+#include <sstream>
 #include <string>
 #include <vector>
 
@@ -87,7 +89,44 @@ void roundTrip(const std::string& name) {
 }
 
 TEST(TetMeshFiles, StreamingSmaReadsBackEqual) { roundTrip("mesh.sma"); }
+TEST(TetMeshFiles, StreamingSmbReadsBackEqual) { roundTrip("mesh.smb"); }
 TEST(TetMeshFiles, VtuReadsBackEqual) { roundTrip("mesh.vtu"); }
+
+// The binary streaming tet mesh: smaller than the text, recognised by its magic (not a triangle SMB), and a
+// truncated or damaged file is an error naming it.
+TEST(TetMeshFiles, StreamingSmbIsCompactAndChecked) {
+  const std::string smb = tmp("check.smb"), sma = tmp("check.sma");
+  writeMesh(smb);
+  writeMesh(sma);
+  EXPECT_TRUE(isTetMeshFile(smb));
+  EXPECT_LT(std::filesystem::file_size(smb) * 2, std::filesystem::file_size(sma));
+  std::string bytes;
+  {
+    std::ifstream in(smb, std::ios::binary);
+    std::stringstream ss;
+    ss << in.rdbuf();
+    bytes = ss.str();
+  }
+  const auto expectError = [&](const std::string& damaged, const std::string& what) {
+    const std::string path = tmp("damaged.smb");
+    std::ofstream(path, std::ios::binary) << damaged;
+    Collected sink;
+    try {
+      readTetMesh(path, sink);
+      ADD_FAILURE() << what << ": read without an error";
+    } catch (const DataError& e) {
+      EXPECT_NE(std::string(e.what()).find("damaged.smb"), std::string::npos) << e.what();
+    }
+  };
+  expectError(bytes.substr(0, bytes.size() / 2), "truncated");
+  expectError(bytes.substr(0, bytes.size() - 1), "its end record cut");
+  std::string badOp = bytes;
+  badOp[badOp.size() - 17] = 0x55;  // the end record's opcode
+  expectError(badOp, "an unknown record");
+  std::string notOurs = bytes;
+  notOurs[5] = 'B';  // TINSMB01: a triangle SMB
+  expectError(notOurs, "another magic");
+}
 TEST(TetMeshFiles, TetGenNodeEleReadBackEqual) {
   roundTrip("mesh.ele");
   EXPECT_TRUE(std::filesystem::exists(tmp("mesh.node")));
@@ -96,6 +135,7 @@ TEST(TetMeshFiles, TetGenNodeEleReadBackEqual) {
 TEST(TetMeshFiles, FormatsByExtension) {
   EXPECT_EQ(tetMeshFormatForPath("a.SMA"), TetMeshFormat::Sma);
   EXPECT_EQ(tetMeshFormatForPath("a.vtu"), TetMeshFormat::Vtu);
+  EXPECT_EQ(tetMeshFormatForPath("a.smb"), TetMeshFormat::Smb);
   EXPECT_EQ(tetMeshFormatForPath("a.node"), TetMeshFormat::TetGen);
   EXPECT_THROW(tetMeshFormatForPath("a.ply"), UsageError);
 }
