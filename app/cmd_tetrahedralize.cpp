@@ -183,6 +183,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
       << ", \"occupied_cells\": " << fs.occupiedCells
       << ", \"width\": " << fs.width << ", \"max_in_memory\": " << fs.maxInMemory
       << ", \"spilled_points\": " << fs.spilledPoints << ", \"spill_events\": " << fs.spillEvents
+      << ", \"no_locality\": " << (fs.noLocality ? "true" : "false")
       << ", \"tags\": " << fs.tags
       << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
       << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut

@@ -28,6 +28,7 @@ struct Extent {
 
 struct Leaf {
   std::uint64_t remaining = 0;
+  std::uint64_t last = 0;  // pass 2: the ordinal of the leaf's last point (when it will complete)
   Candidate sprinkle;
   std::vector<PointRecord> chunk;  // the points held in memory, the newest of the chunk
   std::vector<Extent> spilled;     // older runs of the chunk in the spill file, in arrival order
@@ -118,6 +119,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
         const std::uint64_t code = leafCode(p[i]);
         Leaf& L = leaves[code];
         ++L.remaining;
+        L.last = ordinal;
         const Candidate c{p[i], ordinal, centreDist(p[i], D, code)};
         if (better(c, L.sprinkle)) L.sprinkle = c;
       }
@@ -289,16 +291,27 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
       std::vector<PointRecord>().swap(L.chunk);
     }
   };
-  // Completed leaves are released at the ends of windows of W input points, counted back from the last
-  // point, in Morton order within a window: a point order with no locality (every leaf completes in the
-  // last moments of the read, in random order) then streams out leaf by leaf in Morton order, as coherent
-  // input does, and the tetrahedralizer's active set stays small.  A coherent input waits at most W
-  // points longer.  In random order a leaf of k = N/L points (L leaves) completes before the last window
-  // with probability about e^(-kW/N) = e^(-W/L): W = max(N/128, 16 L), at most N/4, makes that e^-16
-  // while k >= 64, and costs a coherent input at most N/128 points or 16 a leaf.  The order depends on
-  // the inputs only (not on the budget), so the stream stays a pure function of inputs and options.
-  const std::uint64_t window = std::max<std::uint64_t>(
-      std::min<std::uint64_t>(std::max<std::uint64_t>(st.points / 128, 16 * leaves.size()), st.points / 4), 1);
+  // Pass 2 knows when each leaf completes (its last point).  When half of them complete in the read's last
+  // sixteenth, the order has no locality (in random order nearly all complete in its last moments, in a
+  // random order), and complete leaves are released at the ends of windows of W input points, counted
+  // back from the last point, in Morton order within a window: the survey then streams out leaf by leaf
+  // in Morton order, as coherent input does, and the tetrahedralizer's active set stays small.  In random
+  // order a leaf of k = N/L points (L leaves) completes before the last window with probability about
+  // e^(-kW/N) = e^(-W/L): W = max(N/128, 16 L), at most N/4, makes that e^-16 while k >= 64.  Any other
+  // order releases each leaf as it completes (W = 1), as coherent input wants.  The order depends on the
+  // inputs only (not on the budget), so the stream stays a pure function of inputs and options.
+  std::vector<std::uint64_t> lasts;
+  lasts.reserve(leaves.size());
+  for (const auto& [code, L] : leaves) lasts.push_back(L.last);
+  std::nth_element(lasts.begin(), lasts.begin() + static_cast<std::ptrdiff_t>(lasts.size() / 2), lasts.end());
+  st.noLocality = lasts[lasts.size() / 2] >= st.points - st.points / 16;
+  std::vector<std::uint64_t>().swap(lasts);
+  const std::uint64_t window =
+      !st.noLocality ? 1
+                     : std::max<std::uint64_t>(std::min<std::uint64_t>(
+                                                   std::max<std::uint64_t>(st.points / 128, 16 * leaves.size()),
+                                                   st.points / 4),
+                                               1);
   const std::uint64_t firstEnd = st.points % window;  // window ends: firstEnd + j * window, and st.points
   std::uint64_t nextEnd = firstEnd == 0 ? window : firstEnd;
   std::vector<std::uint64_t> ready;

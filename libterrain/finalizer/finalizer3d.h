@@ -10,9 +10,10 @@
 //           candidate: its point closest to the leaf centre (lowest ordinal on ties).  Every octree node
 //           takes the candidate of its children closest to its own centre.
 //   pass 3  streaming out: each point is appended to its leaf's chunk; a leaf whose count reaches zero
-//           is complete, and the complete leaves are released at the end of each window of W input
-//           points (counted back from the last point; W = max(N/128, 16 per leaf), at most N/4), in
-//           Morton order: a survey in no spatial order,
+//           is complete and is released at once; but when pass 2 found that half the leaves complete in
+//           the read's last sixteenth (an order with no locality), the complete leaves are released at the
+//           end of each window of W input points (counted back from the last point; W = max(N/128, 16 per
+//           leaf), at most N/4), in Morton order: a survey in no spatial order,
 //           whose leaves all complete in the read's last moments, then streams out as a coherent one.
 //           A leaf's release: (a) walking from the root down to the leaf's parent, the not yet emitted
 //           sprinkle points of the root and of every child of each node on the path (one per octant: a
@@ -68,6 +69,7 @@ struct Finalizer3dStats {
   std::uint64_t maxInMemory = 0;  // most of them held in memory at once (memoryBudget bounds it)
   std::uint64_t spilledPoints = 0;
   std::uint64_t spillEvents = 0;
+  bool noLocality = false;  // half the leaves complete in the read's last sixteenth: released in windows
   std::uint64_t sprinkled = 0;
   std::uint64_t emptyTags = 0;
   std::uint64_t tags = 0;

@@ -285,6 +285,8 @@ TEST(StreamingDelaunay3d, RandomOrderStreamsLikeCoherentOrder) {
   EXPECT_TRUE(random.mesh.sortedTets() == coherent.mesh.sortedTets());
   EXPECT_GT(random.fin.width, 50000u);  // every chunk waited
   EXPECT_LT(coherent.fin.width, 20000u);
+  EXPECT_TRUE(random.fin.noLocality);     // released in windows, in Morton order
+  EXPECT_FALSE(coherent.fin.noLocality);  // each leaf as it completes
   EXPECT_LT(random.stats.maxActiveTets, coherent.stats.maxActiveTets * 3 / 2)
       << random.stats.maxActiveTets << " against " << coherent.stats.maxActiveTets;
   EXPECT_LT(random.stats.maxActiveTets, random.stats.tetsEmitted / 10);
