@@ -120,7 +120,7 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
     throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
   tetMeshFormatForPath(a.run.output);
   const auto t0 = std::chrono::steady_clock::now();
-  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output);
+  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output, cancelFlag());
   StreamingDelaunay3d dt(*writer);
   if (tetThreads(a) > 1) {
     QueuedPointSink3 queue(dt);
@@ -160,7 +160,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   Diagnostics diag;
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "tetrahedralize", diag, in);
-  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output);
+  std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output, cancelFlag());
   StreamingDelaunay3d dt(*writer);
   // Two threads unless --threads 1: the finalizer reads and sorts while the tetrahedralizer inserts (the
   // stream they exchange is the same either way, so is the output).

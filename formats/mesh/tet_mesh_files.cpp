@@ -183,13 +183,15 @@ class Spool {
     if (std::fwrite(p, 1, bytes, f_) != bytes)
       throw Error(std::string("tet mesh writer: cannot write its temporary file: ") + std::strerror(errno));
   }
-  // Calls fn(items, n) for consecutive chunks of the `count` records of T written.
+  // Calls fn(items, n) for consecutive chunks of the `count` records of T written; stops with
+  // CancelledError between chunks once `cancel` is set.
   template <class T, class Fn>
-  void replay(std::uint64_t count, Fn fn) {
+  void replay(std::uint64_t count, const CancelFlag* cancel, Fn fn) {
     if (std::fflush(f_) != 0 || std::fseek(f_, 0, SEEK_SET) != 0)
       throw Error(std::string("tet mesh writer: cannot reread its temporary file: ") + std::strerror(errno));
     std::vector<T> buf(std::size_t{1} << 14);
     for (std::uint64_t done = 0; done < count;) {
+      throwIfCancelled(cancel);
       const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(buf.size(), count - done));
       if (std::fread(buf.data(), sizeof(T), n, f_) != n)
         throw Error("tet mesh writer: its temporary file is short");
@@ -206,6 +208,7 @@ class Spool {
 // files (24 and 32 bytes each) and the output is assembled at end(): memory stays at the stream's width.
 class SpooledTetWriter : public TetMeshSink {
  public:
+  explicit SpooledTetWriter(const CancelFlag* cancel) : cancel_(cancel) {}
   void begin(const TetMeshInfo& info) override { crs_ = info.crsWkt; }
   void vertex(std::uint64_t id, double x, double y, double z) override {
     if (id != nv_) throw Error("tet mesh writer: vertex ids must be 0, 1, 2, ...");
@@ -230,11 +233,12 @@ class SpooledTetWriter : public TetMeshSink {
   std::string crs_;
   std::uint64_t nv_ = 0, nt_ = 0;
   Spool points_, cells_;
+  const CancelFlag* cancel_;
 };
 
 class VtuWriter : public SpooledTetWriter {
  public:
-  explicit VtuWriter(std::string path) : path_(std::move(path)) {}
+  VtuWriter(std::string path, const CancelFlag* cancel) : SpooledTetWriter(cancel), path_(std::move(path)) {}
   void end() override {
     OutputFile f(path_);
     std::string s;
@@ -244,7 +248,7 @@ class VtuWriter : public SpooledTetWriter {
     appendUint(s, nv_), s += "\" NumberOfCells=\"", appendUint(s, nt_), s += "\">\n";
     s += "      <Points>\n        <DataArray type=\"Float64\" NumberOfComponents=\"3\" format=\"ascii\">\n";
     f.write(s);
-    points_.replay<Xyz>(nv_, [&](const Xyz* p, std::size_t n) {
+    points_.replay<Xyz>(nv_, cancel_, [&](const Xyz* p, std::size_t n) {
       for (std::size_t i = 0; i < n; ++i) {
         s.clear();
         appendDouble(s, p[i].v[0]), s += ' ', appendDouble(s, p[i].v[1]), s += ' ';
@@ -255,7 +259,7 @@ class VtuWriter : public SpooledTetWriter {
     f.write(
         "        </DataArray>\n      </Points>\n      <Cells>\n"
         "        <DataArray type=\"Int64\" Name=\"connectivity\" format=\"ascii\">\n");
-    cells_.replay<Tet4>(nt_, [&](const Tet4* t, std::size_t n) {
+    cells_.replay<Tet4>(nt_, cancel_, [&](const Tet4* t, std::size_t n) {
       for (std::size_t i = 0; i < n; ++i) {
         s.clear();
         for (int k = 0; k < 4; ++k) appendUint(s, t[i].v[k]), s += ' ';
@@ -265,12 +269,16 @@ class VtuWriter : public SpooledTetWriter {
     });
     f.write("        </DataArray>\n        <DataArray type=\"Int64\" Name=\"offsets\" format=\"ascii\">\n");
     for (std::uint64_t i = 0; i < nt_; ++i) {
+      if ((i & 0xffff) == 0) throwIfCancelled(cancel_);
       s.clear();
       appendUint(s, 4 * (i + 1)), s += '\n';
       f.write(s);
     }
     f.write("        </DataArray>\n        <DataArray type=\"UInt8\" Name=\"types\" format=\"ascii\">\n");
-    for (std::uint64_t i = 0; i < nt_; ++i) f.write("10\n");  // VTK_TETRA
+    for (std::uint64_t i = 0; i < nt_; ++i) {
+      if ((i & 0xffff) == 0) throwIfCancelled(cancel_);
+      f.write("10\n");  // VTK_TETRA
+    }
     f.write("        </DataArray>\n      </Cells>\n    </Piece>\n  </UnstructuredGrid>\n</VTKFile>\n");
     f.commit();
   }
@@ -281,14 +289,14 @@ class VtuWriter : public SpooledTetWriter {
 
 class TetGenWriter : public SpooledTetWriter {
  public:
-  explicit TetGenWriter(const std::string& path) : base_(stem(path)) {}
+  TetGenWriter(const std::string& path, const CancelFlag* cancel) : SpooledTetWriter(cancel), base_(stem(path)) {}
   void end() override {
     OutputFile node(base_ + ".node"), ele(base_ + ".ele");
     std::string s;
     appendUint(s, nv_), s += "  3  0  0\n";
     node.write(s);
     std::uint64_t i = 0;
-    points_.replay<Xyz>(nv_, [&](const Xyz* p, std::size_t n) {
+    points_.replay<Xyz>(nv_, cancel_, [&](const Xyz* p, std::size_t n) {
       for (std::size_t j = 0; j < n; ++j) {
         s.clear();
         appendUint(s, ++i);
@@ -302,7 +310,7 @@ class TetGenWriter : public SpooledTetWriter {
     appendUint(s, nt_), s += "  4  0\n";
     ele.write(s);
     i = 0;
-    cells_.replay<Tet4>(nt_, [&](const Tet4* t, std::size_t n) {
+    cells_.replay<Tet4>(nt_, cancel_, [&](const Tet4* t, std::size_t n) {
       for (std::size_t j = 0; j < n; ++j) {
         s.clear();
         appendUint(s, ++i);
@@ -621,16 +629,16 @@ TetMeshFormat tetMeshFormatForPath(const std::string& path) {
   throw UsageError(path + ": a tetrahedral mesh is written as .sma, .smb, .vtu or .node/.ele");
 }
 
-std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path) {
+std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path, const CancelFlag* cancel) {
   switch (tetMeshFormatForPath(path)) {
     case TetMeshFormat::Sma:
       return std::make_unique<SmaTetWriter>(path);
     case TetMeshFormat::Smb:
       return std::make_unique<SmbTetWriter>(path);
     case TetMeshFormat::Vtu:
-      return std::make_unique<VtuWriter>(path);
+      return std::make_unique<VtuWriter>(path, cancel);
     case TetMeshFormat::TetGen:
-      return std::make_unique<TetGenWriter>(path);
+      return std::make_unique<TetGenWriter>(path, cancel);
   }
   return nullptr;
 }

@@ -22,6 +22,7 @@
 #include <memory>
 #include <string>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/delaunay3d/tet_mesh_sink.h"
 
 namespace tinbuild {
@@ -31,8 +32,9 @@ enum class TetMeshFormat { Sma, Smb, Vtu, TetGen };
 // By extension (.sma, .smb, .vtu, .node or .ele; case-insensitive); throws UsageError otherwise.
 TetMeshFormat tetMeshFormatForPath(const std::string& path);
 
-// Opens a writer for PATH ("-" only for .sma: stdout).
-std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path);
+// Opens a writer for PATH ("-" only for .sma: stdout).  `cancel`: the .vtu and .node/.ele writers poll it
+// while they assemble the file at end() (CancelledError; nothing is left under PATH).
+std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path, const CancelFlag* cancel = nullptr);
 
 struct TetMeshFileSummary {
   std::uint64_t vertices = 0, tetrahedra = 0;

@@ -132,6 +132,27 @@ TEST(TetMeshFiles, TetGenNodeEleReadBackEqual) {
   EXPECT_TRUE(std::filesystem::exists(tmp("mesh.node")));
 }
 
+// The .vtu and .node/.ele writers assemble their file at end(); a cancellation there stops them with
+// nothing left under the name.
+TEST(TetMeshFiles, CancelledAssemblyLeavesNoFile) {
+  for (const std::string name : {"cancel.vtu", "cancel.ele"}) {
+    const std::string path = tmp(name);
+    std::filesystem::remove(path);
+    std::filesystem::remove(tmp("cancel.node"));
+    CancelFlag cancel;
+    auto w = openTetMeshWriter(path, &cancel);
+    w->begin({});
+    w->vertex(0, 0, 0, 0), w->vertex(1, 1, 0, 0), w->vertex(2, 0, 1, 0), w->vertex(3, 0, 0, 1);
+    w->tetrahedron(0, 1, 2, 3);
+    for (int i = 0; i < 4; ++i) w->finalizeVertex(i);
+    cancel.request();
+    EXPECT_THROW(w->end(), CancelledError) << name;
+    w.reset();
+    EXPECT_FALSE(std::filesystem::exists(path)) << name;
+    EXPECT_FALSE(std::filesystem::exists(tmp("cancel.node"))) << name;
+  }
+}
+
 TEST(TetMeshFiles, FormatsByExtension) {
   EXPECT_EQ(tetMeshFormatForPath("a.SMA"), TetMeshFormat::Sma);
   EXPECT_EQ(tetMeshFormatForPath("a.vtu"), TetMeshFormat::Vtu);
