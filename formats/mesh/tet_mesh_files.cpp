@@ -11,6 +11,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
 
@@ -100,16 +101,21 @@ class SmaTetWriter : public TetMeshSink {
 constexpr char kTetSmbMagic[8] = {'T', 'I', 'N', 'S', 'M', 'T', '0', '1'};
 constexpr unsigned char kOpVertex = 0x01, kOpFinalize = 0x03, kOpTetrahedron = 0x04, kOpEnd = 0x7F;
 
+// Little-endian fields appended to a byte string (formats/io/little_endian.h does the bytes).
 void putU32(std::string& s, std::uint32_t v) {
-  for (int i = 0; i < 4; ++i) s += static_cast<char>(v >> (8 * i) & 0xff);
+  std::uint8_t b[4];
+  le::putU32(b, v);
+  s.append(reinterpret_cast<const char*>(b), 4);
 }
 void putU64(std::string& s, std::uint64_t v) {
-  for (int i = 0; i < 8; ++i) s += static_cast<char>(v >> (8 * i) & 0xff);
+  std::uint8_t b[8];
+  le::putU64(b, v);
+  s.append(reinterpret_cast<const char*>(b), 8);
 }
 void putDouble(std::string& s, double v) {
-  std::uint64_t u;
-  std::memcpy(&u, &v, 8);
-  putU64(s, u);
+  std::uint8_t b[8];
+  le::putF64(b, v);
+  s.append(reinterpret_cast<const char*>(b), 8);
 }
 void putVarint(std::string& s, std::uint64_t v) {
   while (v >= 0x80) {
@@ -435,10 +441,9 @@ class ByteReader {
     return v;
   }
   double f64() {
-    const std::uint64_t u64 = u(8);
-    double v;
-    std::memcpy(&v, &u64, 8);
-    return v;
+    std::uint8_t b[8];
+    for (std::uint8_t& c : b) c = byte();
+    return le::get<double>(b);
   }
   std::uint64_t varint() {
     std::uint64_t v = 0;
