@@ -351,7 +351,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
       }
       if (--L.remaining == 0) ready.push_back(code);
       if (++ordinal == nextEnd) {
-        releaseReady();
+        if (!ready.empty()) releaseReady();  // (window 1, any order with locality: at most one leaf)
         nextEnd += window;
       }
     }
