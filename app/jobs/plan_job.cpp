@@ -429,6 +429,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   } catch (const std::exception& e) {
     bounds.error = e.what();
   }
+  const FilterCounts sliceFilter = bounds.filter;  // (this slice's: reduce() sums them over the slices)
   reducer.reduce(bounds);
   if (bounds.points == 0) throw DataError(o.inputs.front(), "no points after the filters (" + r.filter + ")");
   const int depth = fo.depth >= 0 ? fo.depth : chooseDepth(bounds.points);
@@ -443,7 +444,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   const RegionGrid regions{grid, level};
   try {
     if (spool.complete()) {  // the slice's positions as pass 1 decoded them: nothing is decoded again
-      counts.filter = bounds.filter;
+      counts.filter = sliceFilter;  // (pass 2 reduces them again: this slice's, not the sums)
       counts.points = spool.forEach([&](double x, double y) { ++counts.regions[regions.ofPoint(x, y)]; });
     } else {
       readSlice(in, pieces, fo.filter, kSegmentRecords, counts.filter, [&](std::size_t, std::uint64_t, const PointRecord* p, std::size_t n) {

@@ -270,6 +270,21 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   EXPECT_EQ(report.find("\"mpi_exchanged_bytes\": 0,"), std::string::npos) << report;
   // Nothing of the run's state is left behind.
   for (const auto& f : listDir(out / "mpi")) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << f;
+  // The report's filter counts are the survey's, as one process counts them (a LAZ plan counts its
+  // regions from its copy of the positions: its filter counts must not be summed over the ranks twice).
+  fs::create_directories(out / "filtered1");
+  fs::create_directories(out / "filteredN");
+  const std::string filtered = " " + las + " --keep-class 2 --mesh tin.smb -q --report r.json";
+  ASSERT_EQ(tinbuild("build" + filtered, "cd " + (out / "filtered1").string() + " && ").code, 0);
+  ASSERT_EQ(tinbuild("build" + filtered + " --mpi --threads 1", "cd " + (out / "filteredN").string() + " && " + mpirun).code, 0);
+  const auto counted = [](const std::string& json) {
+    const std::size_t at = json.find("\"filtered\"");
+    return at == std::string::npos ? std::string() : json.substr(at, json.find('}', at) - at);
+  };
+  const std::string one = slurp(out / "filtered1" / "r.json"), ranks = slurp(out / "filteredN" / "r.json");
+  ASSERT_FALSE(counted(one).empty()) << one;
+  EXPECT_EQ(counted(ranks), counted(one));
+  EXPECT_NE(counted(one).find("\"class\": 83893"), std::string::npos) << counted(one);
   // A failing part stops every rank, naming it: an unreadable input.
   fs::create_directories(out / "fail");
   fs::create_directories(out / "tmp");
