@@ -486,6 +486,8 @@ TetMeshFileSummary readSmbTet(const std::string& path, TetMeshSink& sink) {
     info.bounds.add(b[3], b[4], b[5]);
   }
   const std::uint64_t crsLength = r.u(4);
+  if (crsLength > (std::uint64_t{64} << 20))  // (as the triangle SMB's reader: no CRS is that long)
+    throw DataError(path, "tetrahedral SMB header: absurd CRS length " + std::to_string(crsLength));
   for (std::uint64_t i = 0; i < crsLength; ++i) info.crsWkt += static_cast<char>(r.byte());
   TetMeshFileSummary s;
   s.crsWkt = info.crsWkt;

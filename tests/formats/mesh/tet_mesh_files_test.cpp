@@ -126,6 +126,9 @@ TEST(TetMeshFiles, StreamingSmbIsCompactAndChecked) {
   std::string notOurs = bytes;
   notOurs[5] = 'B';  // TINSMB01: a triangle SMB
   expectError(notOurs, "another magic");
+  std::string absurdCrs = bytes;
+  absurdCrs[63] = '\x7f';  // the CRS length's high byte: about 2 GB
+  expectError(absurdCrs, "an absurd CRS length");
 }
 TEST(TetMeshFiles, TetGenNodeEleReadBackEqual) {
   roundTrip("mesh.ele");
