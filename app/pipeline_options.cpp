@@ -142,6 +142,7 @@ PipelineTable inputGroup() {
     a.options.strictCrs = true;
   });
   t.option("--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)")
+      .runOnly()
       .text([](A& a, const std::string& v) { a.options.finalizer.tempDir = v; });
   t.flag("--compute-bounds", "compute the bounds in a first pass instead of using the LAS headers'")
       .set([](A& a) { a.options.computeBounds = true; });
