@@ -70,6 +70,11 @@ struct PipelineOptions {
   // directory and the rest of its tiles as pieces; runMerge settles the rest.
   const Plan* plan = nullptr;
   int part = -1;
+  // An MPI run's part whose points the ranks already exchanged (app/jobs/mpi_run.cpp): the part reads
+  // these streams, in order (the plan's kept records: every one of its regions, in the survey's order,
+  // and the rest of its rank's slice, which its window drops) instead of its window of the inputs.
+  // Empty: the part reads the inputs.
+  std::vector<PointStream*> partRecords;
   // tinbuild plan --segment-records: a LAS/LAZ input is recorded in runs of this many records, each with
   // the box of its points, so that a part reads only the runs that meet its window.
   std::uint64_t planSegmentRecords = std::uint64_t{1} << 20;

@@ -28,9 +28,15 @@ struct TinbuildMpiApi {
   void (*bcast)(void* buffer, int count, int type, int root);
   void (*gather)(const void* send, int count, void* receive, int type, int root);
   void (*reduce)(const void* send, void* receive, int count, int type, int op, int root);
+  // Every rank sends `count` items to every rank (send[i * count ..] to rank i).
+  void (*alltoall)(const void* send, int count, void* receive, int type);
+  // Every rank sends sendCounts[i] items from send + sendOffsets[i] to rank i, and receives
+  // receiveCounts[i] items from rank i at receive + receiveOffsets[i] (counts and offsets in items).
+  void (*alltoallv)(const void* send, const int* sendCounts, const int* sendOffsets, void* receive,
+                    const int* receiveCounts, const int* receiveOffsets, int type);
 };
 
-constexpr int kTinbuildMpiApiVersion = 1;
+constexpr int kTinbuildMpiApiVersion = 2;
 
 // The module's one exported symbol.
 const TinbuildMpiApi* tinbuild_mpi_api();

@@ -72,8 +72,18 @@ void reduce(const void* send, void* receive, int count, int type, int op, int ro
   MPI_Reduce(send, receive, count, typeOf(type), opOf(op), root, MPI_COMM_WORLD);
 }
 
+void alltoall(const void* send, int count, void* receive, int type) {
+  MPI_Alltoall(send, count, typeOf(type), receive, count, typeOf(type), MPI_COMM_WORLD);
+}
+
+void alltoallv(const void* send, const int* sendCounts, const int* sendOffsets, void* receive,
+               const int* receiveCounts, const int* receiveOffsets, int type) {
+  MPI_Alltoallv(send, sendCounts, sendOffsets, typeOf(type), receive, receiveCounts, receiveOffsets, typeOf(type),
+                MPI_COMM_WORLD);
+}
+
 const TinbuildMpiApi kApi = {kTinbuildMpiApiVersion, init, finalize, allreduceInPlace, allgather, allgatherv,
-                             sendrecv, send, recv, bcast, gather, reduce};
+                             sendrecv, send, recv, bcast, gather, reduce, alltoall, alltoallv};
 
 }  // namespace
 

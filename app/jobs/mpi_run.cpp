@@ -13,6 +13,8 @@
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
+#include "libterrain/finalizer/record_file_stream.h"
+#include "libterrain/finalizer/regions.h"
 
 #ifdef TINBUILD_HAVE_MPI
 #include <dlfcn.h>
@@ -300,6 +302,163 @@ class MpiReducer : public PlanReducer {
   std::uint64_t bytes_ = 0;  // this rank's contributions to the sums
 };
 
+// The exchange of the plan's records.  When the plan kept every rank's slice as decoded records (costly
+// inputs: LAZ, text, reprojection; SliceRecords), each rank sends the records of other parts' regions to
+// those parts' ranks, and each part then reads its points from local files: every point is decoded once
+// in the whole run (by the plan), where a part would otherwise decode its window of the inputs again.
+//   - A part reads, in rank order, the records each rank sent it, and at its own rank's place its own
+//     slice's records, all of them: its window filter drops the other parts' (counted there as other
+//     parts' points, as when it reads the inputs).  A rank's own points are thus never copied: with tiles
+//     delivered in flight order most of a slice is its own part's.
+//   - The slices are consecutive runs of the survey's records, and a sender's records keep their order,
+//     so a part reads its points in the survey's order.
+//   - In rounds of up to 2^18 records (8 MiB) a rank, fewer with many ranks (a rank receives at most
+//     1 GiB a round: MPI counts are ints); before each round the ranks vote, so that a failure (a read, a
+//     write, a full disk) or a cancellation on any rank stops all of them at the same point.
+std::uint64_t exchangeBatch(int size) {
+  return std::clamp<std::uint64_t>((std::uint64_t{1} << 25) / static_cast<std::uint64_t>(size), 4096,
+                                   std::uint64_t{1} << 18);
+}
+
+struct ExchangedRecords {
+  std::unique_ptr<TempFile> own, received;  // this rank's slice; the other ranks' records for its part
+  std::vector<std::unique_ptr<RecordFileStream>> pieces;
+  std::vector<PointStream*> streams;  // what the part reads, in order
+  std::uint64_t sentRecords = 0;              // to other ranks
+};
+
+// Do all ranks hold their slice's records, and can each take what the others send it?  (A vote: all or
+// none exchange.)  matrix[s * size + d]: the records slice s holds in part d's regions.
+bool canExchange(int rank, int size, const Plan& plan, const SliceRecords& mine, const FinalizerOptions& fo,
+                 std::vector<std::uint64_t>& matrix, std::unique_ptr<TempFile>& file) {
+  const std::size_t n = static_cast<std::size_t>(size), me = static_cast<std::size_t>(rank);
+  int ok = mine.file && plan.parts.size() == n && mine.regions.size() == (std::size_t{1} << (2 * plan.regionLevel));
+  std::vector<std::uint64_t> row(n, 0);
+  if (ok)
+    for (std::size_t k = 0; k < n; ++k)
+      for (std::size_t m = plan.parts[k].first; m < plan.parts[k].end && m < mine.regions.size(); ++m)
+        row[k] += mine.regions[m];
+  matrix.assign(n * n, 0);
+  mpi().allgather(row.data(), size, matrix.data(), kTinbuildMpiUint64);
+  std::uint64_t incoming = 0;
+  for (std::size_t s = 0; s < n; ++s)
+    if (s != me) incoming += matrix[s * n + me];
+  if (ok) {
+    try {
+      file = std::make_unique<TempFile>(fo.tempDir, "part-records");
+      if (file->freeBytes() < fo.spoolReserve + incoming * sizeof(PointRecord)) ok = 0;
+    } catch (const std::exception&) {
+      ok = 0;
+    }
+  }
+  mpi().allreduceInPlace(&ok, 1, kTinbuildMpiInt, kTinbuildMpiMin);
+  if (!ok) file.reset();
+  return ok != 0;
+}
+
+ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceRecords& mine,
+                                 const std::vector<std::uint64_t>& matrix, std::unique_ptr<TempFile> file,
+                                 const CancelFlag* cancel) {
+  const std::size_t n = static_cast<std::size_t>(size), me = static_cast<std::size_t>(rank);
+  // Where each other rank's records go in this rank's file: the senders in rank order.
+  std::vector<std::uint64_t> base(n + 1, 0), done(n, 0);
+  for (std::size_t s = 0; s < n; ++s) base[s + 1] = base[s] + (s == me ? 0 : matrix[s * n + me]);
+  // The part of each region.
+  const RegionGrid regions{plan.grid, plan.regionLevel};
+  std::vector<std::uint32_t> partOf(mine.regions.size(), 0);
+  for (std::size_t k = 0; k < n; ++k)
+    for (std::size_t m = plan.parts[k].first; m < plan.parts[k].end && m < partOf.size(); ++m)
+      partOf[m] = static_cast<std::uint32_t>(k);
+  const std::uint64_t perRound = exchangeBatch(size);
+  int rounds = static_cast<int>((mine.records + perRound - 1) / perRound);
+  mpi().allreduceInPlace(&rounds, 1, kTinbuildMpiInt, kTinbuildMpiMax);
+  ExchangedRecords out;
+  std::vector<PointRecord> batch, sendBuffer, receiveBuffer;
+  std::vector<std::uint32_t> dest;
+  std::vector<int> sendCounts(n), sendOffsets(n), receiveCounts(n), receiveOffsets(n), fill(n);
+  std::string error;
+  bool stopped = false;  // by a vote: the failing rank names its failure
+  std::uint64_t at = 0;
+  constexpr int kRecord = static_cast<int>(sizeof(PointRecord));
+  for (int round = 0; round < rounds; ++round) {
+    std::fill(sendCounts.begin(), sendCounts.end(), 0);
+    try {
+      const std::uint64_t k = std::min(perRound, mine.records - at);
+      batch.resize(static_cast<std::size_t>(k));
+      if (k > 0) mine.file->readAt(at * sizeof(PointRecord), batch.data(), batch.size() * sizeof(PointRecord));
+      at += k;
+      dest.resize(batch.size());
+      for (std::size_t i = 0; i < batch.size(); ++i) {
+        dest[i] = partOf[regions.ofPoint(batch[i].x, batch[i].y)];
+        if (dest[i] != me) sendCounts[dest[i]] += kRecord;  // (its own part's stay in its file)
+      }
+      sendOffsets[0] = 0;
+      for (std::size_t d = 1; d < n; ++d) sendOffsets[d] = sendOffsets[d - 1] + sendCounts[d - 1];
+      sendBuffer.resize(static_cast<std::size_t>(sendOffsets[n - 1] + sendCounts[n - 1]) / sizeof(PointRecord));
+      fill = sendOffsets;
+      for (std::size_t i = 0; i < batch.size(); ++i) {
+        if (dest[i] == me) continue;
+        sendBuffer[static_cast<std::size_t>(fill[dest[i]] / kRecord)] = batch[i];
+        fill[dest[i]] += kRecord;
+      }
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+    // The vote: every rank goes on, or every rank stops here.
+    int state = stateOf(error, cancel);
+    mpi().allreduceInPlace(&state, 1, kTinbuildMpiInt, kTinbuildMpiMax);
+    if (state != kGoOn) {
+      stopped = true;
+      break;
+    }
+    mpi().alltoall(sendCounts.data(), 1, receiveCounts.data(), kTinbuildMpiInt);
+    std::size_t total = 0;
+    for (std::size_t s = 0; s < n; ++s) {
+      receiveOffsets[s] = static_cast<int>(total);
+      total += static_cast<std::size_t>(receiveCounts[s]);
+    }
+    receiveBuffer.resize(total / sizeof(PointRecord));
+    mpi().alltoallv(sendBuffer.data(), sendCounts.data(), sendOffsets.data(), receiveBuffer.data(),
+                    receiveCounts.data(), receiveOffsets.data(), kTinbuildMpiChar);
+    for (std::size_t d = 0; d < n; ++d) out.sentRecords += static_cast<std::uint64_t>(sendCounts[d] / kRecord);
+    try {
+      for (std::size_t s = 0; s < n; ++s) {
+        const std::uint64_t k = static_cast<std::uint64_t>(receiveCounts[s] / kRecord);
+        if (k == 0) continue;
+        if (done[s] + k > base[s + 1] - base[s])
+          throw Error("the exchange of records: rank " + std::to_string(s) + " sent more records than it counted");
+        file->writeAt((base[s] + done[s]) * sizeof(PointRecord),
+                      receiveBuffer.data() + static_cast<std::size_t>(receiveOffsets[s] / kRecord),
+                      static_cast<std::size_t>(k * sizeof(PointRecord)));
+        done[s] += k;
+      }
+    } catch (const std::exception& e) {
+      error = e.what();
+    }
+  }
+  for (std::size_t s = 0; s < n && error.empty() && !stopped; ++s)
+    if (done[s] != base[s + 1] - base[s])
+      error = "the exchange of records: rank " + std::to_string(s) + " sent " + std::to_string(done[s]) +
+              " records of the " + std::to_string(base[s + 1] - base[s]) + " it counted for this part";
+  collective(rank, size, "exchange of records on rank", [&] {
+    if (!error.empty()) throw Error(error);
+    if (cancelRequested(cancel)) throw CancelledError();
+  });
+  // The part's stream: the senders in rank order, this rank's own slice at its place.
+  out.own = std::move(mine.file);
+  out.received = std::move(file);
+  for (std::size_t s = 0; s < n; ++s) {
+    if (s == me)
+      out.pieces.push_back(std::make_unique<RecordFileStream>(*out.own, 0, mine.records));
+    else if (base[s + 1] > base[s])
+      out.pieces.push_back(std::make_unique<RecordFileStream>(*out.received, base[s], base[s + 1] - base[s]));
+    else
+      continue;
+    out.streams.push_back(out.pieces.back().get());
+  }
+  return out;
+}
+
 // Finalizes MPI on the way out, whatever happens.
 struct MpiSession {
   int rank = 0, size = 1;
@@ -385,12 +544,13 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     survey = openSurvey(options, diag, /*needIntensity=*/false);
     sliced = planInSlices(survey) && !options.constraints.any();  // (constraints: rank 0 plans, as for COPC)
   });
+  SliceRecords sliceRecords;
   if (sliced) {
     MpiReducer reducer(rank, size);
     PipelineOptions po = options;
     po.overwrite = true;
     plan.path = rank == 0 ? rootPlanPath : localDir + "/plan.json";
-    planReport = runPlanInSlices(po, survey, size, plan, diag, reducer);  // (its errors reach every rank)
+    planReport = runPlanInSlices(po, survey, size, plan, diag, reducer, &sliceRecords);  // (errors reach every rank)
     exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
     collective(rank, size, "plan on rank", [&] {
       writePlan(plan, plan.path);
@@ -433,6 +593,19 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   commitStep();  // (the plan's files, for the next step to read)
   survey = Survey();  // (its readers are done with)
   const double planSeconds = since(tPlan);
+  // The plan's records to the ranks of their parts (when every rank kept its slice's).
+  const auto tExchange = Clock::now();
+  ExchangedRecords records;
+  {
+    std::vector<std::uint64_t> matrix;
+    std::unique_ptr<TempFile> file;
+    if (sliced && canExchange(rank, size, plan, sliceRecords, options.finalizer, matrix, file)) {
+      records = exchangeRecords(rank, size, plan, sliceRecords, matrix, std::move(file), options.finalizer.cancel);
+      exchanged += 2 * records.sentRecords * sizeof(PointRecord);  // (halved with the rest below)
+    }
+    sliceRecords = SliceRecords();
+  }
+  const double exchangeSeconds = since(tExchange);
   // 2. Every rank its part.
   const auto tPart = Clock::now();
   RunReport partReport;
@@ -441,6 +614,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     po.plan = &plan;
     po.part = rank;
     po.commandLine = plan.command;
+    po.partRecords = records.streams;
     partReport = runBuild(po, diag);
     commitStep();  // the part's files, which the exchange and the merge read
   });
@@ -483,6 +657,8 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   mpi().gather(&peak, 1, peaks.data(), kTinbuildMpiUint64, 0);
   std::uint64_t exchangedAll = 0;
   mpi().reduce(&exchanged, &exchangedAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
+  std::uint64_t recordsSent = records.sentRecords, recordsAll = 0;
+  mpi().reduce(&recordsSent, &recordsAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   // 5. The decision: one last vote.  A cancellation that has reached any rank by now stops all of them
   // (exit 3, nothing of the merge committed).  After the vote the run is decided: rank 0 commits and
   // every rank exits 0, whatever signal arrives later (as a single process past its commit).  Without
@@ -506,8 +682,10 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   merged.rankPeakRss = peaks;
   merged.rankPartSeconds = partTimes;
   merged.planSeconds = planSeconds;
+  merged.exchangeSeconds = exchangeSeconds;
   merged.mergeSeconds = mergeSeconds;
   merged.exchangedBytes = exchangedAll / 2;  // each byte was counted by its sender and its receiver
+  merged.exchangedRecords = recordsAll;
   merged.planPath.clear();
   // Rank 0's own part's outputs, then the merge's.
   std::vector<std::string> outputs = partReport.outputs;

@@ -178,6 +178,7 @@ RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
                                             plan.partFile(o.part, "json")});
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   survey.restrictToPart(plan, o.part, o.computeBounds);
+  if (!o.partRecords.empty()) survey.readExchangedRecords(o.partRecords);
   PartHooks hooks(o, plan, survey, t0);
   return runBuildWith(o, survey, outputs, &hooks, diag, t0);
 }

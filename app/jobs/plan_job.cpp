@@ -305,33 +305,43 @@ void readSlice(const Survey& in, const std::vector<SlicePiece>& pieces, const Po
   }
 }
 
-// The kept points' positions of a plan's slice, written as pass 1 decodes them (16 bytes a point, to an
-// unlinked temporary file), so that pass 2 counts the regions without decoding the slice again: when an
-// input is costly to read again (LAZ, XYZ text, reprojection: PointStream::cheapToReread), as the
-// finalizer spools its first pass.  Not used when the copy would leave less than the finalizer's
+// The kept points of a plan's slice, written as pass 1 decodes them (to an unlinked temporary file), so
+// that pass 2 counts the regions without decoding the slice again: when an input is costly to read again
+// (LAZ, XYZ text, reprojection: PointStream::cheapToReread), as the finalizer spools its first pass.  Their
+// positions (16 bytes a point), or their whole records (32 bytes) when the caller keeps them for the parts
+// (an MPI run's exchange, SliceRecords).  Not used when the copy would leave less than the finalizer's
 // spoolReserve free, and given up (pass 2 reads the inputs again) if a write fails.
-class XySpool {
+class SliceSpool {
  public:
-  void open(const Survey& in, const std::vector<SlicePiece>& pieces, const FinalizerOptions& fo) {
+  void open(const Survey& in, const std::vector<SlicePiece>& pieces, const FinalizerOptions& fo, bool records) {
     if (!fo.spoolCostlyInputs) return;
     bool costly = false;
-    std::uint64_t records = 0;
+    std::uint64_t count = 0;
     for (const SlicePiece& p : pieces) {
       costly = costly || !in.streams[p.input]->cheapToReread();
       const SourceInfo& si = in.readers[p.input]->info();
-      records += p.count ? p.count : si.pointCountKnown ? si.pointCount : 0;
+      count += p.count ? p.count : si.pointCountKnown ? si.pointCount : 0;
     }
     if (!costly) return;
+    records_ = records;
     try {
-      file_ = std::make_unique<TempFile>(fo.tempDir, "plan-xy");
-      if (file_->freeBytes() < fo.spoolReserve + records * 16) file_.reset();
+      file_ = std::make_unique<TempFile>(fo.tempDir, records ? "plan-records" : "plan-xy");
+      if (file_->freeBytes() < fo.spoolReserve + count * pointBytes()) file_.reset();
     } catch (const std::exception&) {
       file_.reset();
     }
-    buffer_.reserve(kBuffer);
   }
+  bool records() const { return file_ && records_; }
   void add(const PointRecord* p, std::size_t n) {
     if (!file_) return;
+    if (records_) {
+      for (std::size_t i = 0; i < n; ++i) {
+        recordBuffer_.push_back(p[i]);
+        recordBuffer_.back().scratch = 0;  // (not part of the point)
+        if (recordBuffer_.size() == kBuffer / 4) flush();
+      }
+      return;
+    }
     for (std::size_t i = 0; i < n; ++i) {
       buffer_.push_back(p[i].x);
       buffer_.push_back(p[i].y);
@@ -346,6 +356,16 @@ class XySpool {
   // fn(x, y) for each point in pass 1's order; returns how many.
   template <class Fn>
   std::uint64_t forEach(Fn fn) {
+    if (records_) {
+      std::vector<PointRecord> b(kBuffer / 4);
+      for (std::uint64_t at = 0; at < points_;) {
+        const std::uint64_t n = std::min<std::uint64_t>(b.size(), points_ - at);
+        file_->readAt(at * sizeof(PointRecord), b.data(), static_cast<std::size_t>(n * sizeof(PointRecord)));
+        for (std::size_t i = 0; i < n; ++i) fn(b[i].x, b[i].y);
+        at += n;
+      }
+      return points_;
+    }
     std::vector<double> b(kBuffer);
     for (std::uint64_t at = 0; at < points_;) {
       const std::uint64_t n = std::min<std::uint64_t>(kBuffer / 2, points_ - at);
@@ -355,21 +375,29 @@ class XySpool {
     }
     return points_;
   }
+  std::uint64_t points() const { return points_; }
+  std::unique_ptr<TempFile> release() { return std::move(file_); }
 
  private:
   static constexpr std::size_t kBuffer = std::size_t{1} << 17;  // doubles: 64k points, 1 MiB
+  std::uint64_t pointBytes() const { return records_ ? sizeof(PointRecord) : 16; }
   void flush() {
-    if (buffer_.empty()) return;
+    const std::size_t bytes = records_ ? recordBuffer_.size() * sizeof(PointRecord) : buffer_.size() * sizeof(double);
+    if (bytes == 0) return;
     try {
-      file_->writeAt(points_ * 16, buffer_.data(), buffer_.size() * sizeof(double));
-      points_ += buffer_.size() / 2;
+      file_->writeAt(points_ * pointBytes(), records_ ? static_cast<const void*>(recordBuffer_.data()) : buffer_.data(),
+                     bytes);
+      points_ += bytes / pointBytes();
     } catch (const std::exception&) {
       file_.reset();  // (pass 2 reads the inputs again)
     }
     buffer_.clear();
+    recordBuffer_.clear();
   }
   std::unique_ptr<TempFile> file_;
+  bool records_ = false;
   std::vector<double> buffer_;
+  std::vector<PointRecord> recordBuffer_;
   std::uint64_t points_ = 0;
 };
 
@@ -387,7 +415,7 @@ std::vector<std::uint64_t> segmentOffsets(const Survey& in, std::uint64_t kSegme
 }  // namespace
 
 RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan& plan, Diagnostics& diag,
-                          PlanReducer& reducer) {
+                          PlanReducer& reducer, SliceRecords* keep) {
   const auto t0 = JobClock::now();
   RunReport r;
   r.command = "plan";
@@ -399,7 +427,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
   std::vector<SlicePiece> pieces;
   std::vector<std::uint64_t> segmentFirst;
   PlanCounts bounds;
-  XySpool spool;
+  SliceSpool spool;
   try {
     r.crs = in.crs;
     r.filter = fo.filter.describe();
@@ -411,7 +439,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
     constexpr double inf = std::numeric_limits<double>::infinity();
     bounds.segMin.assign(2 * segmentFirst.back(), inf);
     bounds.segMax.assign(2 * segmentFirst.back(), -inf);
-    spool.open(in, pieces, fo);
+    spool.open(in, pieces, fo, keep != nullptr);
     readSlice(in, pieces, fo.filter, kSegmentRecords, bounds.filter,
               [&](std::size_t input, std::uint64_t segment, const PointRecord* p, std::size_t n) {
                 spool.add(p, n);
@@ -455,6 +483,11 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
     }
   } catch (const std::exception& e) {
     counts.error = e.what();
+  }
+  if (keep && spool.records() && counts.error.empty()) {  // (this slice's counts: before the reduction)
+    keep->regions = counts.regions;
+    keep->records = spool.points();
+    keep->file = spool.release();
   }
   reducer.reduce(counts);
   if (counts.points != bounds.points)

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 #include <string>
 #include <vector>
 
@@ -10,6 +11,7 @@
 #include "app/jobs/run_report.h"
 #include "app/jobs/survey.h"
 #include "formats/io/plan_file.h"
+#include "libterrain/core/temp_file.h"
 
 namespace tinbuild {
 
@@ -42,10 +44,18 @@ class PlanReducer {
   // Replaces `counts` by the sum over all slices (bounds: their union), on every slice.
   virtual void reduce(PlanCounts& counts) = 0;
 };
+// The kept records of one slice, as the plan's first read decoded them, when its inputs are costly to read
+// again (LAZ, text, reprojection) and the temporary file could be written: an MPI run's ranks exchange them,
+// so that each part reads its own points from a local file instead of decoding its window of the inputs.
+struct SliceRecords {
+  std::unique_ptr<TempFile> file;      // PointRecords in the slice's order (scratch 0); null: not kept
+  std::uint64_t records = 0;
+  std::vector<std::uint64_t> regions;  // this slice's kept points per region of the plan, Morton order
+};
 // False for a survey the slices cannot plan (COPC, read in block mode; stdin).
 bool planInSlices(const Survey& survey);
 // survey: opened by the caller from options (every slice opens its own).
 RunReport runPlanInSlices(const PipelineOptions& options, Survey& survey, int parts, Plan& plan, Diagnostics& diag,
-                          PlanReducer& reducer);
+                          PlanReducer& reducer, SliceRecords* keep = nullptr);
 
 }  // namespace tinbuild

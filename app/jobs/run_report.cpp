@@ -181,7 +181,9 @@ std::string formatRunSummary(const RunReport& r) {
                        "% of the vertices, " + bytesText(r.seamBytes) + " of seam files), " +
                        withCommas(r.parallel.seamWritten) + " triangles settled; " + withCommas(r.demPieces) +
                        " DEM tile pieces (" + bytesText(r.pieceBytes) + ")" +
-                       (r.exchangedBytes ? "; " + bytesText(r.exchangedBytes) + " sent between ranks" : std::string()));
+                       (r.exchangedBytes ? "; " + bytesText(r.exchangedBytes) + " sent between ranks" : std::string()) +
+                       (r.exchangedRecords ? " (" + withCommas(r.exchangedRecords) + " decoded points to their parts)"
+                                           : std::string()));
       if (!r.rankPeakRss.empty()) {
         std::string peaks;
         for (std::uint64_t b : r.rankPeakRss) peaks += (peaks.empty() ? "" : ", ") + bytesText(b);
@@ -459,10 +461,12 @@ std::string formatRunJson(const RunReport& r) {
     j.key("dem_piece_bytes").value(r.pieceBytes);
     j.key("dem_pieces").value(r.demPieces);
     j.key("mpi_exchanged_bytes").value(r.exchangedBytes);
+    j.key("mpi_exchanged_records").value(r.exchangedRecords);
     j.key("rank_peak_rss_bytes").beginArray();
     for (std::uint64_t b : r.rankPeakRss) j.value(b);
     j.endArray();
     j.key("plan_seconds").value(r.planSeconds);
+    j.key("exchange_seconds").value(r.exchangeSeconds);
     j.key("rank_part_seconds").beginArray();
     for (double t : r.rankPartSeconds) j.value(t);
     j.endArray();

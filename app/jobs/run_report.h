@@ -83,8 +83,10 @@ struct RunReport {
   // --mpi (rank 0): bytes sent between ranks (plan, seam files, DEM pieces, part records) and every
   // rank's peak resident set.
   std::uint64_t exchangedBytes = 0;
+  std::uint64_t exchangedRecords = 0;  // --mpi: the plan's decoded points sent to their parts' ranks
   std::vector<std::uint64_t> rankPeakRss;
   double planSeconds = 0, mergeSeconds = 0;  // --mpi: rank 0's plan and merge
+  double exchangeSeconds = 0;                // --mpi: rank 0's exchange of the decoded points
   std::vector<double> rankPartSeconds;       // --mpi: each rank's part (its build)
   bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
   // --mpi: every rank voted to go on after the merge (mpi_run.cpp); a signal arriving later no longer

@@ -323,6 +323,13 @@ void Survey::restrictToPart(const Plan& p, int part, bool computeBounds) {
   names = keptNames;
 }
 
+void Survey::readExchangedRecords(const std::vector<PointStream*>& records) {
+  streams = records;
+  names.assign(records.size(), "the records exchanged for this part");
+  segmented.clear();
+  filesOutsidePart = pointsOutsidePart = 0;
+}
+
 void Survey::countSkipped(RunReport& report) const {
   for (const auto& r : readers) {
     const std::uint64_t n = r->skippedOutside();

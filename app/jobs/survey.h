@@ -64,6 +64,9 @@ struct Survey {
   bool readsItself(std::size_t i) const { return i < streams.size() && streams[i] == readers[i].get(); }
   // Restricts the survey to one part of `plan` (`part` 0-based): see the header.
   void restrictToPart(const Plan& plan, int part, bool computeBounds);
+  // A part whose points were exchanged (PipelineOptions::partRecords): it reads `records` only, and no
+  // input (the plan read and counted them all).
+  void readExchangedRecords(const std::vector<PointStream*>& records);
   // After a run: points the readers left out whole (COPC nodes outside --clip or the part) are counted as
   // read and dropped, and what the transformation dropped is reported (a counted warning).
   void countSkipped(RunReport& report) const;

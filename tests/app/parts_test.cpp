@@ -268,6 +268,18 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   const std::string report = slurp(out / "mpi" / "r.json");
   EXPECT_NE(report.find("\"parts\": 3"), std::string::npos) << report;
   EXPECT_EQ(report.find("\"mpi_exchanged_bytes\": 0,"), std::string::npos) << report;
+  // A LAZ survey is decoded once, by the plan: the ranks exchange the decoded points (two thirds of them
+  // cross to another rank), and each part reads its own from a local file.
+  EXPECT_EQ(report.find("\"mpi_exchanged_records\": 0,"), std::string::npos) << report;
+  // Where the ranks cannot keep those points (no temporary directory), each part decodes its window of the
+  // inputs instead: the same triangles and tiles.
+  fs::create_directories(out / "noexchange");
+  auto x = tinbuild("build" + build + " --mpi -q --threads 1 --report r.json --temp-dir " + (out / "absent").string(),
+                    "cd " + (out / "noexchange").string() + " && " + mpirun);
+  ASSERT_EQ(x.code, 0) << x.out << x.err;
+  expectSameAsOneProcess(out / "noexchange", out / "one", "mpirun -np 3, no exchange of points");
+  const std::string report2 = slurp(out / "noexchange" / "r.json");
+  EXPECT_NE(report2.find("\"mpi_exchanged_records\": 0,"), std::string::npos) << report2;
   // Nothing of the run's state is left behind.
   for (const auto& f : listDir(out / "mpi")) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << f;
   // The report's filter counts are the survey's, as one process counts them (a LAZ plan counts its
