@@ -599,46 +599,53 @@ TEST(Faults, AFarOutlierDoesNotMakeAnEndlessDem) {
 // Under MPI, SIGTERM to the ranks (what Slurm sends every task at a time limit) stops the whole run with
 // exit code 3 and no final-named file at all (the part files the steps committed provisionally go too),
 // at any moment; or the run was past its last vote and exits 0 with the whole result.  A rerun succeeds.
+// The same survey as LAS (each part reads its window) and as LAZ (the ranks exchange the plan's decoded
+// points, with a vote before each round of the exchange).
 TEST(Faults, SigtermToMpiRanksExitsThreeEverywhere) {
   if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
   const Survey s = prepare();
   if (test::tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos)
     GTEST_SKIP() << "tinbuild built without MPI";
-  const std::string run = "cd " + s.dir.string() + " && mpirun --allow-run-as-root --oversubscribe -np 2 " +
-                          TINBUILD_EXE + " build s/survey.las --mesh m/tin.smb --dem m/dem --step 1 --mpi --threads 1 -q "
-                          "> /dev/null 2>&1";
-  int stopped = 0;
-  for (double delay : {0.4, 1.0, 1.6}) {
-    const pid_t child = ::fork();
-    if (child == 0) {
-      const int rc = std::system(run.c_str());
-      ::_exit(WIFEXITED(rc) ? WEXITSTATUS(rc) : 99);
+  ASSERT_EQ(runWith(s.dir, "demo z --points 1 --swath 150 --survey-only --progress none"), 0);
+  for (const std::string input : {"s/survey.las", "z/survey.laz"}) {
+    const std::string run = "cd " + s.dir.string() + " && mpirun --allow-run-as-root --oversubscribe -np 2 " +
+                            TINBUILD_EXE + " build " + input + " --mesh m/tin.smb --dem m/dem --step 1 --mpi --threads 1 -q "
+                            "> /dev/null 2>&1";
+    int stopped = 0;
+    for (double delay : {0.4, 1.0, 1.6}) {
+      const pid_t child = ::fork();
+      if (child == 0) {
+        const int rc = std::system(run.c_str());
+        ::_exit(WIFEXITED(rc) ? WEXITSTATUS(rc) : 99);
+      }
+      std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+      // (The ranks only: other tests run `build s/survey.las` side by side, with other outputs.)
+      const std::string kill =
+          std::string("pkill -TERM -f '^") + TINBUILD_EXE + " build " + input + " --mesh m/tin.smb' > /dev/null 2>&1";
+      (void)!std::system(kill.c_str());
+      int status = 0;
+      ::waitpid(child, &status, 0);
+      const int code = WEXITSTATUS(status);
+      // The merge's outputs appear together or not at all, whatever the moment.
+      int present = 0;
+      for (const char* f : {"m/tin.parts.json", "m/tin.seam.smb", "m/dem/mosaic.vrt"}) present += fs::exists(s.dir / f);
+      if (code == 0) {
+        EXPECT_EQ(present, 3) << input << ": a run that exited 0 after a stop at " << delay;
+      } else {
+        ++stopped;
+        EXPECT_EQ(code, 3) << input << ", delay " << delay;
+        const std::vector<std::string> left = filesBelow(s.dir / "m");
+        EXPECT_TRUE(left.empty()) << input << ": a stopped run left " << left.size() << " files, the first "
+                                  << left.front();
+      }
+      fs::remove_all(s.dir / "m");
     }
-    std::this_thread::sleep_for(std::chrono::duration<double>(delay));
-    // (The ranks only: other tests run `build s/survey.las` side by side, with other outputs.)
-    const std::string kill =
-        std::string("pkill -TERM -f '^") + TINBUILD_EXE + " build s/survey.las --mesh m/tin.smb' > /dev/null 2>&1";
-    (void)!std::system(kill.c_str());
-    int status = 0;
-    ::waitpid(child, &status, 0);
-    const int code = WEXITSTATUS(status);
-    // The merge's outputs appear together or not at all, whatever the moment.
-    int present = 0;
-    for (const char* f : {"m/tin.parts.json", "m/tin.seam.smb", "m/dem/mosaic.vrt"}) present += fs::exists(s.dir / f);
-    if (code == 0) {
-      EXPECT_EQ(present, 3) << "a run that exited 0 after a stop at " << delay;
-    } else {
-      ++stopped;
-      EXPECT_EQ(code, 3) << "delay " << delay;
-      const std::vector<std::string> left = filesBelow(s.dir / "m");
-      EXPECT_TRUE(left.empty()) << "a stopped run left " << left.size() << " files, the first " << left.front();
-    }
+    EXPECT_GT(stopped, 0) << input;
+    const int rc = std::system(run.c_str());
+    EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0) << input;
+    EXPECT_TRUE(fs::exists(s.dir / "m/tin.parts.json")) << input;
     fs::remove_all(s.dir / "m");
   }
-  EXPECT_GT(stopped, 0);
-  const int rc = std::system(run.c_str());
-  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
-  EXPECT_TRUE(fs::exists(s.dir / "m/tin.parts.json"));
 }
 
 }  // namespace
