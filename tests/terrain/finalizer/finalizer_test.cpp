@@ -1227,11 +1227,15 @@ TEST(Finalizer, TableBudgetCoarsensTheFineTableThenTheLeaves) {
   EXPECT_EQ(coarse.stats.grid.depth, 2);
   EXPECT_EQ(checkStream(pts, coarse.sink), "");
   EXPECT_GT(coarse.stats.maxPerCell, 3 * full.stats.maxPerCell);
-  // A depth the user set is kept, whatever the budget.
+  // A depth the user set keeps its leaves, whatever the budget; the fine table below them follows the
+  // budget (depth 4 alone counts at depth 6 without one: 4,096 fine cells).
   o = noFilter(4);
+  Result unbounded = finalize(pts, o);
+  EXPECT_EQ(unbounded.stats.fineDepth, 6);
   o.tableBudget = 1;
   Result set = finalize(pts, o);
   EXPECT_EQ(set.stats.grid.depth, 4);
+  EXPECT_EQ(set.stats.fineDepth, 4);
   EXPECT_EQ(checkStream(pts, set.sink), "");
 }
 
