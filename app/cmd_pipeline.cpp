@@ -34,6 +34,7 @@ int runWithReport(PipelineArgs& a, Run run) {
   const bool quiet = rs.quiet;
   ProgressDisplay progress(parseProgressMode(rs.progress, quiet));
   o.threads = rs.threads;
+  if (rs.tempDir) o.finalizer.tempDir = o.contours.tempDir = *rs.tempDir;  // (each run its own, a part too)
   // Decoding LAS on extra threads pays only beyond the stage threads (reader, triangulator, writers).
   o.reader.decodeThreads = std::max(1, effectiveThreads(o.threads) - 2);
   Diagnostics diag;

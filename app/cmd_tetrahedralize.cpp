@@ -85,7 +85,7 @@ Finalizer3dOptions openSurvey3d(const PipelineArgs& a, const std::string& comman
   fo.crsWkt = in.crs.wkt;
   fo.cancel = cancelFlag();  // (SIGTERM, Ctrl-C: the run stops within a batch and leaves no output)
   fo.memoryBudget = a.options.finalizer.memoryBudget;  // (--memory: the waiting chunks, then the spill file)
-  fo.tempDir = a.options.finalizer.tempDir;
+  fo.tempDir = a.run.tempDir.value_or(a.options.finalizer.tempDir);
   return fo;
 }
 

@@ -141,9 +141,10 @@ PipelineTable inputGroup() {
   t.flag("--strict-crs", "treat CRS contradictions and doubts as errors instead of warnings").set([](A& a) {
     a.options.strictCrs = true;
   });
-  t.option("--temp-dir", "DIR", "where spill and spool files go (default $TMPDIR or /tmp)")
+  t.option("--temp-dir", "DIR",
+           "where spill and spool files go (default $TMPDIR or /tmp); a part of a plan takes its own")
       .runOnly()
-      .text([](A& a, const std::string& v) { a.options.finalizer.tempDir = v; });
+      .text([](A& a, const std::string& v) { a.run.tempDir = v; });
   t.flag("--compute-bounds", "compute the bounds in a first pass instead of using the LAS headers'")
       .set([](A& a) { a.options.computeBounds = true; });
   t.flag("--drop-cache",

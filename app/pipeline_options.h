@@ -30,6 +30,7 @@ struct RunSettings {
   std::optional<std::uint64_t> segmentRecords;  // plan --segment-records N
   std::vector<std::string> points;              // verify --points INPUT (each)
   bool json = false;                            // verify --json
+  std::optional<std::string> tempDir;           // --temp-dir DIR (a part of a plan takes its own)
 };
 
 // What a pipeline command's options bind to.
