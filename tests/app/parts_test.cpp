@@ -308,6 +308,20 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   for (const auto& d : listDir(out / "tmp")) EXPECT_EQ(d.find("tinbuild-mpi"), std::string::npos) << d;
 }
 
+// --temp-dir is a run option: the plan does not record it, and a part run on its own takes its own (a
+// node's scratch space), which its finalizer then uses for its spool.
+TEST(Parts, PartTakesItsOwnTempDir) {
+  TINBUILD_REQUIRE_DATA();
+  const fs::path out = test::scratchDir();
+  const std::string cd = "cd " + out.string() + " && ";
+  const std::string las = test::dataPath("laz/autzen_trim.laz");
+  ASSERT_EQ(tinbuild("plan " + las + " --mesh a.smb --parts 2 -o p.json -q --temp-dir planscratch", cd).code, 0);
+  EXPECT_EQ(slurp(out / "p.json").find("planscratch"), std::string::npos);
+  auto part = tinbuild("build --plan p.json --part 0 --temp-dir " + (out / "absent").string(), cd);
+  ASSERT_EQ(part.code, 0) << part.err;
+  EXPECT_NE(part.err.find((out / "absent").string()), std::string::npos) << part.err;  // (the spool's warning)
+}
+
 // A plan of a LAZ survey keeps its first read's positions in a temporary file and counts the regions from
 // it (nothing decoded twice); where that file cannot be written it reads the survey again: the same plan.
 TEST(Parts, PlanCountsFromItsCopyAsFromTheSurvey) {
