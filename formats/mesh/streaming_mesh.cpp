@@ -1,18 +1,15 @@
 #include "formats/mesh/streaming_mesh.h"
 
-#include <fcntl.h>
 #include <sys/stat.h>
-#include <unistd.h>
 
 #include <algorithm>
 #include <cctype>
-#include <cerrno>
 #include <charconv>
 #include <cstring>
 #include <unordered_set>
 
+#include "formats/io/byte_source.h"
 #include "formats/io/output_file.h"
-#include "formats/io/stdin_source.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -164,13 +161,7 @@ class SmbWriter final : public MeshWriterBase {
   void f64(double v) { out_.write(&v, 8); }
   void varint(std::uint64_t v) {
     std::uint8_t buf[10];
-    int n = 0;
-    while (v >= 0x80) {
-      buf[n++] = static_cast<std::uint8_t>(v | 0x80);
-      v >>= 7;
-    }
-    buf[n++] = static_cast<std::uint8_t>(v);
-    out_.write(buf, static_cast<std::size_t>(n));
+    out_.write(buf, encodeLeb128(v, buf));
   }
   void writeHeader(const MeshInfo& info) override {
     out_.write(kSmbMagic, 8);
@@ -205,58 +196,6 @@ class SmbWriter final : public MeshWriterBase {
     u64(vertices_);
     u64(triangles_);
   }
-};
-
-// Sequential bytes from a file or stdin, in large blocks.
-class ByteSource {
- public:
-  explicit ByteSource(const std::string& path) : path_(path), buf_(std::size_t{4} << 20) {
-    if (path == "-") return;
-    fd_ = ::open(path.c_str(), O_RDONLY | O_CLOEXEC);
-    if (fd_ < 0) throw DataError(path, std::string("cannot open: ") + std::strerror(errno));
-  }
-  ~ByteSource() {
-    if (fd_ >= 0) ::close(fd_);
-  }
-  ByteSource(const ByteSource&) = delete;
-  ByteSource& operator=(const ByteSource&) = delete;
-
-  // Makes at least `n` bytes available (fewer only at end of input); returns how many are.
-  std::size_t ensure(std::size_t n) {
-    if (end_ - pos_ >= n || eof_) return end_ - pos_;
-    std::memmove(buf_.data(), buf_.data() + pos_, end_ - pos_);
-    end_ -= pos_;
-    consumed_ += pos_;
-    pos_ = 0;
-    if (buf_.size() < n) buf_.resize(n);
-    while (end_ < n && !eof_) {
-      std::size_t got;
-      if (fd_ >= 0) {
-        ssize_t r;
-        do r = ::read(fd_, buf_.data() + end_, buf_.size() - end_);
-        while (r < 0 && errno == EINTR);
-        if (r < 0) throw DataError(path_, std::string("read error: ") + std::strerror(errno));
-        got = static_cast<std::size_t>(r);
-      } else {
-        got = readStdin(buf_.data() + end_, buf_.size() - end_);
-      }
-      if (got == 0) eof_ = true;
-      end_ += got;
-    }
-    return end_ - pos_;
-  }
-  const std::uint8_t* data() const { return buf_.data() + pos_; }
-  void skip(std::size_t n) { pos_ += n; }
-  std::uint64_t offset() const { return consumed_ + pos_; }
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
-  int fd_ = -1;
-  std::vector<std::uint8_t> buf_;
-  std::size_t pos_ = 0, end_ = 0;
-  std::uint64_t consumed_ = 0;
-  bool eof_ = false;
 };
 
 // Validates references against the live (announced, not yet finalized) vertices and replays events.
@@ -327,18 +266,7 @@ MeshFileSummary readSmb(ByteSource& src, MeshSink& sink) {
   summary.crsWkt = info.crsWkt;
   sink.begin(info);
   Replayer rep(path, sink);
-  auto varint = [&](std::uint64_t& v) {
-    v = 0;
-    for (int shift = 0; shift < 64; shift += 7) {
-      if (src.ensure(1) < 1)
-        throw DataError(path, "truncated SMB record at byte " + std::to_string(src.offset()));
-      const std::uint8_t byte = *src.data();
-      src.skip(1);
-      v |= std::uint64_t{byte & 0x7Fu} << shift;
-      if (!(byte & 0x80)) return;
-    }
-    throw DataError(path, "malformed SMB varint at byte " + std::to_string(src.offset()));
-  };
+  auto varint = [&](std::uint64_t& v) { v = readLeb128(src, "SMB"); };
   for (;;) {
     if (src.ensure(1) < 1)
       throw DataError(path, "truncated streaming mesh: the end record is missing after " +

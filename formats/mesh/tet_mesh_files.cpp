@@ -11,6 +11,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "formats/io/byte_source.h"
 #include "formats/io/little_endian.h"
 #include "formats/io/output_file.h"
 #include "libterrain/core/error.h"
@@ -118,11 +119,8 @@ void putDouble(std::string& s, double v) {
   s.append(reinterpret_cast<const char*>(b), 8);
 }
 void putVarint(std::string& s, std::uint64_t v) {
-  while (v >= 0x80) {
-    s += static_cast<char>((v & 0x7f) | 0x80);
-    v >>= 7;
-  }
-  s += static_cast<char>(v);
+  std::uint8_t b[10];
+  s.append(reinterpret_cast<const char*>(b), encodeLeb128(v, b));
 }
 
 class SmbTetWriter : public TetMeshSink {
@@ -421,89 +419,50 @@ TetMeshFileSummary readSma(const std::string& path, TetMeshSink& sink) {
   return s;
 }
 
-// A file read in 1 MiB blocks, byte by byte; a read past the end is a truncation error naming the file.
-class ByteReader {
- public:
-  explicit ByteReader(const std::string& path) : path_(path), in_(path, std::ios::binary), buf_(std::size_t{1} << 20) {
-    if (!in_) throw DataError(path, "cannot open");
-  }
-  bool atEnd() {
-    return at_ == size_ && !refill();
-  }
-  unsigned char byte() {
-    if (at_ == size_ && !refill()) throw DataError(path_, "truncated at byte " + std::to_string(offset_));
-    ++offset_;
-    return static_cast<unsigned char>(buf_[at_++]);
-  }
-  std::uint64_t u(int bytes) {
-    std::uint64_t v = 0;
-    for (int i = 0; i < bytes; ++i) v |= std::uint64_t{byte()} << (8 * i);
-    return v;
-  }
-  double f64() {
-    std::uint8_t b[8];
-    for (std::uint8_t& c : b) c = byte();
-    return le::get<double>(b);
-  }
-  std::uint64_t varint() {
-    std::uint64_t v = 0;
-    for (int shift = 0; shift < 64; shift += 7) {
-      const unsigned char b = byte();
-      v |= std::uint64_t{b & 0x7fu} << shift;
-      if (!(b & 0x80)) return v;
-    }
-    throw DataError(path_, "malformed varint at byte " + std::to_string(offset_));
-  }
-  std::uint64_t offset() const { return offset_; }
-  const std::string& path() const { return path_; }
-
- private:
-  bool refill() {
-    in_.read(buf_.data(), static_cast<std::streamsize>(buf_.size()));
-    size_ = static_cast<std::size_t>(in_.gcount());
-    at_ = 0;
-    return size_ > 0;
-  }
-  std::string path_;
-  std::ifstream in_;
-  std::vector<char> buf_;
-  std::size_t at_ = 0, size_ = 0;
-  std::uint64_t offset_ = 0;
-};
-
+// A tetrahedral SMB through formats/io/byte_source.h (the triangle SMB's reader); a record cut short is a
+// truncation error naming the file and the byte.
 TetMeshFileSummary readSmbTet(const std::string& path, TetMeshSink& sink) {
-  ByteReader r(path);
-  char magic[8];
-  for (char& c : magic) c = static_cast<char>(r.byte());
-  if (std::memcmp(magic, kTetSmbMagic, 8) != 0) throw DataError(path, "not a tinbuild tetrahedral SMB (magic)");
-  const std::uint64_t flags = r.u(4);
-  if (flags & ~std::uint64_t{1}) throw DataError(path, "unknown flags in the tetrahedral SMB header");
+  ByteSource src(path);
+  constexpr const char* kFormat = "tetrahedral SMB";
+  // The next n bytes, skipped (valid until the next call).
+  auto take = [&](std::size_t n) {
+    if (src.ensure(n) < n)
+      throw DataError(path, std::string("truncated ") + kFormat + " at byte " + std::to_string(src.offset()));
+    const std::uint8_t* p = src.data();
+    src.skip(n);
+    return p;
+  };
+  const std::size_t fixed = 8 + 4 + 48 + 4;  // magic, flags, bounds, the CRS's length
+  const std::uint8_t* h = take(fixed);
+  if (std::memcmp(h, kTetSmbMagic, 8) != 0) throw DataError(path, "not a tinbuild tetrahedral SMB (magic)");
+  const std::uint32_t flags = le::get<std::uint32_t>(h + 8);
+  if (flags & ~std::uint32_t{1}) throw DataError(path, "unknown flags in the tetrahedral SMB header");
   TetMeshInfo info;
   double b[6];
-  for (double& v : b) v = r.f64();
+  for (int i = 0; i < 6; ++i) b[i] = le::get<double>(h + 12 + 8 * i);
   if (flags & 1) {
     info.bounds.add(b[0], b[1], b[2]);
     info.bounds.add(b[3], b[4], b[5]);
   }
-  const std::uint64_t crsLength = r.u(4);
-  if (crsLength > (std::uint64_t{64} << 20))  // (as the triangle SMB's reader: no CRS is that long)
+  const std::uint32_t crsLength = le::get<std::uint32_t>(h + 60);
+  if (crsLength > (std::uint32_t{64} << 20))  // (as the triangle SMB's reader: no CRS is that long)
     throw DataError(path, "tetrahedral SMB header: absurd CRS length " + std::to_string(crsLength));
-  for (std::uint64_t i = 0; i < crsLength; ++i) info.crsWkt += static_cast<char>(r.byte());
+  info.crsWkt.assign(reinterpret_cast<const char*>(take(crsLength)), crsLength);
   TetMeshFileSummary s;
   s.crsWkt = info.crsWkt;
   sink.begin(info);
   std::vector<bool> live;
   auto vertexBack = [&](const char* what) {
-    const std::uint64_t back = r.varint();
+    const std::uint64_t back = readLeb128(src, kFormat);
     if (back == 0 || back > s.vertices || !live[s.vertices - back])
-      throw DataError(path, std::string(what) + " refers to no live vertex (byte " + std::to_string(r.offset()) + ")");
+      throw DataError(path, std::string(what) + " refers to no live vertex (byte " + std::to_string(src.offset()) + ")");
     return s.vertices - back;
   };
   for (;;) {
-    const unsigned char op = r.byte();
+    const unsigned char op = *take(1);
     if (op == kOpVertex) {
-      const double x = r.f64(), y = r.f64(), z = r.f64();
-      sink.vertex(s.vertices++, x, y, z);
+      const std::uint8_t* p = take(24);
+      sink.vertex(s.vertices++, le::get<double>(p), le::get<double>(p + 8), le::get<double>(p + 16));
       live.push_back(true);
     } else if (op == kOpTetrahedron) {
       std::uint64_t id[4];
@@ -515,11 +474,13 @@ TetMeshFileSummary readSmbTet(const std::string& path, TetMeshSink& sink) {
       live[id] = false;
       sink.finalizeVertex(id);
     } else if (op == kOpEnd) {
-      if (r.u(8) != s.vertices || r.u(8) != s.tetrahedra) throw DataError(path, "the end record does not match the mesh");
-      if (!r.atEnd()) throw DataError(path, "data after the end record");
+      const std::uint8_t* p = take(16);
+      if (le::get<std::uint64_t>(p) != s.vertices || le::get<std::uint64_t>(p + 8) != s.tetrahedra)
+        throw DataError(path, "the end record does not match the mesh");
+      if (src.ensure(1) != 0) throw DataError(path, "data after the end record");
       break;
     } else {
-      throw DataError(path, "unknown record " + std::to_string(op) + " at byte " + std::to_string(r.offset()));
+      throw DataError(path, "unknown record " + std::to_string(op) + " at byte " + std::to_string(src.offset()));
     }
   }
   for (std::uint64_t i = 0; i < live.size(); ++i)
