@@ -10,7 +10,8 @@
 //   pointcloud/  everything that yields points: LAS 1.0-1.4 reader and writer, XYZ text, the finalized
 //                point stream (our own format); laz/ the LAZ codec.
 //   mesh/        triangle outputs: SMB/SMA streaming meshes (and reading them back), PLY/OBJ, GeoPackage TIN
-//                (written with SQLite), UGRID mesh on NetCDF-4.
+//                (written with SQLite), UGRID mesh on NetCDF-4; tetrahedral meshes (tet_mesh_files: SMA/SMB
+//                with tetrahedra, .vtu, TetGen .node/.ele), opened by `tetrahedralize`.
 //   raster/      DEM outputs through GDAL: GeoTIFF tiles + VRT mosaics, one GeoTIFF or COG, GeoPackage
 //                raster; the PNG quick-look (with contour lines drawn over it).
 //   vector/      vector outputs: contour lines (GeoPackage directly with SQLite; GeoJSON, FlatGeobuf and
@@ -20,7 +21,8 @@
 //                points; UTM zone choice; lengths with units.
 //   io/          files that are complete or absent (temporary name, rename on success), stdin with push-back,
 //                little-endian fields, GeoPackage writing with SQLite (gpkg_file: the TIN's and the
-//                contours'), GDAL's errors kept quiet and put into ours (quiet_gdal).
+//                contours'), GDAL's errors kept quiet and put into ours (quiet_gdal), sequential bytes and
+//                the binary streaming meshes' LEB128 varints (byte_source).
 //
 // Invariants every writer keeps: output goes to a temporary name beside the target and is renamed only
 // when the run succeeds; a writer destroyed before end() removes what it wrote; I/O errors are DataErrors
