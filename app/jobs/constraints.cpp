@@ -270,6 +270,7 @@ PreparedConstraints readConstraintsFile(const std::string& path) {
   auto cc = std::make_shared<ConformingConstraints>();
   const std::uint64_t nv = in.get<std::uint64_t>();
   if (nv > (std::uint64_t{1} << 31)) throw DataError(path, "corrupt constraint file");
+  in.need(nv * 24);
   cc->vertices.resize(nv);
   for (auto& p : cc->vertices) {
     p.x = in.get<double>();
@@ -278,6 +279,7 @@ PreparedConstraints readConstraintsFile(const std::string& path) {
   }
   const std::uint64_t np = in.get<std::uint64_t>();
   if (np > (std::uint64_t{1} << 32)) throw DataError(path, "corrupt constraint file");
+  in.need(np * 8);
   cc->pieces.resize(np);
   for (auto& p : cc->pieces) {
     p[0] = in.get<std::uint32_t>();
@@ -287,6 +289,7 @@ PreparedConstraints readConstraintsFile(const std::string& path) {
   auto ring = [&in, &path]() {
     const std::uint64_t n = in.get<std::uint64_t>();
     if (n > (std::uint64_t{1} << 31)) throw DataError(path, "corrupt constraint file");
+    in.need(n * 16);
     std::vector<std::array<double, 2>> r(n);
     for (auto& q : r) {
       q[0] = in.get<double>();

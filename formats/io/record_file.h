@@ -3,6 +3,9 @@
 // with a reader that names the file and what it is when it ends early.
 #pragma once
 
+#include <sys/stat.h>
+
+#include <algorithm>
 #include <bit>
 #include <cerrno>
 #include <cstdint>
@@ -34,11 +37,18 @@ class RecordReader {
     f_ = std::fopen(path.c_str(), "rb");
     if (!f_) throw DataError(path, "cannot open the " + what_ + ": " + std::strerror(errno));
     std::setvbuf(f_, nullptr, _IOFBF, 1 << 20);
+    struct stat st {};
+    if (::fstat(::fileno(f_), &st) == 0 && S_ISREG(st.st_mode)) size_ = static_cast<std::uint64_t>(st.st_size);
   }
   ~RecordReader() { std::fclose(f_); }
   RecordReader(const RecordReader&) = delete;
   RecordReader& operator=(const RecordReader&) = delete;
 
+  // A count read from the file promises `n` more bytes: a truncation error now, before anything is
+  // allocated for them, when the file does not hold them (a damaged count must not ask for gigabytes).
+  void need(std::uint64_t n) const {
+    if (n > size_ - std::min(read_, size_)) throw DataError(path_, "the " + what_ + " is truncated (was its part killed?)");
+  }
   void bytes(void* p, std::size_t n) {
     if (std::fread(p, 1, n, f_) != n) throw DataError(path_, "the " + what_ + " is truncated (was its part killed?)");
     read_ += n;
@@ -60,6 +70,7 @@ class RecordReader {
   std::string path_, what_;
   std::FILE* f_ = nullptr;
   std::uint64_t read_ = 0;
+  std::uint64_t size_ = ~std::uint64_t{0};  // the file's size (not a regular file: unknown, need() trusts)
 };
 
 }  // namespace tinbuild

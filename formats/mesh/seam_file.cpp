@@ -86,6 +86,7 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
       r.all = in.get<std::uint8_t>() != 0;
       const std::uint32_t n = in.get<std::uint32_t>();
       if (n > 1u << 20) throw DataError(path, "corrupt seam file (a vertex with " + std::to_string(n) + " wedges)");
+      in.need(std::uint64_t{n} * 32);
       r.wedges.resize(n);
       for (auto& w : r.wedges) {
         w.from.x = in.get<double>();

@@ -30,6 +30,10 @@ DemTile readTile(RecordReader& in) {
     throw DataError(in.path(), "corrupt DEM piece file (tile size)");
   const std::uint8_t bands = in.get<std::uint8_t>();
   const std::size_t n = pixels(t);
+  std::uint64_t perPixel = 0;  // the bands' bytes a pixel, all in the file before any is allocated
+  for (const int bit : {1, 2, 4, 8}) perPixel += (bands & bit) ? sizeof(float) : 0;
+  perPixel += ((bands & 16) ? 1 : 0) + ((bands & 32) ? 2 : 0);
+  in.need(n * perPixel);
   auto floats = [&](std::vector<float>& v, int bit) {
     if (!(bands & bit)) return;
     v.resize(n);
