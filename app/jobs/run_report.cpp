@@ -381,6 +381,7 @@ std::string formatRunJson(const RunReport& r) {
     j.key("max_active_triangles").value(d.maxActiveTriangles);
     j.key("max_active_vertices").value(d.maxActiveVertices);
     j.key("peak_bytes").value(d.peakBytes);
+    j.key("compactions").value(d.compactions);
     j.key("killed_triangles").value(d.trianglesKilled);
     j.key("walk_steps").value(d.walkSteps);
     j.key("restarts_leaf").value(d.restartsLeaf);

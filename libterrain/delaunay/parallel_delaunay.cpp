@@ -47,7 +47,7 @@ double doubleOf(std::uint64_t b) {
 }
 
 // The MeshSink and SeamSink of a region's triangulator: records its events for the merge.  Ids are the
-// triangulator's vertex slots (DelaunayOptions::slotIds), below 2^32.
+// triangulator's recycled vertex ids (DelaunayOptions::slotIds), below 2^32.
 class Recorder : public MeshSink, public SeamSink {
  public:
   std::vector<std::uint64_t> words;
@@ -742,6 +742,7 @@ struct ParallelDelaunay::Impl {
       total.certifiedCheap += s.certifiedCheap;
       total.parked += s.parked;
       total.peakBytes += s.peakBytes;
+      total.compactions += s.compactions;
       total.seamTriangles += s.seamTriangles;
       total.seamVertices += s.seamVertices;
     }
@@ -755,6 +756,7 @@ struct ParallelDelaunay::Impl {
     total.maxActiveTriangles += pstats.seam.maxActiveTriangles;
     total.maxActiveVertices += pstats.seam.maxActiveVertices;
     total.peakBytes += pstats.seam.peakBytes + pstats.peakBufferedBytes;
+    total.compactions += pstats.seam.compactions;
     warnDuplicates(options.delaunay.diagnostics, options.delaunay.duplicates, total.duplicatesDropped);
   }
 };

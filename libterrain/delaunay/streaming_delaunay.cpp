@@ -267,6 +267,12 @@ class LeafTable {
     for (std::size_t i = 0; i < keys_.size(); ++i)
       if (keys_[i] != kEmpty) f(keys_[i], vals_[i]);
   }
+  // Replaces every value v by f(v) (the triangulator's compaction renumbers the sentinels).
+  template <class F>
+  void remapValues(F&& f) {
+    for (std::size_t i = 0; i < keys_.size(); ++i)
+      if (keys_[i] != kEmpty) vals_[i] = f(vals_[i]);
+  }
 
  private:
   static constexpr std::uint64_t kEmpty = ~std::uint64_t{0};
@@ -347,6 +353,9 @@ struct StreamingDelaunay::Impl {
   std::vector<std::uint32_t> freeVerts;
   std::uint64_t activeVerts = 0;
   std::uint64_t nextId = 0;
+  // slotIds: ids of finalized vertices, given out again (an id is not the vertex's slot: compact() moves
+  // vertices to other slots while their ids stay).
+  std::vector<std::uint32_t> freeIds;
 
   bool twoD = false;
   std::vector<std::uint32_t> pending;  // 1-D phase: vertices held back
@@ -475,6 +484,7 @@ struct StreamingDelaunay::Impl {
   }
   void freeVertex(std::uint32_t v) {
     verts[v].uses = 0;
+    if (options.slotIds && verts[v].id != kNoId) freeIds.push_back(static_cast<std::uint32_t>(verts[v].id));
     freeVerts.push_back(v);
     --activeVerts;
     if (regionMode) {
@@ -597,7 +607,8 @@ struct StreamingDelaunay::Impl {
   std::size_t bytes() const {
     return tris.capacity() * sizeof(Tri) + verts.capacity() * sizeof(Vertex) +
            xy.capacity() * sizeof(Point2) + pending.capacity() * sizeof(std::uint32_t) +
-           freeTris.capacity() * 4 + freeVerts.capacity() * 4 + stack.capacity() * sizeof(Frame) +
+           freeTris.capacity() * 4 + freeVerts.capacity() * 4 + freeIds.capacity() * 4 +
+           vleaf.capacity() * 4 + stack.capacity() * sizeof(Frame) +
            boundary.capacity() * sizeof(BoundaryEdge) + cavity.capacity() * 4 + fresh.capacity() * 4 +
            found.capacity() * sizeof(found[0]) + jump.capacity() * 8 + cellSize.capacity() * sizeof(double) +
            tree.bytes() + leaves.bytes();
@@ -625,6 +636,7 @@ struct StreamingDelaunay::Impl {
     freeVerts.clear();
     activeVerts = 0;
     nextId = 0;
+    freeIds.clear();
     verts.push_back(Vertex{0.0, kNoId, 0, kNone});
     xy.push_back(Point2{std::numeric_limits<double>::quiet_NaN(), 0.0});
     twoD = false;
@@ -1415,7 +1427,14 @@ struct StreamingDelaunay::Impl {
   }
   [[gnu::noinline]] std::uint64_t writeVertex(std::uint32_t v) {
     Vertex& V = verts[v];
-    V.id = options.slotIds ? v : nextId++;
+    if (!options.slotIds) {
+      V.id = nextId++;
+    } else if (!freeIds.empty()) {
+      V.id = freeIds.back();
+      freeIds.pop_back();
+    } else {
+      V.id = nextId++;
+    }
     ++stats.verticesOut;
     out.vertex(V.id, xy[v].x, xy[v].y, V.z);
     return V.id;
@@ -1662,10 +1681,90 @@ struct StreamingDelaunay::Impl {
       freeTriSlot(s);
     }
     updatePeak();
+    maybeCompact();
     if (regionMode)
       registerSeamTag(tag);
     else
       out.checkpoint(region_);
+  }
+
+  // ----- compaction ----------------------------------------------------------------------------------------
+  // The arrays keep the size of the stream's widest moment in this triangulator; a region of a multi-core
+  // run is fed a few cells at a time and then waits while the others are fed, holding its peak.  After a
+  // tag, when at most a quarter of the triangle or vertex slots are live, the live ones move to the front,
+  // in order, and the rest is given back.  Done only between insertions (no cavity, no current leaf), and
+  // only from the triangulator's own state, so it happens at the same places whatever the thread count.
+  // Each compaction costs the arrays' size, which the insertions since the last one paid for (growth from
+  // a quarter back to the whole).
+  void maybeCompact() {
+    const std::size_t liveTris = tris.size() - freeTris.size();
+    const std::size_t liveVerts = verts.size() - freeVerts.size();
+    const std::size_t minSlots = options.compactMinSlots;
+    const bool trisSparse = tris.size() >= minSlots && 4 * liveTris <= tris.size();
+    const bool vertsSparse = verts.size() >= minSlots && 4 * liveVerts <= verts.size();
+    if (trisSparse || vertsSparse) compact();
+  }
+  template <class T>
+  static void giveBack(std::vector<T>& v, std::size_t n) {
+    v.resize(n);
+    std::vector<T>(v.begin(), v.end()).swap(v);
+  }
+  void compact() {
+    ++stats.compactions;
+    // New vertex slots: the live ones in order; slot 0 (the point at infinity) stays.
+    std::vector<std::uint32_t> vmap(verts.size(), kNone);
+    for (const std::uint32_t v : freeVerts) vmap[v] = 0;  // marks free
+    std::uint32_t nv = 1;
+    vmap[0] = 0;
+    for (std::size_t v = 1; v < verts.size(); ++v) vmap[v] = vmap[v] == 0 ? kNone : nv++;
+    // New triangle slots: free slots have prev == kFreeMark (sentinels and live triangles are on lists).
+    std::vector<std::uint32_t> tmap(tris.size(), kNone);
+    std::uint32_t nt = 0;
+    for (std::size_t t = 0; t < tris.size(); ++t)
+      if (tris[t].prev != kFreeMark) tmap[t] = nt++;
+    const auto mapCode = [&](std::uint32_t c) { return c == kNone ? kNone : tmap[c >> 2] * 4 + (c & 3); };
+    const auto mapTri = [&](std::uint32_t t) { return t == kNone ? kNone : tmap[t]; };
+    const auto mapVert = [&](std::uint32_t v) { return v == kNone ? kNone : vmap[v]; };
+    for (std::size_t t = 0; t < tris.size(); ++t) {
+      if (tmap[t] == kNone) continue;
+      Tri T = tris[t];
+      if (T.v[0] == kSentinelMark) {
+        T.v[1] = mapVert(T.v[1]);  // the leaf's hint vertex (live: its leaf is open)
+      } else {
+        for (int i = 0; i < 3; ++i) {
+          T.v[i] = vmap[T.v[i]];
+          T.n[i] = mapCode(T.n[i]);
+        }
+      }
+      T.prev = mapTri(T.prev);
+      T.next = mapTri(T.next);
+      tris[tmap[t]] = T;  // tmap[t] <= t: moving forward in place
+    }
+    for (std::size_t v = 0; v < verts.size(); ++v) {
+      if (vmap[v] == kNone) continue;
+      Vertex V = verts[v];
+      // A vertex of a finalized leaf may keep a triangle that went (never read again): kNone.
+      V.tri = V.tri == kNone || V.tri >= tmap.size() ? kNone : tmap[V.tri];
+      verts[vmap[v]] = V;
+      xy[vmap[v]] = xy[v];
+      if (regionMode) vleaf[vmap[v]] = vleaf[v];
+    }
+    giveBack(tris, nt);
+    giveBack(verts, nv);
+    giveBack(xy, nv);
+    if (regionMode) giveBack(vleaf, nv);
+    std::vector<std::uint32_t>().swap(freeTris);
+    std::vector<std::uint32_t>().swap(freeVerts);
+    leaves.remapValues(mapTri);
+    last = last < tmap.size() ? tmap[last] : kNone;
+    curSentinel = mapTri(curSentinel);
+    nextJumpEpoch();  // the jump table holds old vertex slots
+    if (!seamWedges.empty()) {
+      decltype(seamWedges) moved;
+      moved.reserve(seamWedges.size());
+      for (auto& [v, w] : seamWedges) moved.emplace(vmap[v], std::move(w));
+      moved.swap(seamWedges);
+    }
   }
 
   // What MeshSink::checkpoint consumers may ask: does an active triangle or ghost still meet a rectangle?
@@ -1795,6 +1894,7 @@ struct StreamingDelaunay::Impl {
     // run's end), and 64 of them keeping their free lists and hash buckets grew with the survey.
     std::vector<std::uint32_t>().swap(freeTris);
     std::vector<std::uint32_t>().swap(freeVerts);
+    std::vector<std::uint32_t>().swap(freeIds);
     std::vector<std::uint32_t>().swap(pending);
     std::vector<Frame>().swap(stack);
     std::vector<BoundaryEdge>().swap(boundary);

@@ -130,10 +130,13 @@ struct DelaunayOptions {
   DuplicateRule duplicates = DuplicateRule::Lowest;
   // When set, dropped duplicates are reported there once ("delaunay.duplicate_xy", with the count).
   Diagnostics* diagnostics = nullptr;
-  // Output ids are the vertex's internal slot instead of 0, 1, 2, ...: a slot is reused after the vertex
-  // was finalized, and is at most the largest number of live vertices.  For a consumer that renumbers
-  // (the parallel triangulator), so that its table is as small as the stream's width.
+  // Output ids are small numbers given out again once the vertex was finalized (at most the largest
+  // number of live vertices) instead of 0, 1, 2, ...  For a consumer that renumbers (the parallel
+  // triangulator, the seam step), so that its table is as small as the stream's width.
   bool slotIds = false;
+  // The arrays are compacted after a tag (their free space given back) when they hold at least this many
+  // slots and at most a quarter are live.  SIZE_MAX: never.
+  std::size_t compactMinSlots = std::size_t{1} << 14;
   // Region mode (see SeamSink).  region.seam == nullptr: off.
   RegionSpec region;
 };
@@ -163,6 +166,7 @@ struct DelaunayStats {
   std::uint64_t certifiedCheap = 0;       // of those, final by the cheap test (disk inside the new region)
   std::uint64_t parked = 0;               // of those, parked again on another unfinalized leaf
   std::uint64_t peakBytes = 0;            // peak capacity of the triangulator's own arrays
+  std::uint64_t compactions = 0;          // times the arrays were compacted and their free space given back
   std::uint64_t seamTriangles = 0;        // region mode: final triangles and ghosts given to the seam
   std::uint64_t seamVertices = 0;         // region mode: vertices handed to the seam step
 };

@@ -17,6 +17,7 @@
 #include <cstring>
 #include <functional>
 #include <iostream>
+#include <limits>
 #include <map>
 #include <random>
 #include <string>
@@ -842,6 +843,28 @@ TEST(StreamingDelaunay, MemoryFollowsStreamWidth) {
   EXPECT_GT(r.stats.certificationChecks, 0u);
 }
 
+// Compaction (the arrays' free space given back after a tag): with a tiny threshold it runs after most
+// tags, and the triangles and surviving vertices are still CGAL's and those of a run that never compacts.
+TEST(StreamingDelaunay, CompactionKeepsTheTriangulation) {
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 100000, 5);
+  DelaunayOptions often;
+  often.compactMinSlots = 64;
+  DelaunayOptions never;
+  never.compactMinSlots = std::numeric_limits<std::size_t>::max();
+  const Result a = triangulate(pts, 6, {}, often);
+  const Result b = triangulate(pts, 6, {}, never);
+  EXPECT_GT(a.stats.compactions, 0u);
+  EXPECT_EQ(b.stats.compactions, 0u);
+  expectSameTriangles(a.triangles, b.triangles, "compacted against never compacted");
+  expectMatchesCgal(pts, a, "compacted");
+  std::vector<std::array<double, 3>> va, vb;
+  for (const auto& v : a.vertices) va.push_back({v.x, v.y, v.z});
+  for (const auto& v : b.vertices) vb.push_back({v.x, v.y, v.z});
+  std::sort(va.begin(), va.end());
+  std::sort(vb.begin(), vb.end());
+  EXPECT_EQ(va, vb);
+}
+
 TEST(StreamingDelaunay, TrianglesAreWrittenEarly) {
   // Cells tagged as they complete: most triangles are written long before end().
   const Points pts = survey(SurveySpec::Kind::FlightStrips, 100000, 6);
@@ -1178,6 +1201,18 @@ TEST(ParallelDelaunay, RandomInputMatchesCgalAtEveryThreadCount) {
 TEST(ParallelDelaunay, SurveysMatchCgal) {
   expectParallelMatches(survey(SurveySpec::Kind::UniformRandom, 30000, 3), 5, {2, 3}, "uniform");
   expectParallelMatches(survey(SurveySpec::Kind::FlightStrips, 30000, 4), 5, {2}, "strips");
+}
+
+// Regions and the seam step compacting after most tags: still CGAL's triangles, the same events at every
+// thread count (compaction depends only on a triangulator's own stream), and no tile closed too early.
+TEST(ParallelDelaunay, CompactionKeepsTheTriangulation) {
+  DelaunayOptions often;
+  often.compactMinSlots = 64;
+  const Points pts = survey(SurveySpec::Kind::FlightStrips, 40000, 6);
+  expectParallelMatches(pts, 5, {2}, "compacting", {}, often);
+  const ParallelResult r = triangulateParallel(pts, 5, 2, 2, {}, often);
+  EXPECT_GT(r.stats.compactions, 16u);
+  EXPECT_GT(r.pstats.seam.compactions, 0u);
 }
 
 TEST(ParallelDelaunay, FeedsAndTagsMatchCgal) {
