@@ -93,7 +93,7 @@ class Recorder : public MeshSink, public SeamSink {
 };
 
 struct InItem {
-  enum Kind : std::uint8_t { kPoints, kTag, kEnd } kind = kPoints;
+  enum Kind : std::uint8_t { kPoints, kTag, kEnd, kCompact } kind = kPoints;
   std::uint64_t seq = 0;  // tags dispatched before this item (a tag: its own index)
   CellTag tag;
   std::vector<PointRecord> points;
@@ -127,6 +127,10 @@ struct ParallelDelaunay::Impl {
     Recorder rec;
     std::unique_ptr<StreamingDelaunay> tri;
     std::vector<std::uint64_t> slotToId;
+    // Dispatcher's: tags dispatched when the region last got points, and whether it was asked to compact
+    // since (a region the stream has left for idleTags tags gives back its free space, once).
+    std::uint64_t lastFed = 0;
+    bool compactAsked = true;
     bool ended = false;               // whoever runs the region: its cell was final, it has ended
     std::uint64_t working = 0;        // the worker's: seq of the item being processed
     // Guarded by Impl::mutex.
@@ -338,6 +342,8 @@ struct ParallelDelaunay::Impl {
         continue;
       }
       Region& r = regions[region];
+      r.lastFed = tagsDispatched;
+      r.compactAsked = false;
       if (!threaded()) {
         r.tri->points(p + i, j - i);
       } else {
@@ -414,10 +420,32 @@ struct ParallelDelaunay::Impl {
       }
       merge(barrier ? seq + 1 : tagsDispatched, barrier);
     }
+    askIdleToCompact();
     if (barrier) {
       pointsSinceCheckpoint = 0;
       ++pstats.checkpoints;
       out.checkpoint(combined);
+    }
+  }
+
+  // A region the stream left options.idleTags tags ago compacts its arrays (StreamingDelaunay::compact):
+  // it waits with its front only, not with the arrays of its busiest moment.  Where this happens in a
+  // region's input is a function of the stream, so the output stays the same for any thread count.
+  void askIdleToCompact() {
+    for (Region& r : regions) {
+      if (r.compactAsked || tagsDispatched - r.lastFed < options.idleTags) continue;
+      r.compactAsked = true;
+      if (!r.tri) continue;
+      if (!threaded()) {
+        if (!r.ended) r.tri->compact();
+        continue;
+      }
+      InItem item;
+      item.kind = InItem::kCompact;
+      item.seq = tagsDispatched;
+      std::lock_guard<std::mutex> lock(mutex);
+      r.in.push_back(std::move(item));
+      wakeWorker();
     }
   }
 
@@ -506,7 +534,7 @@ struct ParallelDelaunay::Impl {
     // merge's order, so little output waits for the merge.
     std::deque<InItem> items;
     while (!r.in.empty()) {
-      const bool tag = r.in.front().kind != InItem::kPoints;
+      const bool tag = r.in.front().kind == InItem::kTag || r.in.front().kind == InItem::kEnd;
       items.push_back(std::move(r.in.front()));
       r.in.pop_front();
       if (tag) break;
@@ -524,6 +552,10 @@ struct ParallelDelaunay::Impl {
             sparePoints.push_back(std::move(item.points));
           }
           wakeMerger();
+          continue;
+        }
+        if (item.kind == InItem::kCompact) {
+          if (!r.ended) r.tri->compact();
           continue;
         }
         r.working = item.seq;

@@ -73,6 +73,8 @@ struct ParallelDelaunayOptions {
   int regionLevel = -1;      // regions are the cells of this quadtree level; -1: from the point count
   std::uint64_t checkpointEvery = std::uint64_t{1} << 18;  // points between output checkpoints
   std::size_t maxQueuedPoints = std::size_t{1} << 16;       // input queued for the workers (buffer records)
+  // A region that got no points for this many tags (the stream is elsewhere) compacts its arrays once.
+  std::uint64_t idleTags = 256;
   // One part of a plan (tinbuild plan/merge, MPI): only the regions partFirst <= m < partEnd (Morton
   // indices at regionLevel, which must then be set) are triangulated, the other regions' points are
   // dropped (counted), and the seam vertices and tags go to partSeam instead of an in-process seam step.

@@ -1681,7 +1681,6 @@ struct StreamingDelaunay::Impl {
       freeTriSlot(s);
     }
     updatePeak();
-    maybeCompact();
     if (regionMode)
       registerSeamTag(tag);
     else
@@ -1690,18 +1689,17 @@ struct StreamingDelaunay::Impl {
 
   // ----- compaction ----------------------------------------------------------------------------------------
   // The arrays keep the size of the stream's widest moment in this triangulator; a region of a multi-core
-  // run is fed a few cells at a time and then waits while the others are fed, holding its peak.  After a
-  // tag, when at most a quarter of the triangle or vertex slots are live, the live ones move to the front,
-  // in order, and the rest is given back.  Done only between insertions (no cavity, no current leaf), and
-  // only from the triangulator's own state, so it happens at the same places whatever the thread count.
-  // Each compaction costs the arrays' size, which the insertions since the last one paid for (growth from
-  // a quarter back to the whole).
+  // run is fed a few cells at a time and then waits while the others are fed, holding its peak.  Asked
+  // between calls (ParallelDelaunay asks a region that has gone idle), when at most half of the triangle
+  // or vertex slots are live the live ones move to the front, in order, and the rest is given back.  The
+  // output is the same but for the order of the triangles end() writes (slot order).
   void maybeCompact() {
+    if (!begun || ended || !twoD) return;
     const std::size_t liveTris = tris.size() - freeTris.size();
     const std::size_t liveVerts = verts.size() - freeVerts.size();
     const std::size_t minSlots = options.compactMinSlots;
-    const bool trisSparse = tris.size() >= minSlots && 4 * liveTris <= tris.size();
-    const bool vertsSparse = verts.size() >= minSlots && 4 * liveVerts <= verts.size();
+    const bool trisSparse = tris.size() >= minSlots && 2 * liveTris <= tris.size();
+    const bool vertsSparse = verts.size() >= minSlots && 2 * liveVerts <= verts.size();
     if (trisSparse || vertsSparse) compact();
   }
   template <class T>
@@ -1923,6 +1921,9 @@ void StreamingDelaunay::finalizeCell(const CellTag& cell) {
 }
 void StreamingDelaunay::end() {
   impl_->end();
+}
+void StreamingDelaunay::compact() {
+  impl_->maybeCompact();
 }
 const DelaunayStats& StreamingDelaunay::stats() const {
   return impl_->stats;

@@ -134,8 +134,7 @@ struct DelaunayOptions {
   // number of live vertices) instead of 0, 1, 2, ...  For a consumer that renumbers (the parallel
   // triangulator, the seam step), so that its table is as small as the stream's width.
   bool slotIds = false;
-  // The arrays are compacted after a tag (their free space given back) when they hold at least this many
-  // slots and at most a quarter are live.  SIZE_MAX: never.
+  // compact() does nothing for arrays of fewer slots than this.
   std::size_t compactMinSlots = std::size_t{1} << 14;
   // Region mode (see SeamSink).  region.seam == nullptr: off.
   RegionSpec region;
@@ -187,6 +186,11 @@ class StreamingDelaunay : public PointSink {
   // Throws Error for a tag outside the grid (level > depth, col/row >= 2^level).
   void finalizeCell(const CellTag& cell) override;
   void end() override;
+  // Gives back the arrays' free space when at most half of their slots are live (and they hold at least
+  // DelaunayOptions::compactMinSlots): the live triangles and vertices move to the front, in order.  Call
+  // between the calls above, in the 2-D phase (else nothing happens).  The output stays the same but for
+  // the order of the triangles end() writes.
+  void compact();
 
   const DelaunayStats& stats() const;
   // The live triangles, for MeshSink::checkpoint consumers (in region mode: clipped to the region's square,

@@ -845,14 +845,46 @@ TEST(StreamingDelaunay, MemoryFollowsStreamWidth) {
 
 // Compaction (the arrays' free space given back after a tag): with a tiny threshold it runs after most
 // tags, and the triangles and surviving vertices are still CGAL's and those of a run that never compacts.
+// compact() after every tag and every batch of points.
+class CompactingSink : public PointSink {
+ public:
+  explicit CompactingSink(StreamingDelaunay& dt) : dt_(dt) {}
+  void begin(const StreamInfo& info) override { dt_.begin(info); }
+  void points(const PointRecord* p, std::size_t n) override {
+    dt_.points(p, n);
+    dt_.compact();
+  }
+  void finalizeCell(const CellTag& cell) override {
+    dt_.finalizeCell(cell);
+    dt_.compact();
+  }
+  void end() override { dt_.end(); }
+
+ private:
+  StreamingDelaunay& dt_;
+};
+
+Result triangulateCompacting(const Points& pts, int depth, const DelaunayOptions& opt) {
+  CheckingSink sink;
+  StreamingDelaunay dt(sink, opt);
+  CompactingSink compacting(dt);
+  TestFinalizer fin(compacting, makeGrid(boundsOf(pts), depth), {});
+  fin.run(pts);
+  EXPECT_EQ(sink.errors, 0u) << "first streaming-mesh error: " << sink.firstError;
+  Result r;
+  r.triangles = std::move(sink.triangles);
+  std::sort(r.triangles.begin(), r.triangles.end());
+  r.vertices = std::move(sink.vertices);
+  r.stats = dt.stats();
+  return r;
+}
+
 TEST(StreamingDelaunay, CompactionKeepsTheTriangulation) {
   const Points pts = survey(SurveySpec::Kind::FlightStrips, 100000, 5);
   DelaunayOptions often;
   often.compactMinSlots = 64;
-  DelaunayOptions never;
-  never.compactMinSlots = std::numeric_limits<std::size_t>::max();
-  const Result a = triangulate(pts, 6, {}, often);
-  const Result b = triangulate(pts, 6, {}, never);
+  const Result a = triangulateCompacting(pts, 6, often);
+  const Result b = triangulate(pts, 6, {}, often);
   EXPECT_GT(a.stats.compactions, 0u);
   EXPECT_EQ(b.stats.compactions, 0u);
   expectSameTriangles(a.triangles, b.triangles, "compacted against never compacted");
@@ -1123,7 +1155,7 @@ struct ParallelResult : Result {
 
 ParallelResult triangulateParallel(const Points& pts, int depth, int regionLevel, int threads,
                                    const Feed& feed = {}, const DelaunayOptions& opt = {},
-                                   std::uint64_t checkpointEvery = 5000) {
+                                   std::uint64_t checkpointEvery = 5000, std::uint64_t idleTags = 256) {
   CheckpointCheckingSink sink;
   const Bounds3 b = boundsOf(pts);
   for (int i = 0; i < 8; ++i)
@@ -1137,6 +1169,7 @@ ParallelResult triangulateParallel(const Points& pts, int depth, int regionLevel
   popt.threads = threads;
   popt.regionLevel = regionLevel;
   popt.checkpointEvery = checkpointEvery;
+  popt.idleTags = idleTags;
   popt.maxQueuedPoints = 3000;  // small: the back-pressure path runs too
   ParallelDelaunay dt(sink, popt);
   TestFinalizer fin(dt, makeGrid(b, depth), feed);
@@ -1163,7 +1196,7 @@ ParallelResult triangulateParallel(const Points& pts, int depth, int regionLevel
 // Every region level and thread count gives CGAL's triangles, and for one level the very same event
 // stream whatever the number of threads.
 void expectParallelMatches(const Points& pts, int depth, const std::vector<int>& levels, const char* what,
-                           const Feed& feed = {}, const DelaunayOptions& opt = {}) {
+                           const Feed& feed = {}, const DelaunayOptions& opt = {}, std::uint64_t idleTags = 256) {
 #ifdef TINBUILD_TEST_HAVE_CGAL
   const std::vector<Tri6> reference = cgalTriangles(pts);
 #endif
@@ -1173,7 +1206,7 @@ void expectParallelMatches(const Points& pts, int depth, const std::vector<int>&
     for (const int threads : {1, 2, 3, 7}) {
       const std::string label = std::string(what) + ", level " + std::to_string(level) + ", " +
                                 std::to_string(threads) + " threads";
-      const ParallelResult r = triangulateParallel(pts, depth, level, threads, feed, opt);
+      const ParallelResult r = triangulateParallel(pts, depth, level, threads, feed, opt, 5000, idleTags);
 #ifdef TINBUILD_TEST_HAVE_CGAL
       expectSameTriangles(r.triangles, reference, label.c_str());
 #endif
@@ -1203,16 +1236,17 @@ TEST(ParallelDelaunay, SurveysMatchCgal) {
   expectParallelMatches(survey(SurveySpec::Kind::FlightStrips, 30000, 4), 5, {2}, "strips");
 }
 
-// Regions and the seam step compacting after most tags: still CGAL's triangles, the same events at every
-// thread count (compaction depends only on a triangulator's own stream), and no tile closed too early.
+// Regions compacting whenever they miss a tag: still CGAL's triangles, the same events at every thread
+// count (where a region compacts is a function of the stream), and no tile closed too early.
 TEST(ParallelDelaunay, CompactionKeepsTheTriangulation) {
   DelaunayOptions often;
   often.compactMinSlots = 64;
   const Points pts = survey(SurveySpec::Kind::FlightStrips, 40000, 6);
-  expectParallelMatches(pts, 5, {2}, "compacting", {}, often);
-  const ParallelResult r = triangulateParallel(pts, 5, 2, 2, {}, often);
+  expectParallelMatches(pts, 5, {2}, "compacting", {}, often, 1);
+  const ParallelResult r = triangulateParallel(pts, 5, 2, 2, {}, often, 5000, 1);
   EXPECT_GT(r.stats.compactions, 16u);
-  EXPECT_GT(r.pstats.seam.compactions, 0u);
+  const ParallelResult never = triangulateParallel(pts, 5, 2, 2, {}, often, 5000, ~std::uint64_t{0});
+  EXPECT_EQ(never.stats.compactions, 0u);
 }
 
 TEST(ParallelDelaunay, FeedsAndTagsMatchCgal) {
