@@ -678,6 +678,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   merged.command = "build --mpi";
   merged.inputs = options.inputs;
   merged.finalizer = planReport.finalizer;
+  merged.filter = planReport.filter;
   merged.haveFinalizer = planReport.haveFinalizer;
   merged.rankPeakRss = peaks;
   merged.rankPartSeconds = partTimes;

@@ -297,6 +297,13 @@ TEST(Parts, MpiRanksEqualOneProcess) {
   ASSERT_FALSE(counted(one).empty()) << one;
   EXPECT_EQ(counted(ranks), counted(one));
   EXPECT_NE(counted(one).find("\"class\": 83893"), std::string::npos) << counted(one);
+  // ... and so is the description of the filter (it was empty in an MPI run's report).
+  const auto described = [](const std::string& json) {
+    const std::size_t at = json.find("\"filter\": ");
+    return at == std::string::npos ? std::string() : json.substr(at, json.find('\n', at) - at);
+  };
+  ASSERT_FALSE(described(one).empty()) << one;
+  EXPECT_EQ(described(ranks), described(one));
   // A failing part stops every rank, naming it: an unreadable input.
   fs::create_directories(out / "fail");
   fs::create_directories(out / "tmp");
