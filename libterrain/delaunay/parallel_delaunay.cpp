@@ -178,6 +178,11 @@ struct ParallelDelaunay::Impl {
   // machine every futex wake-up is an interrupt to another CPU).
   int idleWorkers = 0;
   bool mergerWaiting = false;
+  // A checkpoint reads every region's arrays: while `paused` no region starts, and the checkpoint waits
+  // until none is `running` (a region with queued input the tag did not concern, a sprinkle point or a
+  // compaction, may be running on a worker when the barrier's merge is done).
+  bool paused = false;
+  int running = 0;
   void wakeWorker() {
     if (idleWorkers > 0) workCv.notify_one();
   }
@@ -420,13 +425,40 @@ struct ParallelDelaunay::Impl {
       }
       merge(barrier ? seq + 1 : tagsDispatched, barrier);
     }
-    askIdleToCompact();
     if (barrier) {
       pointsSinceCheckpoint = 0;
       ++pstats.checkpoints;
-      out.checkpoint(combined);
+      if (threaded()) {
+        PauseRegions pause(*this);
+        out.checkpoint(combined);
+      } else {
+        out.checkpoint(combined);
+      }
     }
+    askIdleToCompact();
   }
+
+  // While it lives, no region runs (the calling thread may read their arrays).
+  struct PauseRegions {
+    Impl& impl;
+    explicit PauseRegions(Impl& i) : impl(i) {
+      std::unique_lock<std::mutex> lock(impl.mutex);
+      impl.paused = true;
+      while (impl.running > 0 && !impl.failure) impl.waitForWorkers(lock);
+      if (impl.failure) {
+        impl.paused = false;
+        lock.unlock();
+        impl.rethrow();
+      }
+    }
+    ~PauseRegions() {
+      std::lock_guard<std::mutex> lock(impl.mutex);
+      impl.paused = false;
+      impl.workCv.notify_all();
+    }
+    PauseRegions(const PauseRegions&) = delete;
+    PauseRegions& operator=(const PauseRegions&) = delete;
+  };
 
   // A region the stream left options.idleTags tags ago compacts its arrays (StreamingDelaunay::compact):
   // it waits with its front only, not with the arrays of its busiest moment.  Where this happens in a
@@ -518,7 +550,7 @@ struct ParallelDelaunay::Impl {
   // lock released meanwhile) and returns true; false when no region can run now.  Workers loop on it; the
   // dispatcher calls it instead of waiting, so it works too when it would only wait.
   bool runSome(std::unique_lock<std::mutex>& lock) {
-    if (failure) return false;  // a region failed: its later input must not run (nor anyone's)
+    if (failure || paused) return false;  // a region failed: its later input must not run (nor anyone's)
     Region* pick = nullptr;
     int runnable = 0;
     for (Region& r : regions)
@@ -530,6 +562,7 @@ struct ParallelDelaunay::Impl {
     if (runnable > 1) wakeWorker();
     Region& r = *pick;
     r.busy = true;
+    ++running;
     // Up to its next tag only, then the oldest input again: the regions advance together, in the
     // merge's order, so little output waits for the merge.
     std::deque<InItem> items;
@@ -572,6 +605,7 @@ struct ParallelDelaunay::Impl {
     }
     lock.lock();
     r.busy = false;
+    if (--running == 0 && paused) wakeMerger();
     if (!r.in.empty()) wakeWorker();
     return true;
   }
