@@ -29,20 +29,20 @@ std::size_t ByteSource::ensure(std::size_t n) {
   pos_ = 0;
   if (buf_.size() < n) buf_.resize(n);
   while (end_ < n && !eof_) {
-    std::size_t got;
-    if (fd_ >= 0) {
-      ssize_t r;
-      do r = ::read(fd_, buf_.data() + end_, buf_.size() - end_);
-      while (r < 0 && errno == EINTR);
-      if (r < 0) throw DataError(path_, std::string("read error: ") + std::strerror(errno));
-      got = static_cast<std::size_t>(r);
-    } else {
-      got = readStdin(buf_.data() + end_, buf_.size() - end_);
-    }
+    const std::size_t got = readBlock(fd_, buf_.data() + end_, buf_.size() - end_, path_);
     if (got == 0) eof_ = true;
     end_ += got;
   }
   return end_ - pos_;
+}
+
+std::size_t readBlock(int fd, std::uint8_t* p, std::size_t n, const std::string& path) {
+  if (fd < 0) return readStdin(p, n);
+  ssize_t r;
+  do r = ::read(fd, p, n);
+  while (r < 0 && errno == EINTR);
+  if (r < 0) throw DataError(path, std::string("read error: ") + std::strerror(errno));
+  return static_cast<std::size_t>(r);
 }
 
 std::size_t encodeLeb128(std::uint64_t v, std::uint8_t out[10]) {

@@ -34,6 +34,11 @@ class ByteSource {
   bool eof_ = false;
 };
 
+// Reads up to `n` bytes from `fd` (standard input through readStdin() when fd < 0, its pushed-back
+// bytes first) into `p`: 0 at end of input, EINTR retried, a read error a DataError naming `path`.
+// ByteSource and the LAS reader's stream mode fill their buffers with it.
+std::size_t readBlock(int fd, std::uint8_t* p, std::size_t n, const std::string& path);
+
 // LEB128: 7 bits a byte, the lowest first, the high bit set on every byte but the last.  Writes v into
 // `out` and returns the bytes used (at most 10).
 std::size_t encodeLeb128(std::uint64_t v, std::uint8_t out[10]);

@@ -17,9 +17,9 @@
 #include <optional>
 #include <sstream>
 
+#include "formats/io/byte_source.h"
 #include "formats/io/little_endian.h"
 #include "formats/crs/crs.h"
-#include "formats/io/stdin_source.h"
 #include "formats/pointcloud/copc_hierarchy.h"
 #include "formats/pointcloud/laz/chunk_codec.h"
 #include "formats/pointcloud/laz/laz_error.h"
@@ -240,16 +240,8 @@ std::size_t LasReader::fillStream(std::size_t want) {
   }
   if (streamBuf_.size() < std::max(want, kStreamBlock)) streamBuf_.resize(std::max(want, kStreamBlock));
   while (streamEnd_ < want && !streamEof_) {
-    std::size_t got;
-    if (fd_ >= 0) {
-      ssize_t r;
-      do r = ::read(fd_, streamBuf_.data() + streamEnd_, streamBuf_.size() - streamEnd_);
-      while (r < 0 && errno == EINTR);
-      if (r < 0) throw DataError(info_.path, std::string("read error: ") + std::strerror(errno));
-      got = static_cast<std::size_t>(r);
-    } else {
-      got = readStdin(streamBuf_.data() + streamEnd_, streamBuf_.size() - streamEnd_);
-    }
+    const std::size_t got =
+        readBlock(fd_, streamBuf_.data() + streamEnd_, streamBuf_.size() - streamEnd_, info_.path);
     if (got == 0) streamEof_ = true;
     streamEnd_ += got;
   }
