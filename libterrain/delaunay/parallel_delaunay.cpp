@@ -10,6 +10,7 @@
 #include <functional>
 #include <limits>
 #include <mutex>
+#include <optional>
 #include <thread>
 #include <unordered_map>
 
@@ -428,12 +429,9 @@ struct ParallelDelaunay::Impl {
     if (barrier) {
       pointsSinceCheckpoint = 0;
       ++pstats.checkpoints;
-      if (threaded()) {
-        PauseRegions pause(*this);
-        out.checkpoint(combined);
-      } else {
-        out.checkpoint(combined);
-      }
+      std::optional<PauseRegions> pause;
+      if (threaded()) pause.emplace(*this);
+      out.checkpoint(combined);
     }
     askIdleToCompact();
   }
