@@ -74,6 +74,7 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
   const std::uint32_t p = in.get<std::uint32_t>();
   if (p != part) throw DataError(path, "the seam file is part " + std::to_string(p) + "'s, not part " + std::to_string(part) + "'s");
   SeamFileCounts counts;
+  std::vector<SeamSink::Wedge> wedges;
   for (std::uint64_t record = 0;; ++record) {
     if ((record & 4095) == 0) throwIfCancelled(cancel);
     const char kind = in.get<char>();
@@ -87,14 +88,14 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
       const std::uint32_t n = in.get<std::uint32_t>();
       if (n > 1u << 20) throw DataError(path, "corrupt seam file (a vertex with " + std::to_string(n) + " wedges)");
       in.need(std::uint64_t{n} * 32);
-      r.wedges.resize(n);
-      for (auto& w : r.wedges) {
+      wedges.resize(n);
+      for (auto& w : wedges) {
         w.from.x = in.get<double>();
         w.from.y = in.get<double>();
         w.to.x = in.get<double>();
         w.to.y = in.get<double>();
       }
-      step.vertex(std::move(r));
+      step.vertex(r, wedges.data(), n);
       ++counts.vertices;
     } else if (kind == 'T') {
       CellTag c;

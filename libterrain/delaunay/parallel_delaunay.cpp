@@ -165,6 +165,7 @@ struct ParallelDelaunay::Impl {
   // The seam step (in-process), or, for one part of a plan, the sink its records go to instead.
   SeamToMesh seamOut{out, nextId};
   std::unique_ptr<SeamStep> seam;
+  std::vector<SeamSink::Wedge> wedgeScratch;  // the merge's: one seam vertex's wedges, decoded
   SeamSink* partSeam = nullptr;
   std::size_t partFirst = 0, partEnd = 0;  // the part's regions (Morton range); all of them without a part
   bool partMode() const { return partSeam != nullptr; }
@@ -745,20 +746,20 @@ struct ParallelDelaunay::Impl {
           rec.x = doubleOf(w[i + 2]);
           rec.y = doubleOf(w[i + 3]);
           rec.z = doubleOf(w[i + 4]);
-          rec.wedges.resize(nw);
+          wedgeScratch.resize(nw);
           for (std::size_t k = 0; k < nw; ++k) {
             const std::uint64_t* q = &w[i + 5 + 4 * k];
-            rec.wedges[k] = SeamSink::Wedge{Point2{doubleOf(q[0]), doubleOf(q[1])},
-                                            Point2{doubleOf(q[2]), doubleOf(q[3])}};
+            wedgeScratch[k] = SeamSink::Wedge{Point2{doubleOf(q[0]), doubleOf(q[1])},
+                                              Point2{doubleOf(q[2]), doubleOf(q[3])}};
           }
           ++pstats.seamVertices;
           if (partMode()) {
             // The part's output is done with the vertex (its region's triangles are all out); the seam
             // step of the merge declares it again in the seam's own output.
-            partSeam->seamVertex(rec.id, rec.x, rec.y, rec.z, rec.all, rec.wedges.data(), nw);
+            partSeam->seamVertex(rec.id, rec.x, rec.y, rec.z, rec.all, wedgeScratch.data(), nw);
             if (rec.id != kNoId) out.finalizeVertex(rec.id);
           } else {
-            seam->vertex(std::move(rec));
+            seam->vertex(rec, wedgeScratch.data(), nw);
           }
           i += 5 + 4 * nw;
           break;

@@ -1,9 +1,9 @@
 // The seam step: DT(S) filtered by the seam wedges (header; parallel_delaunay.h holds the argument).
 #include "libterrain/delaunay/seam_step.h"
 
+#include <algorithm>
 #include <cstring>
 #include <string>
-#include <unordered_map>
 
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
@@ -37,17 +37,11 @@ bool inWedge(const Point2& a, const Point2& b, const Point2& c, const Point2& p)
   return orient2d(a, b, p) > 0;       // half a turn
 }
 
-struct XYKey {
-  std::uint64_t x, y;
-  bool operator==(const XYKey& o) const { return x == o.x && y == o.y; }
-};
-struct XYHash {
-  std::size_t operator()(const XYKey& k) const {
-    std::uint64_t h = k.x * 0x9E3779B97F4A7C15ull ^ (k.y + 0x632BE59BD9B4E019ull + (k.x << 6) + (k.x >> 2));
-    h ^= h >> 29;
-    return static_cast<std::size_t>(h * 0xBF58476D1CE4E5B9ull);
-  }
-};
+std::size_t xyHash(std::uint64_t x, std::uint64_t y) {
+  std::uint64_t h = x * 0x9E3779B97F4A7C15ull ^ (y + 0x632BE59BD9B4E019ull + (x << 6) + (x >> 2));
+  h ^= h >> 29;
+  return static_cast<std::size_t>(h * 0xBF58476D1CE4E5B9ull);
+}
 
 [[noreturn]] void refuseTwin(double x, double y) {
   throw Error("the point (" + std::to_string(x) + ", " + std::to_string(y) +
@@ -56,19 +50,124 @@ struct XYHash {
 
 }  // namespace
 
+// The records live in flat arrays, not one heap node and one wedge vector per vertex (at 10^9 points the
+// node-and-vector layout held about 20 MB of seam records at the peak):
+//   recs      the records and where their wedges are, recycled through freeRecs;
+//   wedges    one pool of wedges, in blocks of 2^k, recycled through freeBlocks[k];
+//   waiting   an open-addressing table (linear probing, backward-shift deletion) of the records handed
+//             over and not yet met by the triangulator, by xy;
+//   bySlot    the seam triangulator's vertex slot -> record.
 struct SeamStep::Impl : MeshSink {
+  static constexpr std::uint32_t kNone = 0xffffffffu;
+  struct Stored {
+    SeamRecord r;
+    std::uint32_t wedge = 0, count = 0;  // wedges[wedge, wedge + count)
+  };
+
   SeamOutput& out;
   DelaunayOptions options;
   SeamStats stats;
   std::unique_ptr<StreamingDelaunay> tri;
-  std::unordered_map<XYKey, SeamRecord, XYHash> waiting;  // handed over, not yet met by the triangulator
-  std::vector<SeamRecord> bySlot;
+  std::vector<Stored> recs;
+  std::vector<std::uint32_t> freeRecs;
+  std::vector<SeamSink::Wedge> wedges;
+  std::vector<std::vector<std::uint32_t>> freeBlocks;
+  std::vector<std::uint32_t> waiting;
+  std::size_t waitingCount = 0;
+  std::vector<std::uint32_t> bySlot;
   std::vector<PointRecord> pending;
 
   Impl(SeamOutput& o, const DelaunayOptions& d) : out(o), options(d) {
     options.diagnostics = nullptr;  // the regions report duplicates
     options.slotIds = true;
     options.region = RegionSpec{};
+  }
+
+  void reset() {
+    recs = {};
+    freeRecs = {};
+    wedges = {};
+    freeBlocks = {};
+    waiting.assign(64, kNone);
+    waitingCount = 0;
+    bySlot = {};
+    pending.clear();
+  }
+
+  // ----- records and wedge blocks -----
+  static unsigned blockClass(std::size_t n) {
+    unsigned k = 0;
+    while ((std::size_t{1} << k) < n) ++k;
+    return k;
+  }
+  std::uint32_t store(const SeamRecord& r, const SeamSink::Wedge* w, std::size_t n) {
+    if (n > kNone / 2) throw Error("seam step: a seam vertex with " + std::to_string(n) + " wedges");
+    Stored s;
+    s.r = r;
+    s.count = static_cast<std::uint32_t>(n);
+    if (n != 0) {
+      const unsigned k = blockClass(n);
+      if (k < freeBlocks.size() && !freeBlocks[k].empty()) {
+        s.wedge = freeBlocks[k].back();
+        freeBlocks[k].pop_back();
+      } else {
+        if (wedges.size() + (std::size_t{1} << k) > kNone) throw Error("seam step: too many seam wedges at once");
+        s.wedge = static_cast<std::uint32_t>(wedges.size());
+        wedges.resize(wedges.size() + (std::size_t{1} << k));
+      }
+      std::copy(w, w + n, wedges.begin() + s.wedge);
+    }
+    if (!freeRecs.empty()) {
+      const std::uint32_t i = freeRecs.back();
+      freeRecs.pop_back();
+      recs[i] = s;
+      return i;
+    }
+    if (recs.size() >= kNone) throw Error("seam step: too many seam vertices at once");
+    recs.push_back(s);
+    return static_cast<std::uint32_t>(recs.size() - 1);
+  }
+  void release(std::uint32_t i) {
+    Stored& s = recs[i];
+    if (s.count != 0) {
+      const unsigned k = blockClass(s.count);
+      if (k >= freeBlocks.size()) freeBlocks.resize(k + 1);
+      freeBlocks[k].push_back(s.wedge);
+    }
+    s = Stored{};
+    freeRecs.push_back(i);
+  }
+
+  // ----- the waiting table -----
+  std::size_t home(double x, double y) const { return xyHash(bitsOf(x), bitsOf(y)) & (waiting.size() - 1); }
+  bool sameXY(std::uint32_t i, double x, double y) const {
+    return bitsOf(recs[i].r.x) == bitsOf(x) && bitsOf(recs[i].r.y) == bitsOf(y);
+  }
+  // The slot of the waiting record at xy, or of the empty slot where it would go.
+  std::size_t probe(double x, double y) const {
+    const std::size_t mask = waiting.size() - 1;
+    std::size_t i = home(x, y);
+    while (waiting[i] != kNone && !sameXY(waiting[i], x, y)) i = (i + 1) & mask;
+    return i;
+  }
+  void growWaiting() {
+    std::vector<std::uint32_t> old(waiting.size() * 2, kNone);
+    old.swap(waiting);
+    for (const std::uint32_t r : old)
+      if (r != kNone) waiting[probe(recs[r].r.x, recs[r].r.y)] = r;
+  }
+  void eraseWaiting(std::size_t hole) {
+    const std::size_t mask = waiting.size() - 1;
+    for (std::size_t j = (hole + 1) & mask; waiting[j] != kNone; j = (j + 1) & mask) {
+      const std::size_t h = home(recs[waiting[j]].r.x, recs[waiting[j]].r.y);
+      const bool stay = hole <= j ? (hole < h && h <= j) : (hole < h || h <= j);
+      if (!stay) {
+        waiting[hole] = waiting[j];
+        hole = j;
+      }
+    }
+    waiting[hole] = kNone;
+    --waitingCount;
   }
 
   void flush() {
@@ -80,35 +179,39 @@ struct SeamStep::Impl : MeshSink {
   // MeshSink of the seam triangulator (slot ids).
   void begin(const MeshInfo&) override {}
   void vertex(std::uint64_t slot, double x, double y, double) override {
-    const auto it = waiting.find(XYKey{bitsOf(x), bitsOf(y)});
-    if (it == waiting.end()) throw Error("seam step: a seam vertex without a record");
-    if (slot >= bySlot.size()) bySlot.resize(std::max<std::size_t>(slot + 1, 2 * bySlot.size()));
-    bySlot[slot] = std::move(it->second);
-    waiting.erase(it);
+    const std::size_t at = probe(x, y);
+    if (waiting[at] == kNone) throw Error("seam step: a seam vertex without a record");
+    if (slot >= bySlot.size()) bySlot.resize(std::max<std::size_t>(slot + 1, 2 * bySlot.size()), kNone);
+    bySlot[slot] = waiting[at];
+    eraseWaiting(at);
   }
   void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
-    SeamRecord& A = bySlot[a];
-    SeamRecord& B = bySlot[b];
-    SeamRecord& C = bySlot[c];
-    bool missing = A.all;
+    Stored& A = recs[bySlot[a]];
+    Stored& B = recs[bySlot[b]];
+    Stored& C = recs[bySlot[c]];
+    bool missing = A.r.all;
     if (!missing) {
-      const Point2 q{A.x, A.y}, p{B.x, B.y};
-      for (const SeamSink::Wedge& w : A.wedges)
+      const Point2 q{A.r.x, A.r.y}, p{B.r.x, B.r.y};
+      for (std::uint32_t k = 0; k < A.count; ++k) {
+        const SeamSink::Wedge& w = wedges[A.wedge + k];
         if (inWedge(q, w.from, w.to, p)) {
           missing = true;
           break;
         }
+      }
     }
     if (!missing) {
       ++stats.dropped;
       return;
     }
     ++stats.written;
-    out.triangle(A, B, C);
+    out.triangle(A.r, B.r, C.r);
   }
   void finalizeVertex(std::uint64_t slot) override {
-    out.finalize(bySlot[slot]);  // a vertex of no triangle at all is still announced
-    bySlot[slot] = SeamRecord{};
+    const std::uint32_t i = bySlot[slot];
+    out.finalize(recs[i].r);  // a vertex of no triangle at all is still announced
+    release(i);
+    bySlot[slot] = kNone;
   }
   void end() override {}
 };
@@ -120,9 +223,7 @@ SeamStep::~SeamStep() = default;
 void SeamStep::begin(const StreamInfo& info) {
   Impl& m = *impl_;
   m.stats = SeamStats{};
-  m.waiting.clear();
-  m.bySlot.clear();
-  m.pending.clear();
+  m.reset();
   m.tri = std::make_unique<StreamingDelaunay>(m, m.options);
   m.tri->begin(info);
   MeshInfo mi;
@@ -131,16 +232,19 @@ void SeamStep::begin(const StreamInfo& info) {
   m.out.begin(mi);
 }
 
-void SeamStep::vertex(SeamRecord record) {
+void SeamStep::vertex(const SeamRecord& record, const SeamSink::Wedge* wedges, std::size_t n) {
   Impl& m = *impl_;
+  // Equal x and y fall in one leaf, hence one region, which merged them.  Only a point that the stream
+  // put in a neighbouring leaf (a COPC point on its node's edge) can meet its twin here: refuse rather
+  // than write two vertices at one place.
+  const std::size_t at = m.probe(record.x, record.y);
+  if (m.waiting[at] != Impl::kNone) refuseTwin(record.x, record.y);
+  m.waiting[at] = m.store(record, wedges, record.all ? 0 : n);
+  if (++m.waitingCount * 4 > m.waiting.size() * 3) m.growWaiting();
   PointRecord p;
   p.x = record.x;
   p.y = record.y;
   p.z = record.z;
-  // Equal x and y fall in one leaf, hence one region, which merged them.  Only a point that the stream
-  // put in a neighbouring leaf (a COPC point on its node's edge) can meet its twin here: refuse rather
-  // than write two vertices at one place.
-  if (!m.waiting.emplace(XYKey{bitsOf(p.x), bitsOf(p.y)}, std::move(record)).second) refuseTwin(p.x, p.y);
   m.pending.push_back(p);
   ++m.stats.vertices;
 }
@@ -155,7 +259,9 @@ void SeamStep::end() {
   m.flush();
   m.tri->end();
   // The seam triangulator merged a twin (two records at one xy that were not both waiting at once).
-  if (!m.waiting.empty()) refuseTwin(m.waiting.begin()->second.x, m.waiting.begin()->second.y);
+  if (m.waitingCount != 0)
+    for (const std::uint32_t r : m.waiting)
+      if (r != Impl::kNone) refuseTwin(m.recs[r].r.x, m.recs[r].r.y);
   m.stats.triangulator = m.tri->stats();
   m.out.end();
 }

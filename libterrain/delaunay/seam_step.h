@@ -22,13 +22,12 @@ namespace tinbuild {
 
 inline constexpr std::uint64_t kNoSeamId = ~std::uint64_t{0};
 
-// A vertex handed to the seam step.
+// A vertex handed to the seam step (its wedges are passed beside it and kept by the step).
 struct SeamRecord {
   std::uint64_t id = kNoSeamId;   // its id in its region's (or part's) output; kNoSeamId: never written there
   std::uint64_t out = kNoSeamId;  // free for the SeamOutput (an id of its own)
   double x = 0, y = 0, z = 0;
   bool all = false;  // no certified triangle uses it: every direction belongs to the seam
-  std::vector<SeamSink::Wedge> wedges;
 };
 
 // Where the seam step's triangles go.  A vertex reaches the output with its first triangle (or with its
@@ -85,9 +84,10 @@ class SeamStep {
 
   // info: the whole survey's stream (grid and bounds; the tags of S are cells of that grid).
   void begin(const StreamInfo& info);
-  // A handed-over vertex.  Two records at one xy (a point the stream put in a neighbouring leaf, with
-  // its twin in that leaf) are refused with an Error rather than written twice.
-  void vertex(SeamRecord record);
+  // A handed-over vertex and its n seam wedges (none when record.all).  Two records at one xy (a point
+  // the stream put in a neighbouring leaf, with its twin in that leaf) are refused with an Error rather
+  // than written twice.
+  void vertex(const SeamRecord& record, const SeamSink::Wedge* wedges, std::size_t n);
   // Every seam vertex inside `cell` has been handed over.
   void tag(const CellTag& cell);
   void end();

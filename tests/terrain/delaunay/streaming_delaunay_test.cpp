@@ -1384,6 +1384,7 @@ struct SeamRecorder : SeamSink {
   struct Item {
     bool isTag = false;
     SeamRecord record;
+    std::vector<SeamSink::Wedge> wedges;
     CellTag tag;
   };
   std::vector<Item> items;
@@ -1394,7 +1395,7 @@ struct SeamRecorder : SeamSink {
     it.record.y = y;
     it.record.z = z;
     it.record.all = all;
-    it.record.wedges.assign(w, w + n);
+    it.wedges.assign(w, w + n);
     items.push_back(std::move(it));
   }
   void seamTag(const CellTag& c) override {
@@ -1463,7 +1464,7 @@ Result triangulateInParts(const Points& pts, int depth, int level, int parts, in
       if (item.isTag)
         step.tag(item.tag);
       else
-        step.vertex(std::move(item.record));
+        step.vertex(item.record, item.wedges.data(), item.wedges.size());
     }
   step.end();
   EXPECT_EQ(step.stats().written, collector.triangles.size());
