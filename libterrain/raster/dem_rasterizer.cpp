@@ -110,11 +110,19 @@ bool pixelAt(const DemLayout& l, double x, double y, std::int64_t& i, std::int64
   return i >= l.colMin && i <= l.colMax && j >= l.rowMin && j <= l.rowMax;
 }
 
-// Open tiles hold their bands in blocks of 256 x 256 pixels (a power of two: the pixel loop finds the
-// block and the place in it with shifts and masks).
-constexpr int kBlockShift = 8;
-constexpr std::int64_t kBlockSize = std::int64_t{1} << kBlockShift;
-constexpr std::int64_t kBlockMask = kBlockSize - 1;
+// Open tiles hold their bands in blocks of 256 x 64 pixels (powers of two: the pixel loop finds the
+// block and the place in it with shifts and masks).  Short blocks because a survey swept in rows keeps
+// a band of partly filled blocks open along its front, as wide as the survey: at 10^9 points (a DEM
+// 7,906 pixels wide) 256 x 256 blocks held 17.9 MB there.  Strips (DemTileSink::takesStrips) stay 256
+// rows, the output files' block height: four block rows each.
+constexpr int kBlockShiftX = 8;
+constexpr int kBlockShiftY = 6;
+constexpr std::int64_t kBlockWidth = std::int64_t{1} << kBlockShiftX;
+constexpr std::int64_t kBlockHeight = std::int64_t{1} << kBlockShiftY;
+constexpr std::int64_t kBlockMaskX = kBlockWidth - 1;
+constexpr std::int64_t kBlockMaskY = kBlockHeight - 1;
+constexpr int kStripRows = 256;
+static_assert(kStripRows % kBlockHeight == 0, "a strip is whole block rows");
 
 // Sizes the bands the options ask for (a tile's or a block's) to n pixels of their empty value.
 template <class Bands>
@@ -283,14 +291,14 @@ DemRasterizer::Open& DemRasterizer::tileAt(std::int64_t tx, std::int64_t ty) {
   t.row0 = px.row0;
   t.width = static_cast<int>(px.col1 - px.col0 + 1);
   t.height = static_cast<int>(px.row1 - px.row0 + 1);
-  o->blocksX = (t.width + kBlockMask) >> kBlockShift;
-  const std::int64_t blocksY = (t.height + kBlockMask) >> kBlockShift;
+  o->blocksX = (t.width + kBlockMaskX) >> kBlockShiftX;
+  const std::int64_t blocksY = (t.height + kBlockMaskY) >> kBlockShiftY;
   o->blocks.resize(static_cast<std::size_t>(o->blocksX * blocksY));
   for (std::int64_t by = 0; by < blocksY; ++by)
     for (std::int64_t bx = 0; bx < o->blocksX; ++bx) {
       Block& b = o->blocks[static_cast<std::size_t>(by * o->blocksX + bx)];
-      const std::int64_t w = std::min(kBlockSize, t.width - (bx << kBlockShift));
-      const std::int64_t h = std::min(kBlockSize, t.height - (by << kBlockShift));
+      const std::int64_t w = std::min(kBlockWidth, t.width - (bx << kBlockShiftX));
+      const std::int64_t h = std::min(kBlockHeight, t.height - (by << kBlockShiftY));
       b.width = static_cast<std::uint16_t>(w);
       b.pixels = static_cast<std::uint32_t>(w * h);
     }
@@ -361,13 +369,13 @@ void DemRasterizer::vertex(const MeshVertex& v) {
   Open& o = tileAt(tx, ty);
   const DemTile& t = o.tile;
   const std::int64_t r = t.row0 + t.height - 1 - j, c = i - t.col0;
-  Block& b = o.blocks[static_cast<std::size_t>((r >> kBlockShift) * o.blocksX + (c >> kBlockShift))];
+  Block& b = o.blocks[static_cast<std::size_t>((r >> kBlockShiftY) * o.blocksX + (c >> kBlockShiftX))];
   // (With the count band no block is ever full, so none is spilled.)
   if (b.state == Block::State::Spilled)
     throw Error("DEM: internal error: a vertex reached a full block of tile (" + std::to_string(tx) + ", " +
                 std::to_string(ty) + ")");
   if (b.state == Block::State::Absent) allocate(b);
-  const auto idx = static_cast<std::size_t>((r & kBlockMask) * b.width + (c & kBlockMask));
+  const auto idx = static_cast<std::size_t>((r & kBlockMaskY) * b.width + (c & kBlockMaskX));
   if (b.count[idx] == 0 && b.z[idx] == opt_.nodata) ++o.dataPixels;
   if (b.count[idx] < 65535) ++b.count[idx];
 }
@@ -446,13 +454,13 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
       if (cur != rowTile) {
         rowTile = cur;
         const std::int64_t r = t.row0 + t.height - 1 - j;
-        rowBlocks = (r >> kBlockShift) * cur->blocksX;
-        blockRow = r & kBlockMask;
+        rowBlocks = (r >> kBlockShiftY) * cur->blocksX;
+        blockRow = r & kBlockMaskY;
         blockCol = -1;
       }
       const std::int64_t col = i - t.col0;
-      if ((col >> kBlockShift) != blockCol) {
-        blockCol = col >> kBlockShift;
+      if ((col >> kBlockShiftX) != blockCol) {
+        blockCol = col >> kBlockShiftX;
         blockIndex = static_cast<std::uint32_t>(rowBlocks + blockCol);
         blk = &cur->blocks[blockIndex];
         // A spilled block was full: every pixel centre of it had its triangle already.
@@ -462,7 +470,7 @@ void DemRasterizer::triangle(const MeshVertex& va, const MeshVertex& vb, const M
         rowStart = static_cast<std::size_t>(blockRow * blk->width);
       }
       Block& block = *blk;
-      const std::size_t idx = rowStart + static_cast<std::size_t>(col & kBlockMask);
+      const std::size_t idx = rowStart + static_cast<std::size_t>(col & kBlockMaskX);
       any = true;
       // Every pixel centre belongs to exactly one triangle: when all of a tile's have theirs, no later
       // triangle can change the tile, so it is complete (at this point of the stream, whatever the
@@ -522,8 +530,8 @@ void DemRasterizer::complete(std::int64_t key) {
     const std::uint64_t bytes = b.pixels * pixelBytes_;
     const std::size_t bw = b.width, bh = b.pixels / b.width;
     const auto width = static_cast<std::size_t>(into.width);
-    const auto x0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) % o->blocksX) << kBlockShift;
-    const auto y0 = (static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShift) - rowOffset;
+    const auto x0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) % o->blocksX) << kBlockShiftX;
+    const auto y0 = (static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShiftY) - rowOffset;
     if (b.state == Block::State::Spilled) {
       if (!empty) {
         readBuffer_.resize(static_cast<std::size_t>(bytes));
@@ -551,13 +559,15 @@ void DemRasterizer::complete(std::int64_t key) {
     strip.ty = t.ty;
     strip.col0 = t.col0;
     strip.width = t.width;
-    for (std::int64_t by = 0; by < blocksY; ++by) {
-      const int y0 = static_cast<int>(by << kBlockShift);
-      strip.height = std::min(t.height - y0, static_cast<int>(kBlockMask + 1));
+    constexpr std::int64_t kStripBlocks = kStripRows / kBlockHeight;
+    for (std::int64_t sy = 0; sy * kStripBlocks < blocksY; ++sy) {
+      const int y0 = static_cast<int>(sy * kStripRows);
+      strip.height = std::min(t.height - y0, kStripRows);
       strip.row0 = t.row0 + (t.height - y0 - strip.height);
       assignBands(strip, static_cast<std::size_t>(strip.width) * static_cast<std::size_t>(strip.height), opt_);
-      for (std::int64_t bx = 0; bx < o->blocksX; ++bx)
-        place(static_cast<std::size_t>(by * o->blocksX + bx), strip, static_cast<std::size_t>(y0));
+      for (std::int64_t by = sy * kStripBlocks; by < std::min(blocksY, (sy + 1) * kStripBlocks); ++by)
+        for (std::int64_t bx = 0; bx < o->blocksX; ++bx)
+          place(static_cast<std::size_t>(by * o->blocksX + bx), strip, static_cast<std::size_t>(y0));
       out_.tileStrip(t, y0, strip);
     }
     ++stats_.tilesWritten;

@@ -40,7 +40,7 @@
 // are dropped (not written).  end() completes the rest in row-major order.
 //
 // Memory.  A survey swept in rows keeps a whole row of tiles open, so whole-tile arrays would grow with
-// the survey's width.  An open tile therefore holds its bands in blocks of 256 x 256 pixels (clipped at
+// the survey's width.  An open tile therefore holds its bands in blocks of 256 x 64 pixels (clipped at
 // the tile's east and south edges, in the tile's north-up row-major order), allocated when a pixel in
 // them is first written; a block never written stays absent and means nodata (0 for hillshade and count).
 // Each block counts the pixel centres assigned to it: when all have their triangle and there is no count
@@ -143,8 +143,8 @@ class DemTileSink {
   virtual void begin(const DemLayout& layout, const MeshInfo& info) = 0;
   virtual void tile(const DemTile& tile) = 0;
   virtual void end() = 0;
-  // A sink that answers true takes each complete tile in strips, one per row of the rasterizer's
-  // 256-pixel blocks from north to south, instead of whole: tileStrip(tile, y0, strip), where `tile` has
+  // A sink that answers true takes each complete tile in strips of 256 rows (the output files' block
+  // height; four rows of the rasterizer's blocks) from north to south, instead of whole: tileStrip(tile, y0, strip), where `tile` has
   // the tile's place, size and validPixels (its bands empty) and `strip` holds its rows [y0, y0 +
   // strip.height) (north-up; strip.row0 is the strip's own south row).  The tile is then never held
   // whole (a 2048 x 2048 tile is 16 MiB a float band; a strip is 2 MiB).  Partial tiles

@@ -414,7 +414,7 @@ struct TileCollector : DemTileSink {
 };
 
 // Takes the tiles in strips (DemTileSink::takesStrips) and puts each tile together again, checking that
-// the strips come north to south, one block row (256 pixels) each, and cover the tile exactly.
+// the strips come north to south, 256 rows (four block rows) each, and cover the tile exactly.
 struct StripCollector : TileCollector {
   DemTile building;
   int nextY = 0;
@@ -489,9 +489,10 @@ void expectSameTiles(const TileCollector& a, const TileCollector& b, const std::
 }
 
 // A budget spills the full blocks of open tiles and reads them back at completion: the tiles are those of
-// a run without a budget, bit for bit.  Tile sizes: one block per tile (64: a full block is a full tile,
-// handed over at once, so nothing is left to spill), a block and a clipped one (300: not a multiple of
-// 256), four blocks a side (1024: the tiles this is for, where far less is held at once).  The raster
+// a run without a budget, bit for bit.  Tile sizes (blocks of 256 x 64): one block per tile (64: a full
+// block is a full tile, handed over at once, so nothing is left to spill), blocks and clipped ones (300:
+// a multiple of neither 256 nor 64), 4 x 16 blocks (1024: the tiles this is for, where far less is held
+// at once).  The raster
 // (about 1500 pixels a side, within the TIN so every block fills) clips the last tiles too.
 TEST(DemRasterizer, MemoryBudgetSpillsFullBlocksWithoutChangingTiles) {
   const auto pts = survey(SurveySpec::Kind::FlightStrips, 200000);
