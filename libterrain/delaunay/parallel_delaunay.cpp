@@ -110,7 +110,7 @@ struct OutChunk {
 int ParallelDelaunay::chooseRegionLevel(std::uint64_t points, int depth) {
   if (points < 600000) return 0;
   int level = 1;
-  while (level < 3 && (points >> (2 * (level + 1))) >= 150000) ++level;
+  while (level < 2 && (points >> (2 * (level + 1))) >= 150000) ++level;
   return std::min(level, depth);
 }
 

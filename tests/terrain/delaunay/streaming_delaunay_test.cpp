@@ -1595,8 +1595,8 @@ TEST(ParallelDelaunay, ChoosesRegionsFromThePointCount) {
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(100000, 6), 0);
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000, 6), 1);
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(3000000, 7), 2);
-  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(10000000, 8), 3);
-  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000000, 11), 3);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(10000000, 8), 2);
+  EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(1000000000, 11), 2);
   EXPECT_EQ(ParallelDelaunay::chooseRegionLevel(10000000, 2), 2);
 }
 
