@@ -370,8 +370,8 @@ std::vector<std::string> stageNames(const PointFilter& filter) {
 MemoryShares memoryShares(std::size_t budget) {
   MemoryShares m;
   m.budget = budget;
-  m.chunks = std::max<std::size_t>(budget / 16 * 5, std::size_t{1} << 20);
-  m.tables = std::max<std::size_t>(budget / 16 * 3, std::size_t{1} << 20);
+  m.chunks = std::max<std::size_t>(budget / 16 * 3, std::size_t{1} << 20);
+  m.tables = std::max<std::size_t>(budget / 16 * 5, std::size_t{1} << 20);
   m.demTiles = std::max<std::size_t>(budget / 4, std::size_t{1} << 20);
   m.regionQueuePoints = std::clamp<std::size_t>(budget / 32 / sizeof(PointRecord), std::size_t{1} << 14,
                                                 std::size_t{1} << 16);

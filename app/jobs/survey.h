@@ -79,8 +79,12 @@ Survey openSurvey(const PipelineOptions& o, Diagnostics& diag, bool needIntensit
 
 // How a run spends its memory budget (--memory, held in PipelineOptions::finalizer.memoryBudget): the
 // buffers that would otherwise grow with the survey get a share each, and spill or wait beyond it.
-//   chunks       the finalizer's waiting chunks (5/16; spilled to a temporary file beyond it)
-//   tables       the finalizer's per-cell tables (3/16; a coarser fine depth, then a coarser leaf depth)
+//   chunks       the finalizer's waiting chunks (3/16; spilled to a temporary file beyond it)
+//   tables       the finalizer's per-cell tables (5/16; a coarser fine depth, then a coarser leaf depth)
+// The tables get the larger share because their fallback costs more: a coarser leaf depth makes every
+// chunk, and with it every region's triangulator, four times bigger, while chunks beyond their share
+// only cost a write and a read of the spill file (10^9 points: 128 bytes a leaf, 65,536 leaves at depth
+// 8, so --memory 32 keeps depth 8).
 //   demTiles     the DEM's open tiles (1/4; full blocks spilled to a temporary file beyond it)
 //   regionQueue  points queued for the triangulator's regions (1/32, 16,384 .. 65,536 points: at 10M
 //                points a deeper queue bought 3% of time for 9 MiB, 1.31x the one-region build's peak)

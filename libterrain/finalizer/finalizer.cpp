@@ -42,9 +42,9 @@ constexpr int kMaxAutoDepth = 12;
 constexpr std::uint64_t kNoCandidate = ~std::uint64_t{0};  // a fine cell or leaf without a sprinkle point
 // What the per-cell tables cost (FinalizerOptions::tableBudget): an occupied fine cell of pass 2 (its
 // FineCell, a Morton key in buildTree, the vector's growth) and an occupied leaf in pass 3 (Leaf, Node,
-// its sprinkle record, its chunk, the index; measured 128 bytes).
+// its sprinkle record, its chunk, the index: 123 bytes a leaf measured by heaptrack at 10^9 points, depth 8).
 constexpr std::uint64_t kFineCellBytes = 80;
-constexpr std::uint64_t kLeafBytes = 160;
+constexpr std::uint64_t kLeafBytes = 128;
 constexpr double kTargetPerCell = 1000;  // default depth: occupied cells hold at least this many on average
 
 std::uint64_t mix64(std::uint64_t z) {

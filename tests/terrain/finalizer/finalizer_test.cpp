@@ -1210,8 +1210,8 @@ TEST(Finalizer, TableBudgetCoarsensTheFineTableThenTheLeaves) {
   ASSERT_EQ(full.stats.grid.depth, 3);
   EXPECT_EQ(full.stats.fineDepth, 4);
   FinalizerOptions o = noFilter();
-  // Estimates (kFineCellBytes 80, 4 bytes a dense count, kLeafBytes 160): fine depth 4 (256 cells)
-  // 21,504 bytes, 3 5,376; the 64 leaves of depth 3 10,240, the 16 of depth 2 2,560.
+  // Estimates (kFineCellBytes 80, 4 bytes a dense count, kLeafBytes 128): fine depth 4 (256 cells)
+  // 21,504 bytes, 3 5,376; the 64 leaves of depth 3 8,192, the 16 of depth 2 2,048.
   o.tableBudget = 21504;  // exactly depth 4's fine table
   Result fine4 = finalize(pts, o);
   EXPECT_EQ(fine4.stats.fineDepth, 4);
@@ -1222,7 +1222,7 @@ TEST(Finalizer, TableBudgetCoarsensTheFineTableThenTheLeaves) {
   EXPECT_EQ(fine3.stats.fineDepth, 3);
   EXPECT_EQ(fine3.stats.grid.depth, 3);
   EXPECT_EQ(checkStream(pts, fine3.sink), "");
-  o.tableBudget = 64 * 160 - 1;  // not even the leaves of depth 3: depth 2, chunks four times as big
+  o.tableBudget = 64 * 128 - 1;  // not even the leaves of depth 3: depth 2, chunks four times as big
   Result coarse = finalize(pts, o);
   EXPECT_EQ(coarse.stats.grid.depth, 2);
   EXPECT_EQ(checkStream(pts, coarse.sink), "");
