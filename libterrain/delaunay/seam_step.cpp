@@ -3,7 +3,9 @@
 
 #include <algorithm>
 #include <cstring>
+#include <memory>
 #include <string>
+#include <unordered_map>
 
 #include "libterrain/core/error.h"
 #include "libterrain/delaunay/predicates.h"
@@ -48,30 +50,57 @@ std::size_t xyHash(std::uint64_t x, std::uint64_t y) {
               ") came twice, in two regions (a point on a COPC node's edge); run with --region-level 0");
 }
 
+// Fixed pages, so that growing never copies the array and its capacity stays within a page of the peak
+// (a doubling vector holds up to twice the peak, and old and new at once while it grows).
+template <class T, unsigned Shift>
+class PagedArray {
+ public:
+  static constexpr std::size_t kPage = std::size_t{1} << Shift;
+  T& operator[](std::size_t i) { return pages_[i >> Shift][i & (kPage - 1)]; }
+  const T& operator[](std::size_t i) const { return pages_[i >> Shift][i & (kPage - 1)]; }
+  std::size_t size() const { return size_; }
+  // Appends n elements (n <= kPage, and size() + n may not cross a page unless size() is at a page's start).
+  std::size_t append(std::size_t n) {
+    const std::size_t first = size_;
+    size_ += n;
+    while (pages_.size() * kPage < size_) pages_.push_back(std::make_unique<T[]>(kPage));
+    return first;
+  }
+
+ private:
+  std::vector<std::unique_ptr<T[]>> pages_;
+  std::size_t size_ = 0;
+};
+
 }  // namespace
 
-// The records live in flat arrays, not one heap node and one wedge vector per vertex (at 10^9 points the
-// node-and-vector layout held about 20 MB of seam records at the peak):
-//   recs      the records and where their wedges are, recycled through freeRecs;
-//   wedges    one pool of wedges, in blocks of 2^k, recycled through freeBlocks[k];
+// The records live in flat, paged arrays, not one heap node and one wedge vector per vertex (at 10^9
+// points the node-and-vector layout held about 20 MB of seam records at the peak):
+//   recs      the records and where their wedges are, a free list through the freed ones;
+//   wedges    one pool of wedges in blocks of 2^k wedges, each aligned to its size (so none crosses a
+//             page), recycled through freeBlocks[k]; a vertex with more wedges than a page keeps them
+//             in `big`;
 //   waiting   an open-addressing table (linear probing, backward-shift deletion) of the records handed
 //             over and not yet met by the triangulator, by xy;
 //   bySlot    the seam triangulator's vertex slot -> record.
 struct SeamStep::Impl : MeshSink {
   static constexpr std::uint32_t kNone = 0xffffffffu;
+  static constexpr unsigned kWedgeShift = 11;
+  static constexpr std::uint32_t kBig = kNone;  // Stored::wedge of a vertex whose wedges are in `big`
   struct Stored {
     SeamRecord r;
-    std::uint32_t wedge = 0, count = 0;  // wedges[wedge, wedge + count)
+    std::uint32_t wedge = 0, count = 0;  // wedges[wedge, wedge + count); a free record: wedge = next free
   };
 
   SeamOutput& out;
   DelaunayOptions options;
   SeamStats stats;
   std::unique_ptr<StreamingDelaunay> tri;
-  std::vector<Stored> recs;
-  std::vector<std::uint32_t> freeRecs;
-  std::vector<SeamSink::Wedge> wedges;
+  PagedArray<Stored, 10> recs;
+  std::uint32_t freeRec = kNone;
+  PagedArray<SeamSink::Wedge, kWedgeShift> wedges;
   std::vector<std::vector<std::uint32_t>> freeBlocks;
+  std::unordered_map<std::uint32_t, std::vector<SeamSink::Wedge>> big;  // by record
   std::vector<std::uint32_t> waiting;
   std::size_t waitingCount = 0;
   std::vector<std::uint32_t> bySlot;
@@ -85,9 +114,10 @@ struct SeamStep::Impl : MeshSink {
 
   void reset() {
     recs = {};
-    freeRecs = {};
+    freeRec = kNone;
     wedges = {};
     freeBlocks = {};
+    big = {};
     waiting.assign(64, kNone);
     waitingCount = 0;
     bySlot = {};
@@ -100,42 +130,60 @@ struct SeamStep::Impl : MeshSink {
     while ((std::size_t{1} << k) < n) ++k;
     return k;
   }
+  void freeBlock(std::uint32_t at, unsigned k) {
+    if (k >= freeBlocks.size()) freeBlocks.resize(k + 1);
+    freeBlocks[k].push_back(at);
+  }
+  // A block of 2^k wedges (2^k <= a page), aligned to its size: the pool's end is first padded to a
+  // multiple of 2^k with the aligned blocks that fill the gap, which go to their free lists.
+  std::uint32_t newBlock(unsigned k) {
+    if (k < freeBlocks.size() && !freeBlocks[k].empty()) {
+      const std::uint32_t at = freeBlocks[k].back();
+      freeBlocks[k].pop_back();
+      return at;
+    }
+    const std::size_t size = std::size_t{1} << k;
+    if (wedges.size() + 2 * size > kNone) throw Error("seam step: too many seam wedges at once");
+    while (wedges.size() & (size - 1)) {
+      const std::size_t gap = wedges.size() & (~wedges.size() + 1);  // the end's alignment
+      freeBlock(static_cast<std::uint32_t>(wedges.append(gap)), blockClass(gap));
+    }
+    return static_cast<std::uint32_t>(wedges.append(size));
+  }
   std::uint32_t store(const SeamRecord& r, const SeamSink::Wedge* w, std::size_t n) {
     if (n > kNone / 2) throw Error("seam step: a seam vertex with " + std::to_string(n) + " wedges");
-    Stored s;
+    std::uint32_t i = freeRec;
+    if (i != kNone) {
+      freeRec = recs[i].wedge;
+    } else {
+      if (recs.size() >= kNone) throw Error("seam step: too many seam vertices at once");
+      i = static_cast<std::uint32_t>(recs.append(1));
+    }
+    Stored& s = recs[i];
     s.r = r;
     s.count = static_cast<std::uint32_t>(n);
-    if (n != 0) {
-      const unsigned k = blockClass(n);
-      if (k < freeBlocks.size() && !freeBlocks[k].empty()) {
-        s.wedge = freeBlocks[k].back();
-        freeBlocks[k].pop_back();
-      } else {
-        if (wedges.size() + (std::size_t{1} << k) > kNone) throw Error("seam step: too many seam wedges at once");
-        s.wedge = static_cast<std::uint32_t>(wedges.size());
-        wedges.resize(wedges.size() + (std::size_t{1} << k));
-      }
-      std::copy(w, w + n, wedges.begin() + s.wedge);
+    s.wedge = 0;
+    if (n > decltype(wedges)::kPage) {
+      s.wedge = kBig;
+      big[i].assign(w, w + n);
+    } else if (n != 0) {
+      s.wedge = newBlock(blockClass(n));
+      for (std::size_t k = 0; k < n; ++k) wedges[s.wedge + k] = w[k];
     }
-    if (!freeRecs.empty()) {
-      const std::uint32_t i = freeRecs.back();
-      freeRecs.pop_back();
-      recs[i] = s;
-      return i;
-    }
-    if (recs.size() >= kNone) throw Error("seam step: too many seam vertices at once");
-    recs.push_back(s);
-    return static_cast<std::uint32_t>(recs.size() - 1);
+    return i;
+  }
+  const SeamSink::Wedge& wedgeOf(std::uint32_t i, const Stored& s, std::uint32_t k) const {
+    return s.wedge == kBig ? big.at(i)[k] : wedges[s.wedge + k];
   }
   void release(std::uint32_t i) {
     Stored& s = recs[i];
-    if (s.count != 0) {
-      const unsigned k = blockClass(s.count);
-      if (k >= freeBlocks.size()) freeBlocks.resize(k + 1);
-      freeBlocks[k].push_back(s.wedge);
-    }
+    if (s.wedge == kBig)
+      big.erase(i);
+    else if (s.count != 0)
+      freeBlock(s.wedge, blockClass(s.count));
     s = Stored{};
-    freeRecs.push_back(i);
+    s.wedge = freeRec;
+    freeRec = i;
   }
 
   // ----- the waiting table -----
@@ -186,14 +234,15 @@ struct SeamStep::Impl : MeshSink {
     eraseWaiting(at);
   }
   void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
-    Stored& A = recs[bySlot[a]];
+    const std::uint32_t ia = bySlot[a];
+    Stored& A = recs[ia];
     Stored& B = recs[bySlot[b]];
     Stored& C = recs[bySlot[c]];
     bool missing = A.r.all;
     if (!missing) {
       const Point2 q{A.r.x, A.r.y}, p{B.r.x, B.r.y};
       for (std::uint32_t k = 0; k < A.count; ++k) {
-        const SeamSink::Wedge& w = wedges[A.wedge + k];
+        const SeamSink::Wedge& w = wedgeOf(ia, A, k);
         if (inWedge(q, w.from, w.to, p)) {
           missing = true;
           break;

@@ -1522,6 +1522,54 @@ TEST(ParallelDelaunay, PartsOnDegenerateInput) {
   expectPartsMatch(corner, 5, 2, "empty parts");
 }
 
+// The seam step's wedge store: vertices with more wedges than a page of the pool (kept aside), and blocks
+// of many sizes.  Six small triangles far apart, each in its own cell, every vertex with n narrow wedges
+// that hold no direction towards another point (from (-1,-1) to (-1,-2) counter-clockwise: south-west,
+// and every other point lies north or east of it or in a direction far from that) and, when `open`, a
+// full turn at the end (from == to).  Open: every triangle of DT(S) is written, as when every vertex is
+// `all`; closed: none.
+TEST(SeamStep, ManyWedgesAndBlocksOfEverySize) {
+  auto run = [](std::size_t n, int mode) {  // mode 0: closed, 1: open, 2: all
+    SeamCollector collector;
+    SeamStep step(collector, DelaunayOptions{});
+    StreamInfo info;
+    info.bounds.minX = info.bounds.minY = info.bounds.minZ = info.bounds.maxZ = 0;
+    info.bounds.maxX = info.bounds.maxY = 1000;
+    info.grid = makeGrid(info.bounds, 3);  // cells of 125
+    step.begin(info);
+    for (int copy = 0; copy < 6; ++copy) {
+      const double ox = 10.0 + 250.0 * (copy % 4), oy = 10.0 + 500.0 * (copy / 4);
+      for (const Point2& c : {Point2{ox, oy}, Point2{ox + 1, oy}, Point2{ox, oy + 1}}) {
+        // Wedge counts vary from vertex to vertex, so blocks of several classes are in use at once.
+        const std::size_t k = n + static_cast<std::size_t>(copy);
+        std::vector<SeamSink::Wedge> w(k, SeamSink::Wedge{Point2{c.x - 1, c.y - 1}, Point2{c.x - 1, c.y - 2}});
+        if (mode == 1) w.push_back(SeamSink::Wedge{Point2{c.x + 1, c.y}, Point2{c.x + 1, c.y}});
+        SeamRecord r;
+        r.id = 100 + static_cast<std::uint64_t>(copy);  // written by its region
+        r.x = c.x;
+        r.y = c.y;
+        r.all = mode == 2;
+        step.vertex(r, w.data(), mode == 2 ? 0 : w.size());
+      }
+      step.tag(CellTag{3, static_cast<std::uint32_t>(ox / 125.0), static_cast<std::uint32_t>(oy / 125.0)});
+    }
+    step.tag(CellTag{0, 0, 0});
+    step.end();
+    EXPECT_EQ(step.stats().vertices, 18u);
+    EXPECT_EQ(step.stats().written, collector.triangles.size());
+    std::sort(collector.triangles.begin(), collector.triangles.end());
+    return collector.triangles;
+  };
+  const auto all = run(0, 2);
+  ASSERT_GE(all.size(), 6u);
+  for (std::size_t n : {std::size_t{0}, std::size_t{1}, std::size_t{3}, std::size_t{2045}, std::size_t{2048},
+                        std::size_t{5000}}) {
+    SCOPED_TRACE("n " + std::to_string(n));
+    EXPECT_TRUE(run(n, 0).empty());
+    EXPECT_EQ(run(n, 1), all);
+  }
+}
+
 // A broken stream is an error whatever thread meets it (a worker's error comes back by a later call).
 TEST(ParallelDelaunay, RejectsBrokenStreams) {
   const Points pts = randomPoints(2000, 1);
