@@ -59,7 +59,8 @@ class PagedArray {
   T& operator[](std::size_t i) { return pages_[i >> Shift][i & (kPage - 1)]; }
   const T& operator[](std::size_t i) const { return pages_[i >> Shift][i & (kPage - 1)]; }
   std::size_t size() const { return size_; }
-  // Appends n elements (n <= kPage, and size() + n may not cross a page unless size() is at a page's start).
+  // Appends n elements; the index of the first.  They lie in one page when n <= kPage is a power of two
+  // and size() a multiple of n (the callers' aligned blocks).
   std::size_t append(std::size_t n) {
     const std::size_t first = size_;
     size_ += n;
