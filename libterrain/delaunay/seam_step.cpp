@@ -106,6 +106,7 @@ struct SeamStep::Impl : MeshSink {
   std::size_t waitingCount = 0;
   std::vector<std::uint32_t> bySlot;
   std::vector<PointRecord> pending;
+  std::vector<SeamSink::Wedge> joined;  // store()'s scratch
 
   Impl(SeamOutput& o, const DelaunayOptions& d) : out(o), options(d) {
     options.diagnostics = nullptr;  // the regions report duplicates
@@ -151,7 +152,33 @@ struct SeamStep::Impl : MeshSink {
     }
     return static_cast<std::uint32_t>(wedges.append(size));
   }
-  std::uint32_t store(const SeamRecord& r, const SeamSink::Wedge* w, std::size_t n) {
+  // Joins contiguous wedges: when one's `to` is another's `from` (the angles at the vertex of two seam
+  // triangles that share an edge, or of one and the hull's outside), [a, b) and [b, c) counter-clockwise
+  // are [a, c).  The sectors around a vertex are disjoint, so a union never exceeds one turn, and a chain
+  // that closes on itself becomes the whole turn (from == to, inWedge's full turn).  The same rays pass
+  // the test as before; at 10^9 points the seam's wedges took 5.2 MB (about three a vertex).
+  static bool samePoint(const Point2& a, const Point2& b) { return a.x == b.x && a.y == b.y; }
+  std::size_t joinWedges(const SeamSink::Wedge* w, std::size_t n) {
+    joined.assign(w, w + n);
+    if (n > 64) return n;  // rare: kept as they are
+    for (bool again = true; again;) {
+      again = false;
+      for (std::size_t i = 0; i < joined.size() && !again; ++i) {
+        if (samePoint(joined[i].from, joined[i].to)) continue;  // the whole turn already
+        for (std::size_t j = 0; j < joined.size(); ++j) {
+          if (j == i || !samePoint(joined[i].to, joined[j].from) || samePoint(joined[j].from, joined[j].to)) continue;
+          joined[i].to = joined[j].to;
+          joined.erase(joined.begin() + static_cast<std::ptrdiff_t>(j));
+          again = true;
+          break;
+        }
+      }
+    }
+    return joined.size();
+  }
+  std::uint32_t store(const SeamRecord& r, const SeamSink::Wedge* given, std::size_t n) {
+    n = joinWedges(given, n);
+    const SeamSink::Wedge* w = joined.data();
     if (n > kNone / 2) throw Error("seam step: a seam vertex with " + std::to_string(n) + " wedges");
     std::uint32_t i = freeRec;
     if (i != kNone) {
