@@ -112,6 +112,7 @@ struct SeamStep::Impl : MeshSink {
     options.diagnostics = nullptr;  // the regions report duplicates
     options.slotIds = true;
     options.region = RegionSpec{};
+    reset();
   }
 
   void reset() {
@@ -166,7 +167,8 @@ struct SeamStep::Impl : MeshSink {
       for (std::size_t i = 0; i < joined.size() && !again; ++i) {
         if (samePoint(joined[i].from, joined[i].to)) continue;  // the whole turn already
         for (std::size_t j = 0; j < joined.size(); ++j) {
-          if (j == i || !samePoint(joined[i].to, joined[j].from) || samePoint(joined[j].from, joined[j].to)) continue;
+          if (j == i || !samePoint(joined[i].to, joined[j].from) || samePoint(joined[j].from, joined[j].to))
+            continue;
           joined[i].to = joined[j].to;
           joined.erase(joined.begin() + static_cast<std::ptrdiff_t>(j));
           again = true;

@@ -531,7 +531,8 @@ void DemRasterizer::complete(std::int64_t key) {
     const std::size_t bw = b.width, bh = b.pixels / b.width;
     const auto width = static_cast<std::size_t>(into.width);
     const auto x0 = static_cast<std::size_t>(static_cast<std::int64_t>(k) % o->blocksX) << kBlockShiftX;
-    const auto y0 = (static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShiftY) - rowOffset;
+    const auto y0 =
+        (static_cast<std::size_t>(static_cast<std::int64_t>(k) / o->blocksX) << kBlockShiftY) - rowOffset;
     if (b.state == Block::State::Spilled) {
       if (!empty) {
         readBuffer_.resize(static_cast<std::size_t>(bytes));

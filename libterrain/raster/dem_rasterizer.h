@@ -144,9 +144,10 @@ class DemTileSink {
   virtual void tile(const DemTile& tile) = 0;
   virtual void end() = 0;
   // A sink that answers true takes each complete tile in strips of 256 rows (the output files' block
-  // height; four rows of the rasterizer's blocks) from north to south, instead of whole: tileStrip(tile, y0, strip), where `tile` has
-  // the tile's place, size and validPixels (its bands empty) and `strip` holds its rows [y0, y0 +
-  // strip.height) (north-up; strip.row0 is the strip's own south row).  The tile is then never held
+  // height; four rows of the rasterizer's blocks) from north to south, instead of whole:
+  // tileStrip(tile, y0, strip), where `tile` has the tile's place, size and validPixels (its bands
+  // empty) and `strip` holds its rows [y0, y0 + strip.height) (north-up; strip.row0 is the strip's own
+  // south row).  The tile is then never held
   // whole (a 2048 x 2048 tile is 16 MiB a float band; a strip is 2 MiB).  Partial tiles
   // (DemOptions::partial) always come whole.
   virtual bool takesStrips() const { return false; }

@@ -1542,7 +1542,8 @@ TEST(SeamStep, ManyWedgesAndBlocksOfEverySize) {
       for (const Point2& c : {Point2{ox, oy}, Point2{ox + 1, oy}, Point2{ox, oy + 1}}) {
         // Wedge counts vary from vertex to vertex, so blocks of several classes are in use at once.
         const std::size_t k = n + static_cast<std::size_t>(copy);
-        std::vector<SeamSink::Wedge> w(k, SeamSink::Wedge{Point2{c.x - 1, c.y - 1}, Point2{c.x - 1, c.y - 2}});
+        std::vector<SeamSink::Wedge> w(k,
+                                       SeamSink::Wedge{Point2{c.x - 1, c.y - 1}, Point2{c.x - 1, c.y - 2}});
         if (mode == 1) w.push_back(SeamSink::Wedge{Point2{c.x + 1, c.y}, Point2{c.x + 1, c.y}});
         SeamRecord r;
         r.id = 100 + static_cast<std::uint64_t>(copy);  // written by its region
