@@ -157,7 +157,7 @@ struct SeamStep::Impl : MeshSink {
   // triangles that share an edge, or of one and the hull's outside), [a, b) and [b, c) counter-clockwise
   // are [a, c).  The sectors around a vertex are disjoint, so a union never exceeds one turn, and a chain
   // that closes on itself becomes the whole turn (from == to, inWedge's full turn).  The same rays pass
-  // the test as before; at 10^9 points the seam's wedges took 5.2 MB (about three a vertex).
+  // the test as before; at 10^9 points the wedge blocks had taken 5.2 MB beside 2.9 MB of records.
   static bool samePoint(const Point2& a, const Point2& b) { return a.x == b.x && a.y == b.y; }
   std::size_t joinWedges(const SeamSink::Wedge* w, std::size_t n) {
     joined.assign(w, w + n);
