@@ -5,7 +5,10 @@
 // the same filters (finalizeTable's options: --keep-class, --drop-class, --first-only, --clip, ...); the
 // 3D finalizer (libterrain/finalizer/finalizer3d.h) streams them into StreamingDelaunay3d, which writes
 // the tetrahedra as they become final.  With more than one thread (--threads, default: the cores) the
-// tetrahedralizer and its writer run on a second thread behind a bounded queue (queued_point_sink3.h).
+// tetrahedralizer and its writer run on a second thread behind a bounded queue (queued_point_sink3.h),
+// and from 2^21 points on the octree's 8 cells of level 1 are tetrahedralized as regions with certified
+// seams, each on a thread of its own (parallel_delaunay3d.h; --region-level).  The output depends on the
+// region level, never on the threads.
 #include <unistd.h>
 #include <algorithm>
 
@@ -28,6 +31,7 @@
 #include "libterrain/core/diagnostics.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/report_text.h"
+#include "libterrain/delaunay3d/parallel_delaunay3d.h"
 #include "libterrain/delaunay3d/streaming_delaunay3d.h"
 #include "libterrain/delaunay3d/tet_mesh_verifier.h"
 #include "libterrain/finalizer/finalizer3d.h"
@@ -37,7 +41,8 @@ namespace tinbuild::app {
 
 namespace {
 
-void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, double seconds) {
+void printTetSummary(const Finalizer3dStats* fs, const ParallelDelaunay3dStats& ps, double seconds) {
+  const Delaunay3dStats& ds = ps.total;
   std::cerr << "tetrahedralize: " << withCommas(ds.pointsIn) << " points ("
             << withCommas(ds.duplicatesDropped) << " duplicates merged) -> " << withCommas(ds.verticesOut)
             << " vertices, " << withCommas(ds.tetsEmitted) << " tetrahedra in "
@@ -63,6 +68,14 @@ void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, doub
             << formatDouble("%.2f",
                             ds.tetsEmitted ? double(ds.certificationChecks) / double(ds.tetsEmitted) : 0.0)
             << ", tetrahedralizer arrays " << formatDouble("%.1f MB", double(ds.peakBytes) / 1e6) << "\n";
+  if (ps.regions > 1)
+    std::cerr << "  regions " << ps.regions << " (level " << ps.regionLevel << "), seam "
+              << withCommas(ps.seamVertices) << " vertices ("
+              << formatDouble("%.2f",
+                              ds.verticesOut ? 100.0 * double(ps.seamVertices) / double(ds.verticesOut) : 0.0)
+              << "% of the vertices), " << withCommas(ps.seamTetsWritten) << " of its "
+              << withCommas(ps.seamTetsTested) << " tetrahedra written, merger (replays and seam) "
+              << formatDouble("%.2f s", ps.seamSeconds) << "\n";
   if (ds.degenerate) std::cerr << "  the points lie in one plane: no tetrahedra\n";
 }
 
@@ -70,6 +83,14 @@ void printTetSummary(const Finalizer3dStats* fs, const Delaunay3dStats& ds, doub
 int tetThreads(const PipelineArgs& a) {
   const unsigned cores = std::max(1u, std::thread::hardware_concurrency());
   return a.run.threads > 0 ? a.run.threads : static_cast<int>(cores);
+}
+
+ParallelDelaunay3dOptions regionOptions(const PipelineArgs& a) {
+  ParallelDelaunay3dOptions po;
+  po.regionLevel = a.options.regionLevel;
+  po.threads = tetThreads(a);
+  po.tempDir = a.run.tempDir.value_or(a.options.finalizer.tempDir);
+  return po;
 }
 
 // What tetrahedralize and finalize --3d start with: --depth checked (an octree: at most 8), warnings on
@@ -121,7 +142,7 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
   tetMeshFormatForPath(a.run.output);
   const auto t0 = std::chrono::steady_clock::now();
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output, cancelFlag());
-  StreamingDelaunay3d dt(*writer);
+  ParallelDelaunay3d dt(*writer, regionOptions(a));
   if (tetThreads(a) > 1) {
     QueuedPointSink3 queue(dt);
     CancellableSink3 in(queue, cancelFlag());
@@ -149,7 +170,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   PipelineArgs a;
   const bool fromStream = isFinalizedStream3(args.positional);
   if (!fromStream) a.options.inputs = expandInputs(args.positional);
-  finalizeTable().bind(args, a);
+  tetrahedralizeTable().bind(args, a);
   if (fromStream) return tetrahedralizeStream(args.positional[0], a);
   if (a.options.inputs.empty()) throw UsageError("tetrahedralize: give at least one input file");
   if (a.run.output.empty())
@@ -161,7 +182,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "tetrahedralize", diag, in);
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(output, cancelFlag());
-  StreamingDelaunay3d dt(*writer);
+  ParallelDelaunay3d dt(*writer, regionOptions(a));
   // Two threads unless --threads 1: the finalizer reads and sorts while the tetrahedralizer inserts (the
   // stream they exchange is the same either way, so is the output).
   Finalizer3dStats fs;
@@ -171,7 +192,8 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   } else {
     fs = finalizePoints3d(in.streams, fo, dt);
   }
-  const Delaunay3dStats& ds = dt.stats();
+  const ParallelDelaunay3dStats& ps = dt.stats();
+  const Delaunay3dStats& ds = ps.total;
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   if (!a.run.report.empty()) {
     // The run's counts for scripts and `tinbuild bench tet` (flat JSON, one object per section).
@@ -180,21 +202,25 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
     r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
       << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
       << ", \"depth\": " << fs.grid.depth << ", \"depth_refinements\": " << fs.depthRefinements
-      << ", \"occupied_cells\": " << fs.occupiedCells
-      << ", \"width\": " << fs.width << ", \"max_in_memory\": " << fs.maxInMemory
-      << ", \"spilled_points\": " << fs.spilledPoints << ", \"spill_events\": " << fs.spillEvents
-      << ", \"no_locality\": " << (fs.noLocality ? "true" : "false")
-      << ", \"tags\": " << fs.tags
+      << ", \"occupied_cells\": " << fs.occupiedCells << ", \"width\": " << fs.width
+      << ", \"max_in_memory\": " << fs.maxInMemory << ", \"spilled_points\": " << fs.spilledPoints
+      << ", \"spill_events\": " << fs.spillEvents
+      << ", \"no_locality\": " << (fs.noLocality ? "true" : "false") << ", \"tags\": " << fs.tags
       << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
       << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
       << ", \"tetrahedra\": " << ds.tetsEmitted << ", \"created\": " << ds.tetsCreated
       << ", \"max_active_tets\": " << ds.maxActiveTets
       << ", \"max_active_vertices\": " << ds.maxActiveVertices << ", \"walk_steps\": " << ds.walkSteps
       << ", \"restarts\": " << ds.restartsLeaf << ", \"exhaustive\": " << ds.restartsExhaustive
-      << ", \"checks\": " << ds.certificationChecks << ", \"array_bytes\": " << ds.peakBytes << "}\n}\n";
+      << ", \"checks\": " << ds.certificationChecks << ", \"array_bytes\": " << ds.peakBytes
+      << "},\n  \"regions\": {\"level\": " << ps.regionLevel << ", \"count\": " << ps.regions
+      << ", \"seam_vertices\": " << ps.seamVertices << ", \"seam_cones\": " << ps.seamCones
+      << ", \"seam_tetrahedra_tested\": " << ps.seamTetsTested
+      << ", \"seam_tetrahedra_written\": " << ps.seamTetsWritten << ", \"spool_bytes\": " << ps.spoolBytes
+      << ", \"seam_seconds\": " << formatDouble("%.6f", ps.seamSeconds) << "}\n}\n";
     if (!r.flush()) throw Error(a.run.report + ": cannot write the report");
   }
-  if (!a.run.quiet) printTetSummary(&fs, ds, seconds);
+  if (!a.run.quiet) printTetSummary(&fs, ps, seconds);
   return 0;
 }
 
@@ -294,8 +320,9 @@ int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& point
 Command tetrahedralizeCommand() {
   return Command{
       "tetrahedralize",
-      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] [--keep-class LIST] "
-      "[--drop-class LIST] [-q]",
+      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] [--keep-class "
+      "LIST] "
+      "[--drop-class LIST] [--region-level L] [--threads N] [-q]",
       "streaming 3D Delaunay tetrahedralization of point clouds (the paper's spdelaunay3d)",
       "Reads the inputs (LAS/LAZ/COPC/XYZ, several files as one survey, with the readers and filters of\n"
       "`build`) as a 3D point cloud, finalizes them over an octree (counts per cell, sprinkle points, BRIO\n"
@@ -303,9 +330,12 @@ Command tetrahedralizeCommand() {
       "insphere with CGAL's symbolic perturbation), writing each tetrahedron as soon as its circumsphere\n"
       "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines, or .smb,\n"
       "its binary form), a VTK XML unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele\n"
-      "writes both); coordinates exact.  --depth is the octree's (0..8).  Check the result with\n"
-      "`tinbuild verify MESH --points INPUT...`.",
-      finalizeTable().specs(),
+      "writes both); coordinates exact.  --depth is the octree's (0..8).  From 2^21 points on the octree's\n"
+      "8 cells of level 1 are tetrahedralized as regions, each on a thread of its own, and their seam is\n"
+      "joined exactly (--region-level L: 8^L regions, 0 = one); the tetrahedra are the same for any level,\n"
+      "the bytes the same for any --threads.  Check the result with `tinbuild verify MESH --points "
+      "INPUT...`.",
+      tetrahedralizeTable().specs(),
       runTetrahedralizeCommand};
 }
 

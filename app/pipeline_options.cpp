@@ -445,6 +445,20 @@ const PipelineTable& finalizeTable() {
   return t;
 }
 
+const PipelineTable& tetrahedralizeTable() {
+  static const PipelineTable t = [] {
+    PipelineTable p;
+    p.add(outputFile("MESH", "output tetrahedral mesh (.sma, .smb, .vtu, .ele)"), inputGroup(),
+          reportGroup());
+    p.option("--region-level", "L",
+             "tetrahedralize the 8^L octree cells of level L as regions, each on a thread of its own, with "
+             "certified seams (default: from the point count; 0 = one region)")
+        .integer(0, 3, [](A& a, int v) { a.options.regionLevel = v; });
+    return p;
+  }();
+  return t;
+}
+
 const PipelineTable& triangulateTable() {
   static const PipelineTable t =
       PipelineTable().add(outputFile("MESH", "output streaming mesh (.smb, .sma, or - for SMB on stdout)"),

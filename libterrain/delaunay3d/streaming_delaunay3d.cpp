@@ -29,6 +29,7 @@ struct Vertex {
   Point3 p;
   std::uint64_t outId = kNoId;
   std::uint32_t refs = 0;
+  std::uint32_t serial = kNone;  // region mode: the seam serial, kNone for a vertex with no seam record
 };
 
 struct Tet {
@@ -192,8 +193,66 @@ struct StreamingDelaunay3d::Impl {
   std::vector<std::uint32_t> work;
   bool deferCertification = false;
   std::uint32_t deferredList = kNone;  // a park list of no leaf: the tetrahedra of the start, certified last
+  RegionSeam3* seam = nullptr;         // region mode when set
+  Box certBox{};                       // region mode: where a circumsphere's box must lie to be written
+  Box lastBox{};                       // the sphere's box of the last finite tetrahedron openLeafFor saw
+  bool lastBounded = false;
 
   explicit Impl(TetMeshSink& o) : out(o) {}
+
+  // ----- region mode -----
+  void setRegion(const Region3& r, RegionSeam3* s) {
+    seam = s;
+    const int L = r.level;
+    if (L > grid.depth)
+      throw Error("3D Delaunay: region level " + std::to_string(L) + " is below the leaves");
+    const std::size_t side = std::size_t{1} << L;
+    if (r.x >= side || r.y >= side || r.z >= side) throw Error("3D Delaunay: region cell outside the octree");
+    std::vector<std::uint8_t>& flags = finalFlags[static_cast<std::size_t>(L)];
+    std::fill(flags.begin(), flags.end(), 1);
+    flags[cellIndex(L, r.x, r.y, r.z)] = 0;
+    const double cs = grid.size / static_cast<double>(side);
+    const double o[3] = {grid.originX, grid.originY, grid.originZ};
+    const std::uint32_t c[3] = {r.x, r.y, r.z};
+    constexpr double inf = std::numeric_limits<double>::infinity();
+    for (int i = 0; i < 3; ++i) {
+      // Points of a neighbouring region lie in their leaves grown by `growth`: at most `growth` inside.
+      certBox.lo[i] = c[i] == 0 ? -inf : o[i] + c[i] * cs + 2.0 * growth;
+      certBox.hi[i] = c[i] + 1 == side ? inf : o[i] + (c[i] + 1) * cs - 2.0 * growth;
+    }
+  }
+
+  // Is a final tetrahedron's circumsphere, whose box `s` openLeafFor just computed (lastBounded: it
+  // could), inside the region's shrunk cube?
+  bool certified(const Box& s) const {
+    if (!lastBounded) return false;
+    for (int i = 0; i < 3; ++i)
+      if (!(s.lo[i] > certBox.lo[i] && s.hi[i] < certBox.hi[i])) return false;
+    return true;
+  }
+
+  std::uint32_t serialOf(std::uint32_t v) {
+    Vertex& V = verts[v];
+    if (V.serial == kNone) {
+      V.serial = static_cast<std::uint32_t>(seam->points.size());
+      seam->points.push_back(V.p);
+      seam->outIds.push_back(kNoId);
+      seam->whole.push_back(0);
+    }
+    return V.serial;
+  }
+
+  // Records seam tetrahedron T (for a ghost: its hull face, outside positive) by its vertices' serials.
+  void recordSeam(const Tet& T) {
+    ++stats.seamTets;
+    const int inf = T.infIndex();
+    if (inf < 0) {
+      seam->tets.push_back({serialOf(T.v[0]), serialOf(T.v[1]), serialOf(T.v[2]), serialOf(T.v[3])});
+      return;
+    }
+    seam->tets.push_back({serialOf(T.v[kFace[inf][0]]), serialOf(T.v[kFace[inf][1]]),
+                          serialOf(T.v[kFace[inf][2]]), RegionSeam3::kHull});
+  }
 
   const Point3& P(std::uint32_t v) const { return verts[v].p; }
 
@@ -224,7 +283,10 @@ struct StreamingDelaunay3d::Impl {
   void releaseVertexRef(std::uint32_t v) {
     if (v == kInf) return;
     if (--verts[v].refs == 0) {
-      if (verts[v].outId != kNoId) out.finalizeVertex(verts[v].outId);
+      if (verts[v].serial != kNone)  // a seam vertex: the seam step finalizes it
+        seam->outIds[verts[v].serial] = verts[v].outId;
+      else if (verts[v].outId != kNoId)
+        out.finalizeVertex(verts[v].outId);
       freeVerts.push_back(v);
       --liveVerts;
     }
@@ -396,8 +458,9 @@ struct StreamingDelaunay3d::Impl {
           },
           leaf);
     }
-    Box s;
-    if (!sphereBox(T, s)) {
+    Box& s = lastBox;
+    lastBounded = sphereBox(T, s);
+    if (!lastBounded) {
       ++stats.unboundedSpheres;
       return findOpen(
           0, 0, 0, 0, [](const Box&) { return true; }, leaf);
@@ -450,7 +513,9 @@ struct StreamingDelaunay3d::Impl {
 
   void emit(std::uint32_t t) {
     Tet& T = tets[t];
-    if (!T.ghost()) {
+    if (seam != nullptr && (T.ghost() || !certified(lastBox))) {  // (emit follows openLeafFor)
+      recordSeam(T);
+    } else if (!T.ghost()) {
       std::uint64_t id[4];
       for (int i = 0; i < 4; ++i) {
         Vertex& V = verts[T.v[i]];
@@ -780,6 +845,13 @@ struct StreamingDelaunay3d::Impl {
   }
 
   void finish() {
+    if (!started && seam != nullptr) {
+      // A region that never left a plane: its points are the seam's, whole.
+      for (const std::uint32_t v : pending) seam->whole[serialOf(v)] = 1;
+      pending.clear();
+      out.end();
+      return;
+    }
     if (!started) {
       // Dimension below 3: every distinct point is written and finalized, no tetrahedra.
       stats.degenerate = true;
@@ -800,6 +872,10 @@ struct StreamingDelaunay3d::Impl {
 };
 
 StreamingDelaunay3d::StreamingDelaunay3d(TetMeshSink& out) : impl_(std::make_unique<Impl>(out)) {}
+StreamingDelaunay3d::StreamingDelaunay3d(TetMeshSink& out, const Region3& region, RegionSeam3* seam)
+    : impl_(std::make_unique<Impl>(out)), region_(region), seam_(seam) {
+  if (region.level >= 0 && seam == nullptr) throw Error("3D Delaunay: a region needs a seam record");
+}
 StreamingDelaunay3d::~StreamingDelaunay3d() = default;
 
 void StreamingDelaunay3d::begin(const StreamInfo3& info) {
@@ -814,6 +890,10 @@ void StreamingDelaunay3d::begin(const StreamInfo3& info) {
   for (int l = 0; l <= info.grid.depth; ++l) m.finalFlags[l].assign(std::size_t{1} << (3 * l), 0);
   m.verts.push_back(Vertex{});  // vertex 0: infinity
   m.verts[0].refs = 1;
+  if (region_.level >= 0) {
+    *seam_ = RegionSeam3{};
+    m.setRegion(region_, seam_);
+  }
   TetMeshInfo mi;
   mi.bounds = info.bounds;
   mi.points = info.points;

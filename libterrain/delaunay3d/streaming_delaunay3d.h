@@ -55,9 +55,13 @@
 // Not thread-safe: one thread drives a StreamingDelaunay3d.
 #pragma once
 
+#include <array>
 #include <cstdint>
+#include <deque>
 #include <memory>
+#include <vector>
 
+#include "libterrain/delaunay3d/predicates3d.h"
 #include "libterrain/delaunay3d/tet_mesh_sink.h"
 #include "libterrain/finalizer/octree_stream.h"
 
@@ -77,12 +81,41 @@ struct Delaunay3dStats {
   std::uint64_t certificationChecks = 0;
   std::uint64_t unboundedSpheres = 0;  // nearly flat tetrahedra whose sphere could not be bounded
   std::uint64_t peakBytes = 0;         // peak capacity of the tetrahedralizer's arrays
+  std::uint64_t seamTets = 0;          // region mode: final tetrahedra (ghosts included) left to the seam
   bool degenerate = false;             // the input never left a plane: no tetrahedra
+};
+
+// Region mode (parallel_delaunay3d.h): the tetrahedralizer gets the points of one octree cell of level
+// `level` only and treats every cell outside it as final from the start, so it computes DT(P_r) of its
+// own points.  A final tetrahedron is written (certified) only when its circumsphere provably lies in the
+// region's cube shrunk by twice the cell tolerance on the sides shared with other regions; every other
+// final tetrahedron, and every ghost, is a seam tetrahedron: it is not written but recorded, at each of
+// its vertices, as a cone (the other three vertices) or, for a ghost, a hull face.  A vertex with such a
+// record is a seam vertex; it gets a serial number (0, 1, 2, ... in the order of its first record), the
+// region does not finalize it, and its records are kept for the seam step.  Points of a region that never
+// leaves a plane are seam vertices whole: no tetrahedron of the region covers any direction around them.
+struct Region3 {
+  int level = -1;  // < 0: no region (the whole stream)
+  std::uint32_t x = 0, y = 0, z = 0;
+};
+
+// What a region leaves for the seam step, by serial.  Its seam tetrahedra: a finite one (a, b, c, d) with
+// orient3d(a, b, c, d) > 0, or a hull face (a, b, c, kHull) with the outside of the region's hull on the
+// positive side of (a, b, c) (a ghost).  A vertex's cones are the seam tetrahedra it belongs to.
+struct RegionSeam3 {
+  static constexpr std::uint32_t kHull = ~0u;
+  // (Deques: they grow without copying, and hold no doubled capacity while the region runs.)
+  std::deque<Point3> points;
+  std::deque<std::uint64_t> outIds;  // the region's output id, ~0 when the region never wrote it
+  std::deque<std::uint8_t> whole;    // 1: every direction around it is the seam's
+  std::deque<std::array<std::uint32_t, 4>> tets;
 };
 
 class StreamingDelaunay3d : public PointSink3 {
  public:
   explicit StreamingDelaunay3d(TetMeshSink& out);
+  // Region mode: `seam` receives the seam vertices (it must outlive end()).
+  StreamingDelaunay3d(TetMeshSink& out, const Region3& region, RegionSeam3* seam);
   ~StreamingDelaunay3d() override;
   StreamingDelaunay3d(const StreamingDelaunay3d&) = delete;
   StreamingDelaunay3d& operator=(const StreamingDelaunay3d&) = delete;
@@ -98,6 +131,8 @@ class StreamingDelaunay3d : public PointSink3 {
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+  Region3 region_;
+  RegionSeam3* seam_ = nullptr;
 };
 
 }  // namespace tinbuild

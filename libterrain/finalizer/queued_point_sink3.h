@@ -20,6 +20,7 @@
 #include <thread>
 #include <vector>
 
+#include "libterrain/core/error.h"
 #include "libterrain/finalizer/octree_stream.h"
 
 namespace tinbuild {
@@ -53,11 +54,30 @@ class QueuedPointSink3 : public PointSink3 {
   }
   void finalizeCell(const OctCellTag& cell) override { current_.events.push_back({Kind::Tag, 0, 0, cell}); }
   void end() override {
+    finish();
+    waitFinished();
+  }
+
+  // end() in two halves, for a producer that should not wait: finish() hands the last events over;
+  // waitFinished() (from any one thread, once) waits until the downstream end() returned and rethrows
+  // what the consumer threw; after cancel() it throws CancelledError instead of waiting.
+  void finish() {
     current_.events.push_back({Kind::End, 0, 0, {}});
     handOver(true);
+  }
+  void waitFinished() {
     std::unique_lock<std::mutex> lock(mutex_);
-    changed_.wait(lock, [this] { return finished_ || error_; });
+    changed_.wait(lock, [this] { return finished_ || error_ || stop_; });
     if (error_) std::rethrow_exception(error_);
+    if (!finished_) throw CancelledError();
+  }
+  // Stops the consumer at its next block (the destructor does too, and joins it).
+  void cancel() {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      stop_ = true;
+    }
+    changed_.notify_all();
   }
 
  private:
@@ -78,7 +98,7 @@ class QueuedPointSink3 : public PointSink3 {
     if (error_) std::rethrow_exception(error_);
     queue_.push_back(std::move(current_));
     current_ = Block{};
-    if (!last) current_.points.reserve(blockPoints_ + 4096);
+    if (!last) current_.points.reserve(blockPoints_);
     changed_.notify_all();
   }
 

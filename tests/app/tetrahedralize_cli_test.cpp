@@ -92,10 +92,49 @@ TEST(Tetrahedralize, SurfaceCloudGetsAFinerDefaultOctree) {
   EXPECT_LT(number("max_active_tets"), 0.12 * number("tetrahedra")) << json;
 }
 
+// Regions with certified seams (--region-level): every level gives a verified mesh (positive, locally
+// Delaunay under the perturbation, hull covered, every point used: the one Delaunay tetrahedralization)
+// with the same counts as one region, and the bytes do not depend on --threads, in one process or
+// behind a pipe.
+TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
+  TINBUILD_REQUIRE_DATA();
+  const std::string las = tinbuild::test::dataPath("las/autzen_trim.las");
+  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_regions";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o /dev/null -q --region-level 0 --report " + dir + "/r0.json"),
+            0);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/t1.sma -q --region-level 1 --threads 1"), 0);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/t3.sma -q --region-level 1 --threads 3 --report " +
+                dir + "/r1.json"),
+            0);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/t2.smb -q --region-level 2 --threads 2"), 0);
+  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o - -q | " +
+                           TINBUILD_EXE + " tetrahedralize - -o " + dir +
+                           "/pipe.sma --region-level 1 --threads 2 -q";
+  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  const std::string one = slurp(dir + "/t1.sma");
+  ASSERT_GT(one.size(), 1000u);
+  EXPECT_EQ(slurp(dir + "/t3.sma"), one);
+  EXPECT_EQ(slurp(dir + "/pipe.sma"), one);
+  EXPECT_EQ(run("verify " + dir + "/t1.sma --points " + las), 0);
+  EXPECT_EQ(run("verify " + dir + "/t2.smb --points " + las), 0);
+  auto number = [&](const std::string& json, const std::string& key) {
+    const std::size_t at = json.find("\"" + key + "\": ");
+    return at == std::string::npos ? -1.0 : std::strtod(json.c_str() + at + key.size() + 4, nullptr);
+  };
+  const std::string r0 = slurp(dir + "/r0.json"), r1 = slurp(dir + "/r1.json");
+  EXPECT_EQ(number(r1, "count"), 8) << r1;
+  EXPECT_GT(number(r1, "seam_vertices"), 0) << r1;
+  EXPECT_EQ(number(r1, "tetrahedra"), number(r0, "tetrahedra")) << r1;
+  EXPECT_EQ(number(r1, "vertices"), number(r0, "vertices")) << r1;
+}
+
 TEST(Tetrahedralize, UsageErrors) {
   EXPECT_EQ(run("tetrahedralize"), 2);
   EXPECT_EQ(run("tetrahedralize x.las"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.ply"), 2);
+  EXPECT_EQ(run("tetrahedralize x.las -o m.sma --region-level 4"), 2);
 }
 
 }  // namespace

@@ -6,6 +6,7 @@
 // itself is checked as it arrives: vertices announced before use, never used after finalization, every
 // tetrahedron positive.
 #include "libterrain/delaunay3d/streaming_delaunay3d.h"
+#include "libterrain/delaunay3d/parallel_delaunay3d.h"
 
 #include <gtest/gtest.h>
 
@@ -91,17 +92,30 @@ struct TetRun {
   TetCollector mesh;
   Delaunay3dStats stats;
   Finalizer3dStats fin;
+  ParallelDelaunay3dStats regions;
 };
 
+// regionLevel < 0: the plain tetrahedralizer; else ParallelDelaunay3d at that level on `threads`.
 void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = -1,
-                    std::size_t memoryBudget = std::size_t{512} << 20) {
+                    std::size_t memoryBudget = std::size_t{512} << 20, int regionLevel = -1,
+                    int threads = 1) {
   test::VectorStream in(pts, 777);
-  StreamingDelaunay3d dt(r.mesh);
   Finalizer3dOptions fo;
   fo.filter = PointFilter::none();
   fo.depth = depth;
   fo.memoryBudget = memoryBudget;
   std::vector<PointStream*> inputs{&in};
+  if (regionLevel >= 0) {
+    ParallelDelaunay3dOptions po;
+    po.regionLevel = regionLevel;
+    po.threads = threads;
+    ParallelDelaunay3d dt(r.mesh, po);
+    r.fin = finalizePoints3d(inputs, fo, dt);
+    r.regions = dt.stats();
+    r.stats = r.regions.total;
+    return;
+  }
+  StreamingDelaunay3d dt(r.mesh);
   r.fin = finalizePoints3d(inputs, fo, dt);
   r.stats = dt.stats();
 }
@@ -197,9 +211,10 @@ std::vector<Tet4> cgalTets(const std::vector<PointRecord>& pts, double* vol = nu
 #endif
 
 // The full check: stream contract, equality with CGAL (general position) or local Delaunay + hull volume.
-void check(const std::vector<PointRecord>& pts, bool generalPosition, int depth = -1) {
+void check(const std::vector<PointRecord>& pts, bool generalPosition, int depth = -1, int regionLevel = -1,
+           int threads = 1) {
   TetRun r;
-  tetrahedralize(pts, r, depth);
+  tetrahedralize(pts, r, depth, std::size_t{512} << 20, regionLevel, threads);
   EXPECT_TRUE(r.mesh.ended);
   EXPECT_EQ(r.mesh.nonPositive, 0);
   for (std::size_t i = 0; i < r.mesh.live.size(); ++i) ASSERT_FALSE(r.mesh.live[i]) << "vertex never finalized";
@@ -369,6 +384,132 @@ TEST(StreamingDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
   ASSERT_GT(pts.size(), 1000u);
   // Quantized to 0.01: cospherical ties are frequent, and CGAL's perturbation is ours.
   check(pts, true);
+}
+
+// ----- regions (ParallelDelaunay3d): the same tetrahedra as one region, the same bytes for any thread count
+
+// Checks the regions' result at `level` against CGAL (or the local criterion), and that 1 and 3 threads
+// write the same stream.
+void checkRegions(const std::vector<PointRecord>& pts, bool generalPosition, int depth, int level) {
+  check(pts, generalPosition, depth, level, 1);
+  TetRun one, three;
+  tetrahedralize(pts, one, depth, std::size_t{512} << 20, level, 1);
+  tetrahedralize(pts, three, depth, std::size_t{512} << 20, level, 3);
+  EXPECT_EQ(one.regions.regionLevel, std::min(level, one.fin.grid.depth));
+  EXPECT_TRUE(one.mesh.points == three.mesh.points) << "vertex stream differs between thread counts";
+  EXPECT_TRUE(one.mesh.tets == three.mesh.tets) << "tetrahedron stream differs between thread counts";
+  EXPECT_EQ(one.regions.seamVertices, three.regions.seamVertices);
+}
+
+TEST(ParallelDelaunay3d, RandomCubeMatchesCgalAtEveryLevel) {
+  const auto pts = randomCube(6000, 21);
+  checkRegions(pts, true, 3, 1);
+  checkRegions(pts, true, 3, 2);
+  checkRegions(pts, true, 3, 3);  // leaves as regions
+}
+
+TEST(ParallelDelaunay3d, SeamIsASmallShareAndRegionsStream) {
+  const auto pts = randomCube(60000, 22);
+  TetRun plain, regions;
+  tetrahedralize(pts, plain, 3);
+  tetrahedralize(pts, regions, 3, std::size_t{512} << 20, 1, 2);
+  EXPECT_TRUE(plain.mesh.sortedTets() == regions.mesh.sortedTets());
+  EXPECT_EQ(regions.regions.regions, 8u);
+  EXPECT_GT(regions.regions.seamVertices, 0u);
+  EXPECT_LT(regions.regions.seamVertices, pts.size() / 3) << "the seam is a layer along the region faces";
+  EXPECT_EQ(regions.stats.tetsEmitted, plain.stats.tetsEmitted);
+  EXPECT_EQ(regions.stats.verticesOut, plain.stats.verticesOut);
+  EXPECT_EQ(regions.regions.seamTetsWritten + (regions.stats.tetsEmitted - regions.regions.seamTetsWritten),
+            plain.mesh.tets.size());
+}
+
+TEST(ParallelDelaunay3d, UtmOffsetsAndClustersMatchCgal) {
+  checkRegions(randomCube(4000, 23, 500000.0), true, 3, 1);
+  std::mt19937_64 rng(24);
+  std::normal_distribution<double> g(0, 1);
+  std::uniform_real_distribution<double> u(0, 1000);
+  std::vector<Point3> p;
+  for (int c = 0; c < 10; ++c) {
+    const Point3 centre{u(rng), u(rng), u(rng) / 10};
+    const double s = c % 3 == 0 ? 0.01 : 5.0;
+    for (int i = 0; i < 300; ++i)
+      p.push_back({centre.x + s * g(rng), centre.y + s * g(rng), centre.z + s * g(rng)});
+  }
+  checkRegions(records(p), true, 3, 1);
+  checkRegions(records(p), true, 3, 2);
+}
+
+TEST(ParallelDelaunay3d, LatticeOnRegionFacesMatchesCgalPerturbation) {
+  // 8 x 8 x 8 unit lattice: its bounding cube's region faces pass through lattice planes, so points lie
+  // exactly on region faces and every sphere is shared by eight points.
+  std::vector<Point3> p;
+  for (int i = 0; i < 9; ++i)
+    for (int j = 0; j < 9; ++j)
+      for (int k = 0; k < 9; ++k) p.push_back({i * 1.0, j * 1.0, k * 1.0});
+  std::shuffle(p.begin(), p.end(), std::mt19937_64(25));
+  checkRegions(records(p), true, 3, 1);
+  checkRegions(records(p), true, 3, 2);
+  std::vector<Point3> q;  // at UTM coordinates, half-metre spacing
+  for (int i = 0; i < 7; ++i)
+    for (int j = 0; j < 7; ++j)
+      for (int k = 0; k < 7; ++k) q.push_back({500000.0 + i * 0.5, 4000000.0 + j * 0.5, 100.0 + k * 0.5});
+  std::shuffle(q.begin(), q.end(), std::mt19937_64(26));
+  checkRegions(records(q), false, 2, 1);
+}
+
+TEST(ParallelDelaunay3d, DuplicatesCoplanarAndCollinearSubsets) {
+  auto pts = randomCube(1500, 27);
+  const std::size_t n = pts.size();
+  for (std::size_t i = 0; i < n; i += 3) pts.push_back(pts[i]);
+  checkRegions(pts, true, 3, 1);
+  std::mt19937_64 rng(28);
+  std::uniform_real_distribution<double> u(0, 10);
+  std::vector<Point3> p;
+  for (int i = 0; i < 600; ++i) p.push_back({u(rng), u(rng), u(rng)});
+  for (int i = 0; i < 300; ++i) p.push_back({u(rng), u(rng), 5.0});  // a region face
+  for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), 0.0});  // a hull plane
+  for (int i = 0; i < 100; ++i) {
+    const double t = u(rng);
+    p.push_back({t, t, t});
+  }
+  for (int i = 0; i < 100; ++i) p.push_back({std::floor(u(rng)), 10.0, std::floor(u(rng))});
+  checkRegions(records(p), false, 3, 1);
+  checkRegions(records(p), false, 3, 2);
+}
+
+TEST(ParallelDelaunay3d, FlatAndEmptyRegions) {
+  // Each occupied region holds a planar patch (it never starts: its points are the seam's, whole), the
+  // others are empty; the whole is three-dimensional.
+  std::mt19937_64 rng(29);
+  std::uniform_real_distribution<double> u(0, 1);
+  std::vector<Point3> p;
+  p.push_back({0, 0, 0});
+  p.push_back({100, 100, 100});
+  for (int i = 0; i < 200; ++i) p.push_back({10 + 30 * u(rng), 10 + 30 * u(rng), 20.0});  // region 0
+  for (int i = 0; i < 200; ++i) p.push_back({60 + 30 * u(rng), 70.0, 60 + 30 * u(rng)});  // another
+  for (int i = 0; i < 60; ++i) p.push_back({75.0, 10 + 30 * u(rng), 10 + 30 * u(rng)});   // a third
+  checkRegions(records(p), false, 2, 1);
+  // All in one plane: no tetrahedra, every point announced and finalized.
+  std::vector<Point3> flat;
+  for (int i = 0; i < 80; ++i) flat.push_back({i * 1.0, (i * 7 % 13) * 1.0, 3.0});
+  flat.push_back({200, 5, 3});
+  TetRun r;
+  tetrahedralize(records(flat), r, 2, std::size_t{512} << 20, 1, 2);
+  EXPECT_TRUE(r.stats.degenerate);
+  EXPECT_EQ(r.mesh.tets.size(), 0u);
+  EXPECT_EQ(r.mesh.points.size(), 81u);
+  for (std::size_t i = 0; i < r.mesh.live.size(); ++i) EXPECT_FALSE(r.mesh.live[i]);
+}
+
+TEST(ParallelDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
+  TINBUILD_REQUIRE_DATA();
+  Diagnostics diag;
+  LasReader reader(test::dataPath("las/simple.las"), diag);
+  std::vector<PointRecord> pts, batch(4096);
+  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  checkRegions(pts, true, 3, 1);
+  checkRegions(pts, true, 4, 2);
 }
 
 }  // namespace
