@@ -90,6 +90,7 @@ ParallelDelaunay3dOptions regionOptions(const PipelineArgs& a) {
   po.regionLevel = a.options.regionLevel;
   po.threads = tetThreads(a);
   po.tempDir = a.run.tempDir.value_or(a.options.finalizer.tempDir);
+  po.cancel = cancelFlag();
   return po;
 }
 

@@ -451,9 +451,9 @@ const PipelineTable& tetrahedralizeTable() {
     p.add(outputFile("MESH", "output tetrahedral mesh (.sma, .smb, .vtu, .ele)"), inputGroup(),
           reportGroup());
     p.option("--region-level", "L",
-             "tetrahedralize the 8^L octree cells of level L as regions, each on a thread of its own, with "
-             "certified seams (default: from the point count; 0 = one region)")
-        .integer(0, 3, [](A& a, int v) { a.options.regionLevel = v; });
+             "tetrahedralize the 8^L octree cells of level L (0..2) as regions, each on a thread of its own, "
+             "with certified seams (default: 1 from 2^21 points on, else 0 = one region)")
+        .integer(0, 2, [](A& a, int v) { a.options.regionLevel = v; });
     return p;
   }();
   return t;

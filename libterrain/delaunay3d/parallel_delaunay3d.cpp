@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <array>
+#include <atomic>
 #include <chrono>
 #include <condition_variable>
 #include <cstring>
@@ -13,6 +14,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay3d/predicates3d.h"
@@ -71,12 +73,15 @@ class SpoolSink : public TetMeshSink {
   std::uint64_t vertices() const { return vertices_; }
   std::uint64_t bytes() const { return size_; }
 
-  // Writes the spool to `out` with every id offset by `base`, giving the disk space back as it goes.
-  void replay(TetMeshSink& out, std::uint64_t base) {
+  // Writes the spool to `out` with every id offset by `base`, giving the disk space back as it goes;
+  // throws CancelledError between chunks once `stop` or `cancel` is set.
+  void replay(TetMeshSink& out, std::uint64_t base, const std::atomic<bool>& stop, const CancelFlag* cancel) {
     flush();
     std::vector<char> chunk(kBuffer + 32);
     std::size_t carry = 0;
     for (std::uint64_t at = 0; at < size_;) {
+      if (stop.load(std::memory_order_relaxed)) throw CancelledError();
+      throwIfCancelled(cancel);
       const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(kBuffer, size_ - at));
       file_.readAt(at, chunk.data() + carry, n);
       file_.discard(at, n);
@@ -325,6 +330,7 @@ struct ParallelDelaunay3d::Impl {
   StreamInfo3 info;
   int level = 0, shift = 0;
   std::unique_ptr<StreamingDelaunay3d> plain;
+  std::unique_ptr<SharedQueueBudget> budget;  // (before `regions`: their queues use it to the end)
   std::vector<Region> regions;
   // The merger's state.
   std::size_t merged = 0;  // regions [0, merged) are in the output
@@ -338,7 +344,7 @@ struct ParallelDelaunay3d::Impl {
   // With threads: the merger thread and what it waits for.
   std::mutex mutex;
   std::condition_variable changed;
-  bool stop = false;
+  std::atomic<bool> stop{false};  // the merger gives up (the run is being torn down)
   std::exception_ptr mergerError;
   std::thread merger;
 
@@ -348,7 +354,7 @@ struct ParallelDelaunay3d::Impl {
     if (merger.joinable()) {
       {
         std::lock_guard<std::mutex> lock(mutex);
-        stop = true;
+        stop.store(true);
       }
       changed.notify_all();
       for (Region& R : regions)
@@ -387,6 +393,14 @@ struct ParallelDelaunay3d::Impl {
     filter = std::make_unique<SeamFilter>(out, seamSet, nextGid, stats);
     seamDt = std::make_unique<StreamingDelaunay3d>(*filter);
     seamDt->begin(i);
+    // The regions' queues together hold up to about an eighth of the stream (at least 2^16, at most 2^21
+    // points: 64 MiB): a coherent stream visits the regions one after another, and this lag lets the
+    // next region start while the last one still works through its queue.
+    if (opt.threads > 1) {
+      const std::uint64_t lag =
+          opt.queuePoints > 0 ? opt.queuePoints : std::clamp<std::uint64_t>(i.points / 8, 1u << 16, 1u << 21);
+      budget = std::make_unique<SharedQueueBudget>(static_cast<std::size_t>(lag));
+    }
     regions.resize(n);
     seamSet.chunks.reserve(n);  // (chunks never move: the merge feeds from the last one's points)
     for (std::size_t r = 0; r < n; ++r) {
@@ -395,7 +409,7 @@ struct ParallelDelaunay3d::Impl {
       R.spool = std::make_unique<SpoolSink>(opt.tempDir);
       R.dt = std::make_unique<StreamingDelaunay3d>(*R.spool, Region3{level, c.x, c.y, c.z}, &R.seam);
       if (opt.threads > 1) {
-        R.queue = std::make_unique<QueuedPointSink3>(*R.dt, 4096, 4);  // (at most 640 KiB a region)
+        R.queue = std::make_unique<QueuedPointSink3>(*R.dt, 4096, std::size_t{1} << 20, budget.get());
         R.in = R.queue.get();
       } else {
         R.in = R.dt.get();
@@ -482,7 +496,7 @@ struct ParallelDelaunay3d::Impl {
     R.dt.reset();
     const std::uint64_t base = nextGid;
     stats.spoolBytes += R.spool->bytes();
-    R.spool->replay(out, base);
+    R.spool->replay(out, base, stop, opt.cancel);
     nextGid += R.spool->vertices();
     R.spool.reset();
 

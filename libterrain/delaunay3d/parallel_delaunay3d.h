@@ -4,9 +4,10 @@
 // Regions.  The octree's cells of level L (`regionLevel`; 8^L regions) each get a StreamingDelaunay3d in
 // region mode (streaming_delaunay3d.h): it receives the points of its cell and the tags inside or over it,
 // treats everything outside as final, and so computes DT(P_r) of its own points, holding its own width.
-// With `threads` > 1 each region runs behind a bounded queue on a thread of its own (QueuedPointSink3;
-// the system shares the cores among them); with 1 the caller's thread runs them in turn.  Regions never
-// wait for each other, and each region's events are a function of its own sub-stream.
+// With `threads` > 1 each region runs behind a queue on a thread of its own (QueuedPointSink3; the
+// system shares the cores among them), the queues bounded together (`queuePoints`); with 1 the caller's
+// thread runs them in turn.  Regions never wait for each other, and each region's events are a function
+// of its own sub-stream.
 //
 // Certified and seam tetrahedra.  A region writes a final tetrahedron when its circumsphere provably lies
 // in the region's cube shrunk by 2h on the sides shared with other regions (h: the cell tolerance): no
@@ -45,6 +46,7 @@
 #include <memory>
 #include <string>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/delaunay3d/streaming_delaunay3d.h"
 #include "libterrain/delaunay3d/tet_mesh_sink.h"
 #include "libterrain/finalizer/octree_stream.h"
@@ -55,6 +57,10 @@ struct ParallelDelaunay3dOptions {
   int regionLevel = -1;  // -1: chooseRegionLevel3(points); 0: one region, the plain tetrahedralizer
   int threads = 1;       // > 1: each region on a thread of its own
   std::string tempDir;   // the regions' spool files ("" = $TMPDIR, else /tmp)
+  std::uint64_t queuePoints = 0;  // points queued for the regions at most (0: an eighth of the stream,
+                                  // clamped to 2^16..2^21)
+  // Polled while a region's spool is replayed (its longest loop): CancelledError when set.
+  const CancelFlag* cancel = nullptr;
 };
 
 struct ParallelDelaunay3dStats {

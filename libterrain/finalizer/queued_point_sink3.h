@@ -25,11 +25,39 @@
 
 namespace tinbuild {
 
+// Points queued in several QueuedPointSink3 at once, bounded together (the 3D regions' queues): a
+// producer waits while the queues hold `limit` points or more (never when they hold none).
+class SharedQueueBudget {
+ public:
+  explicit SharedQueueBudget(std::size_t limit) : limit_(limit) {}
+  void acquire(std::size_t n) {
+    std::unique_lock<std::mutex> lock(mutex_);
+    freed_.wait(lock, [&] { return used_ == 0 || used_ + n <= limit_; });
+    used_ += n;
+  }
+  void release(std::size_t n) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      used_ -= n;
+    }
+    freed_.notify_all();
+  }
+
+ private:
+  std::mutex mutex_;
+  std::condition_variable freed_;
+  std::size_t used_ = 0;
+  const std::size_t limit_;
+};
+
 class QueuedPointSink3 : public PointSink3 {
  public:
+  // `budget` (optional, outliving the sink): a bound on the points queued here and in its other users.
   explicit QueuedPointSink3(PointSink3& downstream, std::size_t blockPoints = std::size_t{1} << 13,
-                            std::size_t maxBlocks = 4)
-      : down_(downstream), blockPoints_(blockPoints), maxBlocks_(maxBlocks), worker_([this] { consume(); }) {}
+                            std::size_t maxBlocks = 4, SharedQueueBudget* budget = nullptr)
+      : down_(downstream), blockPoints_(blockPoints), maxBlocks_(maxBlocks), budget_(budget), worker_([this] {
+          consume();
+        }) {}
 
   ~QueuedPointSink3() override {
     {
@@ -93,9 +121,13 @@ class QueuedPointSink3 : public PointSink3 {
   };
 
   void handOver(bool last) {
+    if (budget_) budget_->acquire(current_.points.size());
     std::unique_lock<std::mutex> lock(mutex_);
     changed_.wait(lock, [&] { return queue_.size() < maxBlocks_ || error_; });
-    if (error_) std::rethrow_exception(error_);
+    if (error_) {
+      if (budget_) budget_->release(current_.points.size());
+      std::rethrow_exception(error_);
+    }
     queue_.push_back(std::move(current_));
     current_ = Block{};
     if (!last) current_.points.reserve(blockPoints_);
@@ -113,6 +145,7 @@ class QueuedPointSink3 : public PointSink3 {
         queue_.pop_front();
       }
       changed_.notify_all();
+      const std::size_t held = b.points.size();
       try {
         bool ended = false;
         for (const Event& e : b.events) switch (e.kind) {
@@ -130,6 +163,7 @@ class QueuedPointSink3 : public PointSink3 {
               ended = true;
               break;
           }
+        if (budget_) budget_->release(held);
         if (ended) {
           std::lock_guard<std::mutex> lock(mutex_);
           finished_ = true;
@@ -137,9 +171,14 @@ class QueuedPointSink3 : public PointSink3 {
           return;
         }
       } catch (...) {
-        std::lock_guard<std::mutex> lock(mutex_);
-        error_ = std::current_exception();
-        queue_.clear();
+        std::size_t dropped = held;  // (a producer waiting on the budget must not wait for these)
+        {
+          std::lock_guard<std::mutex> lock(mutex_);
+          error_ = std::current_exception();
+          for (const Block& q : queue_) dropped += q.points.size();
+          queue_.clear();
+        }
+        if (budget_) budget_->release(dropped);
         changed_.notify_all();
         return;
       }
@@ -148,6 +187,7 @@ class QueuedPointSink3 : public PointSink3 {
 
   PointSink3& down_;
   const std::size_t blockPoints_, maxBlocks_;
+  SharedQueueBudget* const budget_;
   StreamInfo3 info_;  // written by begin() before the first block is handed over (the mutex orders it)
   Block current_;
   std::mutex mutex_;

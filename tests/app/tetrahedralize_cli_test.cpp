@@ -134,7 +134,7 @@ TEST(Tetrahedralize, UsageErrors) {
   EXPECT_EQ(run("tetrahedralize"), 2);
   EXPECT_EQ(run("tetrahedralize x.las"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.ply"), 2);
-  EXPECT_EQ(run("tetrahedralize x.las -o m.sma --region-level 4"), 2);
+  EXPECT_EQ(run("tetrahedralize x.las -o m.sma --region-level 3"), 2);
 }
 
 }  // namespace
