@@ -6,7 +6,6 @@
 #include <chrono>
 #include <condition_variable>
 #include <cstring>
-#include <deque>
 #include <exception>
 #include <mutex>
 #include <string>
@@ -426,6 +425,7 @@ struct ParallelDelaunay3d::Impl {
       const std::size_t r = regionOf(p[i]);
       std::size_t j = i + 1;
       while (j < n && regionOf(p[j]) == r) ++j;
+      if (regions[r].ended) throw Error("3D Delaunay: a point arrived in an octree cell already finalized");
       regions[r].in->points(p + i, j - i);
       i = j;
     }

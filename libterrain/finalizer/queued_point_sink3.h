@@ -12,6 +12,7 @@
 // it.  If the producer throws instead, the destructor tells the consumer to stop and joins it.
 #pragma once
 
+#include <algorithm>
 #include <condition_variable>
 #include <cstddef>
 #include <deque>
@@ -76,9 +77,12 @@ class QueuedPointSink3 : public PointSink3 {
     current_.events.push_back({Kind::Begin, 0, 0, {}});
   }
   void points(const PointRecord* p, std::size_t n) override {
+    // (Reserved at a block's first points, not when the last one left: an idle queue holds nothing.)
+    if (current_.points.capacity() == 0)
+      current_.points.reserve(blockPoints_ + std::min<std::size_t>(n, 4096));
     current_.events.push_back({Kind::Points, current_.points.size(), n, {}});
     current_.points.insert(current_.points.end(), p, p + n);
-    if (current_.points.size() >= blockPoints_) handOver(false);
+    if (current_.points.size() >= blockPoints_) handOver();
   }
   void finalizeCell(const OctCellTag& cell) override { current_.events.push_back({Kind::Tag, 0, 0, cell}); }
   void end() override {
@@ -91,7 +95,7 @@ class QueuedPointSink3 : public PointSink3 {
   // what the consumer threw; after cancel() it throws CancelledError instead of waiting.
   void finish() {
     current_.events.push_back({Kind::End, 0, 0, {}});
-    handOver(true);
+    handOver();
   }
   void waitFinished() {
     std::unique_lock<std::mutex> lock(mutex_);
@@ -120,7 +124,7 @@ class QueuedPointSink3 : public PointSink3 {
     std::vector<PointRecord> points;
   };
 
-  void handOver(bool last) {
+  void handOver() {
     if (budget_) budget_->acquire(current_.points.size());
     std::unique_lock<std::mutex> lock(mutex_);
     changed_.wait(lock, [&] { return queue_.size() < maxBlocks_ || error_; });
@@ -130,7 +134,6 @@ class QueuedPointSink3 : public PointSink3 {
     }
     queue_.push_back(std::move(current_));
     current_ = Block{};
-    if (!last) current_.points.reserve(blockPoints_);
     changed_.notify_all();
   }
 

@@ -245,6 +245,58 @@ std::vector<PointRecord> randomCube(std::size_t n, unsigned seed, double offset 
   return records(p);
 }
 
+// Gaussian clusters, a third of them tight (0.01) and the rest loose (5), flattened in z.
+std::vector<PointRecord> clustered(unsigned seed, int clusters) {
+  std::mt19937_64 rng(seed);
+  std::normal_distribution<double> g(0, 1);
+  std::uniform_real_distribution<double> u(0, 1000);
+  std::vector<Point3> p;
+  for (int c = 0; c < clusters; ++c) {
+    const Point3 centre{u(rng), u(rng), u(rng) / 10};
+    const double s = c % 3 == 0 ? 0.01 : 5.0;
+    for (int i = 0; i < 300; ++i)
+      p.push_back({centre.x + s * g(rng), centre.y + s * g(rng), centre.z + s * g(rng)});
+  }
+  return records(p);
+}
+
+// An n x n x n lattice of spacing `step` at `origin`, shuffled: cospherical everywhere.
+std::vector<PointRecord> lattice(int n, const Point3& origin, double step, unsigned seed) {
+  std::vector<Point3> p;
+  for (int i = 0; i < n; ++i)
+    for (int j = 0; j < n; ++j)
+      for (int k = 0; k < n; ++k)
+        p.push_back({origin.x + i * step, origin.y + j * step, origin.z + k * step});
+  std::shuffle(p.begin(), p.end(), std::mt19937_64(seed));
+  return records(p);
+}
+
+// Random points in a 10 m cube with a plane inside it, points on a hull plane, a line, and a lattice on
+// a hull face.
+std::vector<PointRecord> mixedSubsets(unsigned seed) {
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> u(0, 10);
+  std::vector<Point3> p;
+  for (int i = 0; i < 600; ++i) p.push_back({u(rng), u(rng), u(rng)});
+  for (int i = 0; i < 300; ++i) p.push_back({u(rng), u(rng), 5.0});  // a plane (inside; a region face)
+  for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), 0.0});  // a hull plane
+  for (int i = 0; i < 100; ++i) {
+    const double t = u(rng);
+    p.push_back({t, t, t});  // a line
+  }
+  for (int i = 0; i < 100; ++i) p.push_back({std::floor(u(rng)), 10.0, std::floor(u(rng))});  // hull lattice
+  return records(p);
+}
+
+std::vector<PointRecord> readLas(const std::string& name) {
+  Diagnostics diag;
+  LasReader reader(test::dataPath(name), diag);
+  std::vector<PointRecord> pts, batch(4096);
+  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
+    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  return pts;
+}
+
 TEST(StreamingDelaunay3d, RandomCubeMatchesCgal) {
   check(randomCube(4000, 1), true);
 }
@@ -308,37 +360,19 @@ TEST(StreamingDelaunay3d, RandomOrderStreamsLikeCoherentOrder) {
 }
 
 TEST(StreamingDelaunay3d, ClusteredPointsMatchCgal) {
-  std::mt19937_64 rng(4);
-  std::normal_distribution<double> g(0, 1);
-  std::uniform_real_distribution<double> u(0, 1000);
-  std::vector<Point3> p;
-  for (int c = 0; c < 12; ++c) {
-    const Point3 centre{u(rng), u(rng), u(rng) / 10};
-    const double s = c % 3 == 0 ? 0.01 : 5.0;
-    for (int i = 0; i < 300; ++i) p.push_back({centre.x + s * g(rng), centre.y + s * g(rng), centre.z + s * g(rng)});
-  }
-  check(records(p), true);
+  check(clustered(4, 12), true);
 }
 
 TEST(StreamingDelaunay3d, LatticeIsValidDelaunay) {
   // A 9 x 9 x 9 lattice: cospherical everywhere (8 points on every cube's sphere), coplanar hull faces.
-  std::vector<Point3> p;
-  for (int i = 0; i < 9; ++i)
-    for (int j = 0; j < 9; ++j)
-      for (int k = 0; k < 9; ++k) p.push_back({500000.0 + i * 0.5, 4000000.0 + j * 0.5, 100.0 + k * 0.5});
-  std::shuffle(p.begin(), p.end(), std::mt19937_64(5));
-  check(records(p), false);
-  check(records(p), false, 2);
+  const auto p = lattice(9, {500000.0, 4000000.0, 100.0}, 0.5, 5);
+  check(p, false);
+  check(p, false, 2);
 }
 
 TEST(StreamingDelaunay3d, LatticeMatchesCgalPerturbation) {
   // CGAL perturbs cospherical ties symbolically the same way: the tetrahedra agree even here.
-  std::vector<Point3> p;
-  for (int i = 0; i < 6; ++i)
-    for (int j = 0; j < 6; ++j)
-      for (int k = 0; k < 6; ++k) p.push_back({i * 1.0, j * 1.0, k * 1.0});
-  std::shuffle(p.begin(), p.end(), std::mt19937_64(6));
-  check(records(p), true);
+  check(lattice(6, {0, 0, 0}, 1.0, 6), true);
 }
 
 TEST(StreamingDelaunay3d, DuplicatesAreMergedAndCounted) {
@@ -350,18 +384,7 @@ TEST(StreamingDelaunay3d, DuplicatesAreMergedAndCounted) {
 }
 
 TEST(StreamingDelaunay3d, CoplanarAndCollinearSubsets) {
-  std::mt19937_64 rng(8);
-  std::uniform_real_distribution<double> u(0, 10);
-  std::vector<Point3> p;
-  for (int i = 0; i < 600; ++i) p.push_back({u(rng), u(rng), u(rng)});
-  for (int i = 0; i < 300; ++i) p.push_back({u(rng), u(rng), 5.0});         // a plane (inside)
-  for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), 0.0});         // a hull plane
-  for (int i = 0; i < 100; ++i) {
-    const double t = u(rng);
-    p.push_back({t, t, t});  // a line
-  }
-  for (int i = 0; i < 100; ++i) p.push_back({std::floor(u(rng)), 10.0, std::floor(u(rng))});  // hull lattice
-  check(records(p), false);
+  check(mixedSubsets(8), false);
 }
 
 TEST(StreamingDelaunay3d, PlanarInputHasNoTetrahedra) {
@@ -376,11 +399,7 @@ TEST(StreamingDelaunay3d, PlanarInputHasNoTetrahedra) {
 
 TEST(StreamingDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
   TINBUILD_REQUIRE_DATA();
-  Diagnostics diag;
-  LasReader reader(test::dataPath("las/simple.las"), diag);
-  std::vector<PointRecord> pts, batch(4096);
-  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
-    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  const auto pts = readLas("las/simple.las");
   ASSERT_GT(pts.size(), 1000u);
   // Quantized to 0.01: cospherical ties are frequent, and CGAL's perturbation is ours.
   check(pts, true);
@@ -425,36 +444,18 @@ TEST(ParallelDelaunay3d, SeamIsASmallShareAndRegionsStream) {
 
 TEST(ParallelDelaunay3d, UtmOffsetsAndClustersMatchCgal) {
   checkRegions(randomCube(4000, 23, 500000.0), true, 3, 1);
-  std::mt19937_64 rng(24);
-  std::normal_distribution<double> g(0, 1);
-  std::uniform_real_distribution<double> u(0, 1000);
-  std::vector<Point3> p;
-  for (int c = 0; c < 10; ++c) {
-    const Point3 centre{u(rng), u(rng), u(rng) / 10};
-    const double s = c % 3 == 0 ? 0.01 : 5.0;
-    for (int i = 0; i < 300; ++i)
-      p.push_back({centre.x + s * g(rng), centre.y + s * g(rng), centre.z + s * g(rng)});
-  }
-  checkRegions(records(p), true, 3, 1);
-  checkRegions(records(p), true, 3, 2);
+  const auto p = clustered(24, 10);
+  checkRegions(p, true, 3, 1);
+  checkRegions(p, true, 3, 2);
 }
 
 TEST(ParallelDelaunay3d, LatticeOnRegionFacesMatchesCgalPerturbation) {
-  // 8 x 8 x 8 unit lattice: its bounding cube's region faces pass through lattice planes, so points lie
-  // exactly on region faces and every sphere is shared by eight points.
-  std::vector<Point3> p;
-  for (int i = 0; i < 9; ++i)
-    for (int j = 0; j < 9; ++j)
-      for (int k = 0; k < 9; ++k) p.push_back({i * 1.0, j * 1.0, k * 1.0});
-  std::shuffle(p.begin(), p.end(), std::mt19937_64(25));
-  checkRegions(records(p), true, 3, 1);
-  checkRegions(records(p), true, 3, 2);
-  std::vector<Point3> q;  // at UTM coordinates, half-metre spacing
-  for (int i = 0; i < 7; ++i)
-    for (int j = 0; j < 7; ++j)
-      for (int k = 0; k < 7; ++k) q.push_back({500000.0 + i * 0.5, 4000000.0 + j * 0.5, 100.0 + k * 0.5});
-  std::shuffle(q.begin(), q.end(), std::mt19937_64(26));
-  checkRegions(records(q), false, 2, 1);
+  // A 9 x 9 x 9 unit lattice: the region faces of its bounding cube pass through lattice planes, so
+  // points lie exactly on region faces and every sphere is shared by eight points.
+  const auto p = lattice(9, {0, 0, 0}, 1.0, 25);
+  checkRegions(p, true, 3, 1);
+  checkRegions(p, true, 3, 2);
+  checkRegions(lattice(7, {500000.0, 4000000.0, 100.0}, 0.5, 26), false, 2, 1);  // UTM, half a metre
 }
 
 TEST(ParallelDelaunay3d, DuplicatesCoplanarAndCollinearSubsets) {
@@ -462,19 +463,9 @@ TEST(ParallelDelaunay3d, DuplicatesCoplanarAndCollinearSubsets) {
   const std::size_t n = pts.size();
   for (std::size_t i = 0; i < n; i += 3) pts.push_back(pts[i]);
   checkRegions(pts, true, 3, 1);
-  std::mt19937_64 rng(28);
-  std::uniform_real_distribution<double> u(0, 10);
-  std::vector<Point3> p;
-  for (int i = 0; i < 600; ++i) p.push_back({u(rng), u(rng), u(rng)});
-  for (int i = 0; i < 300; ++i) p.push_back({u(rng), u(rng), 5.0});  // a region face
-  for (int i = 0; i < 200; ++i) p.push_back({u(rng), u(rng), 0.0});  // a hull plane
-  for (int i = 0; i < 100; ++i) {
-    const double t = u(rng);
-    p.push_back({t, t, t});
-  }
-  for (int i = 0; i < 100; ++i) p.push_back({std::floor(u(rng)), 10.0, std::floor(u(rng))});
-  checkRegions(records(p), false, 3, 1);
-  checkRegions(records(p), false, 3, 2);
+  const auto p = mixedSubsets(28);
+  checkRegions(p, false, 3, 1);
+  checkRegions(p, false, 3, 2);
 }
 
 TEST(ParallelDelaunay3d, FlatAndEmptyRegions) {
@@ -503,11 +494,7 @@ TEST(ParallelDelaunay3d, FlatAndEmptyRegions) {
 
 TEST(ParallelDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
   TINBUILD_REQUIRE_DATA();
-  Diagnostics diag;
-  LasReader reader(test::dataPath("las/simple.las"), diag);
-  std::vector<PointRecord> pts, batch(4096);
-  for (std::size_t n; (n = reader.read(batch.data(), batch.size())) > 0;)
-    pts.insert(pts.end(), batch.begin(), batch.begin() + static_cast<std::ptrdiff_t>(n));
+  const auto pts = readLas("las/simple.las");
   checkRegions(pts, true, 3, 1);
   checkRegions(pts, true, 4, 2);
 }
