@@ -321,9 +321,8 @@ int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& point
 Command tetrahedralizeCommand() {
   return Command{
       "tetrahedralize",
-      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] [--keep-class "
-      "LIST] "
-      "[--drop-class LIST] [--region-level L] [--threads N] [-q]",
+      "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] "
+      "[--keep-class LIST] [--drop-class LIST] [--region-level L] [--threads N] [-q]",
       "streaming 3D Delaunay tetrahedralization of point clouds (the paper's spdelaunay3d)",
       "Reads the inputs (LAS/LAZ/COPC/XYZ, several files as one survey, with the readers and filters of\n"
       "`build`) as a 3D point cloud, finalizes them over an octree (counts per cell, sprinkle points, BRIO\n"

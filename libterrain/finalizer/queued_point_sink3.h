@@ -77,9 +77,10 @@ class QueuedPointSink3 : public PointSink3 {
     current_.events.push_back({Kind::Begin, 0, 0, {}});
   }
   void points(const PointRecord* p, std::size_t n) override {
-    // (Reserved at a block's first points, not when the last one left: an idle queue holds nothing.)
-    if (current_.points.capacity() == 0)
-      current_.points.reserve(blockPoints_ + std::min<std::size_t>(n, 4096));
+    // A block holds at most blockPoints points unless one batch is larger, and its vector is reserved
+    // at its first points, to that size: no idle queue holds a block, no block holds slack.
+    if (!current_.points.empty() && current_.points.size() + n > blockPoints_) handOver();
+    if (current_.points.capacity() == 0) current_.points.reserve(std::max(blockPoints_, n));
     current_.events.push_back({Kind::Points, current_.points.size(), n, {}});
     current_.points.insert(current_.points.end(), p, p + n);
     if (current_.points.size() >= blockPoints_) handOver();
