@@ -41,6 +41,12 @@ std::string slurp(const std::string& path) {
   return s.str();
 }
 
+// The first number after "key": in a flat JSON report (-1 when the key is missing).
+double number(const std::string& json, const std::string& key) {
+  const std::size_t at = json.find("\"" + key + "\": ");
+  return at == std::string::npos ? -1.0 : std::strtod(json.c_str() + at + key.size() + 4, nullptr);
+}
+
 // `finalize --3d | tetrahedralize -` and the stream file write the bytes of the one-process run, whatever
 // the threads (the tetrahedralizer behind a queue or not) and the depth.
 TEST(Tetrahedralize, PipeAndStreamFileEqualOneProcess) {
@@ -83,13 +89,9 @@ TEST(Tetrahedralize, SurfaceCloudGetsAFinerDefaultOctree) {
   std::filesystem::create_directories(dir);
   ASSERT_EQ(run("tetrahedralize " + las + " -o /dev/null -q --report " + dir + "/r.json"), 0);
   const std::string json = slurp(dir + "/r.json");
-  auto number = [&](const std::string& key) {
-    const std::size_t at = json.find("\"" + key + "\": ");
-    return at == std::string::npos ? -1.0 : std::strtod(json.c_str() + at + key.size() + 4, nullptr);
-  };
-  EXPECT_EQ(number("depth"), 4) << json;
-  EXPECT_EQ(number("depth_refinements"), 2) << json;
-  EXPECT_LT(number("max_active_tets"), 0.12 * number("tetrahedra")) << json;
+  EXPECT_EQ(number(json, "depth"), 4) << json;
+  EXPECT_EQ(number(json, "depth_refinements"), 2) << json;
+  EXPECT_LT(number(json, "max_active_tets"), 0.12 * number(json, "tetrahedra")) << json;
 }
 
 // Regions with certified seams (--region-level): every level gives a verified mesh (positive, locally
@@ -119,10 +121,6 @@ TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
   EXPECT_EQ(slurp(dir + "/pipe.sma"), one);
   EXPECT_EQ(run("verify " + dir + "/t1.sma --points " + las), 0);
   EXPECT_EQ(run("verify " + dir + "/t2.smb --points " + las), 0);
-  auto number = [&](const std::string& json, const std::string& key) {
-    const std::size_t at = json.find("\"" + key + "\": ");
-    return at == std::string::npos ? -1.0 : std::strtod(json.c_str() + at + key.size() + 4, nullptr);
-  };
   const std::string r0 = slurp(dir + "/r0.json"), r1 = slurp(dir + "/r1.json");
   EXPECT_EQ(number(r1, "count"), 8) << r1;
   EXPECT_GT(number(r1, "seam_vertices"), 0) << r1;
