@@ -15,6 +15,7 @@
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/mix_bits.h"
 #include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay3d/predicates3d.h"
 #include "libterrain/finalizer/queued_point_sink3.h"
@@ -25,22 +26,6 @@ namespace {
 
 constexpr std::uint64_t kNoId = ~std::uint64_t{0};
 constexpr std::uint32_t kHull = RegionSeam3::kHull;
-
-// The inverse of mortonCode3's spreading: every third bit of v, packed.
-std::uint32_t compactBits3(std::uint64_t v) {
-  v &= 0x1249249249249249ULL;
-  v = (v ^ (v >> 2)) & 0x10c30c30c30c30c3ULL;
-  v = (v ^ (v >> 4)) & 0x100f00f00f00f00fULL;
-  v = (v ^ (v >> 8)) & 0x1f0000ff0000ffULL;
-  v = (v ^ (v >> 16)) & 0x1f00000000ffffULL;
-  v = (v ^ (v >> 32)) & 0x1fffffULL;
-  return static_cast<std::uint32_t>(v);
-}
-
-OctCellTag cellOfCode(int level, std::uint64_t code) {
-  return OctCellTag{static_cast<std::uint8_t>(level), compactBits3(code), compactBits3(code >> 1),
-                    compactBits3(code >> 2)};
-}
 
 // A region's certified tetrahedra, spooled to a temporary file until the regions before it are written:
 // 'V' x y z (ids 0, 1, 2, ... implied), 'T' a b c d, 'F' id, ids as 32-bit region ids.
@@ -157,6 +142,11 @@ struct SeamChunk {
   std::vector<std::uint32_t> cones;                // a serial's seam tetrahedra, by index
 };
 
+// The finite vertices of a recorded seam tetrahedron: 3 for a hull face, else 4.
+int corners(const std::array<std::uint32_t, 4>& t) {
+  return t[3] == kHull ? 3 : 4;
+}
+
 // kCone[i]: the other three vertices of a positive tetrahedron in the order (u, v, w) that makes
 // orient3d(v[i], u, v, w) > 0 (an even permutation of 0123 with i first).
 constexpr int kCone[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {1, 0, 2}};
@@ -216,7 +206,11 @@ class SeamFilter : public TetMeshSink {
     const std::uint32_t s = idToSeam_[id];
     SeamChunk& c = s_.chunkOf(s);
     out_.finalizeVertex(gidOf(s, c));
-    if (--c.live == 0) c = SeamChunk{c.base, 0, {}, {}, {}, {}, {}, {}};  // gives the chunk's memory back
+    if (--c.live == 0) {  // gives the chunk's memory back
+      const std::uint32_t base = c.base;
+      c = SeamChunk{};
+      c.base = base;
+    }
   }
   void end() override {}
 
@@ -224,10 +218,7 @@ class SeamFilter : public TetMeshSink {
   using Key = std::array<std::uint64_t, 3>;
   struct KeyHash {
     std::size_t operator()(const Key& k) const {
-      std::uint64_t h = k[0] * 0x9E3779B97F4A7C15ULL;
-      h ^= (k[1] + (h >> 29)) * 0xC2B2AE3D27D4EB4FULL;
-      h ^= (k[2] + (h >> 31)) * 0x165667B19E3779F9ULL;
-      return static_cast<std::size_t>(h ^ (h >> 32));
+      return static_cast<std::size_t>(mixBits(k[0] ^ mixBits(k[1] ^ mixBits(k[2]))));
     }
   };
   static Key key(const Point3& p) {
@@ -404,7 +395,7 @@ struct ParallelDelaunay3d::Impl {
     seamSet.chunks.reserve(n);  // (chunks never move: the merge feeds from the last one's points)
     for (std::size_t r = 0; r < n; ++r) {
       Region& R = regions[r];
-      const OctCellTag c = cellOfCode(level, r);
+      const OctCellTag c = mortonCell3(level, r);
       R.spool = std::make_unique<SpoolSink>(opt.tempDir);
       R.dt = std::make_unique<StreamingDelaunay3d>(*R.spool, Region3{level, c.x, c.y, c.z}, &R.seam);
       if (opt.threads > 1) {
@@ -518,16 +509,15 @@ struct ParallelDelaunay3d::Impl {
       c.gid.resize(n);
       for (std::uint32_t k = 0; k < n; ++k) c.gid[k] = rs.outIds[k] == kNoId ? kNoId : base + rs.outIds[k];
       c.tets.assign(rs.tets.begin(), rs.tets.end());
-      rs = RegionSeam3{};
       c.coneStart.assign(std::size_t{n} + 1, 0);
       for (const auto& t : c.tets)
-        for (int i = 0; i < (t[3] == kHull ? 3 : 4); ++i) ++c.coneStart[t[i] + 1];
+        for (int i = 0; i < corners(t); ++i) ++c.coneStart[t[i] + 1];
       for (std::uint32_t k = 0; k < n; ++k) c.coneStart[k + 1] += c.coneStart[k];
       c.cones.resize(c.coneStart[n]);
       stats.seamCones += c.cones.size();
       std::vector<std::uint32_t> fill(c.coneStart.begin(), c.coneStart.end() - 1);
       for (std::uint32_t j = 0; j < c.tets.size(); ++j)
-        for (int i = 0; i < (c.tets[j][3] == kHull ? 3 : 4); ++i) c.cones[fill[c.tets[j][i]]++] = j;
+        for (int i = 0; i < corners(c.tets[j]); ++i) c.cones[fill[c.tets[j][i]]++] = j;
       s.chunks.push_back(std::move(c));
       s.size = b + n;
       filter->indexLastChunk();
@@ -570,7 +560,7 @@ struct ParallelDelaunay3d::Impl {
       while (k < depth && seamTagged % (std::uint64_t{1} << (3 * (k + 1))) == 0 &&
              seamTagged + (std::uint64_t{1} << (3 * (k + 1))) <= end)
         ++k;
-      seamDt->finalizeCell(cellOfCode(depth - k, seamTagged >> (3 * k)));
+      seamDt->finalizeCell(mortonCell3(depth - k, seamTagged >> (3 * k)));
       seamTagged += std::uint64_t{1} << (3 * k);
     }
   }

@@ -35,11 +35,11 @@
 // Delaunay_triangulation_3, as with one region.
 //
 // The output stream.  Each region writes its certified tetrahedra to a spool file (its own vertex ids,
-// its non-seam vertices finalized); at end() the spools are replayed in region (Morton) order, vertex ids
-// offset, and then the seam step's tetrahedra follow; the seam vertices stay live from their region's
-// part to the seam's.  The bytes therefore depend on the region level, never on `threads`.
-// The seam set is held until end() (about N^(2/3) points and their cones): the regions stream, the seam
-// does not yet.
+// its non-seam vertices finalized).  As the regions end, a merger replays the spools in region (Morton)
+// order, vertex ids offset, and feeds each region's seam vertices to the seam step, whose tetrahedra
+// follow as they become final; the seam vertices stay live from their region's part to the seam's.  The
+// bytes therefore depend on the region level, never on `threads`.  A region's part of S is held until
+// the seam has finalized all of its vertices: the seam streams region by region, not inside a region.
 #pragma once
 
 #include <cstdint>

@@ -222,12 +222,12 @@ struct StreamingDelaunay3d::Impl {
     }
   }
 
-  // Is a final tetrahedron's circumsphere, whose box `s` openLeafFor just computed (lastBounded: it
-  // could), inside the region's shrunk cube?
-  bool certified(const Box& s) const {
+  // Is the circumsphere of the finite tetrahedron openLeafFor just saw (its box lastBox, if lastBounded)
+  // inside the region's shrunk cube?
+  bool certified() const {
     if (!lastBounded) return false;
     for (int i = 0; i < 3; ++i)
-      if (!(s.lo[i] > certBox.lo[i] && s.hi[i] < certBox.hi[i])) return false;
+      if (!(lastBox.lo[i] > certBox.lo[i] && lastBox.hi[i] < certBox.hi[i])) return false;
     return true;
   }
 
@@ -513,7 +513,7 @@ struct StreamingDelaunay3d::Impl {
 
   void emit(std::uint32_t t) {
     Tet& T = tets[t];
-    if (seam != nullptr && (T.ghost() || !certified(lastBox))) {  // (emit follows openLeafFor)
+    if (seam != nullptr && (T.ghost() || !certified())) {  // (emit follows openLeafFor)
       recordSeam(T);
     } else if (!T.ghost()) {
       std::uint64_t id[4];

@@ -89,6 +89,20 @@ inline std::uint64_t mortonCode3(std::uint32_t x, std::uint32_t y, std::uint32_t
   return spread(x) | spread(y) << 1 | spread(z) << 2;
 }
 
+// The cell of octree level `level` whose Morton code (at that level) is `code`: mortonCode3's inverse.
+inline OctCellTag mortonCell3(int level, std::uint64_t code) {
+  auto compact = [](std::uint64_t v) {
+    v &= 0x1249249249249249ULL;
+    v = (v ^ (v >> 2)) & 0x10c30c30c30c30c3ULL;
+    v = (v ^ (v >> 4)) & 0x100f00f00f00f00fULL;
+    v = (v ^ (v >> 8)) & 0x1f0000ff0000ffULL;
+    v = (v ^ (v >> 16)) & 0x1f00000000ffffULL;
+    v = (v ^ (v >> 32)) & 0x1fffffULL;
+    return static_cast<std::uint32_t>(v);
+  };
+  return OctCellTag{static_cast<std::uint8_t>(level), compact(code), compact(code >> 1), compact(code >> 2)};
+}
+
 struct StreamInfo3 {
   OctreeGrid grid;
   Bounds3 bounds;            // of the points that will be streamed
