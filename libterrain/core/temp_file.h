@@ -5,9 +5,12 @@
 
 #include <sys/uio.h>
 
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
+#include <memory>
 #include <string>
+#include <type_traits>
 #include <vector>
 
 namespace tinbuild {
@@ -38,6 +41,47 @@ class TempFile {
   [[noreturn]] void fail(const char* what);
   int fd_ = -1;
   std::string path_;
+};
+
+// An append-only sequence of trivially copyable records that is read back once, whole: kept in a
+// temporary file (created at the first full buffer) behind a buffer of `bufferRecords`, so a long log
+// costs no memory while it waits.
+template <class T>
+class RecordLog {
+  static_assert(std::is_trivially_copyable_v<T>);
+
+ public:
+  explicit RecordLog(std::string dir = {}, const char* stem = "log", std::size_t bufferRecords = 1024)
+      : dir_(std::move(dir)), stem_(stem), bufferRecords_(std::max<std::size_t>(1, bufferRecords)) {}
+  std::size_t size() const { return filed_ + buf_.size(); }
+  bool empty() const { return size() == 0; }
+  void push_back(const T& v) {
+    if (buf_.capacity() == 0) buf_.reserve(bufferRecords_);
+    buf_.push_back(v);
+    if (buf_.size() == bufferRecords_) spill();
+  }
+  // Every record in order; the log is empty afterwards.
+  std::vector<T> take() {
+    std::vector<T> all(size());
+    if (filed_ > 0) file_->readAt(0, all.data(), filed_ * sizeof(T));
+    std::copy(buf_.begin(), buf_.end(), all.begin() + static_cast<std::ptrdiff_t>(filed_));
+    *this = RecordLog(std::move(dir_), stem_, bufferRecords_);
+    return all;
+  }
+
+ private:
+  void spill() {
+    if (!file_) file_ = std::make_unique<TempFile>(dir_, stem_);
+    file_->writeAt(filed_ * sizeof(T), buf_.data(), buf_.size() * sizeof(T));
+    filed_ += buf_.size();
+    buf_.clear();
+  }
+  std::string dir_;
+  const char* stem_;
+  std::size_t bufferRecords_;
+  std::unique_ptr<TempFile> file_;
+  std::vector<T> buf_;
+  std::size_t filed_ = 0;
 };
 
 }  // namespace tinbuild

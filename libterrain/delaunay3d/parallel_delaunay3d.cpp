@@ -130,16 +130,29 @@ class SpoolSink : public TetMeshSink {
 
 // The seam set S, by seam index: the regions' seam vertices in region (Morton) order, each region's
 // serials in order, appended as the regions end.  A region's part (a chunk) is freed once the seam's
-// triangulator has finalized all of its vertices: no later tetrahedron of DT(S) can use them.
+// triangulator has finalized all of its vertices: no later tetrahedron of DT(S) can use them.  Before
+// that it is packed whenever half of its live vertices have been finalized since the last packing: a
+// finalized vertex needs no cones any more, and its point only while a live vertex's cone uses it.  (Most
+// of a region's seam lies on faces shared with regions that end soon after it; the rest waits for
+// regions that end much later, and without packing held the whole chunk that long.)
 struct SeamChunk {
-  std::uint32_t base = 0;  // seam index of its serial 0
-  std::uint32_t live = 0;  // its vertices not yet finalized by the seam's triangulator
+  static constexpr std::uint8_t kWhole = 1;  // every direction around the vertex is the seam's
+  static constexpr std::uint8_t kDone = 2;   // the seam's triangulator finalized it
+  static constexpr std::uint32_t kGone = ~0u;
+  std::uint32_t base = 0;        // seam index of its serial 0
+  std::uint32_t live = 0;        // its vertices not yet finalized by the seam's triangulator
+  std::uint32_t liveAtPack = 0;  // `live` when it was built or last packed
+  // A serial's record is at slot(serial): the serial itself until the first packing, then slotOf[serial]
+  // (kGone once dropped).  points, gid, flags and coneStart are by slot.
+  std::vector<std::uint32_t> slotOf;
   std::vector<Point3> points;
   std::vector<std::uint64_t> gid;  // the output id: given by the region's part, or by the seam step
-  std::vector<std::uint8_t> whole;
-  std::vector<std::array<std::uint32_t, 4>> tets;  // the region's seam tetrahedra (RegionSeam3)
-  std::vector<std::uint32_t> coneStart;            // CSR over the serials into `cones`
-  std::vector<std::uint32_t> cones;                // a serial's seam tetrahedra, by index
+  std::vector<std::uint8_t> flags;
+  std::vector<std::array<std::uint32_t, 4>> tets;  // the region's seam tetrahedra (RegionSeam3), by serial
+  std::vector<std::uint32_t> coneStart;            // CSR over the slots into `cones`
+  std::vector<std::uint32_t> cones;                // a slot's seam tetrahedra, by index
+  std::uint32_t slot(std::uint32_t serial) const { return slotOf.empty() ? serial : slotOf[serial]; }
+  void pack();
 };
 
 // The finite vertices of a recorded seam tetrahedron: 3 for a hull face, else 4.
@@ -150,6 +163,53 @@ int corners(const std::array<std::uint32_t, 4>& t) {
 // kCone[i]: the other three vertices of a positive tetrahedron in the order (u, v, w) that makes
 // orient3d(v[i], u, v, w) > 0 (an even permutation of 0123 with i first).
 constexpr int kCone[4][3] = {{1, 2, 3}, {0, 3, 2}, {0, 1, 3}, {1, 0, 2}};
+
+// Keeps the live vertices with their cones, and the points of the vertices those cones use.
+void SeamChunk::pack() {
+  const std::size_t slots = points.size();
+  std::vector<std::uint8_t> keepSlot(slots, 0), keepTet(tets.size(), 0);
+  for (std::size_t sl = 0; sl < slots; ++sl) {
+    if (flags[sl] & kDone) continue;
+    keepSlot[sl] = 1;
+    for (std::uint32_t k = coneStart[sl]; k < coneStart[sl + 1]; ++k) keepTet[cones[k]] = 1;
+  }
+  // (A kept tetrahedron is a cone of a vertex live now, so live at the last packing too: its corners'
+  // records were kept then.)
+  std::vector<std::uint32_t> tetIndex(tets.size(), kGone);
+  std::vector<std::array<std::uint32_t, 4>> newTets;
+  for (std::size_t j = 0; j < tets.size(); ++j) {
+    if (!keepTet[j]) continue;
+    for (int i = 0; i < corners(tets[j]); ++i) keepSlot[slot(tets[j][i])] = 1;
+    tetIndex[j] = static_cast<std::uint32_t>(newTets.size());
+    newTets.push_back(tets[j]);
+  }
+  const std::size_t serials = slotOf.empty() ? slots : slotOf.size();
+  std::vector<std::uint32_t> newSlotOf(serials, kGone);
+  std::vector<Point3> newPoints;
+  std::vector<std::uint64_t> newGid;
+  std::vector<std::uint8_t> newFlags;
+  std::vector<std::uint32_t> newStart{0}, newCones;
+  for (std::uint32_t q = 0; q < serials; ++q) {
+    const std::uint32_t sl = slot(q);
+    if (sl == kGone || !keepSlot[sl]) continue;
+    newSlotOf[q] = static_cast<std::uint32_t>(newPoints.size());
+    newPoints.push_back(points[sl]);
+    newGid.push_back(gid[sl]);
+    newFlags.push_back(flags[sl]);
+    if (!(flags[sl] & kDone))
+      for (std::uint32_t k = coneStart[sl]; k < coneStart[sl + 1]; ++k)
+        newCones.push_back(tetIndex[cones[k]]);
+    newStart.push_back(static_cast<std::uint32_t>(newCones.size()));
+  }
+  slotOf = std::move(newSlotOf);
+  points = std::move(newPoints);
+  gid = std::move(newGid);
+  flags = std::move(newFlags);
+  tets = std::move(newTets);
+  coneStart = std::move(newStart);
+  cones = std::move(newCones);
+  liveAtPack = live;
+}
 
 struct SeamSet {
   std::vector<SeamChunk> chunks;
@@ -206,10 +266,13 @@ class SeamFilter : public TetMeshSink {
     const std::uint32_t s = idToSeam_[id];
     SeamChunk& c = s_.chunkOf(s);
     out_.finalizeVertex(gidOf(s, c));
+    c.flags[c.slot(s - c.base)] |= SeamChunk::kDone;
     if (--c.live == 0) {  // gives the chunk's memory back
       const std::uint32_t base = c.base;
       c = SeamChunk{};
       c.base = base;
+    } else if (c.live <= c.liveAtPack / 2 && c.liveAtPack >= 64) {
+      c.pack();
     }
   }
   void end() override {}
@@ -230,36 +293,37 @@ class SeamFilter : public TetMeshSink {
   }
   std::uint64_t gidOf(std::uint32_t s) { return gidOf(s, s_.chunkOf(s)); }
   std::uint64_t gidOf(std::uint32_t s, SeamChunk& c) {
-    std::uint64_t& g = c.gid[s - c.base];
+    const std::uint32_t sl = c.slot(s - c.base);
+    std::uint64_t& g = c.gid[sl];
     if (g == kNoId) {
       g = nextGid_++;
-      const Point3& p = c.points[s - c.base];
+      const Point3& p = c.points[sl];
       out_.vertex(g, p.x, p.y, p.z);
     }
     return g;
   }
   const Point3& point(std::uint32_t s) {
     const SeamChunk& c = s_.chunkOf(s);
-    return c.points[s - c.base];
+    return c.points[c.slot(s - c.base)];
   }
   // Is the positive tetrahedron (q, a, b, c) of DT(S) one of U?  (See the header, point 3.)
   bool owns(const std::uint32_t (&v)[4]) {
     const SeamChunk& c = s_.chunkOf(v[0]);
-    const std::uint32_t q = v[0] - c.base;
-    if (c.whole[q]) return true;
-    const Point3& Q = c.points[q];
+    const std::uint32_t q = v[0] - c.base, sq = c.slot(q);
+    if (c.flags[sq] & SeamChunk::kWhole) return true;
+    const Point3& Q = c.points[sq];
     const Point3* const abc[3] = {&point(v[1]), &point(v[2]), &point(v[3])};
-    for (std::uint32_t k = c.coneStart[q]; k < c.coneStart[q + 1]; ++k) {
+    for (std::uint32_t k = c.coneStart[sq]; k < c.coneStart[sq + 1]; ++k) {
       const std::array<std::uint32_t, 4>& t = c.tets[c.cones[k]];
       int i = 0;
       while (t[i] != q) ++i;
       if (t[3] == kHull) {  // a hull face (q, u, v) in its cyclic order, outside positive
-        const Point3 &U = c.points[t[(i + 1) % 3]], &V = c.points[t[(i + 2) % 3]];
+        const Point3 &U = c.points[c.slot(t[(i + 1) % 3])], &V = c.points[c.slot(t[(i + 2) % 3])];
         if (perturbedSide(Q, U, V, abc) > 0) return true;  // beyond a hull face of the region
         continue;
       }
-      const Point3 &U = c.points[t[kCone[i][0]]], &V = c.points[t[kCone[i][1]]],
-                   &W = c.points[t[kCone[i][2]]];
+      const Point3 &U = c.points[c.slot(t[kCone[i][0]])], &V = c.points[c.slot(t[kCone[i][1]])],
+                   &W = c.points[c.slot(t[kCone[i][2]])];
       if (perturbedSide(Q, U, V, abc) > 0 && perturbedSide(Q, V, W, abc) > 0 &&
           perturbedSide(Q, W, U, abc) > 0)
         return true;
@@ -397,6 +461,7 @@ struct ParallelDelaunay3d::Impl {
       Region& R = regions[r];
       const OctCellTag c = mortonCell3(level, r);
       R.spool = std::make_unique<SpoolSink>(opt.tempDir);
+      R.seam = RegionSeam3(opt.tempDir);
       R.dt = std::make_unique<StreamingDelaunay3d>(*R.spool, Region3{level, c.x, c.y, c.z}, &R.seam);
       if (opt.threads > 1) {
         R.queue = std::make_unique<QueuedPointSink3>(*R.dt, 4096, std::size_t{1} << 20, budget.get());
@@ -499,16 +564,19 @@ struct ParallelDelaunay3d::Impl {
     if (std::uint64_t{b} + rs.points.size() > 0xfffffff0ULL)
       throw Error("3D Delaunay: the seam has more than 2^32 vertices");
     const auto n = static_cast<std::uint32_t>(rs.points.size());
+    // (The seam's triangulator is fed from this copy: the chunk may be packed meanwhile.)
+    const std::vector<Point3> pts = rs.points.take();
     stats.seamVertices += n;
     if (n > 0) {
       SeamChunk c;
       c.base = b;
-      c.live = n;
-      c.points.assign(rs.points.begin(), rs.points.end());
-      c.whole.assign(rs.whole.begin(), rs.whole.end());
+      c.live = c.liveAtPack = n;
+      c.points = pts;
+      c.flags.resize(n);
+      for (std::uint32_t k = 0; k < n; ++k) c.flags[k] = rs.whole[k] ? SeamChunk::kWhole : 0;
       c.gid.resize(n);
       for (std::uint32_t k = 0; k < n; ++k) c.gid[k] = rs.outIds[k] == kNoId ? kNoId : base + rs.outIds[k];
-      c.tets.assign(rs.tets.begin(), rs.tets.end());
+      c.tets = rs.tets.take();
       c.coneStart.assign(std::size_t{n} + 1, 0);
       for (const auto& t : c.tets)
         for (int i = 0; i < corners(t); ++i) ++c.coneStart[t[i] + 1];
@@ -526,10 +594,9 @@ struct ParallelDelaunay3d::Impl {
 
     const OctreeGrid& g = info.grid;
     std::vector<std::pair<std::uint64_t, std::uint32_t>> order;
-    const std::vector<Point3>* pts = n > 0 ? &s.chunks.back().points : nullptr;
     order.reserve(n);
     for (std::uint32_t i = 0; i < n; ++i) {
-      const Point3& p = (*pts)[i];
+      const Point3& p = pts[i];
       order.emplace_back(mortonCode3(g.column(p.x), g.row(p.y), g.layer(p.z)), i);
     }
     std::sort(order.begin(), order.end());
@@ -538,7 +605,7 @@ struct ParallelDelaunay3d::Impl {
       tagSeamUpTo(leaf);
       batch.clear();
       for (; i < order.size() && order[i].first == leaf; ++i) {
-        const Point3& p = (*pts)[order[i].second];
+        const Point3& p = pts[order[i].second];
         PointRecord rec;
         rec.x = p.x;
         rec.y = p.y;

@@ -3,10 +3,13 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <map>
+#include <new>
 #include <string>
+#include <type_traits>
 #include <unordered_set>
 #include <vector>
 
@@ -30,6 +33,39 @@ struct Vertex {
   std::uint64_t outId = kNoId;
   std::uint32_t refs = 0;
   std::uint32_t serial = kNone;  // region mode: the seam serial, kNone for a vertex with no seam record
+};
+
+// The tetrahedra's and vertices' arrays.  They grow by a quarter with realloc (the records are trivially
+// copyable), not by doubling: a doubling vector holds up to twice the live records, and three times
+// while it copies, and the seam's triangulator and two or three regions hold theirs at the same moment.
+template <class T>
+class GrowingArray {
+  static_assert(std::is_trivially_copyable_v<T>);
+
+ public:
+  GrowingArray() = default;
+  GrowingArray(const GrowingArray&) = delete;
+  GrowingArray& operator=(const GrowingArray&) = delete;
+  ~GrowingArray() { std::free(data_); }
+  std::size_t size() const { return size_; }
+  std::size_t capacity() const { return capacity_; }
+  T& operator[](std::size_t i) { return data_[i]; }
+  const T& operator[](std::size_t i) const { return data_[i]; }
+  void push_back(const T& v) {
+    if (size_ == capacity_) grow();
+    data_[size_++] = v;
+  }
+
+ private:
+  void grow() {
+    const std::size_t next = std::max<std::size_t>(1024, capacity_ + capacity_ / 4);
+    void* p = std::realloc(data_, next * sizeof(T));
+    if (p == nullptr) throw std::bad_alloc();
+    data_ = static_cast<T*>(p);
+    capacity_ = next;
+  }
+  T* data_ = nullptr;
+  std::size_t size_ = 0, capacity_ = 0;
 };
 
 struct Tet {
@@ -173,9 +209,9 @@ struct StreamingDelaunay3d::Impl {
   std::map<std::uint64_t, std::uint32_t> parked;      // the leaf's Morton code -> its list in `lists`
   std::vector<ParkList> lists;
   std::vector<std::uint32_t> freeLists;
-  std::vector<Vertex> verts;
+  GrowingArray<Vertex> verts;
   std::vector<std::uint32_t> freeVerts;
-  std::vector<Tet> tets;
+  GrowingArray<Tet> tets;
   std::vector<std::uint32_t> freeTets;
   std::uint64_t liveTets = 0, liveVerts = 0;
   std::uint32_t stampCounter = 0;
@@ -891,7 +927,7 @@ void StreamingDelaunay3d::begin(const StreamInfo3& info) {
   m.verts.push_back(Vertex{});  // vertex 0: infinity
   m.verts[0].refs = 1;
   if (region_.level >= 0) {
-    *seam_ = RegionSeam3{};
+    *seam_ = RegionSeam3(seam_->tempDir);
     m.setRegion(region_, seam_);
   }
   TetMeshInfo mi;
@@ -911,6 +947,11 @@ void StreamingDelaunay3d::finalizeCell(const OctCellTag& cell) {
 
 void StreamingDelaunay3d::end() {
   impl_->finish();
+  // Only the statistics are read after the end: the arrays go back at once (a region's triangulator can
+  // wait long for the merger before it is destroyed).
+  auto spent = std::make_unique<Impl>(impl_->out);
+  spent->stats = impl_->stats;
+  impl_ = std::move(spent);
 }
 
 const Delaunay3dStats& StreamingDelaunay3d::stats() const {

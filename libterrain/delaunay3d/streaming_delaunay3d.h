@@ -59,8 +59,10 @@
 #include <cstdint>
 #include <deque>
 #include <memory>
+#include <string>
 #include <vector>
 
+#include "libterrain/core/temp_file.h"
 #include "libterrain/delaunay3d/predicates3d.h"
 #include "libterrain/delaunay3d/tet_mesh_sink.h"
 #include "libterrain/finalizer/octree_stream.h"
@@ -104,11 +106,16 @@ struct Region3 {
 // positive side of (a, b, c) (a ghost).  A vertex's cones are the seam tetrahedra it belongs to.
 struct RegionSeam3 {
   static constexpr std::uint32_t kHull = ~0u;
-  // (Deques: they grow without copying, and hold no doubled capacity while the region runs.)
-  std::deque<Point3> points;
+  // Points and tetrahedra are only appended while the region runs and read once, when the seam step takes
+  // them (which may be long after the region ended): they wait in temporary files under `tempDir`.
+  // outIds and whole change while the region runs: deques, which grow without copying or doubled capacity.
+  explicit RegionSeam3(std::string dir = {})
+      : tempDir(dir), points(dir, "tet-seam-points"), tets(dir, "tet-seam-tets") {}
+  std::string tempDir;  // ("" = $TMPDIR, else /tmp)
+  RecordLog<Point3> points;
   std::deque<std::uint64_t> outIds;  // the region's output id, ~0 when the region never wrote it
   std::deque<std::uint8_t> whole;    // 1: every direction around it is the seam's
-  std::deque<std::array<std::uint32_t, 4>> tets;
+  RecordLog<std::array<std::uint32_t, 4>> tets;
 };
 
 class StreamingDelaunay3d : public PointSink3 {
