@@ -6,9 +6,10 @@
 // 3D finalizer (libterrain/finalizer/finalizer3d.h) streams them into StreamingDelaunay3d, which writes
 // the tetrahedra as they become final.  With more than one thread (--threads, default: the cores) the
 // tetrahedralizer and its writer run on a second thread behind a bounded queue (queued_point_sink3.h),
-// and from 2^21 points on the octree's 8 cells of level 1 are tetrahedralized as regions with certified
-// seams, each on a thread of its own (parallel_delaunay3d.h; --region-level).  The output depends on the
-// region level, never on the threads.
+// and larger clouds are tetrahedralized as regions with certified seams, each on a thread of its own
+// (parallel_delaunay3d.h): two slabs across the stream's balanced axis from 2^19 points on (--slabs), else
+// the octree's 8 cells of level 1 from 2^21 on (--region-level).  The output depends on the layout, never
+// on the threads.
 #include <unistd.h>
 #include <algorithm>
 
@@ -69,8 +70,10 @@ void printTetSummary(const Finalizer3dStats* fs, const ParallelDelaunay3dStats& 
                             ds.tetsEmitted ? double(ds.certificationChecks) / double(ds.tetsEmitted) : 0.0)
             << ", tetrahedralizer arrays " << formatDouble("%.1f MB", double(ds.peakBytes) / 1e6) << "\n";
   if (ps.regions > 1)
-    std::cerr << "  regions " << ps.regions << " (level " << ps.regionLevel << "), seam "
-              << withCommas(ps.seamVertices) << " vertices ("
+    std::cerr << "  regions " << ps.regions
+              << (ps.slabAxis >= 0 ? std::string(" (slabs across ") + "xyz"[ps.slabAxis] + ")"
+                                   : " (level " + std::to_string(ps.regionLevel) + ")")
+              << ", seam " << withCommas(ps.seamVertices) << " vertices ("
               << formatDouble("%.2f",
                               ds.verticesOut ? 100.0 * double(ps.seamVertices) / double(ds.verticesOut) : 0.0)
               << "% of the vertices), " << withCommas(ps.seamTetsWritten) << " of its "
@@ -88,6 +91,10 @@ int tetThreads(const PipelineArgs& a) {
 ParallelDelaunay3dOptions regionOptions(const PipelineArgs& a) {
   ParallelDelaunay3dOptions po;
   po.regionLevel = a.options.regionLevel;
+  if (a.options.slabs) {
+    po.regionLevel = 1;
+    po.slabs = true;
+  }
   po.threads = tetThreads(a);
   po.tempDir = a.run.tempDir.value_or(a.options.finalizer.tempDir);
   po.cancel = cancelFlag();
@@ -135,6 +142,36 @@ class CancellableSink3 : public PointSink3 {
   const CancelFlag* cancel_;
 };
 
+// The run's counts for scripts and `tinbuild bench tet` (flat JSON, one object per section; no finalizer
+// section when the input was a finalized stream).
+void writeTetReport(const std::string& path, double seconds, const Finalizer3dStats* fs,
+                    const ParallelDelaunay3dStats& ps) {
+  const Delaunay3dStats& ds = ps.total;
+  std::ofstream r(path);
+  if (!r) throw Error(path + ": cannot write the report");
+  r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
+    << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n";
+  if (fs)
+    r << "  \"finalizer\": {\"points\": " << fs->points << ", \"depth\": " << fs->grid.depth
+      << ", \"depth_refinements\": " << fs->depthRefinements << ", \"occupied_cells\": " << fs->occupiedCells
+      << ", \"width\": " << fs->width << ", \"max_in_memory\": " << fs->maxInMemory
+      << ", \"spilled_points\": " << fs->spilledPoints << ", \"spill_events\": " << fs->spillEvents
+      << ", \"no_locality\": " << (fs->noLocality ? "true" : "false")
+      << ", \"balanced_axis\": " << fs->balancedAxis << ", \"tags\": " << fs->tags << "},\n";
+  r << "  \"tetrahedralizer\": {\"points\": " << ds.pointsIn << ", \"duplicates\": " << ds.duplicatesDropped
+    << ", \"vertices\": " << ds.verticesOut << ", \"tetrahedra\": " << ds.tetsEmitted
+    << ", \"created\": " << ds.tetsCreated << ", \"max_active_tets\": " << ds.maxActiveTets
+    << ", \"max_active_vertices\": " << ds.maxActiveVertices << ", \"walk_steps\": " << ds.walkSteps
+    << ", \"restarts\": " << ds.restartsLeaf << ", \"exhaustive\": " << ds.restartsExhaustive
+    << ", \"checks\": " << ds.certificationChecks << ", \"array_bytes\": " << ds.peakBytes
+    << "},\n  \"regions\": {\"level\": " << ps.regionLevel << ", \"slab_axis\": " << ps.slabAxis
+    << ", \"count\": " << ps.regions << ", \"seam_vertices\": " << ps.seamVertices
+    << ", \"seam_cones\": " << ps.seamCones << ", \"seam_tetrahedra_tested\": " << ps.seamTetsTested
+    << ", \"seam_tetrahedra_written\": " << ps.seamTetsWritten << ", \"spool_bytes\": " << ps.spoolBytes
+    << ", \"seam_seconds\": " << formatDouble("%.6f", ps.seamSeconds) << "}\n}\n";
+  if (!r.flush()) throw Error(path + ": cannot write the report");
+}
+
 // `tetrahedralize FILE|-` on a 3D finalized stream: the tetrahedralizer alone (on its own thread behind
 // the reader unless --threads 1), the same output as the in-process run of the same stream.
 int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
@@ -153,6 +190,7 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
     readFinalizedStream3(input, in);
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  if (!a.run.report.empty()) writeTetReport(a.run.report, seconds, nullptr, dt.stats());
   if (!a.run.quiet) printTetSummary(nullptr, dt.stats(), seconds);
   return 0;
 }
@@ -172,6 +210,8 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   const bool fromStream = isFinalizedStream3(args.positional);
   if (!fromStream) a.options.inputs = expandInputs(args.positional);
   tetrahedralizeTable().bind(args, a);
+  if (a.options.slabs && a.options.regionLevel >= 0 && a.options.regionLevel != 1)
+    throw UsageError("tetrahedralize: --slabs splits at level 1; it takes no other --region-level");
   if (fromStream) return tetrahedralizeStream(args.positional[0], a);
   if (a.options.inputs.empty()) throw UsageError("tetrahedralize: give at least one input file");
   if (a.run.output.empty())
@@ -194,33 +234,8 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
     fs = finalizePoints3d(in.streams, fo, dt);
   }
   const ParallelDelaunay3dStats& ps = dt.stats();
-  const Delaunay3dStats& ds = ps.total;
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (!a.run.report.empty()) {
-    // The run's counts for scripts and `tinbuild bench tet` (flat JSON, one object per section).
-    std::ofstream r(a.run.report);
-    if (!r) throw Error(a.run.report + ": cannot write the report");
-    r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
-      << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n  \"finalizer\": {\"points\": " << fs.points
-      << ", \"depth\": " << fs.grid.depth << ", \"depth_refinements\": " << fs.depthRefinements
-      << ", \"occupied_cells\": " << fs.occupiedCells << ", \"width\": " << fs.width
-      << ", \"max_in_memory\": " << fs.maxInMemory << ", \"spilled_points\": " << fs.spilledPoints
-      << ", \"spill_events\": " << fs.spillEvents
-      << ", \"no_locality\": " << (fs.noLocality ? "true" : "false") << ", \"tags\": " << fs.tags
-      << "},\n  \"tetrahedralizer\": {\"points\": " << ds.pointsIn
-      << ", \"duplicates\": " << ds.duplicatesDropped << ", \"vertices\": " << ds.verticesOut
-      << ", \"tetrahedra\": " << ds.tetsEmitted << ", \"created\": " << ds.tetsCreated
-      << ", \"max_active_tets\": " << ds.maxActiveTets
-      << ", \"max_active_vertices\": " << ds.maxActiveVertices << ", \"walk_steps\": " << ds.walkSteps
-      << ", \"restarts\": " << ds.restartsLeaf << ", \"exhaustive\": " << ds.restartsExhaustive
-      << ", \"checks\": " << ds.certificationChecks << ", \"array_bytes\": " << ds.peakBytes
-      << "},\n  \"regions\": {\"level\": " << ps.regionLevel << ", \"count\": " << ps.regions
-      << ", \"seam_vertices\": " << ps.seamVertices << ", \"seam_cones\": " << ps.seamCones
-      << ", \"seam_tetrahedra_tested\": " << ps.seamTetsTested
-      << ", \"seam_tetrahedra_written\": " << ps.seamTetsWritten << ", \"spool_bytes\": " << ps.spoolBytes
-      << ", \"seam_seconds\": " << formatDouble("%.6f", ps.seamSeconds) << "}\n}\n";
-    if (!r.flush()) throw Error(a.run.report + ": cannot write the report");
-  }
+  if (!a.run.report.empty()) writeTetReport(a.run.report, seconds, &fs, ps);
   if (!a.run.quiet) printTetSummary(&fs, ps, seconds);
   return 0;
 }
@@ -322,7 +337,7 @@ Command tetrahedralizeCommand() {
   return Command{
       "tetrahedralize",
       "tinbuild tetrahedralize INPUT... -o MESH.sma|MESH.smb|MESH.vtu|MESH.ele [--depth K] "
-      "[--keep-class LIST] [--drop-class LIST] [--region-level L] [--threads N] [-q]",
+      "[--keep-class LIST] [--drop-class LIST] [--region-level L] [--slabs] [--threads N] [-q]",
       "streaming 3D Delaunay tetrahedralization of point clouds (the paper's spdelaunay3d)",
       "Reads the inputs (LAS/LAZ/COPC/XYZ, several files as one survey, with the readers and filters of\n"
       "`build`) as a 3D point cloud, finalizes them over an octree (counts per cell, sprinkle points, BRIO\n"
@@ -330,10 +345,13 @@ Command tetrahedralizeCommand() {
       "insphere with CGAL's symbolic perturbation), writing each tetrahedron as soon as its circumsphere\n"
       "touches finalized cells only.  Outputs: a streaming tetrahedral mesh (.sma with t lines, or .smb,\n"
       "its binary form), a VTK XML unstructured grid (.vtu, ParaView) or TetGen's .node/.ele (-o mesh.ele\n"
-      "writes both); coordinates exact.  --depth is the octree's (0..8).  From 2^21 points on the octree's\n"
-      "8 cells of level 1 are tetrahedralized as regions, each on a thread of its own, and their seam is\n"
-      "joined exactly (--region-level L: 8^L regions, 0 = one); the tetrahedra are the same for any level,\n"
-      "the bytes the same for any --threads.  Check the result with `tinbuild verify MESH --points "
+      "writes both); coordinates exact.  --depth is the octree's (0..8).  Larger clouds are tetrahedralized\n"
+      "as regions, each on a thread of its own, their seam joined exactly: from 2^19 points on the two "
+      "slabs\n"
+      "of the cube across the axis the stream sweeps across (--slabs), else from 2^21 points on the "
+      "octree's\n"
+      "8 cells of level 1 (--region-level L: 8^L regions, 0 = one); the tetrahedra are the same for any\n"
+      "layout, the bytes the same for any --threads.  Check the result with `tinbuild verify MESH --points "
       "INPUT...`.",
       tetrahedralizeTable().specs(),
       runTetrahedralizeCommand};

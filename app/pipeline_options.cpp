@@ -452,8 +452,13 @@ const PipelineTable& tetrahedralizeTable() {
           reportGroup());
     p.option("--region-level", "L",
              "tetrahedralize the 8^L octree cells of level L (0..2) as regions, each on a thread of its own, "
-             "with certified seams (default: 1 from 2^21 points on, else 0 = one region)")
+             "with certified seams (default: from 2^19 points on two slabs when the stream sweeps across an "
+             "axis, else 8 cells from 2^21 points on, else 0 = one region)")
         .integer(0, 2, [](A& a, int v) { a.options.regionLevel = v; });
+    p.flag("--slabs",
+           "two regions: the halves of the cube across the axis whose halves the stream visits together "
+           "(the finalizer finds it; 8 cells when there is none)")
+        .set([](A& a) { a.options.slabs = true; });
     return p;
   }();
   return t;

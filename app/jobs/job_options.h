@@ -64,6 +64,7 @@ struct PipelineOptions {
   bool overwrite = false;       // --overwrite: replace existing outputs (else an existing one is an error)
   int threads = 0;              // --threads: 1 = everything on the calling thread; 0 = the machine's cores
   int regionLevel = -1;         // --region-level: the triangulator's regions (-1: from the point count)
+  bool slabs = false;           // tetrahedralize --slabs: two slabs across the stream's balanced axis
   // --plan P --part I: runBuild runs one part of a plan (docs/design.md, "Beyond one machine"): it
   // triangulates the regions of part I, writes the certified triangles to its own mesh file
   // (partMeshPath), the seam vertices to the plan's state directory, DEM tiles it completes to the DEM

@@ -3,6 +3,7 @@
 // the octree header and the (level, x, y, z) tags.
 #include "formats/pointcloud/finalized_stream3.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -17,6 +18,7 @@ using namespace record_stream;
 
 constexpr std::size_t kTagBytes = 1 + 1 + 4 + 4 + 4;
 constexpr std::size_t kFixedHeader = 4 * 8 + 4 + 6 * 8 + 8 + 4;  // without the CRS bytes
+constexpr std::size_t kExtensionBytes = 4;  // after the CRS: int32 balanced axis (absent in older streams)
 constexpr int kMaxDepth = 10;  // the tetrahedralizer takes 0..10, the finalizer writes 0..8
 
 const StreamKind kKind{kFinalizedStream3Magic, kFinalizedStream3Version, "3D finalized", kFixedHeader};
@@ -39,7 +41,10 @@ void FinalizedStream3Writer::begin(const StreamInfo3& info) {
   if (info.grid.depth < 0 || info.grid.depth > kMaxDepth)
     throw Error("3D finalized stream writer: grid depth " + std::to_string(info.grid.depth) +
                 " out of range");
-  const std::size_t headerBytes = kFixedHeader + info.crsWkt.size();
+  if (info.balancedAxis < -1 || info.balancedAxis > 2)
+    throw Error("3D finalized stream writer: balanced axis " + std::to_string(info.balancedAxis) +
+                " out of range");
+  const std::size_t headerBytes = kFixedHeader + info.crsWkt.size() + kExtensionBytes;
   unsigned char* p = out_->reserve(16 + headerBytes);
   std::memcpy(p, kFinalizedStream3Magic, 8);
   put<std::uint32_t>(p + 8, kFinalizedStream3Version);
@@ -62,6 +67,8 @@ void FinalizedStream3Writer::begin(const StreamInfo3& info) {
   put<std::uint32_t>(p, static_cast<std::uint32_t>(info.crsWkt.size()));
   p += 4;
   std::memcpy(p, info.crsWkt.data(), info.crsWkt.size());
+  p += info.crsWkt.size();
+  put<std::int32_t>(p, info.balancedAxis);
   out_->advance(16 + headerBytes);
   out_->startBody();
   begun_ = true;
@@ -130,7 +137,30 @@ StreamInfo3 readStream(RecordInput& in, const std::string& name, PointSink3& sin
       !std::isfinite(info.grid.originZ) || !std::isfinite(info.grid.size) || !(info.grid.size > 0) ||
       info.grid.depth < 0 || info.grid.depth > kMaxDepth)
     throw DataError(name, "corrupt 3D finalized stream header (grid)");
-  readCrs(in, name, kKind, headerBytes, crsBytes, info.crsWkt);
+  if (std::uint64_t{kFixedHeader} + crsBytes > headerBytes)
+    throw DataError(name, "corrupt 3D finalized stream header (CRS length " + std::to_string(crsBytes) + ")");
+  const auto extension = static_cast<std::uint32_t>(headerBytes - kFixedHeader - crsBytes);
+  readCrs(in, name, kKind, kFixedHeader + crsBytes, crsBytes, info.crsWkt);
+  if (extension >= kExtensionBytes) {  // (a stream written before the field was added has none: -1)
+    auto truncated = [&] {
+      return DataError(name, "truncated 3D finalized stream: the header is incomplete");
+    };
+    if (!in.ensure(kExtensionBytes)) throw truncated();
+    info.balancedAxis = get<std::int32_t>(in.ptr());
+    if (info.balancedAxis < -1 || info.balancedAxis > 2)
+      throw DataError(name, "corrupt 3D finalized stream header (balanced axis " +
+                                std::to_string(info.balancedAxis) + ")");
+    in.skip(kExtensionBytes);
+    for (auto left = static_cast<std::uint32_t>(extension - kExtensionBytes); left > 0;) {  // later versions
+      const std::uint32_t piece = std::min<std::uint32_t>(left, 1u << 19);
+      if (!in.ensure(piece)) throw truncated();
+      in.skip(piece);
+      left -= piece;
+    }
+  } else if (extension > 0) {
+    throw DataError(
+        name, "corrupt 3D finalized stream header (" + std::to_string(extension) + " bytes after the CRS)");
+  }
 
   sink.begin(info);
   const int depth = info.grid.depth;

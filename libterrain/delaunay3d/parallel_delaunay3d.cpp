@@ -128,6 +128,29 @@ class SpoolSink : public TetMeshSink {
   std::uint64_t size_ = 0, vertices_ = 0, replayed_ = 0;
 };
 
+// The first region's certified tetrahedra go straight to the output (its ids are the output's, base 0):
+// nothing precedes them, so they need no spool, and the merger has nothing to replay when it ends.  The
+// output's begin() and end() are the driver's.
+class DirectSink : public TetMeshSink {
+ public:
+  explicit DirectSink(TetMeshSink& out) : out_(out) {}
+  void begin(const TetMeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double z) override {
+    ++vertices_;
+    out_.vertex(id, x, y, z);
+  }
+  void tetrahedron(std::uint64_t a, std::uint64_t b, std::uint64_t c, std::uint64_t d) override {
+    out_.tetrahedron(a, b, c, d);
+  }
+  void finalizeVertex(std::uint64_t id) override { out_.finalizeVertex(id); }
+  void end() override {}
+  std::uint64_t vertices() const { return vertices_; }
+
+ private:
+  TetMeshSink& out_;
+  std::uint64_t vertices_ = 0;
+};
+
 // The seam set S, by seam index: the regions' seam vertices in region (Morton) order, each region's
 // serials in order, appended as the regions end.  A region's part (a chunk) is freed once the seam's
 // triangulator has finalized all of its vertices: no later tetrahedron of DT(S) can use them.  Before
@@ -361,6 +384,10 @@ int chooseRegionLevel3(std::uint64_t points, int depth) {
   return points >= (std::uint64_t{1} << 21) && depth >= 1 ? 1 : 0;
 }
 
+int chooseSlabAxis3(std::uint64_t points, int depth, int balancedAxis) {
+  return points >= (std::uint64_t{1} << 19) && depth >= 1 ? balancedAxis : -1;
+}
+
 // The driver (the caller's thread) splits the stream by region and ends a region when a tag covers its
 // cell.  The merger (a thread of its own when regions have threads, else the driver) takes the ended
 // regions in Morton order: replays the region's spool into the output, appends its seam vertices to S
@@ -369,7 +396,11 @@ int chooseRegionLevel3(std::uint64_t points, int depth) {
 // tetrahedra between them, and the seam step overlaps the regions still running.
 struct ParallelDelaunay3d::Impl {
   struct Region {
-    std::unique_ptr<SpoolSink> spool;
+    std::vector<std::uint64_t> cells;  // its octree cells of level `level`, by Morton code, ascending
+    std::uint64_t cellsLeft = 0;       // ... not yet finalized by a tag
+    std::uint64_t taggedAt = ~std::uint64_t{0};  // the last tag passed on to it (tagCount)
+    std::unique_ptr<SpoolSink> spool;            // (every region but the first)
+    std::unique_ptr<DirectSink> direct;          // (the first)
     RegionSeam3 seam;
     std::unique_ptr<StreamingDelaunay3d> dt;
     std::unique_ptr<QueuedPointSink3> queue;
@@ -383,6 +414,9 @@ struct ParallelDelaunay3d::Impl {
   ParallelDelaunay3dStats stats;
   StreamInfo3 info;
   int level = 0, shift = 0;
+  std::vector<std::uint32_t> cellRegion;  // per octree cell of level `level` (Morton): its region
+  std::vector<std::uint8_t> cellDone;     // ... finalized by a tag
+  std::uint64_t tagCount = 0;
   std::unique_ptr<StreamingDelaunay3d> plain;
   std::unique_ptr<SharedQueueBudget> budget;  // (before `regions`: their queues use it to the end)
   std::vector<Region> regions;
@@ -392,7 +426,6 @@ struct ParallelDelaunay3d::Impl {
   SeamSet seamSet;
   std::unique_ptr<SeamFilter> filter;
   std::unique_ptr<StreamingDelaunay3d> seamDt;
-  std::uint64_t seamTagged = 0;  // leaves below this Morton code are tagged for the seam
   std::vector<PointRecord> batch;
   double mergeSeconds = 0;
   // With threads: the merger thread and what it waits for.
@@ -419,14 +452,22 @@ struct ParallelDelaunay3d::Impl {
 
   std::size_t regionOf(const PointRecord& p) const {
     const OctreeGrid& g = info.grid;
-    return static_cast<std::size_t>(
-        mortonCode3(g.column(p.x) >> shift, g.row(p.y) >> shift, g.layer(p.z) >> shift));
+    return cellRegion[static_cast<std::size_t>(
+        mortonCode3(g.column(p.x) >> shift, g.row(p.y) >> shift, g.layer(p.z) >> shift))];
   }
 
   void begin(const StreamInfo3& i) {
     info = i;
-    level = opt.regionLevel < 0 ? chooseRegionLevel3(i.points, i.grid.depth) : opt.regionLevel;
+    int slabAxis = -1;
+    if (opt.regionLevel < 0) {
+      slabAxis = chooseSlabAxis3(i.points, i.grid.depth, i.balancedAxis);
+      level = slabAxis >= 0 ? 1 : chooseRegionLevel3(i.points, i.grid.depth);
+    } else {
+      level = opt.regionLevel;
+      if (opt.slabs && level == 1 && i.grid.depth >= 1) slabAxis = i.balancedAxis;
+    }
     level = std::min(level, i.grid.depth);
+    stats.slabAxis = slabAxis;
     if (level > 3)
       throw Error("3D Delaunay: region level " + std::to_string(level) + " (at most 3: 512 regions)");
     stats.regionLevel = level;
@@ -437,8 +478,20 @@ struct ParallelDelaunay3d::Impl {
       return;
     }
     shift = i.grid.depth - level;
-    const std::size_t n = std::size_t{1} << (3 * level);
+    // The layout: the 8^level cells, each a region; or two slabs of the level-1 cells, split across the
+    // axis the stream visits both halves of (each slab then gets points all along the stream).
+    const std::size_t cellCount = std::size_t{1} << (3 * level);
+    const std::size_t n = slabAxis >= 0 ? 2 : cellCount;
     stats.regions = n;
+    cellRegion.resize(cellCount);
+    cellDone.assign(cellCount, 0);
+    regions.resize(n);
+    for (std::size_t cell = 0; cell < cellCount; ++cell) {
+      const auto r = static_cast<std::uint32_t>(slabAxis >= 0 ? (cell >> slabAxis) & 1 : cell);
+      cellRegion[cell] = r;
+      regions[r].cells.push_back(cell);
+      ++regions[r].cellsLeft;
+    }
     TetMeshInfo mi;
     mi.bounds = i.bounds;
     mi.points = i.points;
@@ -455,14 +508,31 @@ struct ParallelDelaunay3d::Impl {
           opt.queuePoints > 0 ? opt.queuePoints : std::clamp<std::uint64_t>(i.points / 8, 1u << 16, 1u << 21);
       budget = std::make_unique<SharedQueueBudget>(static_cast<std::size_t>(lag));
     }
-    regions.resize(n);
     seamSet.chunks.reserve(n);  // (chunks never move: the merge feeds from the last one's points)
     for (std::size_t r = 0; r < n; ++r) {
       Region& R = regions[r];
-      const OctCellTag c = mortonCell3(level, r);
-      R.spool = std::make_unique<SpoolSink>(opt.tempDir);
+      Region3 box{level, 0, 0, 0, 1, 1, 1};
+      if (slabAxis < 0) {
+        const OctCellTag c = mortonCell3(level, r);
+        box.x = c.x;
+        box.y = c.y;
+        box.z = c.z;
+      } else {
+        std::uint32_t* first[3] = {&box.x, &box.y, &box.z};
+        std::uint32_t* count[3] = {&box.nx, &box.ny, &box.nz};
+        for (int a = 0; a < 3; ++a) *count[a] = a == slabAxis ? 1 : 2;
+        *first[slabAxis] = static_cast<std::uint32_t>(r);
+      }
+      TetMeshSink* sink;
+      if (r == 0) {
+        R.direct = std::make_unique<DirectSink>(out);
+        sink = R.direct.get();
+      } else {
+        R.spool = std::make_unique<SpoolSink>(opt.tempDir);
+        sink = R.spool.get();
+      }
       R.seam = RegionSeam3(opt.tempDir);
-      R.dt = std::make_unique<StreamingDelaunay3d>(*R.spool, Region3{level, c.x, c.y, c.z}, &R.seam);
+      R.dt = std::make_unique<StreamingDelaunay3d>(*sink, box, &R.seam);
       if (opt.threads > 1) {
         R.queue = std::make_unique<QueuedPointSink3>(*R.dt, 4096, std::size_t{1} << 20, budget.get());
         R.in = R.queue.get();
@@ -494,16 +564,25 @@ struct ParallelDelaunay3d::Impl {
     // (A region already ended is final throughout: later tags over it say nothing new.)
     if (c.level > level) {
       const int k = c.level - level;
-      Region& R = regions[static_cast<std::size_t>(mortonCode3(c.x >> k, c.y >> k, c.z >> k))];
+      Region& R = regions[cellRegion[static_cast<std::size_t>(mortonCode3(c.x >> k, c.y >> k, c.z >> k))]];
       if (!R.ended) R.in->finalizeCell(c);
       return;
     }
-    const int k = level - c.level;  // the tag covers 8^k regions whole: it ends them
+    // The tag covers 8^k cells of the regions' level whole: it goes once to each region it touches, and
+    // ends those whose last cells it finalizes.
+    const int k = level - c.level;
     const std::uint64_t first = mortonCode3(c.x, c.y, c.z) << (3 * k);
-    for (std::uint64_t r = first; r < first + (std::uint64_t{1} << (3 * k)); ++r) {
-      if (regions[r].ended) continue;
-      regions[r].in->finalizeCell(c);
-      finishRegion(r);
+    ++tagCount;
+    for (std::uint64_t cell = first; cell < first + (std::uint64_t{1} << (3 * k)); ++cell) {
+      const std::uint32_t r = cellRegion[cell];
+      Region& R = regions[r];
+      if (R.ended || cellDone[cell]) continue;
+      cellDone[cell] = 1;
+      if (R.taggedAt != tagCount) {
+        R.taggedAt = tagCount;
+        R.in->finalizeCell(c);
+      }
+      if (--R.cellsLeft == 0) finishRegion(r);
     }
   }
 
@@ -551,10 +630,15 @@ struct ParallelDelaunay3d::Impl {
     R.queue.reset();
     R.dt.reset();
     const std::uint64_t base = nextGid;
-    stats.spoolBytes += R.spool->bytes();
-    R.spool->replay(out, base, stop, opt.cancel);
-    nextGid += R.spool->vertices();
-    R.spool.reset();
+    if (R.spool) {
+      stats.spoolBytes += R.spool->bytes();
+      R.spool->replay(out, base, stop, opt.cancel);
+      nextGid += R.spool->vertices();
+      R.spool.reset();
+    } else {
+      nextGid += R.direct->vertices();
+      R.direct.reset();
+    }
 
     // S_r as a chunk of S (its seam tetrahedra and, per vertex, the ones it belongs to), and the seam's
     // stream for the region's cell.
@@ -600,35 +684,44 @@ struct ParallelDelaunay3d::Impl {
       order.emplace_back(mortonCode3(g.column(p.x), g.row(p.y), g.layer(p.z)), i);
     }
     std::sort(order.begin(), order.end());
-    for (std::size_t i = 0; i < order.size();) {
-      const std::uint64_t leaf = order[i].first;
-      tagSeamUpTo(leaf);
-      batch.clear();
-      for (; i < order.size() && order[i].first == leaf; ++i) {
-        const Point3& p = pts[order[i].second];
-        PointRecord rec;
-        rec.x = p.x;
-        rec.y = p.y;
-        rec.z = p.z;
-        batch.push_back(rec);
+    // Cell by cell (a slab's cells are not one run of Morton codes): its empty leaves are tagged as the
+    // seam points pass them, each leaf right after its points.
+    std::size_t i = 0;
+    for (const std::uint64_t cell : R.cells) {
+      const std::uint64_t cellEnd = (cell + 1) << (3 * shift);
+      std::uint64_t cursor = cell << (3 * shift);
+      while (i < order.size() && order[i].first < cellEnd) {
+        const std::uint64_t leaf = order[i].first;
+        tagSeamRange(cursor, leaf);
+        batch.clear();
+        for (; i < order.size() && order[i].first == leaf; ++i) {
+          const Point3& p = pts[order[i].second];
+          PointRecord rec;
+          rec.x = p.x;
+          rec.y = p.y;
+          rec.z = p.z;
+          batch.push_back(rec);
+        }
+        seamDt->points(batch.data(), batch.size());
+        tagSeamRange(leaf, leaf + 1);
+        cursor = leaf + 1;
       }
-      seamDt->points(batch.data(), batch.size());
-      tagSeamUpTo(leaf + 1);
+      tagSeamRange(cursor, cellEnd);
     }
-    tagSeamUpTo((std::uint64_t{r} + 1) << (3 * shift));
+    if (i != order.size()) throw Error("3D Delaunay: a seam point outside its region (internal error)");
     mergeSeconds += std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   }
 
-  // Tags every leaf below Morton code `end` for the seam, empty runs as whole aligned cells.
-  void tagSeamUpTo(std::uint64_t end) {
+  // Tags the leaves with Morton codes in [from, end) for the seam, as whole aligned cells where they can.
+  void tagSeamRange(std::uint64_t from, std::uint64_t end) {
     const int depth = info.grid.depth;
-    while (seamTagged < end) {
-      int k = 0;  // the largest aligned block of 8^k leaves that starts at seamTagged and fits
-      while (k < depth && seamTagged % (std::uint64_t{1} << (3 * (k + 1))) == 0 &&
-             seamTagged + (std::uint64_t{1} << (3 * (k + 1))) <= end)
+    while (from < end) {
+      int k = 0;  // the largest aligned block of 8^k leaves that starts at `from` and fits
+      while (k < depth && from % (std::uint64_t{1} << (3 * (k + 1))) == 0 &&
+             from + (std::uint64_t{1} << (3 * (k + 1))) <= end)
         ++k;
-      seamDt->finalizeCell(mortonCell3(depth - k, seamTagged >> (3 * k)));
-      seamTagged += std::uint64_t{1} << (3 * k);
+      seamDt->finalizeCell(mortonCell3(depth - k, from >> (3 * k)));
+      from += std::uint64_t{1} << (3 * k);
     }
   }
 

@@ -54,7 +54,10 @@
 namespace tinbuild {
 
 struct ParallelDelaunay3dOptions {
-  int regionLevel = -1;  // -1: chooseRegionLevel3(points); 0: one region, the plain tetrahedralizer
+  int regionLevel = -1;  // -1: the layout from the stream (chooseSlabAxis3, else chooseRegionLevel3);
+                         // 0: one region, the plain tetrahedralizer; L: the 8^L octree cells of level L
+  bool slabs = false;    // with regionLevel 1: two slabs across the stream's balanced axis instead (when
+                         // it has one)
   int threads = 1;       // > 1: each region on a thread of its own
   std::string tempDir;   // the regions' spool files ("" = $TMPDIR, else /tmp)
   std::uint64_t queuePoints = 0;  // points queued for the regions at most (0: an eighth of the stream,
@@ -66,6 +69,7 @@ struct ParallelDelaunay3dOptions {
 struct ParallelDelaunay3dStats {
   Delaunay3dStats total;  // summed over the regions and the seam step (maxActive*: the sum of the peaks)
   int regionLevel = 0;
+  int slabAxis = -1;  // the regions are two slabs across this axis (0 x, 1 y, 2 z); -1: octree cells
   std::uint64_t regions = 0;
   std::uint64_t seamVertices = 0;
   std::uint64_t seamCones = 0;        // cones and hull faces recorded at seam vertices
@@ -80,6 +84,12 @@ struct ParallelDelaunay3dStats {
 // (about 11% of the points at 10^6 uniform points, held with its cones until its neighbours end) costs
 // more memory than the one-region run's whole peak gains in time (docs/benchmarks.md).
 int chooseRegionLevel3(std::uint64_t points, int depth);
+
+// The default slabs: from 2^19 points on, when the stream has a balanced axis (StreamInfo3), two regions:
+// the halves of the cube across it.  Each gets points all along the stream, so both work at once with no
+// lag between them; the seam is one plane, not three; and it meets the other side of the plane at once.
+// Returns the axis, or -1 for none.
+int chooseSlabAxis3(std::uint64_t points, int depth, int balancedAxis);
 
 class ParallelDelaunay3d : public PointSink3 {
  public:

@@ -243,18 +243,22 @@ struct StreamingDelaunay3d::Impl {
     if (L > grid.depth)
       throw Error("3D Delaunay: region level " + std::to_string(L) + " is below the leaves");
     const std::size_t side = std::size_t{1} << L;
-    if (r.x >= side || r.y >= side || r.z >= side) throw Error("3D Delaunay: region cell outside the octree");
+    const std::uint32_t c[3] = {r.x, r.y, r.z}, n[3] = {r.nx, r.ny, r.nz};
+    for (int i = 0; i < 3; ++i)
+      if (n[i] == 0 || c[i] >= side || n[i] > side - c[i])
+        throw Error("3D Delaunay: region cells outside the octree");
     std::vector<std::uint8_t>& flags = finalFlags[static_cast<std::size_t>(L)];
     std::fill(flags.begin(), flags.end(), 1);
-    flags[cellIndex(L, r.x, r.y, r.z)] = 0;
+    for (std::uint32_t z = r.z; z < r.z + r.nz; ++z)
+      for (std::uint32_t y = r.y; y < r.y + r.ny; ++y)
+        for (std::uint32_t x = r.x; x < r.x + r.nx; ++x) flags[cellIndex(L, x, y, z)] = 0;
     const double cs = grid.size / static_cast<double>(side);
     const double o[3] = {grid.originX, grid.originY, grid.originZ};
-    const std::uint32_t c[3] = {r.x, r.y, r.z};
     constexpr double inf = std::numeric_limits<double>::infinity();
     for (int i = 0; i < 3; ++i) {
       // Points of a neighbouring region lie in their leaves grown by `growth`: at most `growth` inside.
       certBox.lo[i] = c[i] == 0 ? -inf : o[i] + c[i] * cs + 2.0 * growth;
-      certBox.hi[i] = c[i] + 1 == side ? inf : o[i] + (c[i] + 1) * cs - 2.0 * growth;
+      certBox.hi[i] = c[i] + n[i] == side ? inf : o[i] + (c[i] + n[i]) * cs - 2.0 * growth;
     }
   }
 

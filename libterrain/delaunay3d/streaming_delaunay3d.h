@@ -98,7 +98,8 @@ struct Delaunay3dStats {
 // leaves a plane are seam vertices whole: no tetrahedron of the region covers any direction around them.
 struct Region3 {
   int level = -1;  // < 0: no region (the whole stream)
-  std::uint32_t x = 0, y = 0, z = 0;
+  std::uint32_t x = 0, y = 0, z = 0;     // its first cell of level `level`
+  std::uint32_t nx = 1, ny = 1, nz = 1;  // a box of cells: a slab of the cube, or one cell
 };
 
 // What a region leaves for the seam step, by serial.  Its seam tetrahedra: a finite one (a, b, c, d) with

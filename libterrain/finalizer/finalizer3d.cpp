@@ -161,8 +161,74 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
       }
     }
 
+  // Pass 2 knows when each leaf completes (its last point).  When half of them complete in the read's last
+  // sixteenth, the order has no locality (in random order nearly all complete in its last moments, in a
+  // random order), and complete leaves are released at the ends of windows of W input points, counted
+  // back from the last point, in Morton order within a window: the survey then streams out leaf by leaf
+  // in Morton order, as coherent input does, and the tetrahedralizer's active set stays small.  In random
+  // order a leaf of k = N/L points (L leaves) completes before the last window with probability about
+  // e^(-kW/N) = e^(-W/L): W = max(N/128, 16 L), at most N/4, makes that e^-16 while k >= 64.  Any other
+  // order releases each leaf as it completes (W = 1), as coherent input wants.  The order depends on the
+  // inputs only (not on the budget), so the stream stays a pure function of inputs and options.
+  std::vector<std::uint64_t> lasts;
+  lasts.reserve(leaves.size());
+  for (const auto& [code, L] : leaves) lasts.push_back(L.last);
+  std::nth_element(lasts.begin(), lasts.begin() + static_cast<std::ptrdiff_t>(lasts.size() / 2), lasts.end());
+  st.noLocality = lasts[lasts.size() / 2] >= st.points - st.points / 16;
+  std::vector<std::uint64_t>().swap(lasts);
+  const std::uint64_t window =
+      !st.noLocality ? 1
+                     : std::max<std::uint64_t>(
+                           std::min<std::uint64_t>(
+                               std::max<std::uint64_t>(st.points / 128, 16 * leaves.size()), st.points / 4),
+                           1);
+  const std::uint64_t firstEnd = st.points % window;  // window ends: firstEnd + j * window, and st.points
+  std::uint64_t nextEnd = firstEnd == 0 ? window : firstEnd;
+
+  // The axis whose two halves the release order visits together (StreamInfo3::balancedAxis): per axis and
+  // half, the mean position in the stream of its points, each leaf's points counted at the middle of its
+  // release; the axis whose halves' means are closest, if within an eighth of the stream (a sweep runs
+  // across it).  Deterministic: the leaves are visited in release order.
+  {
+    std::vector<std::pair<std::pair<std::uint64_t, std::uint64_t>, std::uint64_t>> order;  // (key, code)
+    order.reserve(leaves.size());
+    const std::uint64_t firstRelease = firstEnd == 0 ? window : firstEnd;
+    for (const auto& [code, L] : leaves) {
+      // (the window whose end releases the leaf; within it, Morton order; with window 1, its last point)
+      const std::uint64_t done = L.last + 1;
+      const std::uint64_t w = done <= firstRelease ? 0 : (done - firstRelease + window - 1) / window;
+      order.push_back({{w, window == 1 ? 0 : code}, code});
+    }
+    std::sort(order.begin(), order.end());
+    double sum[3][2] = {}, count[3][2] = {};
+    double at = 0;
+    for (const auto& e : order) {
+      const std::uint64_t code = e.second;
+      const double n = static_cast<double>(leaves[code].remaining);
+      const double mid = at + n / 2;
+      at += n;
+      if (D == 0) continue;
+      const std::uint64_t top = code >> (3 * (D - 1));  // the level-1 cell: bit 0 x, 1 y, 2 z
+      for (int axis = 0; axis < 3; ++axis) {
+        const int half = static_cast<int>((top >> axis) & 1);
+        sum[axis][half] += n * mid;
+        count[axis][half] += n;
+      }
+    }
+    double best = 0.1875 * static_cast<double>(st.points);
+    for (int axis = 0; axis < 3; ++axis) {
+      if (count[axis][0] == 0 || count[axis][1] == 0) continue;
+      const double gap = std::fabs(sum[axis][0] / count[axis][0] - sum[axis][1] / count[axis][1]);
+      if (gap < best) {
+        best = gap;
+        st.balancedAxis = axis;
+      }
+    }
+  }
+
   StreamInfo3 info;
   info.grid = g;
+  info.balancedAxis = st.balancedAxis;
   info.bounds = st.bounds;
   info.points = st.points;
   info.crsWkt = o.crsWkt;
@@ -291,29 +357,6 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
       std::vector<PointRecord>().swap(L.chunk);
     }
   };
-  // Pass 2 knows when each leaf completes (its last point).  When half of them complete in the read's last
-  // sixteenth, the order has no locality (in random order nearly all complete in its last moments, in a
-  // random order), and complete leaves are released at the ends of windows of W input points, counted
-  // back from the last point, in Morton order within a window: the survey then streams out leaf by leaf
-  // in Morton order, as coherent input does, and the tetrahedralizer's active set stays small.  In random
-  // order a leaf of k = N/L points (L leaves) completes before the last window with probability about
-  // e^(-kW/N) = e^(-W/L): W = max(N/128, 16 L), at most N/4, makes that e^-16 while k >= 64.  Any other
-  // order releases each leaf as it completes (W = 1), as coherent input wants.  The order depends on the
-  // inputs only (not on the budget), so the stream stays a pure function of inputs and options.
-  std::vector<std::uint64_t> lasts;
-  lasts.reserve(leaves.size());
-  for (const auto& [code, L] : leaves) lasts.push_back(L.last);
-  std::nth_element(lasts.begin(), lasts.begin() + static_cast<std::ptrdiff_t>(lasts.size() / 2), lasts.end());
-  st.noLocality = lasts[lasts.size() / 2] >= st.points - st.points / 16;
-  std::vector<std::uint64_t>().swap(lasts);
-  const std::uint64_t window =
-      !st.noLocality ? 1
-                     : std::max<std::uint64_t>(std::min<std::uint64_t>(
-                                                   std::max<std::uint64_t>(st.points / 128, 16 * leaves.size()),
-                                                   st.points / 4),
-                                               1);
-  const std::uint64_t firstEnd = st.points % window;  // window ends: firstEnd + j * window, and st.points
-  std::uint64_t nextEnd = firstEnd == 0 ? window : firstEnd;
   std::vector<std::uint64_t> ready;
   std::size_t released = 0;
   auto releaseReady = [&] {

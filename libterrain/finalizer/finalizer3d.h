@@ -73,6 +73,7 @@ struct Finalizer3dStats {
   std::uint64_t sprinkled = 0;
   std::uint64_t emptyTags = 0;
   std::uint64_t tags = 0;
+  int balancedAxis = -1;     // StreamInfo3::balancedAxis: the axis the release order visits both halves of
   int depthRefinements = 0;  // extra counting passes that raised the default depth (surfaces)
   double seconds = 0;
 };

@@ -108,6 +108,11 @@ struct StreamInfo3 {
   Bounds3 bounds;            // of the points that will be streamed
   std::uint64_t points = 0;  // how many will be streamed
   std::string crsWkt;
+  // The axis (0 x, 1 y, 2 z) along which the stream visits the cube's two halves together (the sweep runs
+  // across it), or -1 when none does or it is not known: the finalizer knows its release order before it
+  // streams, and says so here; the tetrahedralizer splits the cube into slabs across it, which then all
+  // progress at once (parallel_delaunay3d.h).
+  int balancedAxis = -1;
 };
 
 class PointSink3 {

@@ -119,15 +119,18 @@ TEST(Faults, SignalsAnywhereLeaveTheWholeResultOrNothing) {
 }
 
 // SIGTERM stops `tetrahedralize` promptly, with exit 3 and no output, in every pass of its finalizer, in
-// the tetrahedralizer (one region or eight) and when it reads a 3D stream file.
+// the tetrahedralizer (one region, eight or two slabs) and when it reads a 3D stream file.
 TEST(Faults, SigtermStopsTetrahedralizeAndLeavesNothing) {
   const Survey s = prepare();
   fs::create_directories(s.dir / "o");
   int stopped = 0;
-  for (const double delay : {0.1, 0.5, 1.5, 0.3, 1.0}) {
+  for (const double delay : {0.1, 0.5, 1.5, 0.3, 1.0, 0.7}) {
     const auto t0 = Clock::now();
-    // (The last two with regions: each on a thread of its own, the merger on another.)
-    const std::string regions = delay == 0.3 || delay == 1.0 ? " --region-level 1" : "";
+    // (The last three with regions, each on a thread of its own, the merger on another: eight cells, or
+    // two slabs, the first writing the output itself.)
+    const std::string regions = delay == 0.3 || delay == 1.0 ? " --region-level 1"
+                                : delay == 0.7               ? " --slabs"
+                                                             : "";
     const int code =
         runWith(s.dir, "tetrahedralize s/survey.las -o o/cloud.vtu --memory 4 -q" + regions, delay);
     const double took = std::chrono::duration<double>(Clock::now() - t0).count();

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
@@ -128,11 +129,73 @@ TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
   EXPECT_EQ(number(r1, "vertices"), number(r0, "vertices")) << r1;
 }
 
+// --slabs: two regions across the axis the finalizer found (the stream carries it, so the pipe and the stream
+// file split alike); the same bytes for any thread count; a stream without the field, from before it, gets
+// the 8 cells; a corrupt axis is refused.
+TEST(Tetrahedralize, SlabsFollowTheStreamAndGiveTheSameBytes) {
+  TINBUILD_REQUIRE_DATA();
+  const std::string las = tinbuild::test::dataPath("las/Topography.las");
+  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_slabs";
+  std::filesystem::remove_all(dir);
+  std::filesystem::create_directories(dir);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/s1.sma -q --slabs --threads 1 --report " + dir +
+                "/r1.json"),
+            0);
+  ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/s3.sma -q --slabs --threads 3"), 0);
+  ASSERT_EQ(run("finalize --3d " + las + " -o " + dir + "/s.tbfp3 -q"), 0);
+  ASSERT_EQ(run("tetrahedralize " + dir + "/s.tbfp3 -o " + dir + "/file.sma -q --slabs"), 0);
+  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o - -q | " +
+                           TINBUILD_EXE + " tetrahedralize - -o " + dir + "/pipe.sma --slabs --threads 2 -q";
+  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  const std::string one = slurp(dir + "/s1.sma");
+  ASSERT_GT(one.size(), 1000u);
+  EXPECT_EQ(slurp(dir + "/s3.sma"), one);
+  EXPECT_EQ(slurp(dir + "/file.sma"), one);
+  EXPECT_EQ(slurp(dir + "/pipe.sma"), one);
+  EXPECT_EQ(run("verify " + dir + "/s1.sma --points " + las), 0);
+  const std::string r1 = slurp(dir + "/r1.json");
+  const double axis = number(r1, "balanced_axis");
+  ASSERT_GE(axis, 0) << "Topography's stream sweeps: it has a balanced axis " << r1;
+  EXPECT_EQ(number(r1, "slab_axis"), axis) << r1;
+  EXPECT_EQ(number(r1, "count"), 2) << r1;
+
+  // The stream as written before the field: the header 4 bytes shorter.
+  std::string old = slurp(dir + "/s.tbfp3");
+  std::uint32_t h = 0;
+  std::memcpy(&h, old.data() + 12, 4);
+  ASSERT_GE(h, 100u);
+  std::int32_t written = -2;
+  std::memcpy(&written, old.data() + 16 + h - 4, 4);
+  EXPECT_EQ(written, static_cast<std::int32_t>(axis)) << "the field ends the header";
+  std::string bad = old;
+  const std::int32_t seven = 7;
+  std::memcpy(bad.data() + 16 + h - 4, &seven, 4);
+  old.erase(16 + h - 4, 4);
+  h -= 4;
+  std::memcpy(old.data() + 12, &h, 4);
+  {
+    std::ofstream o(dir + "/old.tbfp3", std::ios::binary);
+    o.write(old.data(), static_cast<std::streamsize>(old.size()));
+    std::ofstream b(dir + "/bad.tbfp3", std::ios::binary);
+    b.write(bad.data(), static_cast<std::streamsize>(bad.size()));
+  }
+  ASSERT_EQ(run("tetrahedralize " + dir + "/old.tbfp3 -o " + dir + "/old.sma -q --slabs --report " + dir +
+                "/rold.json"),
+            0);
+  const std::string rold = slurp(dir + "/rold.json");
+  EXPECT_EQ(number(rold, "slab_axis"), -1) << rold;
+  EXPECT_EQ(number(rold, "count"), 8) << rold;
+  EXPECT_EQ(number(rold, "tetrahedra"), number(r1, "tetrahedra"));
+  EXPECT_EQ(run("tetrahedralize " + dir + "/bad.tbfp3 -o " + dir + "/bad.sma -q"), 1);
+  EXPECT_FALSE(std::filesystem::exists(dir + "/bad.sma"));
+}
+
 TEST(Tetrahedralize, UsageErrors) {
   EXPECT_EQ(run("tetrahedralize"), 2);
   EXPECT_EQ(run("tetrahedralize x.las"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.ply"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.sma --region-level 3"), 2);
+  EXPECT_EQ(run("tetrahedralize x.las -o m.sma --slabs --region-level 2"), 2);
 }
 
 }  // namespace

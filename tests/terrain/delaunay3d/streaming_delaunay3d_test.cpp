@@ -95,10 +95,29 @@ struct TetRun {
   ParallelDelaunay3dStats regions;
 };
 
-// regionLevel < 0: the plain tetrahedralizer; else ParallelDelaunay3d at that level on `threads`.
+// Passes the stream on with its balanced axis replaced (to give slabs across any axis).
+class AxisOverride : public PointSink3 {
+ public:
+  AxisOverride(PointSink3& down, int axis) : down_(down), axis_(axis) {}
+  void begin(const StreamInfo3& info) override {
+    StreamInfo3 i = info;
+    i.balancedAxis = axis_;
+    down_.begin(i);
+  }
+  void points(const PointRecord* p, std::size_t n) override { down_.points(p, n); }
+  void finalizeCell(const OctCellTag& c) override { down_.finalizeCell(c); }
+  void end() override { down_.end(); }
+
+ private:
+  PointSink3& down_;
+  int axis_;
+};
+
+// regionLevel < 0: the plain tetrahedralizer; else ParallelDelaunay3d at that level on `threads`, its
+// regions two slabs across `slabAxis` when that is 0..2 (level 1).
 void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = -1,
-                    std::size_t memoryBudget = std::size_t{512} << 20, int regionLevel = -1,
-                    int threads = 1) {
+                    std::size_t memoryBudget = std::size_t{512} << 20, int regionLevel = -1, int threads = 1,
+                    int slabAxis = -1) {
   test::VectorStream in(pts, 777);
   Finalizer3dOptions fo;
   fo.filter = PointFilter::none();
@@ -109,8 +128,10 @@ void tetrahedralize(const std::vector<PointRecord>& pts, TetRun& r, int depth = 
     ParallelDelaunay3dOptions po;
     po.regionLevel = regionLevel;
     po.threads = threads;
+    po.slabs = slabAxis >= 0;
     ParallelDelaunay3d dt(r.mesh, po);
-    r.fin = finalizePoints3d(inputs, fo, dt);
+    AxisOverride axis(dt, slabAxis);
+    r.fin = slabAxis >= 0 ? finalizePoints3d(inputs, fo, axis) : finalizePoints3d(inputs, fo, dt);
     r.regions = dt.stats();
     r.stats = r.regions.total;
     return;
@@ -212,9 +233,9 @@ std::vector<Tet4> cgalTets(const std::vector<PointRecord>& pts, double* vol = nu
 
 // The full check: stream contract, equality with CGAL (general position) or local Delaunay + hull volume.
 void check(const std::vector<PointRecord>& pts, bool generalPosition, int depth = -1, int regionLevel = -1,
-           int threads = 1) {
+           int threads = 1, int slabAxis = -1) {
   TetRun r;
-  tetrahedralize(pts, r, depth, std::size_t{512} << 20, regionLevel, threads);
+  tetrahedralize(pts, r, depth, std::size_t{512} << 20, regionLevel, threads, slabAxis);
   EXPECT_TRUE(r.mesh.ended);
   EXPECT_EQ(r.mesh.nonPositive, 0);
   for (std::size_t i = 0; i < r.mesh.live.size(); ++i) ASSERT_FALSE(r.mesh.live[i]) << "vertex never finalized";
@@ -407,14 +428,19 @@ TEST(StreamingDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
 
 // ----- regions (ParallelDelaunay3d): the same tetrahedra as one region, the same bytes for any thread count
 
-// Checks the regions' result at `level` against CGAL (or the local criterion), and that 1 and 3 threads
-// write the same stream.
-void checkRegions(const std::vector<PointRecord>& pts, bool generalPosition, int depth, int level) {
-  check(pts, generalPosition, depth, level, 1);
+// Checks the regions' result at `level` (or two slabs across `slabAxis`) against CGAL (or the local
+// criterion), and that 1 and 3 threads write the same stream.
+void checkRegions(const std::vector<PointRecord>& pts, bool generalPosition, int depth, int level,
+                  int slabAxis = -1) {
+  check(pts, generalPosition, depth, level, 1, slabAxis);
   TetRun one, three;
-  tetrahedralize(pts, one, depth, std::size_t{512} << 20, level, 1);
-  tetrahedralize(pts, three, depth, std::size_t{512} << 20, level, 3);
+  tetrahedralize(pts, one, depth, std::size_t{512} << 20, level, 1, slabAxis);
+  tetrahedralize(pts, three, depth, std::size_t{512} << 20, level, 3, slabAxis);
   EXPECT_EQ(one.regions.regionLevel, std::min(level, one.fin.grid.depth));
+  if (slabAxis >= 0 && one.fin.grid.depth >= 1) {
+    EXPECT_EQ(one.regions.slabAxis, slabAxis);
+    EXPECT_EQ(one.regions.regions, 2u);
+  }
   EXPECT_TRUE(one.mesh.points == three.mesh.points) << "vertex stream differs between thread counts";
   EXPECT_TRUE(one.mesh.tets == three.mesh.tets) << "tetrahedron stream differs between thread counts";
   EXPECT_EQ(one.regions.seamVertices, three.regions.seamVertices);
@@ -497,6 +523,60 @@ TEST(ParallelDelaunay3d, RealLasFileAsThreeDimensionalCloud) {
   const auto pts = readLas("las/simple.las");
   checkRegions(pts, true, 3, 1);
   checkRegions(pts, true, 4, 2);
+}
+
+// ----- slabs: two regions across the axis whose halves the stream visits together
+
+TEST(ParallelDelaunay3d, SlabsAcrossEveryAxisMatchCgal) {
+  const auto pts = randomCube(6000, 31);
+  for (int axis = 0; axis < 3; ++axis) checkRegions(pts, true, 3, 1, axis);
+  checkRegions(randomCube(3000, 32, 500000.0), true, 3, 1, 2);
+  checkRegions(clustered(33, 10), true, 3, 1, 1);
+  // The slab face through lattice planes: points on it, cospherical everywhere.
+  checkRegions(lattice(9, {0, 0, 0}, 1.0, 34), false, 2, 1, 0);
+  checkRegions(mixedSubsets(35), false, 3, 1, 2);
+}
+
+TEST(ParallelDelaunay3d, SlabsWithAFlatHalfAndARealFile) {
+  std::mt19937_64 rng(36);
+  std::uniform_real_distribution<double> u(0, 1);
+  std::vector<Point3> p;
+  p.push_back({0, 0, 0});
+  p.push_back({100, 100, 100});
+  for (int i = 0; i < 300; ++i) p.push_back({10 + 30 * u(rng), 10 + 80 * u(rng), 20.0});  // x < 50: a plane
+  for (int i = 0; i < 300; ++i) p.push_back({55 + 40 * u(rng), 100 * u(rng), 100 * u(rng)});
+  checkRegions(records(p), false, 2, 1, 0);
+  TINBUILD_REQUIRE_DATA();
+  checkRegions(readLas("las/simple.las"), true, 3, 1, 1);
+}
+
+TEST(Finalizer3d, BalancedAxisRunsAcrossTheSweep) {
+  // Points sorted along one axis stream as a sweep along it: the halves across either other axis
+  // progress together, those along it one after the other.
+  auto pts = randomCube(20000, 37);
+  for (int sweep = 0; sweep < 3; ++sweep) {
+    std::sort(pts.begin(), pts.end(), [&](const PointRecord& a, const PointRecord& b) {
+      return (sweep == 0 ? a.x : sweep == 1 ? a.y : a.z) < (sweep == 0 ? b.x : sweep == 1 ? b.y : b.z);
+    });
+    TetRun r;
+    tetrahedralize(pts, r, 3);
+    EXPECT_GE(r.fin.balancedAxis, 0) << "sweep " << sweep;
+    EXPECT_NE(r.fin.balancedAxis, sweep) << "sweep " << sweep;
+  }
+  // No locality (shuffled): released in Morton order, whose x halves alternate most finely.
+  std::shuffle(pts.begin(), pts.end(), std::mt19937_64(38));
+  TetRun r;
+  tetrahedralize(pts, r, 3);
+  EXPECT_TRUE(r.fin.noLocality);
+  EXPECT_EQ(r.fin.balancedAxis, 0);
+  // The regions follow it by default from 2^19 points on; below they do not.
+  TetRun small;
+  tetrahedralize(pts, small, 3, std::size_t{512} << 20, 1, 2);
+  EXPECT_EQ(small.regions.slabAxis, -1) << "an explicit level gives cells";
+  EXPECT_EQ(chooseSlabAxis3(std::uint64_t{1} << 19, 3, 1), 1);
+  EXPECT_EQ(chooseSlabAxis3((std::uint64_t{1} << 19) - 1, 3, 1), -1);
+  EXPECT_EQ(chooseSlabAxis3(std::uint64_t{1} << 22, 0, 1), -1);
+  EXPECT_EQ(chooseSlabAxis3(std::uint64_t{1} << 22, 3, -1), -1);
 }
 
 }  // namespace
