@@ -1,16 +1,24 @@
 // Multi-core streaming 3D Delaunay: regions with certified seams (the 3D counterpart of
 // libterrain/delaunay/parallel_delaunay.h).
 //
-// Regions.  The octree's cells of level L (`regionLevel`; 8^L regions) each get a StreamingDelaunay3d in
-// region mode (streaming_delaunay3d.h): it receives the points of its cell and the tags inside or over it,
-// treats everything outside as final, and so computes DT(P_r) of its own points, holding its own width.
+// Regions.  Two layouts, each region a box of the octree's cells of level L:
+// - cells: the 8^L cells of level L (`regionLevel`), one region each;
+// - slabs: the two halves of the cube across the stream's balanced axis (StreamInfo3::balancedAxis, which
+//   the finalizer finds from its release order), four level-1 cells each.  The stream visits both halves
+//   together, so both regions work at once without a queue's lag between them, and the seam is one plane
+//   instead of three.  This is the default from 2^19 points on when the stream has such an axis
+//   (chooseSlabAxis3); cells at level 1 from 2^21 points on otherwise (chooseRegionLevel3).
+// Each region gets a StreamingDelaunay3d in region mode (streaming_delaunay3d.h): it receives the points
+// of its cells and the tags inside or over them, treats everything outside as final, and so computes
+// DT(P_r) of its own points, holding its own width.  A tag that covers cells of several regions goes to
+// each once, and ends a region when it finalizes the region's last cell.
 // With `threads` > 1 each region runs behind a queue on a thread of its own (QueuedPointSink3; the
 // system shares the cores among them), the queues bounded together (`queuePoints`); with 1 the caller's
 // thread runs them in turn.  Regions never wait for each other, and each region's events are a function
 // of its own sub-stream.
 //
 // Certified and seam tetrahedra.  A region writes a final tetrahedron when its circumsphere provably lies
-// in the region's cube shrunk by 2h on the sides shared with other regions (h: the cell tolerance): no
+// in the region's box shrunk by 2h on the sides shared with other regions (h: the cell tolerance): no
 // point of another region can lie in it, so it is a tetrahedron of DT(P).  Every other final tetrahedron
 // and every ghost is a seam tetrahedron, recorded at each vertex as the cone it spans there (for a ghost:
 // the hull face).  The vertices with such records form the seam set S.
@@ -34,12 +42,17 @@
 // pass the test at their first vertex.  C and U partition DT(P); the output is the set of CGAL's
 // Delaunay_triangulation_3, as with one region.
 //
-// The output stream.  Each region writes its certified tetrahedra to a spool file (its own vertex ids,
-// its non-seam vertices finalized).  As the regions end, a merger replays the spools in region (Morton)
-// order, vertex ids offset, and feeds each region's seam vertices to the seam step, whose tetrahedra
-// follow as they become final; the seam vertices stay live from their region's part to the seam's.  The
-// bytes therefore depend on the region level, never on `threads`.  A region's part of S is held until
-// the seam has finalized all of its vertices: the seam streams region by region, not inside a region.
+// The output stream.  The first region writes its certified tetrahedra to the output itself; every other
+// region to a spool file (its own vertex ids, its non-seam vertices finalized).  As the regions end, a
+// merger replays the spools in region order, vertex ids offset, and feeds each region's seam vertices to
+// the seam step, whose tetrahedra follow as they become final; the seam vertices stay live from their
+// region's part to the seam's.  The bytes therefore depend on the layout, never on `threads`.
+//
+// Memory.  A region's seam points and tetrahedra wait in temporary files until the merger takes them
+// (RegionSeam3).  A region's part of S is held until the seam has finalized all of its vertices (the seam
+// streams region by region, not inside a region), but packed whenever half of its live vertices have been
+// finalized since it was built or last packed: only the live vertices' cones, and the points those cones
+// use, are kept.
 #pragma once
 
 #include <cstdint>

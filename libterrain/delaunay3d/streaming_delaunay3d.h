@@ -87,10 +87,11 @@ struct Delaunay3dStats {
   bool degenerate = false;             // the input never left a plane: no tetrahedra
 };
 
-// Region mode (parallel_delaunay3d.h): the tetrahedralizer gets the points of one octree cell of level
-// `level` only and treats every cell outside it as final from the start, so it computes DT(P_r) of its
-// own points.  A final tetrahedron is written (certified) only when its circumsphere provably lies in the
-// region's cube shrunk by twice the cell tolerance on the sides shared with other regions; every other
+// Region mode (parallel_delaunay3d.h): the tetrahedralizer gets the points of one box of octree cells of
+// level `level` only (one cell, or a slab) and treats every cell outside it as final from the start, so it
+// computes DT(P_r) of its own points.  A final tetrahedron is written (certified) only when its
+// circumsphere provably lies in the region's box shrunk by twice the cell tolerance on the sides shared
+// with other regions; every other
 // final tetrahedron, and every ghost, is a seam tetrahedron: it is not written but recorded, at each of
 // its vertices, as a cone (the other three vertices) or, for a ghost, a hull face.  A vertex with such a
 // record is a seam vertex; it gets a serial number (0, 1, 2, ... in the order of its first record), the
