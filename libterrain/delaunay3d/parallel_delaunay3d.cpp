@@ -389,11 +389,12 @@ int chooseSlabAxis3(std::uint64_t points, int depth, int balancedAxis) {
 }
 
 // The driver (the caller's thread) splits the stream by region and ends a region when a tag covers its
-// cell.  The merger (a thread of its own when regions have threads, else the driver) takes the ended
-// regions in Morton order: replays the region's spool into the output, appends its seam vertices to S
-// and feeds them to the seam's triangulator, followed by tags that finalize the region's cell for the
-// seam (no later seam point lies there).  So the output streams region by region, the seam's
-// tetrahedra between them, and the seam step overlaps the regions still running.
+// last cell.  The merger (a thread of its own when regions have threads, else the driver) takes the ended
+// regions in order: replays the region's spool into the output (the first region wrote it itself),
+// appends its seam vertices to S and feeds them to the seam's triangulator, followed by tags that
+// finalize the region's cells for the seam (no later seam point lies there).  So the output streams
+// region by region, the seam's tetrahedra between them, and the seam step overlaps the regions still
+// running.
 struct ParallelDelaunay3d::Impl {
   struct Region {
     std::vector<std::uint64_t> cells;  // its octree cells of level `level`, by Morton code, ascending
@@ -508,7 +509,7 @@ struct ParallelDelaunay3d::Impl {
           opt.queuePoints > 0 ? opt.queuePoints : std::clamp<std::uint64_t>(i.points / 8, 1u << 16, 1u << 21);
       budget = std::make_unique<SharedQueueBudget>(static_cast<std::size_t>(lag));
     }
-    seamSet.chunks.reserve(n);  // (chunks never move: the merge feeds from the last one's points)
+    seamSet.chunks.reserve(n);  // (chunks never move)
     for (std::size_t r = 0; r < n; ++r) {
       Region& R = regions[r];
       Region3 box{level, 0, 0, 0, 1, 1, 1};

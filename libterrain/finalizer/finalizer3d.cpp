@@ -187,8 +187,9 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
 
   // The axis whose two halves the release order visits together (StreamInfo3::balancedAxis): per axis and
   // half, the mean position in the stream of its points, each leaf's points counted at the middle of its
-  // release; the axis whose halves' means are closest, if within an eighth of the stream (a sweep runs
-  // across it).  Deterministic: the leaves are visited in release order.
+  // release; the axis whose halves' means are closest, if within 3/16 of the stream (a sweep runs across
+  // it; Morton order's x halves, which alternate every eighth, are 1/8 apart, its y halves 1/4).
+  // Deterministic: the leaves are visited in release order.
   {
     std::vector<std::pair<std::pair<std::uint64_t, std::uint64_t>, std::uint64_t>> order;  // (key, code)
     order.reserve(leaves.size());

@@ -43,6 +43,13 @@ std::string slurp(const std::string& path) {
 }
 
 // The first number after "key": in a flat JSON report (-1 when the key is missing).
+// `tinbuild finalize --3d FINALIZE -o - | tinbuild tetrahedralize - TETRAHEDRALIZE`: the shell's status.
+int pipe(const std::string& finalize, const std::string& tetrahedralize) {
+  const std::string line = std::string(TINBUILD_EXE) + " finalize --3d " + finalize + " -o - | " +
+                           TINBUILD_EXE + " tetrahedralize - " + tetrahedralize;
+  return std::system(line.c_str());
+}
+
 double number(const std::string& json, const std::string& key) {
   const std::size_t at = json.find("\"" + key + "\": ");
   return at == std::string::npos ? -1.0 : std::strtod(json.c_str() + at + key.size() + 4, nullptr);
@@ -61,9 +68,7 @@ TEST(Tetrahedralize, PipeAndStreamFileEqualOneProcess) {
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/one1.sma --threads 1" + opts), 0);
   ASSERT_EQ(run("finalize --3d " + las + " -o " + dir + "/s.tbfp3" + opts), 0);
   ASSERT_EQ(run("tetrahedralize " + dir + "/s.tbfp3 -o " + dir + "/file.sma -q"), 0);
-  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o -" + opts + " | " +
-                           TINBUILD_EXE + " tetrahedralize - -o " + dir + "/pipe.sma --threads 1 -q";
-  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  ASSERT_EQ(pipe(las + opts, "-o " + dir + "/pipe.sma --threads 1 -q"), 0);
   const std::string one = slurp(dir + "/one.sma");
   ASSERT_GT(one.size(), 1000u);
   EXPECT_EQ(slurp(dir + "/one1.sma"), one);
@@ -112,10 +117,7 @@ TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
                 dir + "/r1.json"),
             0);
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/t2.smb -q --region-level 2 --threads 2"), 0);
-  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o - -q | " +
-                           TINBUILD_EXE + " tetrahedralize - -o " + dir +
-                           "/pipe.sma --region-level 1 --threads 2 -q";
-  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  ASSERT_EQ(pipe(las + " -q", "-o " + dir + "/pipe.sma --region-level 1 --threads 2 -q"), 0);
   const std::string one = slurp(dir + "/t1.sma");
   ASSERT_GT(one.size(), 1000u);
   EXPECT_EQ(slurp(dir + "/t3.sma"), one);
@@ -144,9 +146,7 @@ TEST(Tetrahedralize, SlabsFollowTheStreamAndGiveTheSameBytes) {
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/s3.sma -q --slabs --threads 3"), 0);
   ASSERT_EQ(run("finalize --3d " + las + " -o " + dir + "/s.tbfp3 -q"), 0);
   ASSERT_EQ(run("tetrahedralize " + dir + "/s.tbfp3 -o " + dir + "/file.sma -q --slabs"), 0);
-  const std::string pipe = std::string(TINBUILD_EXE) + " finalize --3d " + las + " -o - -q | " +
-                           TINBUILD_EXE + " tetrahedralize - -o " + dir + "/pipe.sma --slabs --threads 2 -q";
-  ASSERT_EQ(std::system(pipe.c_str()), 0);
+  ASSERT_EQ(pipe(las + " -q", "-o " + dir + "/pipe.sma --slabs --threads 2 -q"), 0);
   const std::string one = slurp(dir + "/s1.sma");
   ASSERT_GT(one.size(), 1000u);
   EXPECT_EQ(slurp(dir + "/s3.sma"), one);
