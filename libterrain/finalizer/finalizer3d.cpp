@@ -185,46 +185,40 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   const std::uint64_t firstEnd = st.points % window;  // window ends: firstEnd + j * window, and st.points
   std::uint64_t nextEnd = firstEnd == 0 ? window : firstEnd;
 
-  // The axis whose two halves the release order visits together (StreamInfo3::balancedAxis): per axis and
-  // half, the mean position in the stream of its points, each leaf's points counted at the middle of its
-  // release; the axis whose halves' means are closest, if within 3/16 of the stream (a sweep runs across
-  // it; Morton order's x halves, which alternate every eighth, are 1/8 apart, its y halves 1/4).
-  // Deterministic: the leaves are visited in release order.
-  {
+  // The axis whose two halves the release order visits together (StreamInfo3::balancedAxis).  Per axis,
+  // the share of each half's points released so far, F_lo(t) and F_hi(t), along the release order (a
+  // leaf's points at its release): the halves progress together when max |F_lo - F_hi| is small (0 when
+  // they interleave finely, 1 when one comes wholly before the other).  The axis with the smallest, if at
+  // most 0.3: a sweep runs across it.  (Morton order: its x halves alternate every eighth, 0.25; its y
+  // halves 0.5; z 1.)  Deterministic: the leaves are visited in release order.
+  if (D > 0) {
     std::vector<std::pair<std::pair<std::uint64_t, std::uint64_t>, std::uint64_t>> order;  // (key, code)
     order.reserve(leaves.size());
     const std::uint64_t firstRelease = firstEnd == 0 ? window : firstEnd;
+    double total[3][2] = {};
     for (const auto& [code, L] : leaves) {
       // (the window whose end releases the leaf; within it, Morton order; with window 1, its last point)
       const std::uint64_t done = L.last + 1;
       const std::uint64_t w = done <= firstRelease ? 0 : (done - firstRelease + window - 1) / window;
       order.push_back({{w, window == 1 ? 0 : code}, code});
+      const std::uint64_t top = code >> (3 * (D - 1));  // the level-1 cell: bit 0 x, 1 y, 2 z
+      for (int axis = 0; axis < 3; ++axis) total[axis][(top >> axis) & 1] += static_cast<double>(L.remaining);
     }
     std::sort(order.begin(), order.end());
-    double sum[3][2] = {}, count[3][2] = {};
-    double at = 0;
+    double seen[3][2] = {}, apart[3] = {};
     for (const auto& e : order) {
-      const std::uint64_t code = e.second;
-      const double n = static_cast<double>(leaves[code].remaining);
-      const double mid = at + n / 2;
-      at += n;
-      if (D == 0) continue;
-      const std::uint64_t top = code >> (3 * (D - 1));  // the level-1 cell: bit 0 x, 1 y, 2 z
+      const std::uint64_t top = e.second >> (3 * (D - 1));
       for (int axis = 0; axis < 3; ++axis) {
-        const int half = static_cast<int>((top >> axis) & 1);
-        sum[axis][half] += n * mid;
-        count[axis][half] += n;
+        seen[axis][(top >> axis) & 1] += static_cast<double>(leaves[e.second].remaining);
+        if (total[axis][0] > 0 && total[axis][1] > 0)
+          apart[axis] = std::max(apart[axis],
+                                 std::fabs(seen[axis][0] / total[axis][0] - seen[axis][1] / total[axis][1]));
       }
     }
-    double best = 0.1875 * static_cast<double>(st.points);
-    for (int axis = 0; axis < 3; ++axis) {
-      if (count[axis][0] == 0 || count[axis][1] == 0) continue;
-      const double gap = std::fabs(sum[axis][0] / count[axis][0] - sum[axis][1] / count[axis][1]);
-      if (gap < best) {
-        best = gap;
+    for (int axis = 0; axis < 3; ++axis)  // (ties: the first axis)
+      if (total[axis][0] > 0 && total[axis][1] > 0 && apart[axis] <= 0.3 &&
+          (st.balancedAxis < 0 || apart[axis] < apart[st.balancedAxis]))
         st.balancedAxis = axis;
-      }
-    }
   }
 
   StreamInfo3 info;
