@@ -45,7 +45,7 @@ using PipelineTable = cli::OptionTable<PipelineArgs>;
 const PipelineTable& buildTable();
 const PipelineTable& planTable();
 const PipelineTable& finalizeTable();
-const PipelineTable& tetrahedralizeTable();  // finalize's inputs, a mesh output, --region-level (3D)
+const PipelineTable& tetrahedralizeTable();  // finalize's inputs, a mesh output, --region-level, --slabs (3D)
 const PipelineTable& triangulateTable();
 const PipelineTable& mergeTable();
 const PipelineTable& verifyTable();

@@ -3,7 +3,6 @@
 // the octree header and the (level, x, y, z) tags.
 #include "formats/pointcloud/finalized_stream3.h"
 
-#include <algorithm>
 #include <cmath>
 #include <cstring>
 
@@ -137,26 +136,17 @@ StreamInfo3 readStream(RecordInput& in, const std::string& name, PointSink3& sin
       !std::isfinite(info.grid.originZ) || !std::isfinite(info.grid.size) || !(info.grid.size > 0) ||
       info.grid.depth < 0 || info.grid.depth > kMaxDepth)
     throw DataError(name, "corrupt 3D finalized stream header (grid)");
-  if (std::uint64_t{kFixedHeader} + crsBytes > headerBytes)
-    throw DataError(name, "corrupt 3D finalized stream header (CRS length " + std::to_string(crsBytes) + ")");
-  const auto extension = static_cast<std::uint32_t>(headerBytes - kFixedHeader - crsBytes);
-  readCrs(in, name, kKind, kFixedHeader + crsBytes, crsBytes, info.crsWkt);
+  const std::uint32_t extension = readCrs(in, name, kKind, headerBytes, crsBytes, info.crsWkt, false);
   if (extension >= kExtensionBytes) {  // (a stream written before the field was added has none: -1)
-    auto truncated = [&] {
-      return DataError(name, "truncated 3D finalized stream: the header is incomplete");
-    };
-    if (!in.ensure(kExtensionBytes)) throw truncated();
+    if (!in.ensure(kExtensionBytes))
+      throw DataError(name, "truncated 3D finalized stream: the header is incomplete");
     info.balancedAxis = get<std::int32_t>(in.ptr());
     if (info.balancedAxis < -1 || info.balancedAxis > 2)
       throw DataError(name, "corrupt 3D finalized stream header (balanced axis " +
                                 std::to_string(info.balancedAxis) + ")");
     in.skip(kExtensionBytes);
-    for (auto left = static_cast<std::uint32_t>(extension - kExtensionBytes); left > 0;) {  // later versions
-      const std::uint32_t piece = std::min<std::uint32_t>(left, 1u << 19);
-      if (!in.ensure(piece)) throw truncated();
-      in.skip(piece);
-      left -= piece;
-    }
+    skipHeaderBytes(in, name, kKind,
+                    extension - static_cast<std::uint32_t>(kExtensionBytes));  // later fields
   } else if (extension > 0) {
     throw DataError(
         name, "corrupt 3D finalized stream header (" + std::to_string(extension) + " bytes after the CRS)");

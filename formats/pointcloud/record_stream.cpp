@@ -246,21 +246,32 @@ std::uint32_t readPreamble(RecordInput& in, const std::string& name, const Strea
   return headerBytes;
 }
 
-void readCrs(RecordInput& in, const std::string& name, const StreamKind& k, std::uint32_t headerBytes,
-             std::uint32_t crsBytes, std::string& wkt) {
-  auto truncated = [&]() { return DataError(name, "truncated " + k.kind + " stream: the header is incomplete"); };
+namespace {
+DataError truncatedHeader(const std::string& name, const StreamKind& k) {
+  return DataError(name, "truncated " + k.kind + " stream: the header is incomplete");
+}
+}  // namespace
+
+std::uint32_t readCrs(RecordInput& in, const std::string& name, const StreamKind& k,
+                      std::uint32_t headerBytes, std::uint32_t crsBytes, std::string& wkt, bool skipRest) {
   if (crsBytes > kMaxCrsBytes || k.fixedHeader + crsBytes > headerBytes)
     throw DataError(name, "corrupt " + k.kind + " stream header (CRS length " + std::to_string(crsBytes) + ")");
   for (std::uint32_t left = crsBytes; left > 0;) {
     const std::uint32_t piece = std::min<std::uint32_t>(left, 1u << 19);
-    if (!in.ensure(piece)) throw truncated();
+    if (!in.ensure(piece)) throw truncatedHeader(name, k);
     wkt.append(reinterpret_cast<const char*>(in.ptr()), piece);
     in.skip(piece);
     left -= piece;
   }
-  for (auto left = static_cast<std::uint32_t>(headerBytes - k.fixedHeader - crsBytes); left > 0;) {  // later versions
+  const auto rest = static_cast<std::uint32_t>(headerBytes - k.fixedHeader - crsBytes);
+  if (skipRest) skipHeaderBytes(in, name, k, rest);
+  return rest;
+}
+
+void skipHeaderBytes(RecordInput& in, const std::string& name, const StreamKind& k, std::uint32_t bytes) {
+  for (std::uint32_t left = bytes; left > 0;) {
     const std::uint32_t piece = std::min<std::uint32_t>(left, 1u << 19);
-    if (!in.ensure(piece)) throw truncated();
+    if (!in.ensure(piece)) throw truncatedHeader(name, k);
     in.skip(piece);
     left -= piece;
   }

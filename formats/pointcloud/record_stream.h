@@ -152,10 +152,14 @@ struct StreamKind {
 // Checks the magic, version and header length; leaves the fixed header at in.ptr() (ensured).  Returns
 // the header length.
 std::uint32_t readPreamble(RecordInput& in, const std::string& name, const StreamKind& k);
-// After the fixed header (skipped by the caller): the CRS of `crsBytes` bytes and whatever later versions
-// add to the header.
-void readCrs(RecordInput& in, const std::string& name, const StreamKind& k, std::uint32_t headerBytes,
-             std::uint32_t crsBytes, std::string& wkt);
+// After the fixed header (skipped by the caller): the CRS of `crsBytes` bytes and, unless the caller reads
+// fields of its own after it (`skipRest` false), whatever later versions add to the header.  Returns the
+// header's bytes after the CRS.
+std::uint32_t readCrs(RecordInput& in, const std::string& name, const StreamKind& k,
+                      std::uint32_t headerBytes, std::uint32_t crsBytes, std::string& wkt,
+                      bool skipRest = true);
+// Skips `bytes` of the header (fields of later versions).
+void skipHeaderBytes(RecordInput& in, const std::string& name, const StreamKind& k, std::uint32_t bytes);
 
 // Reads the body into `sink` (points(), finalizeCell(), end()) up to and including the end record, which
 // must be the last bytes.  decodeTag(const unsigned char* record, std::uint64_t offset) returns the tag

@@ -509,7 +509,6 @@ struct ParallelDelaunay3d::Impl {
           opt.queuePoints > 0 ? opt.queuePoints : std::clamp<std::uint64_t>(i.points / 8, 1u << 16, 1u << 21);
       budget = std::make_unique<SharedQueueBudget>(static_cast<std::size_t>(lag));
     }
-    seamSet.chunks.reserve(n);  // (chunks never move)
     for (std::size_t r = 0; r < n; ++r) {
       Region& R = regions[r];
       Region3 box{level, 0, 0, 0, 1, 1, 1};

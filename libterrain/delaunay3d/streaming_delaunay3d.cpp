@@ -263,7 +263,7 @@ struct StreamingDelaunay3d::Impl {
   }
 
   // Is the circumsphere of the finite tetrahedron openLeafFor just saw (its box lastBox, if lastBounded)
-  // inside the region's shrunk cube?
+  // inside the region's shrunk box?
   bool certified() const {
     if (!lastBounded) return false;
     for (int i = 0; i < 3; ++i)

@@ -81,20 +81,11 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   int D = g.depth;  // (raised by pass 2 for surfaces: see below)
   double cs = g.cellSize();
   auto leafCode = [&](const PointRecord& p) { return mortonCode3(g.column(p.x), g.row(p.y), g.layer(p.z)); };
-  auto decode = [](std::uint64_t code, int level, std::uint32_t& x, std::uint32_t& y, std::uint32_t& z) {
-    x = y = z = 0;
-    for (int b = 0; b < level; ++b) {
-      x |= static_cast<std::uint32_t>((code >> (3 * b)) & 1) << b;
-      y |= static_cast<std::uint32_t>((code >> (3 * b + 1)) & 1) << b;
-      z |= static_cast<std::uint32_t>((code >> (3 * b + 2)) & 1) << b;
-    }
-  };
   auto centreDist = [&](const PointRecord& p, int level, std::uint64_t code) {
-    std::uint32_t x, y, z;
-    decode(code, level, x, y, z);
+    const OctCellTag c = mortonCell3(level, code);
     const double s = g.size / static_cast<double>(1u << level);
-    const double dx = p.x - (g.originX + (x + 0.5) * s), dy = p.y - (g.originY + (y + 0.5) * s),
-                 dz = p.z - (g.originZ + (z + 0.5) * s);
+    const double dx = p.x - (g.originX + (c.x + 0.5) * s), dy = p.y - (g.originY + (c.y + 0.5) * s),
+                 dz = p.z - (g.originZ + (c.z + 0.5) * s);
     return dx * dx + dy * dy + dz * dz;
   };
   auto better = [](const Candidate& a, const Candidate& b) {  // a preferred over b
@@ -230,10 +221,7 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   out.begin(info);
 
   auto tag = [&](int level, std::uint64_t code) {
-    OctCellTag t;
-    t.level = static_cast<std::uint8_t>(level);
-    decode(code, level, t.x, t.y, t.z);
-    out.finalizeCell(t);
+    out.finalizeCell(mortonCell3(level, code));
     ++st.tags;
   };
   // Empty cells up front, coarse levels first, Morton order within a level.
@@ -281,9 +269,8 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
     emitSprinkle(L.sprinkle);
     st.sprinkled += batch.size();
     // BRIO: rounds by trailing zeros of a hash, rarest first; Morton order over a 16^3 sub-grid within.
-    std::uint32_t lx, ly, lz;
-    decode(code, D, lx, ly, lz);
-    const double ox = g.originX + lx * cs, oy = g.originY + ly * cs, oz = g.originZ + lz * cs;
+    const OctCellTag leaf = mortonCell3(D, code);
+    const double ox = g.originX + leaf.x * cs, oy = g.originY + leaf.y * cs, oz = g.originZ + leaf.z * cs;
     auto sub = [&](double v, double o0) {
       const double f = (v - o0) / cs * 16.0;
       return static_cast<std::uint32_t>(std::clamp(f, 0.0, 15.0));

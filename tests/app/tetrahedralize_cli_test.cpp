@@ -23,9 +23,7 @@ int run(const std::string& args) {
 TEST(Tetrahedralize, RealSurveyIntoEveryFormatVerifies) {
   TINBUILD_REQUIRE_DATA();
   const std::string las = tinbuild::test::dataPath("las/simple.las");
-  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_cli";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const std::string dir = tinbuild::test::scratchDir().string();
   for (const std::string out : {"m.sma", "m.smb", "m.vtu", "m.ele"}) {
     ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/" + out + " -q"), 0) << out;
     EXPECT_EQ(run("verify " + dir + "/" + out + " --points " + las), 0) << out;
@@ -60,9 +58,7 @@ double number(const std::string& json, const std::string& key) {
 TEST(Tetrahedralize, PipeAndStreamFileEqualOneProcess) {
   TINBUILD_REQUIRE_DATA();
   const std::string las = tinbuild::test::dataPath("las/autzen_trim.las");
-  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_pipe";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const std::string dir = tinbuild::test::scratchDir().string();
   const std::string opts = " --depth 2 --keep-class 2 -q";
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/one.sma" + opts), 0);
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/one1.sma --threads 1" + opts), 0);
@@ -90,9 +86,7 @@ TEST(Tetrahedralize, PipeAndStreamFileEqualOneProcess) {
 TEST(Tetrahedralize, SurfaceCloudGetsAFinerDefaultOctree) {
   TINBUILD_REQUIRE_DATA();
   const std::string las = tinbuild::test::dataPath("las/autzen_trim.las");
-  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_surface";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const std::string dir = tinbuild::test::scratchDir().string();
   ASSERT_EQ(run("tetrahedralize " + las + " -o /dev/null -q --report " + dir + "/r.json"), 0);
   const std::string json = slurp(dir + "/r.json");
   EXPECT_EQ(number(json, "depth"), 4) << json;
@@ -107,9 +101,7 @@ TEST(Tetrahedralize, SurfaceCloudGetsAFinerDefaultOctree) {
 TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
   TINBUILD_REQUIRE_DATA();
   const std::string las = tinbuild::test::dataPath("las/autzen_trim.las");
-  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_regions";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const std::string dir = tinbuild::test::scratchDir().string();
   ASSERT_EQ(run("tetrahedralize " + las + " -o /dev/null -q --region-level 0 --report " + dir + "/r0.json"),
             0);
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/t1.sma -q --region-level 1 --threads 1"), 0);
@@ -137,9 +129,7 @@ TEST(Tetrahedralize, RegionsVerifyAndGiveTheSameBytesForAnyThreads) {
 TEST(Tetrahedralize, SlabsFollowTheStreamAndGiveTheSameBytes) {
   TINBUILD_REQUIRE_DATA();
   const std::string las = tinbuild::test::dataPath("las/Topography.las");
-  const std::string dir = std::string(TINBUILD_TEST_TMP) + "/tetrahedralize_slabs";
-  std::filesystem::remove_all(dir);
-  std::filesystem::create_directories(dir);
+  const std::string dir = tinbuild::test::scratchDir().string();
   ASSERT_EQ(run("tetrahedralize " + las + " -o " + dir + "/s1.sma -q --slabs --threads 1 --report " + dir +
                 "/r1.json"),
             0);
