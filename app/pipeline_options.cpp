@@ -158,16 +158,22 @@ PipelineTable inputGroup() {
   return t;
 }
 
+// --region-level, in 2D (the quadtree's 4^L cells, 0..6) and in 3D (the octree's 8^L, 0..2): one option
+// and one field, with the range and meaning of its command.
+void regionLevelOption(PipelineTable& t, int maxLevel, const char* help) {
+  t.option("--region-level", "L", help).integer(0, maxLevel, [](A& a, int v) { a.options.regionLevel = v; });
+}
+
 PipelineTable triangulatorGroup() {
   PipelineTable t;
   t.option("--duplicates", "RULE",
            "which of several points with equal x,y survives: lowest (default), highest, first")
       .choice({"lowest", "highest", "first"},
               [](A& a, const std::string& v) { a.options.delaunay.duplicates = *parseDuplicateRule(v); });
-  t.option("--region-level", "L",
-           "triangulate the 4^L quadtree cells of level L as regions, on the --threads, with certified "
-           "seams (default: from the point count; 0 = one region)")
-      .integer(0, 6, [](A& a, int v) { a.options.regionLevel = v; });
+  regionLevelOption(
+      t, 6,
+      "triangulate the 4^L quadtree cells of level L as regions, on the --threads, with certified "
+      "seams (default: from the point count; 0 = one region)");
   return t;
 }
 
@@ -450,11 +456,11 @@ const PipelineTable& tetrahedralizeTable() {
     PipelineTable p;
     p.add(outputFile("MESH", "output tetrahedral mesh (.sma, .smb, .vtu, .ele)"), inputGroup(),
           reportGroup());
-    p.option("--region-level", "L",
-             "tetrahedralize the 8^L octree cells of level L (0..2) as regions, each on a thread of its own, "
-             "with certified seams (default: from 2^19 points on two slabs when the stream sweeps across an "
-             "axis, else 8 cells from 2^21 points on, else 0 = one region)")
-        .integer(0, 2, [](A& a, int v) { a.options.regionLevel = v; });
+    regionLevelOption(
+        p, 2,
+        "tetrahedralize the 8^L octree cells of level L (0..2) as regions, each on a thread of its "
+        "own, with certified seams (default: from 2^19 points on two slabs when the stream sweeps "
+        "across an axis, else 8 cells from 2^21 points on, else 0 = one region)");
     p.flag("--slabs",
            "two regions: the halves of the cube across the axis whose halves the stream visits together "
            "(the finalizer finds it; 8 cells when there is none)")
