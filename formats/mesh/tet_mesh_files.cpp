@@ -1,11 +1,14 @@
 #include "formats/mesh/tet_mesh_files.h"
 
+#include <unistd.h>
 #include <algorithm>
 #include <cctype>
 #include <cerrno>
 #include <charconv>
 #include <cstdio>
+#include <cstdlib>
 #include <cstring>
+#include <filesystem>
 #include <fstream>
 #include <sstream>
 #include <unordered_map>
@@ -173,26 +176,36 @@ class SmbTetWriter : public TetMeshSink {
 // ----- whole-mesh writers (.vtu, .node/.ele) -----
 // Binary spool of fixed-size records in an unnamed temporary file (std::tmpfile: gone when closed or the
 // process dies), written in order and read back once, in chunks.
+// A spool file beside the output (unlinked at once): on the output's file system, so a disk that cannot
+// hold the mesh fills while the tetrahedra are computed, not after (the spool is most of the output's size).
 class Spool {
  public:
-  Spool() : f_(std::tmpfile()) {
+  explicit Spool(const std::string& output) {
+    createParentDirectories(output);
+    std::filesystem::path dir = std::filesystem::path(output).parent_path();
+    if (dir.empty()) dir = ".";
+    std::string name = (dir / ".tinbuild-spool-XXXXXX").string();
+    const int fd = ::mkstemp(name.data());
+    if (fd >= 0) ::unlink(name.c_str());
+    f_ = fd >= 0 ? ::fdopen(fd, "w+b") : nullptr;
     if (!f_)
-      throw Error(std::string("tet mesh writer: cannot create a temporary file: ") + std::strerror(errno));
+      throw DataError(output, std::string("cannot create the spool file beside it: ") + std::strerror(errno));
     std::setvbuf(f_, nullptr, _IOFBF, std::size_t{1} << 20);
+    output_ = output;
   }
   ~Spool() { std::fclose(f_); }
   Spool(const Spool&) = delete;
   Spool& operator=(const Spool&) = delete;
   void put(const void* p, std::size_t bytes) {
     if (std::fwrite(p, 1, bytes, f_) != bytes)
-      throw Error(std::string("tet mesh writer: cannot write its temporary file: ") + std::strerror(errno));
+      throw DataError(output_, std::string("cannot write the spool file beside it: ") + std::strerror(errno));
   }
   // Calls fn(items, n) for consecutive chunks of the `count` records of T written; stops with
   // CancelledError between chunks once `cancel` is set.
   template <class T, class Fn>
   void replay(std::uint64_t count, const CancelFlag* cancel, Fn fn) {
     if (std::fflush(f_) != 0 || std::fseek(f_, 0, SEEK_SET) != 0)
-      throw Error(std::string("tet mesh writer: cannot reread its temporary file: ") + std::strerror(errno));
+      throw DataError(output_, std::string("cannot write the spool file beside it: ") + std::strerror(errno));
     std::vector<T> buf(std::size_t{1} << 14);
     for (std::uint64_t done = 0; done < count;) {
       throwIfCancelled(cancel);
@@ -205,14 +218,16 @@ class Spool {
   }
 
  private:
-  std::FILE* f_;
+  std::FILE* f_ = nullptr;
+  std::string output_;
 };
 
 // The .vtu and TetGen formats put their counts first, so vertices and tetrahedra are spooled to temporary
 // files (24 and 32 bytes each) and the output is assembled at end(): memory stays at the stream's width.
 class SpooledTetWriter : public TetMeshSink {
  public:
-  explicit SpooledTetWriter(const CancelFlag* cancel) : cancel_(cancel) {}
+  SpooledTetWriter(const std::string& output, const CancelFlag* cancel)
+      : points_(output), cells_(output), cancel_(cancel) {}
   void begin(const TetMeshInfo& info) override { crs_ = info.crsWkt; }
   void vertex(std::uint64_t id, double x, double y, double z) override {
     if (id != nv_) throw Error("tet mesh writer: vertex ids must be 0, 1, 2, ...");
@@ -242,7 +257,8 @@ class SpooledTetWriter : public TetMeshSink {
 
 class VtuWriter : public SpooledTetWriter {
  public:
-  VtuWriter(std::string path, const CancelFlag* cancel) : SpooledTetWriter(cancel), path_(std::move(path)) {}
+  VtuWriter(std::string path, const CancelFlag* cancel)
+      : SpooledTetWriter(path, cancel), path_(std::move(path)) {}
   void end() override {
     OutputFile f(path_);
     std::string s;
@@ -293,7 +309,8 @@ class VtuWriter : public SpooledTetWriter {
 
 class TetGenWriter : public SpooledTetWriter {
  public:
-  TetGenWriter(const std::string& path, const CancelFlag* cancel) : SpooledTetWriter(cancel), base_(stem(path)) {}
+  TetGenWriter(const std::string& path, const CancelFlag* cancel)
+      : SpooledTetWriter(path, cancel), base_(stem(path)) {}
   void end() override {
     OutputFile node(base_ + ".node"), ele(base_ + ".ele");
     std::string s;
@@ -595,6 +612,11 @@ TetMeshFormat tetMeshFormatForPath(const std::string& path) {
   if (e == "vtu") return TetMeshFormat::Vtu;
   if (e == "ele" || e == "node") return TetMeshFormat::TetGen;
   throw UsageError(path + ": a tetrahedral mesh is written as .sma, .smb, .vtu or .node/.ele");
+}
+
+std::vector<std::string> tetMeshFiles(const std::string& path) {
+  if (tetMeshFormatForPath(path) != TetMeshFormat::TetGen) return {path};
+  return {stem(path) + ".node", stem(path) + ".ele"};
 }
 
 std::unique_ptr<TetMeshSink> openTetMeshWriter(const std::string& path, const CancelFlag* cancel) {

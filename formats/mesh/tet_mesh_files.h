@@ -21,6 +21,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <vector>
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/delaunay3d/tet_mesh_sink.h"
@@ -31,6 +32,8 @@ enum class TetMeshFormat { Sma, Smb, Vtu, TetGen };
 
 // By extension (.sma, .smb, .vtu, .node or .ele; case-insensitive); throws UsageError otherwise.
 TetMeshFormat tetMeshFormatForPath(const std::string& path);
+// The files a tetrahedral mesh at `path` is written as: PATH, or STEM.node and STEM.ele for TetGen.
+std::vector<std::string> tetMeshFiles(const std::string& path);
 
 // Opens a writer for PATH ("-" only for .sma: stdout).  `cancel`: the .vtu and .node/.ele writers poll it
 // while they assemble the file at end() (CancelledError; nothing is left under PATH).

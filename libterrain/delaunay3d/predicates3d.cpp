@@ -147,15 +147,52 @@ Expansion minor2(const Expansion& px, const Expansion& py, const Expansion& qx, 
   return sum(product(px, qy), negated(product(qx, py)));
 }
 
-// Shewchuk's orient3d determinant det[a - d, b - d, c - d] (the negative of ours), exactly.
-double orient3dExactShewchuk(const Point3& a, const Point3& b, const Point3& c, const Point3& d) {
+// Shewchuk's orient3d determinant det[a - d, b - d, c - d] (the negative of ours), exactly, as an expansion.
+Expansion orient3dExpansionShewchuk(const Point3& a, const Point3& b, const Point3& c, const Point3& d) {
   const Expansion adx = diff(a.x, d.x), ady = diff(a.y, d.y), adz = diff(a.z, d.z);
   const Expansion bdx = diff(b.x, d.x), bdy = diff(b.y, d.y), bdz = diff(b.z, d.z);
   const Expansion cdx = diff(c.x, d.x), cdy = diff(c.y, d.y), cdz = diff(c.z, d.z);
   const Expansion bc = minor2(bdx, bdy, cdx, cdy);
   const Expansion ca = minor2(cdx, cdy, adx, ady);
   const Expansion ab = minor2(adx, ady, bdx, bdy);
-  return signOf(sum(sum(product(bc, adz), product(ca, bdz)), product(ab, cdz)));
+  return sum(sum(product(bc, adz), product(ca, bdz)), product(ab, cdz));
+}
+
+double orient3dExactShewchuk(const Point3& a, const Point3& b, const Point3& c, const Point3& d) {
+  return signOf(orient3dExpansionShewchuk(a, b, c, d));
+}
+
+// Shewchuk's Compress: the same value in as few nonadjacent components as the exponents allow, so a sum
+// of millions of determinants stays a few dozen components long.
+Expansion compress(const Expansion& e) {
+  if (e.size() < 2) return e;
+  auto fastTwoSum = [](double a, double b, double& s, double& err) {
+    s = a + b;
+    err = b - (s - a);
+  };
+  std::vector<double> g(e.size());
+  std::size_t bottom = e.size() - 1;
+  double q = e.back();
+  for (std::size_t i = e.size() - 1; i-- > 0;) {
+    double big, small;
+    fastTwoSum(q, e[i], big, small);
+    if (small != 0.0) {
+      g[bottom--] = big;
+      q = small;
+    } else {
+      q = big;
+    }
+  }
+  g[bottom] = q;
+  Expansion h;
+  for (std::size_t i = bottom + 1; i < e.size(); ++i) {
+    double big, small;
+    fastTwoSum(g[i], q, big, small);
+    if (small != 0.0) h.push_back(small);
+    q = big;
+  }
+  if (q != 0.0) h.push_back(q);
+  return h;
 }
 
 // Shewchuk's insphere determinant (the negative of ours), exactly.
@@ -368,6 +405,25 @@ Predicate3Stats& predicate3Stats() {
 
 void resetPredicate3Stats() {
   tStats = Predicate3Stats{};
+}
+
+// ---------------------------------------------------------------------------------------------------------
+
+void ExactDeterminantSum::add(const Point3& a, const Point3& b, const Point3& c, const Point3& d) {
+  // Ours is the negative of Shewchuk's: subtract his.
+  sum_ = sum(sum_, negated(orient3dExpansionShewchuk(a, b, c, d)));
+  if (sum_.size() > 64) sum_ = compress(sum_);
+}
+
+int ExactDeterminantSum::compare(const ExactDeterminantSum& other) const {
+  const double s = signOf(sum(sum_, negated(other.sum_)));
+  return s > 0 ? 1 : s < 0 ? -1 : 0;
+}
+
+double ExactDeterminantSum::value() const {
+  double v = 0;
+  for (const double c : sum_) v += c;
+  return v;
 }
 
 }  // namespace tinbuild

@@ -34,6 +34,7 @@
 #pragma once
 
 #include <cstdint>
+#include <vector>
 
 namespace tinbuild {
 
@@ -71,6 +72,20 @@ int coplanarOrientation(const Point3& r0, const Point3& r1, const Point3& r2, co
 
 // Are a, b, c collinear (exactly)?
 bool collinear3(const Point3& a, const Point3& b, const Point3& c);
+
+// An exact sum of orient3d determinants (six times the signed volumes of tetrahedra), for checks that
+// compare volumes without a tolerance: the tetrahedral mesh verifier's "the tetrahedra fill their hull".
+// Each term is the exact expansion of det[b - a, c - a, d - a] (the value orient3d(a, b, c, d) gives the
+// sign of); the sum is an expansion kept short by compression.  compare() is exact.
+class ExactDeterminantSum {
+ public:
+  void add(const Point3& a, const Point3& b, const Point3& c, const Point3& d);
+  int compare(const ExactDeterminantSum& other) const;  // sign of (this - other)
+  double value() const;                                 // rounded, for reports
+
+ private:
+  std::vector<double> sum_;  // nonoverlapping components, increasing magnitude
+};
 
 // The filters' relative error bounds (derived in predicates3d.cpp).
 inline constexpr double kPredicate3Unit = 0x1p-53;

@@ -7,8 +7,9 @@
 #include <map>
 #include <unordered_map>
 
-#include "libterrain/delaunay3d/predicates3d.h"
 #include "libterrain/core/mix_bits.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/delaunay3d/predicates3d.h"
 
 namespace tinbuild {
 
@@ -29,13 +30,6 @@ struct OpenFace {
 // The face opposite v[i], ordered so that v[i] lies on its positive side (as the tetrahedralizer's).
 constexpr int kFace[4][3] = {{1, 3, 2}, {0, 2, 3}, {0, 3, 1}, {0, 1, 2}};
 
-double det3(const Point3& a, const Point3& b, const Point3& c, const Point3& o) {
-  const double ax = a.x - o.x, ay = a.y - o.y, az = a.z - o.z;
-  const double bx = b.x - o.x, by = b.y - o.y, bz = b.z - o.z;
-  const double cx = c.x - o.x, cy = c.y - o.y, cz = c.z - o.z;
-  return ax * (by * cz - bz * cy) - ay * (bx * cz - bz * cx) + az * (bx * cy - by * cx);
-}
-
 }  // namespace
 
 void PointSetFingerprint3::add(double x, double y, double z) {
@@ -49,7 +43,7 @@ struct TetMeshVerifier::Impl {
   std::uint64_t nextId = 0;
   std::unordered_map<FaceKey, OpenFace, FaceHash> open;
   std::map<std::string, std::size_t> problemIndex;
-  long double volume = 0;
+  ExactDeterminantSum volume;  // six times the tetrahedra's volume, exactly
 
   void problem(const std::string& kind, const std::string& first) {
     auto [it, fresh] = problemIndex.try_emplace(kind, r.problems.size());
@@ -92,7 +86,7 @@ void TetMeshVerifier::tetrahedron(std::uint64_t a, std::uint64_t b, std::uint64_
     m.problem("tetrahedron not positively oriented", std::to_string(m.r.tetrahedra - 1));
     return;
   }
-  m.volume += static_cast<long double>(det3(p[1], p[2], p[3], p[0])) / 6;
+  m.volume.add(p[0], p[1], p[2], p[3]);
   for (int i = 0; i < 4; ++i) {
     std::uint64_t f[3] = {id[kFace[i][0]], id[kFace[i][1]], id[kFace[i][2]]};
     std::sort(f, f + 3);
@@ -148,10 +142,10 @@ void TetMeshVerifier::end() {
   m.r.hullFaces = hull.size();
   Point3 o{0, 0, 0};
   if (!hull.empty()) o = hull[0].p[0];
-  long double hv = 0;
+  ExactDeterminantSum hv;  // six times the hull's volume, as a fan of tetrahedra from o, exactly
   std::map<std::pair<std::uint64_t, std::uint64_t>, std::vector<std::size_t>> edges;
   for (std::size_t i = 0; i < hull.size(); ++i) {
-    hv += static_cast<long double>(det3(hull[i].p[0], hull[i].p[1], hull[i].p[2], o)) / 6;
+    hv.add(o, hull[i].p[0], hull[i].p[1], hull[i].p[2]);
     const std::uint64_t* id = hull[i].id;
     edges[{id[0], id[1]}].push_back(i);
     edges[{id[1], id[2]}].push_back(i);
@@ -170,10 +164,14 @@ void TetMeshVerifier::end() {
         m.problem("hull is not convex", std::to_string(e.first) + "-" + std::to_string(e.second));
     }
   }
-  m.r.volume = static_cast<double>(m.volume);
-  m.r.hullVolume = static_cast<double>(hv);
-  if (std::fabs(m.r.volume - m.r.hullVolume) > 1e-9 * std::fabs(m.r.hullVolume))
-    m.problem("hull volume differs from the tetrahedra's", std::to_string(m.r.hullVolume) + " vs " + std::to_string(m.r.volume));
+  m.r.volume = m.volume.value() / 6;
+  m.r.hullVolume = hv.value() / 6;
+  // Exact: the two sums are compared as expansions, with no tolerance (near-coplanar clouds have volumes
+  // that a relative tolerance cannot tell from their rounding).
+  if (m.volume.compare(hv) != 0)
+    m.problem("hull volume differs from the tetrahedra's", formatDouble("%.17g", m.r.hullVolume) + " vs " +
+                                                               formatDouble("%.17g", m.r.volume) +
+                                                               " (exactly compared)");
 }
 
 const TetCheckReport& TetMeshVerifier::report() const {

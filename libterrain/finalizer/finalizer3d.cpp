@@ -1,5 +1,7 @@
 #include "libterrain/finalizer/finalizer3d.h"
 
+#include "libterrain/core/report_text.h"
+
 #include <algorithm>
 #include <bit>
 #include <chrono>
@@ -75,6 +77,29 @@ Finalizer3dStats finalizePoints3d(const std::vector<PointStream*>& inputs, const
   });
   if (st.points == 0)
     throw Error("no points left after filtering (" + std::to_string(st.filter.read) + " read)");
+  for (const double v :
+       {st.bounds.minX, st.bounds.minY, st.bounds.minZ, st.bounds.maxX, st.bounds.maxY, st.bounds.maxZ})
+    if (!(std::fabs(v) <= kMaxCoordinate3)) {
+      // Which input: read them one by one (the error path only).
+      std::string file = "the input";
+      for (std::size_t i = 0; i < inputs.size(); ++i) {
+        bool far = false;
+        inputs[i]->rewind();
+        std::vector<PointRecord> buf(o.batchPoints);
+        for (std::size_t n; !far && (n = inputs[i]->read(buf.data(), buf.size())) > 0;)
+          for (std::size_t k = 0; k < n && !far; ++k)
+            far = !(std::fabs(buf[k].x) <= kMaxCoordinate3 && std::fabs(buf[k].y) <= kMaxCoordinate3 &&
+                    std::fabs(buf[k].z) <= kMaxCoordinate3);
+        if (far) {
+          file = i < o.inputNames.size() ? o.inputNames[i] : "input " + std::to_string(i + 1);
+          break;
+        }
+      }
+      throw DataError(file,
+                      "a point's coordinates reach " + formatDouble("%.6g", v) +
+                          ", beyond any map projection's range (at most 1e15): is a header's offset or scale "
+                          "wrong, or a column the wrong one?");
+    }
   if (o.depth > 8) throw Error("the 3D finalizer's depth is at most 8");
   st.grid = makeOctreeGrid(st.bounds, o.depth >= 0 ? o.depth : chooseOctreeDepth(st.points));
   const OctreeGrid& g = st.grid;

@@ -56,7 +56,13 @@ struct Finalizer3dOptions {
   std::string tempDir;
   // Polled once a batch in every pass: when set, finalizePoints3d throws CancelledError (SIGTERM, Ctrl-C).
   const CancelFlag* cancel = nullptr;
+  // The inputs' names, in order, for messages (a coordinate beyond the predicates' range names its file).
+  std::vector<std::string> inputNames;
 };
+
+// The largest coordinate the 3D predicates take: insphere's exact expansions multiply five coordinate
+// differences, which must not overflow a double; 1e15 is also beyond any map projection's range.
+inline constexpr double kMaxCoordinate3 = 1e15;
 
 struct Finalizer3dStats {
   FilterCounts filter;

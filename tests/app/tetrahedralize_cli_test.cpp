@@ -10,6 +10,7 @@
 #include <sstream>
 #include <string>
 
+#include "cli_support.h"
 #include "test_support.h"
 
 namespace {
@@ -186,6 +187,29 @@ TEST(Tetrahedralize, UsageErrors) {
   EXPECT_EQ(run("tetrahedralize x.las -o m.ply"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.sma --region-level 3"), 2);
   EXPECT_EQ(run("tetrahedralize x.las -o m.sma --slabs --region-level 2"), 2);
+  EXPECT_EQ(run("tetrahedralize x.las -o m.sma --depth 9"), 2);
+  // The help says the octree's range, not the quadtree's.
+  namespace test = tinbuild::test;
+  namespace fs = std::filesystem;
+  const test::Run help = test::tinbuild("tetrahedralize --help");
+  EXPECT_NE(help.out.find("octree depth 0..8"), std::string::npos) << help.out;
+  EXPECT_EQ(help.out.find("0..15"), std::string::npos) << help.out;
+  // A coordinate beyond any projection's range (x = 1e300) is a data error naming the file, not an
+  // internal error of the predicates.
+  const fs::path dir = test::scratchDir();
+  {
+    std::ofstream xyz(dir / "far.xyz");
+    xyz << "1e300 0 0\n1 2 3\n4 5 6\n7 8 1\n2 2 2\n";
+  }
+  const test::Run far = test::tinbuild("tetrahedralize " + (dir / "far.xyz").string() + " -o " +
+                                       (dir / "m.vtu").string() + " -q");
+  EXPECT_EQ(far.code, 1);
+  EXPECT_NE(
+      far.err.find("tinbuild: error: " + (dir / "far.xyz").string() + ": a point's coordinates reach 1e+300"),
+      std::string::npos)
+      << far.err;
+  EXPECT_EQ(far.err.find("internal"), std::string::npos) << far.err;
+  EXPECT_FALSE(fs::exists(dir / "m.vtu"));
 }
 
 }  // namespace
