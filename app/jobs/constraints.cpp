@@ -71,6 +71,33 @@ double lengthOption(const std::string& text, double fallback, const CrsInfo& crs
   return v;
 }
 
+// A constraint length far below the survey's point spacing is no spacing a survey supports: a value in the
+// wrong unit or a slip (1e-6 for 1), which would make the preparation run for hours.  Refused at once, in
+// the style of --step and --interval, naming the least value that makes sense.
+void checkLengthFloor(const std::string& text, double value, double spacing, const char* option,
+                      const char* consequence) {
+  if (text.empty() || !(spacing > 0)) return;
+  const double least = spacing / 10;
+  if (value < least)
+    throw UsageError(std::string(option) + " " + text + " is below a tenth of the survey's point spacing (" +
+                     formatDouble("%.6g", spacing) + "): " + consequence + "; give at least " +
+                     formatDouble("%.6g", least) + " (or a length with its unit, e.g. 2m, 6ft)");
+}
+
+void checkConstraintLengths(const ConstraintRequest& q, const CrsInfo& crs, double spacing) {
+  if (!q.stationSpacing.empty())
+    checkLengthFloor(q.stationSpacing, lengthOption(q.stationSpacing, 1, crs, "--station-spacing"), spacing,
+                     "--station-spacing",
+                     "stations that close share their bank points, and there would be millions");
+  if (!q.buffer.empty())
+    checkLengthFloor(q.buffer, lengthOption(q.buffer, 1, crs, "--breakline-buffer"), spacing,
+                     "--breakline-buffer",
+                     "pieces that short hold no lidar point between them, and there would be millions");
+  if (!q.shoreDistance.empty())
+    checkLengthFloor(q.shoreDistance, lengthOption(q.shoreDistance, 1, crs, "--shore-distance"), spacing,
+                     "--shore-distance", "a band that narrow holds no bank point to set a level");
+}
+
 constexpr char kMagic[8] = {'T', 'B', 'C', 'O', 'N', 'S', '0', '1'};
 
 }  // namespace
@@ -89,6 +116,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   files.breaklines = q.breaklines;
   files.water = q.water;
   files.flows = q.flows;
+  files.cancel = o.finalizer.cancel;
   const ConstraintInput input = readConstraints(files, survey.crs, diag);
   c.breaklines = input.breaklines.size();
   c.readSeconds = since(t);
@@ -106,6 +134,11 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     const double area = std::max((b.maxX - b.minX) * (b.maxY - b.minY), 1e-12);
     return std::sqrt(area / static_cast<double>(std::max<std::uint64_t>(n, 1)));
   };
+  wo.cancel = o.finalizer.cancel;
+  // The lengths the user gave, against the spacing the headers promise (every point of the survey: the
+  // kept points' spacing is at least that) before any work; again below with the kept points' spacing.
+  if (survey.headerBounds && survey.headerPoints > 0)
+    checkConstraintLengths(q, survey.crs, spacingOf(*survey.headerBounds, survey.headerPoints));
   auto makeSampler = [&](double sp) {
     wo.shoreDistance = lengthOption(q.shoreDistance, 3 * sp, survey.crs, "--shore-distance");
     wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
@@ -145,6 +178,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   }
   const double spacing = spacingOf(pass.bounds, pass.points);
   if (pass.points == 0) throw DataError(o.inputs.empty() ? "build" : o.inputs.front(), "no point is kept by the filters: nothing to constrain");
+  checkConstraintLengths(q, survey.crs, spacing);
   c.passSeconds = since(t);
   t = Clock::now();
   c.spacing = spacing;
@@ -154,7 +188,8 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
 
   std::vector<ConstraintSegment> segments;
   if (!input.water.empty()) {
-    const PreparedWater water = sampler->finish();
+    const PreparedWater water = sampler->finish(pass.bounds);
+    for (const auto& [kind, message] : water.warnings) diag.warn(kind, "", message);
     segments = water.segments;
     c.water = water.areas;
     c.bodies = water.bodies;
@@ -168,6 +203,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   co.maxY = pass.bounds.maxY;
   co.maxPiece = c.buffer;
   co.snap = std::min(1e-3, c.buffer * 1e-3);
+  co.cancel = o.finalizer.cancel;
   c.conforming = std::make_shared<const ConformingConstraints>(conformConstraints(segments, c.water, co));
   c.conformSeconds = since(t);
   if (c.conforming->vertices.empty())

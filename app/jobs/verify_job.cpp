@@ -9,6 +9,7 @@
 #include "libterrain/core/json_writer.h"
 #include "libterrain/core/report_text.h"
 #include "libterrain/finalizer/survey_stats.h"
+#include "libterrain/hydro/hydro_stage.h"
 
 namespace tinbuild {
 
@@ -44,6 +45,21 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
       r.constraintVerticesMissing = edges.verticesMissing();
       r.heightsDiffering = edges.heightsDiffering();
       r.firstMissingPiece = edges.firstMissing();
+      std::vector<WaterFlatnessCheck::Lake> lakes;
+      for (const WaterBody& b : constraints.bodies)
+        if (!b.river) lakes.push_back({constraints.water[b.area], b.body, b.level, b.source});
+      if (!lakes.empty()) {
+        WaterFlatnessCheck flat(std::move(lakes));
+        if (isMeshManifest(mesh))
+          readMeshParts(mesh, flat);
+        else
+          readStreamingMesh(mesh, flat);
+        r.waterChecked = true;
+        r.lakes = flat.bodies();
+        r.lakesNotFlat = flat.bodiesNotFlat();
+        r.worstLakeSpread = flat.worstSpread();
+        r.firstLakeNotFlat = flat.firstNotFlat();
+      }
     }
     ConcatPointStream stream(in.streams);
     if (!stream.rewindable())
@@ -100,6 +116,14 @@ std::string formatVerifyText(const VerifyReport& r) {
            ", " + withCommas(r.constraintVerticesMissing) + " constraint vertices missing, " +
            withCommas(r.heightsDiffering) + " at another height\n";
   }
+  if (r.waterChecked) {
+    if (r.lakesNotFlat == 0)
+      o += "  water: every one of the " + withCommas(r.lakes) +
+           " lakes is flat at its level (largest spread " + formatDouble("%.3g", r.worstLakeSpread) + ")\n";
+    else
+      o += "  water: PROBLEM: " + withCommas(r.lakesNotFlat) + " of " + withCommas(r.lakes) +
+           " lakes are not flat (the first " + r.firstLakeNotFlat + ")\n";
+  }
   o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
   return o;
 }
@@ -145,6 +169,13 @@ std::string formatVerifyJson(const VerifyReport& r) {
     j.key("pieces_not_edges").value(r.piecesMissing);
     j.key("vertices_missing").value(r.constraintVerticesMissing);
     j.key("heights_differing").value(r.heightsDiffering);
+    j.endObject();
+  }
+  if (r.waterChecked) {
+    j.key("water").beginObject();
+    j.key("lakes").value(r.lakes);
+    j.key("lakes_not_flat").value(r.lakesNotFlat);
+    j.key("largest_spread").value(r.worstLakeSpread);
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

@@ -26,8 +26,15 @@ struct VerifyReport {
   bool constraintsChecked = false;
   std::uint64_t pieces = 0, piecesMissing = 0, constraintVerticesMissing = 0, heightsDiffering = 0;
   std::string firstMissingPiece;
+  // --water: every lake (a water body of joined polygons) flat at its level.
+  bool waterChecked = false;
+  std::uint64_t lakes = 0, lakesNotFlat = 0;
+  double worstLakeSpread = 0;
+  std::string firstLakeNotFlat;
   double seconds = 0;
-  bool constraintsOk() const { return piecesMissing == 0 && constraintVerticesMissing == 0 && heightsDiffering == 0; }
+  bool constraintsOk() const {
+    return piecesMissing == 0 && constraintVerticesMissing == 0 && heightsDiffering == 0 && lakesNotFlat == 0;
+  }
   bool ok() const { return check.ok() && (!pointsChecked || pointsMatch) && (!constraintsChecked || constraintsOk()); }
 };
 VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);

@@ -631,8 +631,8 @@ void orient(Ring& ring, bool ccw) {
 class FileReader {
  public:
   FileReader(const std::string& path, Role role, const OGRSpatialReference* run, Diagnostics& diag,
-             ConstraintInput& out)
-      : path_(path), role_(role), run_(run), diag_(diag), out_(out) {}
+             ConstraintInput& out, const CancelFlag* cancel)
+      : path_(path), role_(role), run_(run), diag_(diag), out_(out), cancel_(cancel) {}
 
   void read() {
     QuietGdal quiet;
@@ -653,6 +653,7 @@ class FileReader {
       LayerTransform transform(layer->GetSpatialRef(), run_, path_, name, diag_);
       layer->ResetReading();
       for (;;) {
+        throwIfCancelled(cancel_);
         CPLErrorReset();
         OGRFeatureUniquePtr feature(layer->GetNextFeature());
         if (!feature) {
@@ -836,9 +837,93 @@ class FileReader {
   const OGRSpatialReference* run_;
   Diagnostics& diag_;
   ConstraintInput& out_;
+  const CancelFlag* cancel_;
   std::vector<Part> parts_;
   std::size_t produced_ = 0;
 };
+
+// Water polygons as a set (constraint_input.h): every pair whose boxes meet is tested exactly -- a contact
+// of their rings (crossing, touching, overlapping edges, a vertex on an edge: ContactFinder) or one lying
+// inside the other's water (a vertex of it inside the outer ring and in no hole) -- and the pairs that meet
+// are joined into bodies (union-find, each body named by its first polygon).  Candidate pairs come from a
+// sweep over the boxes in x, so a state's water layer is not quadratic.
+void groupWater(std::vector<WaterPolygon>& water, const CancelFlag* cancel) {
+  const std::size_t n = water.size();
+  struct BoxOf {
+    double x0, y0, x1, y1;
+  };
+  std::vector<BoxOf> box(n);
+  for (std::size_t i = 0; i < n; ++i) {
+    BoxOf b{water[i].outer[0].x, water[i].outer[0].y, water[i].outer[0].x, water[i].outer[0].y};
+    for (const ConstraintPoint& p : water[i].outer)
+      b.x0 = std::min(b.x0, p.x), b.y0 = std::min(b.y0, p.y), b.x1 = std::max(b.x1, p.x),
+      b.y1 = std::max(b.y1, p.y);
+    box[i] = b;
+    water[i].body = i;
+  }
+  std::vector<std::size_t> parent(n), order(n);
+  for (std::size_t i = 0; i < n; ++i) parent[i] = order[i] = i;
+  auto root = [&parent](std::size_t i) {
+    while (parent[i] != i) i = parent[i] = parent[parent[i]];
+    return i;
+  };
+  // Whether polygon `a` lies in polygon `b`'s water: a vertex of a inside b's outer ring and in none of its
+  // holes (the rings do not meet, so one vertex tells).
+  auto within = [&](const WaterPolygon& a, const WaterPolygon& b) {
+    const Point2 p{a.outer[0].x, a.outer[0].y};
+    if (!insideRing(p, b.outer)) return false;
+    for (const Ring& h : b.holes)
+      if (insideRing(p, h)) return false;
+    return true;
+  };
+  std::sort(order.begin(), order.end(),
+            [&box](std::size_t i, std::size_t j) { return box[i].x0 < box[j].x0; });
+  for (std::size_t oi = 0; oi < n; ++oi) {
+    throwIfCancelled(cancel);
+    const std::size_t i = order[oi];
+    for (std::size_t oj = oi + 1; oj < n && box[order[oj]].x0 <= box[i].x1; ++oj) {
+      const std::size_t j = order[oj];
+      if (box[j].y0 > box[i].y1 || box[j].y1 < box[i].y0) continue;
+      const std::size_t a = std::min(i, j), b = std::max(i, j);
+      std::vector<Edge> edges;
+      std::vector<std::size_t> sizes;
+      std::vector<std::size_t> ringOwner;  // which polygon each ring is
+      auto addRing = [&](const Ring& ring, std::size_t owner) {
+        const auto r = static_cast<std::uint32_t>(sizes.size());
+        sizes.push_back(ring.size());
+        ringOwner.push_back(owner);
+        for (std::size_t k = 0; k < ring.size(); ++k) {
+          const ConstraintPoint& p = ring[k];
+          const ConstraintPoint& q = ring[(k + 1) % ring.size()];
+          edges.push_back(Edge{{p.x, p.y},
+                               {q.x, q.y},
+                               r,
+                               static_cast<std::uint32_t>(k),
+                               std::min(p.x, q.x),
+                               std::max(p.x, q.x),
+                               std::min(p.y, q.y),
+                               std::max(p.y, q.y)});
+        }
+      };
+      for (std::size_t owner : {a, b}) {
+        addRing(water[owner].outer, owner);
+        for (const Ring& h : water[owner].holes) addRing(h, owner);
+      }
+      Contact c;
+      std::string where;
+      if (ContactFinder(edges, sizes).find(c) && ringOwner[c.ringA] != ringOwner[c.ringB])
+        where = pointText(c.where.x, c.where.y);
+      else if (within(water[a], water[b]) || within(water[b], water[a]))
+        where = "inside it";
+      if (where.empty()) continue;
+      if (water[b].joined.empty())
+        water[b].joined = water[a].source + (where == "inside it" ? ", " : ", at ") + where;
+      const std::size_t ra = root(a), rb = root(b);
+      if (ra != rb) parent[std::max(ra, rb)] = std::min(ra, rb);
+    }
+  }
+  for (std::size_t i = 0; i < n; ++i) water[i].body = root(i);
+}
 
 }  // namespace
 
@@ -858,7 +943,8 @@ ConstraintInput readConstraints(const ConstraintFiles& files, const CrsInfo& run
   const std::pair<const std::vector<std::string>*, Role> groups[] = {
       {&files.breaklines, Role::Breakline}, {&files.water, Role::Water}, {&files.flows, Role::Flow}};
   for (const auto& [paths, role] : groups)
-    for (const std::string& path : *paths) FileReader(path, role, run.get(), diag, out).read();
+    for (const std::string& path : *paths) FileReader(path, role, run.get(), diag, out, files.cancel).read();
+  groupWater(out.water, files.cancel);
   return out;
 }
 

@@ -39,6 +39,7 @@
 #include <vector>
 
 #include "formats/crs/crs.h"
+#include "libterrain/core/cancel.h"
 #include "libterrain/hydro/constraint_input.h"
 
 namespace tinbuild {
@@ -49,6 +50,7 @@ struct ConstraintFiles {
   std::vector<std::string> breaklines;  // --breaklines (repeatable)
   std::vector<std::string> water;       // --water
   std::vector<std::string> flows;       // --flow
+  const CancelFlag* cancel = nullptr;   // polled between features and pairs of water polygons
 };
 
 // Reads every file (breaklines, then water, then flows, each in the order given) into the run's CRS.

@@ -1960,6 +1960,11 @@ class Finalizer {
     if (c.byReturn) s += ", " + withCommas(c.byReturn) + " by return number";
     if (c.clipped) s += ", " + withCommas(c.clipped) + " outside the clip rectangle";
     if (c.otherPart) s += ", " + withCommas(c.otherPart) + " outside this part (other parts')";
+    // The run's point stages (the water polygons, the breaklines' buffers): water covering the whole
+    // survey leaves nothing, and says so by name.
+    for (std::size_t i = 0; i < options_.filter.stages.size() && i < kMaxPointStages; ++i)
+      if (c.byStage[i])
+        s += ", " + withCommas(c.byStage[i]) + " left out as " + options_.filter.stages[i]->describe();
     return s;
   }
 

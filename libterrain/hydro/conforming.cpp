@@ -28,30 +28,28 @@ bool inRing(const Ring& r, double x, double y) {
 
 // Liang-Barsky: clips a-b to the box (z linear along it); false when nothing is left.
 bool clipToBox(ConstraintPoint& a, ConstraintPoint& b, const ConformingOptions& o) {
-  double t0 = 0, t1 = 1;
-  const double dx = b.x - a.x, dy = b.y - a.y;
-  auto edge = [&](double p, double q) {
-    if (p == 0) return q >= 0;
-    const double r = q / p;
-    if (p < 0) {
-      if (r > t1) return false;
-      t0 = std::max(t0, r);
-    } else {
-      if (r < t0) return false;
-      t1 = std::min(t1, r);
-    }
+  // One side at a time (x >= minX, x <= maxX, y >= minY, y <= maxY), each crossing found from the
+  // coordinates, not from a parameter along the whole segment: a line drawn from -1e20 to 1e20 across the
+  // survey has its parameter near 0.5 resolved to 1e-16 of 2e20, coarser than the survey, and was lost.
+  // The crossing lies exactly on the side (its coordinate is the side's), the other coordinates are
+  // interpolated in long double from the endpoints, and each later side sees a segment already near it.
+  auto clip = [&](bool alongX, double side, bool keepAbove) {
+    const double pa = alongX ? a.x : a.y, pb = alongX ? b.x : b.y;
+    const bool inA = keepAbove ? pa >= side : pa <= side, inB = keepAbove ? pb >= side : pb <= side;
+    if (inA && inB) return true;
+    if (!inA && !inB) return false;
+    const long double t = (static_cast<long double>(side) - pa) / (static_cast<long double>(pb) - pa);
+    auto lerp = [t](double u, double v) {
+      return static_cast<double>(static_cast<long double>(u) + t * (static_cast<long double>(v) - u));
+    };
+    ConstraintPoint c{alongX ? side : lerp(a.x, b.x), alongX ? lerp(a.y, b.y) : side, lerp(a.z, b.z)};
+    (inA ? b : a) = c;
     return true;
   };
-  if (!edge(-dx, a.x - o.minX) || !edge(dx, o.maxX - a.x) || !edge(-dy, a.y - o.minY) || !edge(dy, o.maxY - a.y))
+  if (!clip(true, o.minX, true) || !clip(true, o.maxX, false) || !clip(false, o.minY, true) ||
+      !clip(false, o.maxY, false))
     return false;
-  if (t0 >= t1) return false;
-  const ConstraintPoint A = a, B = b;
-  auto at = [&](double t) {
-    return ConstraintPoint{A.x + t * (B.x - A.x), A.y + t * (B.y - A.y), A.z + t * (B.z - A.z)};
-  };
-  if (t0 > 0) a = at(t0);
-  if (t1 < 1) b = at(t1);
-  return true;
+  return a.x != b.x || a.y != b.y;  // (a segment that only touches the box at a point is no constraint)
 }
 
 // The cells of a uniform grid that a box meets.
@@ -192,6 +190,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
 
   std::vector<Seg> segs;
   for (const ConstraintSegment& s0 : input) {
+    throwIfCancelled(o.cancel);
     ConstraintPoint a = s0.a, b = s0.b;
     if (!clipToBox(a, b, o)) {
       ++st.clippedAway;
@@ -256,6 +255,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
   std::unordered_set<std::uint64_t> tested;
   auto zAt = [](const Seg& s, double t) { return s.a.z + t * (s.b.z - s.a.z); };
   for (const std::int64_t k : cellKeys) {
+    throwIfCancelled(o.cancel);
     const std::vector<std::uint32_t>& list = segCells[k];
     for (std::size_t p = 0; p < list.size(); ++p)
       for (std::size_t q = p + 1; q < list.size(); ++q) {
@@ -280,6 +280,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
   // Vertices on (or within snap of) a segment they are not an end of split it there (T-junctions,
   // overlapping segments).
   for (std::uint32_t v = 0; v < pool.v.size(); ++v) {
+    if ((v & 1023) == 0) throwIfCancelled(o.cancel);
     const ConstraintPoint p = pool.v[v];
     std::unordered_set<std::uint32_t> seen;
     grid.forCells(p.x, p.y, p.x, p.y, [&](std::int64_t c) {
@@ -302,6 +303,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
   // The noded edges: each segment from end to end through its split vertices, in order along it.
   std::vector<std::array<std::uint32_t, 2>> edges;
   for (std::size_t i = 0; i < segs.size(); ++i) {
+    throwIfCancelled(o.cancel);
     const Seg& s = segs[i];
     std::vector<std::pair<double, std::uint32_t>> along{{0.0, ends[i][0]}, {1.0, ends[i][1]}};
     const double rx = s.b.x - s.a.x, ry = s.b.y - s.a.y, len2 = rx * rx + ry * ry;
@@ -331,6 +333,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
     if (n > (std::uint64_t{1} << 31)) throw Error("constraints: a segment of " + std::to_string(len) + " would need too many pieces");
     std::uint32_t prev = e[0];
     for (std::uint64_t k = 1; k < n; ++k) {
+      if ((k & 0xffff) == 0) throwIfCancelled(o.cancel);
       const double t = static_cast<double>(k) / static_cast<double>(n);
       const auto m = static_cast<std::uint32_t>(v.size());
       v.push_back(ConstraintPoint{A.x + t * (B.x - A.x), A.y + t * (B.y - A.y), A.z + t * (B.z - A.z)});
@@ -370,6 +373,7 @@ ConformingConstraints conformConstraints(const std::vector<ConstraintSegment>& i
     nextFresh.reserve(pieces.size());
     std::vector<std::uint32_t> madeNow;
     for (std::size_t i = 0; i < pieces.size(); ++i) {
+      if ((i & 1023) == 0) throwIfCancelled(o.cancel);
       const auto& pc = pieces[i];
       const ConstraintPoint &A = v[pc[0]], &B = v[pc[1]];
       const double len = std::hypot(B.x - A.x, B.y - A.y);

@@ -28,6 +28,7 @@
 #include <string>
 #include <vector>
 
+#include "libterrain/core/cancel.h"
 #include "libterrain/hydro/constraint_input.h"
 
 namespace tinbuild {
@@ -51,6 +52,7 @@ struct ConformingOptions {
   double minX = 0, minY = 0, maxX = 0, maxY = 0;  // the survey's extent: constraints are clipped to it
   double maxPiece = 1;  // longest piece (CRS units): also the width of the buffer cleared of lidar points
   double snap = 1e-3;   // vertices closer than this are one vertex (CRS units)
+  const CancelFlag* cancel = nullptr;  // polled in every loop over segments, vertices and pieces
 };
 
 struct ConformingStats {

@@ -379,4 +379,55 @@ std::string ConstraintEdgeCheck::firstMissing() const {
   return "";
 }
 
+WaterFlatnessCheck::WaterFlatnessCheck(std::vector<Lake> lakes, double tolerance)
+    : lakes_(std::move(lakes)), tolerance_(tolerance) {
+  std::vector<WaterArea> all;
+  for (const Lake& l : lakes_) {
+    index_.push_back(std::make_unique<WaterIndex>(std::vector<WaterArea>{l.area}));
+    all.push_back(l.area);
+    seen_[l.body];
+  }
+  any_ = std::make_unique<WaterIndex>(all);
+}
+
+void WaterFlatnessCheck::vertex(std::uint64_t, double x, double y, double z) {
+  if (lakes_.empty() || !any_->inside(x, y)) return;
+  for (std::size_t i = 0; i < lakes_.size(); ++i) {
+    if (!index_[i]->inside(x, y)) continue;
+    Seen& s = seen_[lakes_[i].body];
+    s.lo = std::min(s.lo, z);
+    s.hi = std::max(s.hi, z);
+    if (std::fabs(z - lakes_[i].level) > tolerance_) s.off = true;
+  }
+}
+
+std::size_t WaterFlatnessCheck::bodies() const {
+  return seen_.size();
+}
+
+std::size_t WaterFlatnessCheck::bodiesNotFlat() const {
+  std::size_t n = 0;
+  for (const auto& [body, s] : seen_) n += s.off || (s.hi > s.lo && s.hi - s.lo > tolerance_);
+  return n;
+}
+
+double WaterFlatnessCheck::worstSpread() const {
+  double w = 0;
+  for (const auto& [body, s] : seen_)
+    if (s.hi >= s.lo) w = std::max(w, s.hi - s.lo);
+  return w;
+}
+
+std::string WaterFlatnessCheck::firstNotFlat() const {
+  for (const Lake& l : lakes_) {
+    const auto it = seen_.find(l.body);
+    if (it == seen_.end()) continue;
+    const Seen& s = it->second;
+    if (s.off || (s.hi > s.lo && s.hi - s.lo > tolerance_))
+      return l.source + ": TIN vertices in it from z " + std::to_string(s.lo) + " to " +
+             std::to_string(s.hi) + ", its level " + std::to_string(l.level);
+  }
+  return "";
+}
+
 }  // namespace tinbuild

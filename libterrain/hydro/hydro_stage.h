@@ -140,4 +140,40 @@ class ConstraintEdgeCheck final : public MeshSink {
   std::uint64_t heightsDiffering_ = 0;
 };
 
+// `verify --water`: reads a TIN (as a MeshSink) and checks that every lake is flat -- every TIN vertex in
+// or on a lake's water body (its polygons joined, constraint_input.h) lies at the body's level -- within
+// `tolerance` (1 mm: the level is one double, so a flat lake's spread is exactly 0; more means a vertex
+// that is not the lake's).  Rivers slope by design and are checked by the edge check (ConstraintEdgeCheck).
+class WaterFlatnessCheck final : public MeshSink {
+ public:
+  // One entry per lake polygon: its area, its body (the first polygon's index) and the body's level.
+  struct Lake {
+    WaterArea area;
+    std::size_t body = 0;
+    double level = 0;
+    std::string source;
+  };
+  explicit WaterFlatnessCheck(std::vector<Lake> lakes, double tolerance = 1e-3);
+  void begin(const MeshInfo&) override {}
+  void vertex(std::uint64_t id, double x, double y, double z) override;
+  void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override {}
+  void finalizeVertex(std::uint64_t) override {}
+  void end() override {}
+  std::size_t bodies() const;         // lake bodies checked
+  std::size_t bodiesNotFlat() const;  // with a vertex off their level
+  double worstSpread() const;         // the largest (max z - min z) of a body's vertices
+  std::string firstNotFlat() const;   // "SOURCE: z from A to B, level L", "" when none
+
+ private:
+  std::vector<Lake> lakes_;
+  std::vector<std::unique_ptr<WaterIndex>> index_;  // one per lake polygon
+  std::unique_ptr<WaterIndex> any_;                 // every lake: most vertices are in none
+  double tolerance_;
+  struct Seen {
+    double lo = 1e300, hi = -1e300;
+    bool off = false;
+  };
+  std::unordered_map<std::size_t, Seen> seen_;  // by body
+};
+
 }  // namespace tinbuild

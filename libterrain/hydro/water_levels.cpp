@@ -1,10 +1,13 @@
 #include "libterrain/hydro/water_levels.h"
 
+#include "libterrain/core/report_text.h"
+
 #include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
 #include <limits>
+#include <optional>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -195,7 +198,15 @@ struct ShoreSampler::Impl {
         const Centerline& cl = flows[static_cast<std::size_t>(b.flow)];
         double lo = std::numeric_limits<double>::infinity(), hi = -lo;
         const double step = o.stationSpacing / 4;
+        // (A spacing in the wrong unit: more than 10^7 stations on one centreline is no river survey.)
+        if (!(cl.length / o.stationSpacing < 1e7))
+          throw UsageError("--station-spacing " + formatDouble("%.6g", o.stationSpacing) + " gives " +
+                           formatDouble("%.6g", cl.length / o.stationSpacing) +
+                           " stations along a centreline of " + formatDouble("%.6g", cl.length) +
+                           ": give a larger --station-spacing");
+        std::uint64_t steps = 0;
         for (double s = 0; s <= cl.length + step; s += step) {
+          if ((++steps & 0xffff) == 0) throwIfCancelled(o.cancel);
           const auto pt = cl.pointAndTangent(std::min(s, cl.length));
           if (insideWater(b.area, pt[0], pt[1])) {
             lo = std::min(lo, std::min(s, cl.length));
@@ -294,14 +305,75 @@ void ShoreSampler::collect(const PointRecord* p, std::size_t n, std::vector<Poin
   impl_->collect(p, n, out);
 }
 
-PreparedWater ShoreSampler::finish() const {
+PreparedWater ShoreSampler::finish(const Bounds3& survey) const {
   const Impl& m = *impl_;
   PreparedWater out;
   out.areas = m.areas;
+  // Centrelines that cross no polygon make no river: said, since the user drew them for one.
+  for (std::size_t f = 0; f < m.flows.size(); ++f) {
+    bool used = false;
+    for (const Impl::Body& b : m.bodies) used = used || b.flow == static_cast<int>(f);
+    if (!used)
+      out.warnings.emplace_back("water.flow_unused",
+                                m.in.flows[f].source +
+                                    ": this centreline crosses no water polygon and makes no "
+                                    "river (is it in the polygons' CRS, and over them?)");
+  }
+  // Water bodies (constraint_input.h): polygons that overlap or touch are one body, with one level.  The
+  // lakes of a body pool their bank points (the level is their percentile over the whole body's shore) or
+  // share the level given with them; a river's polygon meeting another polygon is refused, naming both.
+  std::vector<std::size_t> members(m.bodies.size(), 0);
+  for (const Impl::Body& b : m.bodies) ++members[b.poly->body];
+  std::vector<std::vector<float>> pooled(m.bodies.size());
+  std::vector<std::optional<double>> givenLevel(m.bodies.size());
+  std::vector<std::size_t> givenBy(m.bodies.size(), 0);
   for (std::uint32_t bi = 0; bi < m.bodies.size(); ++bi) {
     const Impl::Body& b = m.bodies[bi];
+    const std::size_t root = b.poly->body;
+    if (members[root] < 2) continue;
+    auto other = [&]() -> std::string {
+      if (!b.poly->joined.empty()) return b.poly->joined;
+      for (const Impl::Body& c : m.bodies)
+        if (&c != &b && c.poly->body == root)
+          return c.poly->source + (c.poly->joined.empty() ? "" : " (" + c.poly->joined + ")");
+      return "another polygon";
+    };
+    if (b.flow >= 0)
+      throw Error(
+          b.poly->source + ": this river's polygon meets the water polygon " + other() +
+          ": a river's level falls downstream, so it cannot be one flat water body with another polygon; "
+          "make them one polygon (the river takes the other in) or keep them apart");
+    pooled[root].insert(pooled[root].end(), b.zs.begin(), b.zs.end());
+    if (b.poly->level) {
+      if (givenLevel[root] && *givenLevel[root] != *b.poly->level)
+        throw Error(b.poly->source + ": this water polygon meets " + m.bodies[givenBy[root]].poly->source +
+                    ", so they are one water body, but their levels differ (" +
+                    formatDouble("%.6g", *b.poly->level) + " and " + formatDouble("%.6g", *givenLevel[root]) +
+                    "): give them one level, or keep them apart");
+      givenLevel[root] = *b.poly->level;
+      givenBy[root] = bi;
+    }
+  }
+  std::string firstOutside;
+  for (std::uint32_t bi = 0; bi < m.bodies.size(); ++bi) {
+    throwIfCancelled(m.o.cancel);
+    const Impl::Body& b = m.bodies[bi];
+    {
+      // A polygon that does not come within the shore distance of the survey has nothing to flatten.
+      double x0 = std::numeric_limits<double>::infinity(), y0 = x0, x1 = -x0, y1 = -x0;
+      for (const auto& q : b.area.outer)
+        x0 = std::min(x0, q[0]), y0 = std::min(y0, q[1]), x1 = std::max(x1, q[0]), y1 = std::max(y1, q[1]);
+      const double d = m.o.shoreDistance;
+      if (!survey.empty() && b.zs.empty() && b.bankPoints == 0 &&
+          (x1 < survey.minX - d || x0 > survey.maxX + d || y1 < survey.minY - d || y0 > survey.maxY + d)) {
+        if (out.outside++ == 0) firstOutside = b.poly->source;
+        continue;
+      }
+    }
     WaterBody report;
     report.source = b.poly->source;
+    report.area = bi;
+    report.body = bi;
     report.river = b.flow >= 0;
     report.bankPoints = b.bankPoints;
     const std::string distance = std::to_string(m.o.shoreDistance);
@@ -319,15 +391,20 @@ PreparedWater ShoreSampler::finish() const {
     };
     if (b.flow < 0) {
       double level = 0;
-      if (b.poly->level) {
-        level = *b.poly->level;
+      const std::size_t root = b.poly->body;
+      const bool joined = members[root] > 1;
+      report.body = root;
+      report.members = members[root];
+      if (joined ? givenLevel[root].has_value() : b.poly->level.has_value()) {
+        level = joined ? *givenLevel[root] : *b.poly->level;
         report.given = true;
       } else {
-        if (b.zs.empty())
+        const std::vector<float>& zs = joined ? pooled[root] : b.zs;
+        if (zs.empty())
           throw Error(b.poly->source + ": no lidar point within " + distance +
                       " of this water polygon's shore to set its level: give it a level (a POLYGON Z at one z) or a "
                       "larger --shore-distance");
-        level = percentileOf(b.zs, m.o.percentile);
+        level = percentileOf(zs, m.o.percentile);
       }
       report.level = report.lastLevel = level;
       allRings([level](const ConstraintPoint&) { return level; });
@@ -366,6 +443,28 @@ PreparedWater ShoreSampler::finish() const {
       } else {
         level[k] = prev >= 0 ? level[static_cast<std::size_t>(prev)] : percentileOf(b.atStation[static_cast<std::size_t>(next)], m.o.percentile);
       }
+    }
+    {
+      // Digitised upstream?  Never rising downstream removes what rises along the line: measure how much it
+      // would remove in the line's direction and in the reverse one.  A line drawn upstream loses its whole
+      // fall (the river comes out flat at its first station's level) while its reverse loses only the
+      // noise: said, with what the direction does.
+      double alongLoss = 0, reverseLoss = 0, runMin = level[0], revMin = level[b.stations - 1];
+      for (std::uint32_t k = 0; k < b.stations; ++k) {
+        runMin = std::min(runMin, level[k]);
+        alongLoss += level[k] - runMin;
+        const std::uint32_t r = b.stations - 1 - k;
+        revMin = std::min(revMin, level[r]);
+        reverseLoss += level[r] - revMin;
+      }
+      if (b.stations >= 4 && alongLoss > 2 * reverseLoss && alongLoss > 0.05 * b.stations)
+        out.warnings.emplace_back(
+            "water.flow_upstream",
+            m.in.flows[static_cast<std::size_t>(b.flow)].source + ": the banks of " + b.poly->source +
+                " rise along this centreline (by " + formatDouble("%.3g", alongLoss / b.stations) +
+                " a station on average, " + formatDouble("%.3g", reverseLoss / b.stations) +
+                " the other way): rivers are digitised downstream (reverse the line); as "
+                "drawn, the water never rises from its first station's level");
     }
     for (std::uint32_t k = 1; k < b.stations; ++k) level[k] = std::min(level[k], level[k - 1]);
     auto levelAt = [&](double s) {
@@ -413,6 +512,11 @@ PreparedWater ShoreSampler::finish() const {
     report.lastLevel = level.back();
     out.bodies.push_back(report);
   }
+  if (out.outside)
+    out.warnings.emplace_back("water.outside",
+                              std::to_string(out.outside) + " water polygon" + (out.outside == 1 ? "" : "s") +
+                                  " (the first: " + firstOutside +
+                                  ") lie outside the survey and are left out: nothing there to flatten");
   return out;
 }
 

@@ -22,6 +22,7 @@
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "libterrain/core/point.h"
@@ -34,6 +35,7 @@ struct WaterLevelOptions {
   double shoreDistance = 3;   // bank points within this distance of the shore
   double percentile = 0;      // 0..100 of the bank points' z: 0 = the lowest
   double stationSpacing = 10;  // rivers: distance between stations along the centerline
+  const CancelFlag* cancel = nullptr;  // polled along the centerlines and the bodies
 };
 
 // What was decided for each water polygon (the report's "water" section).
@@ -45,12 +47,19 @@ struct WaterBody {
   double lastLevel = 0;  // a river's level at its last station
   std::uint64_t bankPoints = 0;
   std::uint32_t stations = 0;
+  std::size_t body = 0;     // the water body: the index of its first polygon (constraint_input.h)
+  std::size_t members = 1;  // polygons in that body
+  std::size_t area = 0;     // this polygon's index in PreparedWater::areas
 };
 
 struct PreparedWater {
   std::vector<WaterArea> areas;
   std::vector<ConstraintSegment> segments;  // shores at their levels, river cross-sections (SegmentKind::Water)
   std::vector<WaterBody> bodies;
+  // What the user should hear about (kind, message): polygons outside the survey left out, centrelines
+  // that make no river, a centreline that seems digitised upstream.
+  std::vector<std::pair<std::string, std::string>> warnings;
+  std::uint64_t outside = 0;  // water polygons that do not meet the survey: left out
 };
 
 class ShoreSampler {
@@ -70,7 +79,9 @@ class ShoreSampler {
   void collect(const PointRecord* p, std::size_t n, std::vector<PointRecord>& out) const;
   // The levels, the shores at their levels and the cross-sections.  Throws Error naming the polygon when
   // a level cannot be derived (no bank point within shoreDistance).
-  PreparedWater finish() const;
+  // Polygons that do not come within shoreDistance of `survey` (the kept points' extent) are left out,
+  // counted and warned about: a state's water layer over one tile is mostly elsewhere.
+  PreparedWater finish(const Bounds3& survey = Bounds3{}) const;
 
  private:
   struct Impl;

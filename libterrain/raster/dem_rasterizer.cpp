@@ -161,6 +161,17 @@ void checkDemSize(const DemLayout& layout, const DemOptions& o, const Bounds3& d
                      ", y " + compact(data.minY) + " .. " + compact(data.maxY) + " at --step " + compact(o.step) +
                      "): a far outlier point stretches the extent.  Leave it out with --clip XMIN,YMIN,XMAX,YMAX "
                      "(or a class filter), or give the DEM the area you want with --extent");
+  // With an --extent the area is the user's, but the step still has a floor: ten thousand pixels a point
+  // of the survey's spacing interpolate nothing new, and a tiny extent at a step of 1e-6 grew to 24 GB.
+  if (o.extent && points > 0 && pixels > 1e8 && !data.empty()) {
+    const double area = std::max((data.maxX - data.minX) * (data.maxY - data.minY), 1e-300);
+    const double spacing = std::sqrt(area / static_cast<double>(points));
+    if (spacing / o.step > 100)
+      throw UsageError(
+          "DEM: --step " + compact(o.step) + " is below a hundredth of the survey's point spacing (" +
+          compact(spacing) + "): the raster would have " + compact(pixels) +
+          " pixels, ten thousand and more a point; give a --step of at least " + compact(spacing / 100));
+  }
 }
 
 DemLayout demLayout(const DemOptions& o, const Bounds3& data) {

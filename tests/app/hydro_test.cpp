@@ -10,6 +10,7 @@
 
 #include <algorithm>
 #include <array>
+#include <chrono>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -256,6 +257,150 @@ TEST(Hydro, LakesPondsAndRiversAreFlattenedAndVerified) {
   EXPECT_NE(report.find("\"kind\": \"river\""), std::string::npos) << report;
   EXPECT_NE(report.find("\"water\":"), std::string::npos);
   EXPECT_NE(report.find("\"vertices_added\""), std::string::npos);
+}
+
+// Water polygons are a set: two ponds drawn overlapping (two features) and a MULTIPOLYGON whose parts
+// overlap are each one water body, flat at one level over their union (to 1e-3 m on every DEM pixel inside),
+// which `verify --water` proves on the TIN; two overlapping lakes given different levels, and a river's
+// polygon meeting a pond, are refused naming both features.
+TEST(Hydro, OverlappingWaterPolygonsAreOneFlatBody) {
+  const Valley& v = valley();
+  const fs::path out = test::scratchDir();
+  const std::string las = (v.dir / "valley.las").string();
+  const double x0 = v.spec.originX, y0 = v.spec.originY, L = v.side;
+  const auto a = square(x0 + 0.7 * L, y0 + 0.12 * L, 0.035 * L, 0);
+  const auto b = square(x0 + 0.74 * L, y0 + 0.15 * L, 0.03 * L, 0);  // overlaps a
+  const auto c = square(x0 + 0.25 * L, y0 + 0.15 * L, 0.03 * L, 0);
+  const auto d = square(x0 + 0.28 * L, y0 + 0.13 * L, 0.03 * L, 0);  // overlaps c, in one MULTIPOLYGON
+  auto ringText = [](const std::vector<std::array<double, 3>>& ring) {
+    std::string s = "[[";
+    for (std::size_t i = 0; i <= ring.size(); ++i)
+      s += (i ? "," : "") + std::string("[") + num(ring[i % ring.size()][0]) + "," +
+           num(ring[i % ring.size()][1]) + "]";
+    return s + "]]";
+  };
+  writeGeoJson(out / "ponds.geojson",
+               {polygon(a, false), polygon(b, false),
+                R"({"type":"MultiPolygon","coordinates":[)" + ringText(c) + "," + ringText(d) + "]}"});
+  const auto r = test::tinbuild("build " + las + " --keep-class 2,9 --water " +
+                                (out / "ponds.geojson").string() + " --mesh " + (out / "tin.smb").string() +
+                                " --dem " + (out / "dem.tif").string() + " --step 0.5 -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  const Raster dem = readRaster(out / "dem.tif");
+  for (const auto& [first, second] : {std::pair{&a, &b}, std::pair{&c, &d}}) {
+    float lo = 1e30f, hi = -1e30f;
+    std::size_t pixels = 0;
+    for (int row = 0; row < dem.h; ++row)
+      for (int col = 0; col < dem.w; ++col) {
+        const double x = dem.cx(col), y = dem.cy(row);
+        const bool inFirst = inPolygon(*first, x, y), inSecond = inPolygon(*second, x, y);
+        if (!inFirst && !inSecond) continue;
+        // (a metre inside one of them is a metre inside their union)
+        if (!(inFirst && distanceToRing(*first, x, y) >= 1) &&
+            !(inSecond && distanceToRing(*second, x, y) >= 1))
+          continue;
+        ++pixels;
+        lo = std::min(lo, dem.at(x, y));
+        hi = std::max(hi, dem.at(x, y));
+      }
+    EXPECT_GT(pixels, 1000u);
+    EXPECT_LE(hi - lo, 1e-3f) << "a water body of two overlapping polygons is not flat: " << lo << " .. "
+                              << hi;
+  }
+  const auto check = test::tinbuild("verify " + (out / "tin.smb").string() + " --points " + las +
+                                    " --keep-class 2,9 --water " + (out / "ponds.geojson").string());
+  EXPECT_EQ(check.code, 0) << check.out;
+  EXPECT_NE(check.out.find("every one of the 2 lakes is flat"), std::string::npos) << check.out;
+
+  // Overlapping lakes with different given levels; a river's polygon meeting a pond: refused, both named.
+  auto lifted = [](std::vector<std::array<double, 3>> ring, double z) {
+    for (auto& p : ring) p[2] = z;
+    return ring;
+  };
+  writeGeoJson(out / "levels.geojson", {polygon(lifted(a, 100), true), polygon(lifted(b, 101), true)});
+  auto refused =
+      test::tinbuild("build " + las + " --keep-class 2,9 --water " + (out / "levels.geojson").string() +
+                     " --mesh " + (out / "x.smb").string() + " -q");
+  EXPECT_EQ(refused.code, 1);
+  EXPECT_NE(refused.err.find("feature 1"), std::string::npos) << refused.err;
+  EXPECT_NE(refused.err.find("their levels differ"), std::string::npos) << refused.err;
+  std::vector<std::array<double, 3>> onRiver;
+  const auto& rp = v.features.riverPolygon[0];
+  onRiver = square(rp[0], rp[1], 5, 0);
+  writeGeoJson(out / "meets.geojson", {polygon(v.river, false), polygon(onRiver, false)});
+  refused = test::tinbuild("build " + las + " --keep-class 2,9 --water " + (out / "meets.geojson").string() +
+                           " --flow " + (v.dir / "flow.geojson").string() + " --mesh " +
+                           (out / "x.smb").string() + " -q");
+  EXPECT_EQ(refused.code, 1);
+  EXPECT_NE(refused.err.find("this river's polygon meets the water polygon"), std::string::npos)
+      << refused.err;
+  EXPECT_FALSE(fs::exists(out / "x.smb"));
+}
+
+// Lengths a survey cannot support end in an error naming the option and the least sensible value, at once;
+// water and lines that do not fit the survey are said, by name, instead of changing the result silently.
+TEST(Hydro, AbsurdLengthsAndMisfitFeaturesAreSaid) {
+  const Valley& v = valley();
+  const fs::path out = test::scratchDir();
+  const std::string las = (v.dir / "valley.las").string() + " --keep-class 2,9";
+  const std::string water = " --water " + (v.dir / "water.geojson").string();
+  const std::string flow = " --flow " + (v.dir / "flow.geojson").string();
+  const std::string roads = " --breaklines " + (v.dir / "roads.geojson").string();
+  const std::string mesh = " --mesh " + (out / "x.smb").string() + " -q";
+  const std::vector<std::pair<std::string, std::string>> absurd = {
+      {water + flow + " --station-spacing 1e-6",
+       "--station-spacing 1e-6 is below a tenth of the survey's point spacing"},
+      {roads + " --breakline-buffer 1e-6",
+       "--breakline-buffer 1e-6 is below a tenth of the survey's point spacing"},
+      {water + " --shore-distance 1e-7",
+       "--shore-distance 1e-7 is below a tenth of the survey's point spacing"},
+      {" --dem " + (out / "d.tif").string() + " --step 1e-6 --extent 0,0,0.1,0.1",
+       "is below a hundredth of the survey's point spacing"},
+      {" --dem " + (out / "d").string() + " --step 1 --tile-size-m 1e-6", "a tile is 16 to 65536 pixels"},
+  };
+  for (const auto& [args, message] : absurd) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const auto r = test::tinbuild("build " + las + args + mesh);
+    const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+    EXPECT_EQ(r.code, 2) << args << ": " << r.err;
+    EXPECT_NE(r.err.find(message), std::string::npos) << args << ": " << r.err;
+    EXPECT_LT(seconds, 10) << args;  // (well under a second alone; the bound allows a loaded machine)
+    EXPECT_FALSE(fs::exists(out / "x.smb"));
+  }
+  const double x0 = v.spec.originX, y0 = v.spec.originY, L = v.side;
+  // A water polygon far outside the survey: left out, said, not blamed on --shore-distance.
+  writeGeoJson(out / "far.geojson", {polygon(v.pond, false), polygon(square(x0 + 1e6, y0, 50, 0), false)});
+  auto r = test::tinbuild("build " + las + " --water " + (out / "far.geojson").string() + " --mesh " +
+                          (out / "far.smb").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("1 water polygon (the first: "), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("lie outside the survey and are left out"), std::string::npos) << r.err;
+  // Water over the whole survey: nothing is left, and the water is named.
+  writeGeoJson(out / "all.geojson", {polygon(square(x0 + L / 2, y0 + L / 2, L, 100), true)});
+  r = test::tinbuild("build " + las + " --water " + (out / "all.geojson").string() + " --mesh " +
+                     (out / "all.smb").string() + " -q");
+  EXPECT_NE(r.code, 0);
+  EXPECT_NE(r.err.find("left out as points inside"), std::string::npos) << r.err;
+  // A centreline reversed (digitised upstream), and one that crosses no polygon: each said.
+  std::string reversed = R"({"type":"LineString","coordinates":[)";
+  for (std::size_t i = v.features.riverCentreline.size(); i-- > 0;)
+    reversed += (i + 1 == v.features.riverCentreline.size() ? "" : ",") + std::string("[") +
+                num(v.features.riverCentreline[i][0]) + "," + num(v.features.riverCentreline[i][1]) + "]";
+  const std::string astray = R"({"type":"LineString","coordinates":[[)" + num(x0 + 2e6) + "," + num(y0) +
+                             "],[" + num(x0 + 2e6 + 100) + "," + num(y0 + 100) + "]]}";
+  writeGeoJson(out / "reversed.geojson", {reversed + "]}", astray});
+  r = test::tinbuild("build " + las + water + " --flow " + (out / "reversed.geojson").string() + " --mesh " +
+                     (out / "rev.smb").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_NE(r.err.find("rivers are digitised downstream (reverse the line)"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("this centreline crosses no water polygon"), std::string::npos) << r.err;
+  // A breakline drawn from -1e20 to 1e20 across the survey is kept (it was lost to a parameter's rounding).
+  writeGeoJson(out / "long.geojson", {R"({"type":"LineString","coordinates":[[-1e20,)" + num(y0 + L / 2) +
+                                      ",100],[1e20," + num(y0 + L / 2) + ",100]]}"});
+  r = test::tinbuild("build " + las + " --breaklines " + (out / "long.geojson").string() + " --mesh " +
+                     (out / "long.smb").string() + " --report " + (out / "long.json").string());
+  EXPECT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(r.err.find("no constraint meets the survey's extent"), std::string::npos) << r.err;
 }
 
 TEST(Hydro, TheSameDemForAnyThreadsAndAnyParts) {
