@@ -396,6 +396,16 @@ def runChecks(exe, surveys, work):
           f"the hydro-flattened TIN opens with {tin.crs().authid()} and {tin.featureCount()} triangles (report "
           f"{rep['triangulation']['triangles']})")
     QgsProject.instance().removeMapLayer(lake.id())
+    # An empty water layer is named as the user's layer, before any work (not as the temporary GeoPackage
+    # it would be written to).
+    dry = QgsVectorLayer('Polygon?crs=EPSG:2949', 'dry pond', 'memory')
+    QgsProject.instance().addMapLayer(dry)
+    msg = runFails('tinbuild:hydroflatten', {'INPUT': [topo], 'STEP': 1, 'WATER': [dry.id()],
+                                             'OUTPUT': os.path.join(hydro, 'dry.tif')}) or ''
+    check('dry pond' in msg and 'has no features' in msg and 'tinbuild-' not in msg and
+          not os.path.exists(os.path.join(hydro, 'dry.tif')),
+          f'an empty water layer is refused by its name: {msg!r}')
+    QgsProject.instance().removeMapLayer(dry.id())
 
     # -- hydroflatten with a river (the demo's polygon, centreline and road), and a TIN ---------------
     demo = os.path.join(work, 'demo')

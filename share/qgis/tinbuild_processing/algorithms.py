@@ -205,7 +205,15 @@ class TinbuildAlgorithm(QgsProcessingAlgorithm):
                 + self.advancedArgs(parameters, context))
         exe, version = runner.executable()
         feedback.pushInfo(tr('tinbuild {} at {}').format(runner.versionText(version), exe))
-        runner.run(args, feedback, exe)
+        try:
+            runner.run(args, feedback, exe)
+        except QgsProcessingException as e:
+            # tinbuild names the files it read: a layer written to a temporary GeoPackage for it is named as
+            # the user's layer instead.
+            message = str(e)
+            for path, name in getattr(self, '_layerFiles', {}).items():
+                message = message.replace(path, tr('layer {} (written to {} for tinbuild)').format(name, path))
+            raise QgsProcessingException(message)
         try:
             with open(report, encoding='utf-8') as f:
                 data = json.load(f)
@@ -422,11 +430,20 @@ class HydroFlatten(BuildDem):
     def constraintArgs(self, parameters, context, feedback):
         args = []
         scratch = None
+        self._layerFiles = {}
         for name, option in ((self.BREAKLINES, '--breaklines'), (self.WATER, '--water'), (self.FLOW, '--flow')):
             for layer in self.parameterAsLayerList(parameters, name, context):
+                # An empty layer is the user's mistake to hear about by its name, before any work (tinbuild
+                # would name the temporary file it was written to).
+                if isinstance(layer, QgsVectorLayer) and layer.isValid() and layer.featureCount() == 0:
+                    raise QgsProcessingException(tr('{}: the layer {} has no features ({})').format(
+                        option, layer.name(), layer.source()))
                 if scratch is None:
                     scratch = tempfile.mkdtemp(prefix='tinbuild-', dir=QgsProcessingUtils.tempFolder())
-                args += [option, layerAsFile(layer, context, feedback, scratch)]
+                path = layerAsFile(layer, context, feedback, scratch)
+                if os.path.dirname(path) == scratch:
+                    self._layerFiles[path] = layer.name()
+                args += [option, path]
         return args
 
     def extraOutputArgs(self, parameters, context):
