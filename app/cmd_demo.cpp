@@ -8,14 +8,18 @@
 #include <iostream>
 #include <optional>
 
+#include "app/command_frame.h"
 #include "app/commands.h"
 #include "app/demo_build.h"
+#include "app/jobs/output_claim.h"
 #include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
 #include "app/option_table.h"
 #include "app/pipeline_options.h"
 #include "app/progress_display.h"
 #include "formats/crs/crs.h"
+#include "formats/io/output_file.h"
+#include "formats/io/output_transaction.h"
 #include "formats/pointcloud/copc_writer.h"
 #include "formats/pointcloud/las_writer.h"
 #include "formats/raster/quicklook.h"
@@ -28,11 +32,13 @@ namespace tinbuild::app {
 namespace {
 
 // What the demo's own options bind to.
+namespace fs = std::filesystem;
+
 struct DemoSettings {
   int millions = 2;
   int tiles = 0;  // 0: one file
   double swath = 500;
-  bool homeStrip = false, las = false, copc = false, surveyOnly = false;
+  bool homeStrip = false, las = false, copc = false, surveyOnly = false, overwrite = false;
   std::optional<int> pointFormat;
   std::string progress;
 };
@@ -61,6 +67,9 @@ const cli::OptionTable<DemoSettings>& demoTable() {
     t.flag("--survey-only", "write the survey and stop (benchmark inputs)").set([](D& d) {
       d.surveyOnly = true;
     });
+    t.flag("--overwrite",
+           "replace what an earlier demo wrote in DIR (default: refuse a folder that is not empty)")
+        .set([](D& d) { d.overwrite = true; });
     t.option("--progress", "MODE", "auto (default), lines, json or none")
         .runOnly()
         .choice({"auto", "lines", "json", "none"}, [](D& d, const std::string& m) { d.progress = m; },
@@ -70,19 +79,29 @@ const cli::OptionTable<DemoSettings>& demoTable() {
   return table;
 }
 
+// Writes `text` to `path` as an output (a temporary name, renamed at the commit).
+void writeWholeFile(const std::string& path, const std::string& text) {
+  OutputFile f(path);
+  f.write(text);
+  f.commit();
+}
+
+// Makes the files written so far readable under their names for the demo's next step (info, build,
+// quick-look, verify read them), provisionally: a demo stopped later removes them again.
+void commitStep() {
+  if (OutputTransaction* t = OutputTransaction::current()) t->commitProvisionally();
+}
+
 // water.geojson (the river's polygon), flow.geojson (its centreline, downstream), roads.geojson (the road's
 // crest, LINESTRING Z), in EPSG:32610 with exact coordinates.
 void writeDemoFeatures(const SurveyFeatures& f, const std::filesystem::path& dir) {
   auto number = [](double v) { return formatDouble("%.17g", v); };
   auto write = [&dir](const char* name, const std::string& geometry) {
-    const std::string path = (dir / name).string();
-    std::ofstream out(path, std::ios::trunc);
-    out << "{\"type\":\"FeatureCollection\",\"crs\":{\"type\":\"name\",\"properties\":{\"name\":"
-           "\"urn:ogc:def:crs:EPSG::32610\"}},\"features\":[{\"type\":\"Feature\",\"properties\":{},"
-           "\"geometry\":"
-        << geometry << "}]}\n";
-    out.close();
-    if (!out) throw DataError(path, "cannot write the demo's feature file");
+    writeWholeFile((dir / name).string(),
+                   "{\"type\":\"FeatureCollection\",\"crs\":{\"type\":\"name\",\"properties\":{\"name\":"
+                   "\"urn:ogc:def:crs:EPSG::32610\"}},\"features\":[{\"type\":\"Feature\",\"properties\":{},"
+                   "\"geometry\":" +
+                       geometry + "}]}\n");
   };
   std::string ring = "{\"type\":\"Polygon\",\"coordinates\":[[";
   for (std::size_t i = 0; i <= f.riverPolygon.size(); ++i) {
@@ -213,7 +232,7 @@ SurveyTiles writeSurveyTiles(const SurveySpec& spec, const std::filesystem::path
       if (progress && !progress(0.999, message, progressData)) throw CancelledError();
       writers[t]->close();
       out.files.push_back(writers[t]->path());
-      out.bytes += std::filesystem::file_size(out.files.back());
+      out.bytes += outputSize(out.files.back());  // (staged until the demo commits)
     }
   } catch (...) {
     std::error_code ec;
@@ -231,8 +250,18 @@ int runDemo(const cli::ParsedArgs& args) {
   demoTable().bind(args, d);
   const int millions = d.millions;
   std::error_code ec;
-  std::filesystem::create_directories(dir, ec);
-  if (ec) throw DataError(dir.string(), "cannot create the demo directory: " + ec.message());
+  // The demo's folder is its output (app/jobs/output_claim.h): locked for the run, refused when it holds
+  // anything unless --overwrite; everything in it appears at the end, or nothing does (Ctrl-C, an error).
+  RunSettings settings;
+  settings.overwrite = d.overwrite;
+  CommandFrame frame(settings, {});
+  {
+    ClaimSet set;
+    set.outputs = {OutputClaim("DIR", dir.string()).folder()};
+    set.overwrite = d.overwrite;
+    set.commandLine = "tinbuild demo " + dir.string();
+    claimOutputs(set);
+  }
 
   // A realistic survey: flight strips with side overlap over a river valley, ground / vegetation /
   // water / noise classes, duplicates from overlapping strips; WGS 84 / UTM zone 10N + NAVD88 height.
@@ -299,21 +328,22 @@ int runDemo(const cli::ParsedArgs& args) {
               << std::chrono::duration<double>(std::chrono::steady_clock::now() - synthesized).count() << " s"
               << std::endl;
   } else if (d.tiles > 0) {
-    std::filesystem::create_directories(tilesDir, ec);
-    if (ec) throw DataError(tilesDir.string(), "cannot create the tiles directory: " + ec.message());
     tiles = writeSurveyTiles(spec, tilesDir, d.tiles, lo, ProgressDisplay::callback, &progress);
   } else {
     writeSyntheticSurveyLas(spec, las, lo, ProgressDisplay::callback, &progress);
   }
   progress.finish();
   if (d.tiles > 0) {
-    // An earlier run's tiles of another grid or format would be read with these (tiles/*.laz): remove them.
+    // An earlier run's tiles of another grid or format would be read with these (tiles/*.laz): remove them
+    // (only with --overwrite: without it the folder was empty).
     std::size_t stale = 0;
-    for (const auto& e : std::filesystem::directory_iterator(tilesDir)) {
-      const std::string name = e.path().filename().string();
+    for (fs::directory_iterator it(tilesDir, ec), end; !ec && it != end; it.increment(ec)) {
+      const std::string name = it->path().filename().string();
       if (isTileName(name) &&
-          std::find(tiles.files.begin(), tiles.files.end(), e.path().string()) == tiles.files.end())
-        stale += std::filesystem::remove(e.path(), ec);
+          std::find(tiles.files.begin(), tiles.files.end(), it->path().string()) == tiles.files.end()) {
+        std::error_code re;
+        stale += fs::remove(it->path(), re);
+      }
     }
     std::cout << "tinbuild demo: wrote " << tiles.files.size() << " tile files (" << d.tiles << " x "
               << d.tiles << " squares of " << formatDouble("%.17g", tiles.side) << " m from "
@@ -325,6 +355,7 @@ int runDemo(const cli::ParsedArgs& args) {
   // The river and the road, digitised as a surveyor would (GeoJSON in the survey's CRS): the river's
   // water polygon and its centreline hydro-flatten the DEM, the road's crest is a hard breakline.
   writeDemoFeatures(SurveyGenerator(spec).features(5.0), dir);
+  commitStep();
   // The survey's files: the one file, or the tiles row by row from the south.
   const std::vector<std::string> inputs = d.tiles > 0 ? tiles.files : std::vector<std::string>{las};
   const std::string surveyText =
@@ -334,6 +365,7 @@ int runDemo(const cli::ParsedArgs& args) {
               << " and its river and road (water.geojson, flow.geojson, roads.geojson; --survey-only: "
                  "nothing else)"
               << std::endl;
+    frame.commit("", ProgressDisplay::callback, &progress);
     return 0;
   }
 
@@ -342,7 +374,7 @@ int runDemo(const cli::ParsedArgs& args) {
   Diagnostics diag;
   diag.setSink([](const std::string& m) { std::cerr << "tinbuild: warning: " << m << "\n"; });
   InfoReport report = inspectSurvey(info, diag);
-  std::ofstream((dir / "survey-info.json").string()) << formatInfoJson(report);
+  writeWholeFile((dir / "survey-info.json").string(), formatInfoJson(report));
   std::cout << formatInfoText(report) << "\n";
 
   // The main job: LIDAR to TIN, DEM and GeoPackage in one streaming pass, then an independent check.
@@ -360,7 +392,8 @@ int runDemo(const cli::ParsedArgs& args) {
   const RunReport run = runBuild(build, diag);
   progress.finish();
   std::cout << formatRunSummary(run);
-  std::ofstream((dir / "build-report.json").string()) << formatRunJson(run);
+  commitStep();  // (the quick-look reads the DEM's mosaics, verify the TIN)
+  writeWholeFile((dir / "build-report.json").string(), formatRunJson(run));
   const std::string png = (dir / "dem.png").string();
   writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png,
                     1024, build.contoursOutput);
@@ -368,6 +401,8 @@ int runDemo(const cli::ParsedArgs& args) {
             << surveyText << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
   std::cout << formatVerifyText(check);
+  if (!check.ok()) throw Error("demo: the TIN did not verify");
+  frame.commit("", ProgressDisplay::callback, &progress);
 
   std::cout
       << "\nwritten in " << dir.string() << ":\n"
@@ -384,7 +419,6 @@ int runDemo(const cli::ParsedArgs& args) {
       << "  dem/hillshade.vrt   its hillshade (tiles dem/hillshade_*.tif)\n"
       << "  dem.png             a quick-look of the DEM: colours by height, shaded, with the contours\n"
       << "  build-report.json   the run report (counts, width, memory, timings)\n";
-  if (!check.ok()) throw Error("demo: the TIN did not verify");
   return 0;
 }
 

@@ -9,14 +9,13 @@
 #include <utility>
 #include <vector>
 
+#include "app/command_frame.h"
 #include "app/commands.h"
 #include "app/jobs/mpi_run.h"
 #include "app/jobs/pipeline.h"
 #include "app/pipeline_options.h"
 #include "app/progress_display.h"
 #include "formats/io/output_file.h"
-#include "formats/io/output_transaction.h"
-#include "formats/io/run_lock.h"
 #include "formats/mesh/tet_mesh_files.h"
 #include "formats/registry/input_list.h"
 #include "libterrain/core/error.h"
@@ -26,9 +25,10 @@ namespace tinbuild::app {
 namespace {
 
 // Runs a pipeline command with the shared diagnostics, progress, summary and report handling; `a.run`
-// says how (the run-only options).
+// says how (the run-only options).  `read`: what the command reads besides the survey's inputs and the
+// constraint files (a finalized stream, a plan, a manifest), which no output may name.
 template <class Run>
-int runWithReport(PipelineArgs& a, Run run) {
+int runWithReport(PipelineArgs& a, Run run, std::vector<std::pair<std::string, std::string>> read = {}) {
   PipelineOptions& o = a.options;
   const RunSettings& rs = a.run;
   const bool quiet = rs.quiet;
@@ -48,35 +48,17 @@ int runWithReport(PipelineArgs& a, Run run) {
   o.finalizer.progressData = &progress;
   o.finalizer.progressCounts = progress.counts();
   o.finalizer.cancel = cancelFlag();
-  installCancelHandlers();
-  // The run's outputs are one transaction (formats/io/output_transaction.h): every writer stages its file,
-  // and nothing appears under its final name until the run has succeeded and no cancellation is pending;
-  // then all of them are renamed in one short step, the report last.  An error, Ctrl-C or SIGTERM
-  // before that leaves no final-named output.
-  OutputTransaction transaction;
-  // The report's temporary file is created before the run, so an unwritable --report fails before any
-  // output is written (and a failed run removes it).
   o.overwrite = rs.overwrite;
   o.reportPath = rs.report;
-  std::unique_ptr<OutputFile> reportFile;
-  // (Under --mpi only rank 0 reports for the run: the other ranks neither lock nor write the report.)
-  if (!rs.report.empty() && !(rs.mpi && mpiRankFromEnvironment() > 0)) {
-    RunLock reportLock({rs.report});
-    rollForwardJournal(rs.report);
-    removeStaleTemporaries(rs.report);
-    transaction.adopt(std::move(reportLock), {rs.report});
-    if (!o.overwrite) refuseExistingFile(rs.report);
-    reportFile = std::make_unique<OutputFile>(rs.report);
-  }
+  // The run's outputs are one transaction (app/command_frame.h): every writer stages its file, and nothing
+  // appears under its final name until the run has succeeded and no cancellation is pending.  (Under --mpi
+  // only rank 0 reports for the run: the other ranks neither lock nor write the report.)
+  std::vector<std::pair<std::string, std::string>> inputs = runInputs(o);
+  inputs.insert(inputs.end(), read.begin(), read.end());
+  CommandFrame frame(rs, inputs, !(rs.mpi && mpiRankFromEnvironment() > 0));
   const RunReport report = run(o, diag);
-  if (reportFile && !report.secondaryRank) {
-    reportFile->write(formatRunJson(report));
-    reportFile->commit();  // (staged: renamed with the outputs, last)
-  }
-  // The last moment a cancellation stops the run: from here the commit is a few renames.  (An MPI run
-  // decided this moment collectively, on every rank at once.)
-  if (!report.decided && !ProgressDisplay::callback(1.0, "committing outputs", &progress)) throw CancelledError();
-  transaction.commit();
+  frame.commit(report.secondaryRank ? std::string() : formatRunJson(report), ProgressDisplay::callback,
+               &progress, report.decided);
   progress.finish();
   if (report.secondaryRank) return 0;  // an MPI rank but the first: rank 0 reports for the run
   if (!quiet) std::cerr << formatRunSummary(report);
@@ -107,7 +89,8 @@ int runTriangulateCommand(const cli::ParsedArgs& args) {
   refuseBinaryToTerminal(a.options.meshOutput, "triangulate");
   const std::string input = args.positional[0];
   return runWithReport(
-      a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runTriangulate(input, opts, diag); });
+      a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runTriangulate(input, opts, diag); },
+      {{"the finalized stream", input}});
 }
 
 int runBuildCommand(const cli::ParsedArgs& args) {
@@ -119,11 +102,19 @@ int runBuildCommand(const cli::ParsedArgs& args) {
     if (!args.has("--part")) throw UsageError("build --plan: say which part: --part I (0-based)");
     PipelineArgs a;
     buildTable().bind(args, a, cli::Select::RunOnly);
+    // What the outputs are (--step, --keep-class, --water, --mesh, ...) the plan fixed when it was made:
+    // given again here it would be ignored, so it is refused, by name.
+    const std::vector<std::string> fixed = buildTable().recordedWords(args);
+    if (!fixed.empty())
+      throw UsageError("build --plan: " + fixed.front() + " is the plan's to say (" + a.run.plan +
+                       " fixed it when it was made); give only --part I and how to run it (--threads, "
+                       "--temp-dir, --report, -q): make a new plan to change " +
+                       fixed.front());
     const Plan plan = readPlan(a.run.plan);
     a.options = planOptions(plan);
     a.options.plan = &plan;
     a.options.part = a.run.part;
-    return runWithReport(a, runBuild);
+    return runWithReport(a, runBuild, {{"--plan", a.run.plan}});
   }
   PipelineArgs a = parseBuildArgs(args);
   a.options.commandLine = recordedCommand(args);
@@ -163,13 +154,15 @@ int runMergeCommand(const cli::ParsedArgs& args) {
     a.options.meshOutput = a.run.output;
     a.options.commandLine = "tinbuild merge " + what + " -o " + a.options.meshOutput;
     return runWithReport(
-        a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runJoin(what, opts, diag); });
+        a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runJoin(what, opts, diag); },
+        {{"the manifest", what}});
   }
   if (args.has("-o")) throw UsageError("merge PLAN.json writes the plan's outputs; -o is for a TIN in parts");
   const Plan plan = readPlan(what);
   a.options = planOptions(plan);
   return runWithReport(
-      a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runMerge(opts, plan, diag); });
+      a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runMerge(opts, plan, diag); },
+      {{"the plan", what}});
 }
 
 int runVerifyCommand(const cli::ParsedArgs& args) {

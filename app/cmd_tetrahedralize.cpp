@@ -17,11 +17,15 @@
 #include <cstdio>
 #include <fstream>
 #include <iostream>
+#include <sstream>
 #include <string>
 #include <thread>
 #include <unordered_set>
 
+#include "app/command_frame.h"
 #include "app/commands.h"
+#include "app/jobs/output_claim.h"
+#include "app/jobs/run_outputs.h"
 #include "app/jobs/run_report.h"
 #include "app/jobs/survey.h"
 #include "app/pipeline_options.h"
@@ -115,6 +119,7 @@ Finalizer3dOptions openSurvey3d(const PipelineArgs& a, const std::string& comman
   fo.cancel = cancelFlag();  // (SIGTERM, Ctrl-C: the run stops within a batch and leaves no output)
   fo.memoryBudget = a.options.finalizer.memoryBudget;  // (--memory: the waiting chunks, then the spill file)
   fo.tempDir = a.run.tempDir.value_or(a.options.finalizer.tempDir);
+  fo.inputNames = in.names;
   return fo;
 }
 
@@ -144,11 +149,9 @@ class CancellableSink3 : public PointSink3 {
 
 // The run's counts for scripts and `tinbuild bench tet` (flat JSON, one object per section; no finalizer
 // section when the input was a finalized stream).
-void writeTetReport(const std::string& path, double seconds, const Finalizer3dStats* fs,
-                    const ParallelDelaunay3dStats& ps) {
+std::string tetReport(double seconds, const Finalizer3dStats* fs, const ParallelDelaunay3dStats& ps) {
   const Delaunay3dStats& ds = ps.total;
-  std::ofstream r(path);
-  if (!r) throw Error(path + ": cannot write the report");
+  std::ostringstream r;
   r << "{\n  \"command\": \"tetrahedralize\",\n  \"seconds\": " << formatDouble("%.6f", seconds)
     << ",\n  \"peak_rss_bytes\": " << peakRssBytes() << ",\n";
   if (fs)
@@ -169,7 +172,26 @@ void writeTetReport(const std::string& path, double seconds, const Finalizer3dSt
     << ", \"seam_cones\": " << ps.seamCones << ", \"seam_tetrahedra_tested\": " << ps.seamTetsTested
     << ", \"seam_tetrahedra_written\": " << ps.seamTetsWritten << ", \"spool_bytes\": " << ps.spoolBytes
     << ", \"seam_seconds\": " << formatDouble("%.6f", ps.seamSeconds) << "}\n}\n";
-  if (!r.flush()) throw Error(path + ": cannot write the report");
+  return r.str();
+}
+
+// The inputs of a 3D run, for the claims: the survey's files, or the 3D stream.
+std::vector<std::pair<std::string, std::string>> inputsOf(const PipelineArgs& a,
+                                                          const std::string& stream = "") {
+  if (!stream.empty()) return {{"the 3D stream", stream}};
+  return runInputs(a.options);
+}
+
+// Claims the mesh (or stream) a 3D command writes: never an input, not held by another run, not replacing
+// an existing file without --overwrite (app/jobs/output_claim.h).
+void claimOutput(const PipelineArgs& a, const std::string& option, const std::vector<std::string>& files,
+                 const std::vector<std::pair<std::string, std::string>>& inputs) {
+  ClaimSet set;
+  set.outputs = {OutputClaim(option, a.run.output, files)};
+  set.inputs = inputs;
+  if (!a.run.report.empty()) set.others.emplace_back("--report", a.run.report);
+  set.overwrite = a.run.overwrite;
+  claimOutputs(set);
 }
 
 // `tetrahedralize FILE|-` on a 3D finalized stream: the tetrahedralizer alone (on its own thread behind
@@ -177,8 +199,10 @@ void writeTetReport(const std::string& path, double seconds, const Finalizer3dSt
 int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
   if (a.run.output.empty())
     throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
-  tetMeshFormatForPath(a.run.output);
+  const std::vector<std::string> files = tetMeshFiles(a.run.output);
   const auto t0 = std::chrono::steady_clock::now();
+  CommandFrame frame(a.run, inputsOf(a, input));
+  claimOutput(a, "-o", files, inputsOf(a, input));
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output, cancelFlag());
   ParallelDelaunay3d dt(*writer, regionOptions(a));
   if (tetThreads(a) > 1) {
@@ -190,7 +214,7 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
     readFinalizedStream3(input, in);
   }
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (!a.run.report.empty()) writeTetReport(a.run.report, seconds, nullptr, dt.stats());
+  frame.commit(tetReport(seconds, nullptr, dt.stats()), nullptr, nullptr);
   if (!a.run.quiet) printTetSummary(nullptr, dt.stats(), seconds);
   return 0;
 }
@@ -217,8 +241,10 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   if (a.run.output.empty())
     throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
   const std::string output = a.run.output;
-  tetMeshFormatForPath(output);  // a usage error before any work
+  const std::vector<std::string> files = tetMeshFiles(output);  // (a usage error before any work)
   const auto t0 = std::chrono::steady_clock::now();
+  CommandFrame frame(a.run, inputsOf(a));
+  claimOutput(a, "-o", files, inputsOf(a));
   Diagnostics diag;
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "tetrahedralize", diag, in);
@@ -235,7 +261,7 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   }
   const ParallelDelaunay3dStats& ps = dt.stats();
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  if (!a.run.report.empty()) writeTetReport(a.run.report, seconds, &fs, ps);
+  frame.commit(tetReport(seconds, &fs, ps), nullptr, nullptr);
   if (!a.run.quiet) printTetSummary(&fs, ps, seconds);
   return 0;
 }
@@ -253,12 +279,21 @@ int runFinalize3dCommand(const cli::ParsedArgs& args) {
     throw UsageError(
         "finalize --3d: refusing to write a binary stream to a terminal (redirect it or use -o FILE)");
   const auto t0 = std::chrono::steady_clock::now();
+  CommandFrame frame(a.run, inputsOf(a));
+  claimOutput(a, "-o", {a.run.output}, inputsOf(a));
   Diagnostics diag;
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "finalize --3d", diag, in);
   FinalizedStream3Writer writer(a.run.output);
   const Finalizer3dStats fs = finalizePoints3d(in.streams, fo, writer);
   const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  frame.commit("{\n  \"command\": \"finalize --3d\",\n  \"seconds\": " + formatDouble("%.6f", seconds) +
+                   ",\n  \"points\": " + std::to_string(fs.points) +
+                   ",\n  \"depth\": " + std::to_string(fs.grid.depth) + ",\n  \"occupied_cells\": " +
+                   std::to_string(fs.occupiedCells) + ",\n  \"tags\": " + std::to_string(fs.tags) +
+                   ",\n  \"width\": " + std::to_string(fs.width) +
+                   ",\n  \"balanced_axis\": " + std::to_string(fs.balancedAxis) + "\n}\n",
+               nullptr, nullptr);
   if (!a.run.quiet)
     std::cerr << "finalize --3d: " << withCommas(fs.points) << " points, octree depth " << fs.grid.depth
               << ", " << withCommas(fs.occupiedCells) << " occupied cells, " << withCommas(fs.tags)

@@ -11,6 +11,7 @@
 #include "app/commands.h"
 #include "app/progress_display.h"
 #include "app/version.h"
+#include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
 
 namespace {
@@ -40,6 +41,9 @@ static int runCommand(int argc, char** argv) {
   // First of all: a SIGTERM from a batch system that arrives while the process starts (GDAL and PROJ load)
   // is a cancellation like any other (exit 3), not the default action's death.
   tinbuild::app::installCancelHandlers();
+  // Every command writes inside its CommandFrame (app/command_frame.h) and only what it claimed: a file
+  // committed any other way is an internal error, not a silent clobber.
+  tinbuild::requireOutputTransactions();
   std::vector<std::string> args(argv + 1, argv + argc);
   try {
     if (args.empty()) {
@@ -92,7 +96,8 @@ static int runCommand(int argc, char** argv) {
   }
 }
 
-int main(int argc, char** argv) {
+// Called by the launcher (app/launcher.cpp), which has taken SIGINT and SIGTERM already.
+extern "C" __attribute__((visibility("default"))) int tinbuild_main(int argc, char** argv) {
   // Buffers of 128 KiB and more (chunks, queues, triangulator arrays, DEM blocks) come and go with the
   // stream's front.  glibc raises its mmap threshold each time such a buffer is freed, after which they
   // come from the heap and their pages stay with the process when freed: on a 10^8-point build that

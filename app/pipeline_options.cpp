@@ -100,10 +100,14 @@ using cli::Range;
 // ---------------------------------------------------------------------------------------------------
 
 // Options every command that reads survey files understands.
-PipelineTable inputGroup() {
+// `maxDepth`: 15 for the quadtree of the 2D finalizer, 8 for the octree of tetrahedralize.
+PipelineTable inputGroup(int maxDepth = 15) {
   PipelineTable t;
-  t.option("--depth", "K", "finalizer grid depth 0..15 (default: cells of a few thousand points)")
-      .integer(0, 15, [](A& a, int v) { a.options.finalizer.depth = v; });
+  t.option("--depth", "K",
+           (maxDepth == 15 ? std::string("finalizer grid depth 0..15")
+                           : "octree depth 0.." + std::to_string(maxDepth)) +
+               " (default: cells of a few thousand points)")
+      .integer(0, maxDepth, [](A& a, int v) { a.options.finalizer.depth = v; });
   t.option("--memory", "MB", "the run's memory budget for its buffers: waiting chunks, cell tables, queues, open DEM tiles; beyond their shares they spill to disk (default 512)")
       .integer(1, 1 << 22,
                [](A& a, int mb) { a.options.finalizer.memoryBudget = static_cast<std::size_t>(mb) << 20; });
@@ -454,7 +458,7 @@ const PipelineTable& finalizeTable() {
 const PipelineTable& tetrahedralizeTable() {
   static const PipelineTable t = [] {
     PipelineTable p;
-    p.add(outputFile("MESH", "output tetrahedral mesh (.sma, .smb, .vtu, .ele)"), inputGroup(),
+    p.add(outputFile("MESH", "output tetrahedral mesh (.sma, .smb, .vtu, .ele)"), inputGroup(8),
           reportGroup());
     regionLevelOption(
         p, 2,

@@ -15,8 +15,15 @@ namespace tinbuild::app {
 namespace {
 
 CancelFlag gCancel;
+std::atomic<bool> gWriting{false};  // a CommandFrame is open: a stop must unwind to remove its temporaries
 
 void onSignal(int) {
+  if (!gWriting.load(std::memory_order_relaxed)) {
+    // Nothing written yet (parsing, opening, a command that writes nothing: info, verify): stop at once.
+    static const char now[] = "tinbuild: cancelled\n";
+    (void)!::write(STDERR_FILENO, now, sizeof now - 1);
+    ::_exit(3);
+  }
   gCancel.request();
   static const char msg[] =
       "\ntinbuild: interrupted: stopping and removing temporary outputs (again to quit at once)\n";
@@ -81,6 +88,13 @@ void installCancelHandlers() {
   sa.sa_flags = SA_RESETHAND;  // a second signal takes the default action: the process ends at once
   ::sigaction(SIGINT, &sa, nullptr);
   ::sigaction(SIGTERM, &sa, nullptr);
+  // SIGUSR2 too: Open MPI's mpirun forwards it to every rank and then waits for them (SIGTERM it takes as
+  // its own abort and exits 1), so `kill -USR2 <mpirun>` stops an MPI run with exit code 3.
+  ::sigaction(SIGUSR2, &sa, nullptr);
+}
+
+void startWriting() {
+  gWriting.store(true);
 }
 
 bool cancelRequested() {

@@ -28,6 +28,9 @@ enum class ProgressMode { None, Live, Lines, Json };
 ProgressMode parseProgressMode(const std::string& text, bool quiet);
 
 void installCancelHandlers();
+// From now on a signal is a cancellation the run unwinds from (removing its temporaries, exit 3); before,
+// while nothing can have been written, it ends the process at once with exit 3.  CommandFrame calls it.
+void startWriting();
 bool cancelRequested();
 const CancelFlag* cancelFlag();  // set by SIGINT and SIGTERM
 

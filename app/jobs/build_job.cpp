@@ -97,9 +97,7 @@ RunReport runFinalize(const PipelineOptions& o, Diagnostics& diag) {
   r.command = "finalize";
   r.inputs = o.inputs;
   if (o.finalizedOutput.empty()) throw UsageError("finalize: give the output: -o FILE, or -o - for stdout");
-  checkOutputOwnership(o, RunOutputs{});
-  const RunLock lock = lockOutputs(o, RunOutputs{});
-  refuseExistingOutputs(o, {}, writerContext(o));
+  const RunLock lock = claimRun(o, {});
   Survey in = openSurvey(o, diag);
   r.threads = effectiveThreads(o.threads);
   FinalizerOptions fo = finalizerOptions(o, in, r.threads);
@@ -136,13 +134,9 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
   RunOutputs owned;
   owned.mesh = out;
   owned.context = context;
-  {
-    PipelineOptions withInput = o;
-    withInput.inputs = {finalizedInput};
-    checkOutputOwnership(withInput, owned);
-  }
-  const RunLock lock = lockOutputs(o, owned);
-  refuseExistingOutputs(o, {out}, context);
+  ClaimSet stream;
+  stream.inputs = {{"the finalized stream", finalizedInput}};
+  const RunLock lock = claimRun(o, outputClaims(owned), stream);
   const auto opened = out.row->open(out.path, context);
   MeshSink* mesh = opened->meshSink();
   MeshTee tee;
@@ -178,9 +172,7 @@ RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
         "build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, --contours "
         "FILE");
   RunOutputs outputs = resolveOutputs(o);
-  checkOutputOwnership(o, outputs);
-  const RunLock lock = lockOutputs(o, outputs);
-  refuseExistingOutputs(o, outputs.all(), outputs.context);
+  const RunLock lock = claimRun(o, outputClaims(outputs));
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runBuildWith(o, survey, outputs, nullptr, diag, t0);
 }

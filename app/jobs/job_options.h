@@ -49,7 +49,7 @@ struct PipelineOptions {
   bool computeBounds = false;  // do not trust the LAS headers' bounds
   DelaunayOptions delaunay;
   std::string finalizedOutput;  // runFinalize: the finalized stream ("-" = stdout)
-  std::string reportPath;       // --report (the CLI writes it): owned like every output (checkOutputOwnership)
+  std::string reportPath;       // --report (the CLI writes it): owned like every output (claimRun)
   std::string meshOutput;       // runBuild / runTriangulate: .sma, .smb ("-" = SMB on stdout), .ply, .obj
   bool meshLocal = false;       // PLY/OBJ: local coordinates (float32 after subtracting an origin)
   std::string gpkgOutput;       // runBuild: GeoPackage TIN

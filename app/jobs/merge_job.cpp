@@ -96,8 +96,24 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   for (const PartDone& d : done) checkPartFiles(d, plan);
   RunOutputs outputs = resolveOutputs(o);
   checkPlannedOutputs(outputs);
-  checkOutputOwnership(o, outputs, {{"(the plan)", plan.path}});
-  const RunLock lock = lockOutputs(o, outputs);
+  RunLock lock;
+  {
+    // What the merge writes: the mesh's manifest and seam file, the DEM tiles the parts left open with the
+    // mosaics over all of them, the GeoPackage TIN and the contours.  A merge run again finds its result
+    // and refuses to replace it without --overwrite, like any other run.
+    std::vector<OutputClaim> claims = outputClaims(outputs);
+    for (OutputClaim& c : claims) {
+      if (c.option == optionName(OutputOption::Mesh)) {
+        c.files = {meshManifestPath(c.path), seamMeshPath(c.path)};
+        c.path = c.files.front();
+      } else if (c.directory) {  // (the parts' tiles are in it already)
+        c.files = {(std::filesystem::path(c.path) / "mosaic.vrt").string()};
+      }
+    }
+    ClaimSet more;
+    more.inputs = {{"the plan", plan.path}, {"the plan's state", plan.stateDir()}};
+    lock = claimRun(o, claims, more);
+  }
   std::uint64_t keptPoints = 0;
   for (const PartDone& d : done) keptPoints += d.points;
   if (keptPoints == 0)

@@ -34,9 +34,19 @@ struct TinbuildMpiApi {
   // receiveCounts[i] items from rank i at receive + receiveOffsets[i] (counts and offsets in items).
   void (*alltoallv)(const void* send, const int* sendCounts, const int* sendOffsets, void* receive,
                     const int* receiveCounts, const int* receiveOffsets, int type);
+  // The stop channel: a stop request travels to every rank beside the run's collectives, so a signal to
+  // any one rank stops all of them within a poll, wherever they are in their work.  It needs
+  // MPI_THREAD_MULTIPLE (init asks for it): stopOpen() on every rank at once returns 0 when the library
+  // does not give it (then a signal reaches the others at the next collective step).  stopPoll(request),
+  // from one thread (the watcher), sends a stop to every rank once `request` is non-zero and returns
+  // non-zero once a stop has arrived from any rank.  stopClose() on every rank at once, after the last
+  // poll, receives every stop that was sent before it frees the channel.
+  int (*stopOpen)();
+  int (*stopPoll)(int request);
+  void (*stopClose)();
 };
 
-constexpr int kTinbuildMpiApiVersion = 2;
+constexpr int kTinbuildMpiApiVersion = 3;
 
 // The module's one exported symbol.
 const TinbuildMpiApi* tinbuild_mpi_api();

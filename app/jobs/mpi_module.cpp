@@ -4,6 +4,8 @@
 
 #include <mpi.h>
 
+#include <vector>
+
 namespace {
 
 MPI_Datatype typeOf(int type) {
@@ -24,7 +26,8 @@ void init(int* rank, int* size, int* owned) {
   MPI_Initialized(&initialized);
   *owned = 0;
   if (!initialized) {
-    MPI_Init(nullptr, nullptr);
+    int provided = 0;  // (MPI_THREAD_MULTIPLE for the stop channel's watcher; less only disables it)
+    MPI_Init_thread(nullptr, nullptr, MPI_THREAD_MULTIPLE, &provided);
     *owned = 1;
   }
   MPI_Comm_rank(MPI_COMM_WORLD, rank);
@@ -82,8 +85,93 @@ void alltoallv(const void* send, const int* sendCounts, const int* sendOffsets, 
                 MPI_COMM_WORLD);
 }
 
-const TinbuildMpiApi kApi = {kTinbuildMpiApiVersion, init, finalize, allreduceInPlace, allgather, allgatherv,
-                             sendrecv, send, recv, bcast, gather, reduce, alltoall, alltoallv};
+// The stop channel (mpi_api.h): its own communicator, one receive posted from any rank, one send to each
+// other rank at the first request.
+constexpr int kStopTag = 1;
+MPI_Comm gStop = MPI_COMM_NULL;
+MPI_Request gStopReceive = MPI_REQUEST_NULL;
+int gStopValue = 0, gStopOne = 1;
+bool gStopReceived = false, gStopSent = false;
+std::vector<MPI_Request> gStopSends;
+
+int stopOpen() {
+  int level = 0;
+  MPI_Query_thread(&level);
+  if (level < MPI_THREAD_MULTIPLE) return 0;
+  MPI_Comm_dup(MPI_COMM_WORLD, &gStop);
+  gStopReceived = gStopSent = false;
+  MPI_Irecv(&gStopValue, 1, MPI_INT, MPI_ANY_SOURCE, kStopTag, gStop, &gStopReceive);
+  return 1;
+}
+
+int stopPoll(int request) {
+  if (gStop == MPI_COMM_NULL) return 0;
+  if (request && !gStopSent) {
+    int rank = 0, size = 1;
+    MPI_Comm_rank(gStop, &rank);
+    MPI_Comm_size(gStop, &size);
+    for (int r = 0; r < size; ++r) {
+      if (r == rank) continue;
+      gStopSends.push_back(MPI_REQUEST_NULL);
+      MPI_Isend(&gStopOne, 1, MPI_INT, r, kStopTag, gStop, &gStopSends.back());
+    }
+    gStopSent = true;
+  }
+  if (!gStopReceived) {
+    int arrived = 0;
+    MPI_Test(&gStopReceive, &arrived, MPI_STATUS_IGNORE);
+    gStopReceived = arrived != 0;
+  }
+  return gStopReceived ? 1 : 0;
+}
+
+void stopClose() {
+  if (gStop == MPI_COMM_NULL) return;
+  int rank = 0, size = 1;
+  MPI_Comm_rank(gStop, &rank);
+  MPI_Comm_size(gStop, &size);
+  // Every rank learns how many stops were sent to it, and takes them all: none is left in flight.
+  std::vector<int> sent(static_cast<std::size_t>(size), gStopSent ? 1 : 0),
+      from(static_cast<std::size_t>(size), 0);
+  sent[static_cast<std::size_t>(rank)] = 0;
+  MPI_Alltoall(sent.data(), 1, MPI_INT, from.data(), 1, MPI_INT, gStop);
+  int expected = 0;
+  for (const int f : from) expected += f;
+  if (gStopReceived) {
+    --expected;
+  } else if (expected > 0) {
+    MPI_Wait(&gStopReceive, MPI_STATUS_IGNORE);
+    --expected;
+  } else {
+    MPI_Cancel(&gStopReceive);
+    MPI_Wait(&gStopReceive, MPI_STATUS_IGNORE);
+  }
+  for (int value = 0; expected > 0; --expected)
+    MPI_Recv(&value, 1, MPI_INT, MPI_ANY_SOURCE, kStopTag, gStop, MPI_STATUS_IGNORE);
+  if (!gStopSends.empty())
+    MPI_Waitall(static_cast<int>(gStopSends.size()), gStopSends.data(), MPI_STATUSES_IGNORE);
+  gStopSends.clear();
+  MPI_Comm_free(&gStop);
+  gStop = MPI_COMM_NULL;
+}
+
+const TinbuildMpiApi kApi = {kTinbuildMpiApiVersion,
+                             init,
+                             finalize,
+                             allreduceInPlace,
+                             allgather,
+                             allgatherv,
+                             sendrecv,
+                             send,
+                             recv,
+                             bcast,
+                             gather,
+                             reduce,
+                             alltoall,
+                             alltoallv,
+                             stopOpen,
+                             stopPoll,
+                             stopClose};
 
 }  // namespace
 

@@ -2,12 +2,14 @@
 #include "app/jobs/mpi_run.h"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
-#include <cstdlib>
 #include <cstdio>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <sstream>
+#include <thread>
 
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
@@ -460,15 +462,35 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
 }
 
 // Finalizes MPI on the way out, whatever happens.
+// The run's MPI: initialised once, and a watcher thread on every rank that carries a stop to all of them
+// (mpi_api.h, the stop channel).  A SIGTERM to one rank (a node's job step stopped, a Ctrl-C in one
+// terminal) sets that rank's cancel flag; its watcher sends a stop to every rank, whose watchers set their
+// own flags within a poll (20 ms), and every rank unwinds from wherever its work is to the next collective
+// step, which then stops them all together: exit 3 everywhere, within a second, nothing left.
 struct MpiSession {
   int rank = 0, size = 1;
-  bool owned = false;
-  MpiSession() {
+  bool owned = false, channel = false;
+  std::atomic<bool> stopping{false};
+  std::thread watcher;
+  explicit MpiSession(const CancelFlag* cancel) {
     int own = 0;
     mpi().init(&rank, &size, &own);
     owned = own != 0;
+    channel = mpi().stopOpen() != 0;
+    if (channel && cancel)
+      watcher = std::thread([this, cancel] {
+        while (!stopping.load()) {
+          // (The flag is the process's one cancel flag, which a signal handler sets: setting it here is
+          // what a signal to this rank would have done.)
+          if (mpi().stopPoll(cancelRequested(cancel) ? 1 : 0)) const_cast<CancelFlag*>(cancel)->request();
+          std::this_thread::sleep_for(std::chrono::milliseconds(20));
+        }
+      });
   }
   ~MpiSession() {
+    stopping.store(true);
+    if (watcher.joinable()) watcher.join();
+    if (channel) mpi().stopClose();
     if (owned) mpi().finalize();
   }
 };
@@ -480,7 +502,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
 
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag) {
-  MpiSession session;
+  MpiSession session(options.finalizer.cancel);
   try {
     return runMpiSteps(session, options, buildArgs, command, diag);
   } catch (...) {
@@ -496,12 +518,8 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
                       const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag) {
   const auto t0 = std::chrono::steady_clock::now();
   const int rank = session.rank, size = session.size;
-  {
-    const RunOutputs outputs = resolveOutputs(options);
-    checkPlannedOutputs(outputs);
-    checkOutputOwnership(options, outputs);
-    refusePlannedOutputs(options, outputs, size);  // (every rank sees the same files: all refuse alike)
-  }
+  const RunOutputs planned = resolveOutputs(options);
+  checkPlannedOutputs(planned);
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
   const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;
@@ -513,6 +531,17 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   std::string base = sharedBase.string();
   while (base.size() > 1 && base.back() == '/') base.pop_back();
   const std::string rootPlanPath = base + ".mpi-plan.json";
+  {
+    // Every rank sees the same files, so all refuse alike.  Rank 0's plan and its state folder are the
+    // run's too (removed at its end).
+    ClaimSet state;
+    Plan root;
+    root.path = rootPlanPath;
+    if (rank == 0)
+      state.outputs = {OutputClaim("(the MPI run's plan)", rootPlanPath).unlocked().rewritten(),
+                       OutputClaim("(the MPI run's state)", root.stateDir()).folder().unlocked().rewritten()};
+    claimRun(options, plannedClaims(planned, size), state);
+  }
   std::string localDir;
   // A rank's private directory goes on every way out: a failed or stopped run's too (before, each failed
   // MPI run left one in $TMPDIR on every rank but the first).
@@ -541,6 +570,11 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   Survey survey;
   collective(rank, size, "plan on rank", [&] {
     localDir = makeLocalDir(rank);
+    // (A rank's private folder: its copy of the plan, its part's state until sent.)
+    ClaimSet own;
+    own.outputs = {
+        OutputClaim("(rank " + std::to_string(rank) + "'s state)", localDir).folder().unlocked().rewritten()};
+    claimOutputs(own);
     survey = openSurvey(options, diag, /*needIntensity=*/false);
     sliced = planInSlices(survey) && !options.constraints.any();  // (constraints: rank 0 plans, as for COPC)
   });

@@ -169,13 +169,18 @@ RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
     throw UsageError("build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, "
                      "--contours FILE");
   RunOutputs outputs = resolveOutputs(o);  // (a part's files are its own: no refusal, see partOptions)
-  checkOutputOwnership(o, outputs, {{"--plan", plan.path}});
-  // A part locks its own files only: the parts of a plan write into one DEM directory side by side.
-  RunOutputs own;
-  own.mesh = outputs.mesh;
-  own.context = outputs.context;
-  const RunLock lock = lockOutputs(o, own, {plan.partFile(o.part, "seam"), plan.partFile(o.part, "dem"),
-                                            plan.partFile(o.part, "json")});
+  // A part locks its own files only, and rewrites them when run again: the parts of a plan write into one
+  // DEM directory side by side (each tile is one part's, or a piece the merge combines).
+  std::vector<OutputClaim> own = outputClaims(outputs);
+  for (OutputClaim& c : own) {
+    c.refuse = false;
+    if (c.directory) c.lock = false;
+  }
+  ClaimSet more;
+  more.inputs = {{"--plan", plan.path}};
+  for (const char* kind : {"seam", "dem", "json"})
+    more.outputs.push_back(OutputClaim("(the part's state)", plan.partFile(o.part, kind)).rewritten());
+  const RunLock lock = claimRun(o, own, more);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   survey.restrictToPart(plan, o.part, o.computeBounds);
   if (!o.partRecords.empty()) survey.readExchangedRecords(o.partRecords);

@@ -133,10 +133,11 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
   const RunOutputs outputs = resolveOutputs(o);
   checkPlannedOutputs(outputs);
-  checkOutputOwnership(o, outputs, {{"-o", plan.path}, {"(the plan's state)", plan.stateDir()}});
-  const RunLock lock = lockOutputs(o, RunOutputs{}, {plan.path});
-  if (!o.overwrite) refuseExistingFile(plan.path);
-  refusePlannedOutputs(o, outputs, parts);
+  ClaimSet more;
+  // The plan file, and the folder of its state (constraints.bin; later the parts' records).
+  more.outputs = {OutputClaim("-o", plan.path),
+                  OutputClaim("(the plan's state)", plan.stateDir()).folder().unlocked().rewritten()};
+  const RunLock lock = claimRun(o, plannedClaims(outputs, parts), more);
   Survey survey = openSurvey(o, diag, /*needIntensity=*/false);
   return runPlan(o, survey, parts, plan, diag);
 }

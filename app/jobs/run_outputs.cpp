@@ -1,7 +1,5 @@
 #include "app/jobs/run_outputs.h"
 
-#include <sys/stat.h>
-
 #include <cmath>
 #include <filesystem>
 
@@ -12,6 +10,7 @@
 #include "formats/io/plan_file.h"
 #include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
 
 namespace tinbuild {
 
@@ -48,134 +47,53 @@ WriterContext writerContext(const PipelineOptions& o) {
   return c;
 }
 
-void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedOutput>& outputs,
-                           const WriterContext& context) {
-  if (o.overwrite) return;
-  refuseExistingFile(o.finalizedOutput);
-  for (const ResolvedOutput& r : outputs)
-    for (const std::string& path : r.targets(context)) refuseExistingFile(path);
-}
-
-namespace {
-
-namespace fs = std::filesystem;
-
-// A path as the file system resolves it (symbolic links of its existing part followed), for comparison.
-fs::path resolved(const std::string& p) {
-  std::error_code ec;
-  fs::path r = fs::weakly_canonical(fs::absolute(p, ec), ec);
-  if (ec) r = fs::absolute(p).lexically_normal();
-  return r;
-}
-
-// Whether `inner` lies inside the directory `dir` (both resolved).
-bool inside(const fs::path& inner, const fs::path& dir) {
-  auto d = dir.begin(), i = inner.begin();
-  for (; d != dir.end(); ++d, ++i)
-    if (i == inner.end() || *i != *d) return false;
-  return i != inner.end();
-}
-
-bool sameFile(const std::string& a, const std::string& b) {
-  struct stat sa {}, sb {};
-  return ::stat(a.c_str(), &sa) == 0 && ::stat(b.c_str(), &sb) == 0 && sa.st_dev == sb.st_dev &&
-         sa.st_ino == sb.st_ino;
-}
-
-}  // namespace
-
-void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
-                          const std::vector<std::pair<std::string, std::string>>& extra) {
-  struct Owned {
-    std::string label, path;
-    fs::path at;
-    bool directory;
-  };
-  std::vector<Owned> owned;
-  auto add = [&](const std::string& option, const std::string& path, bool directory) {
-    if (path.empty() || isStreamOrDevice(path)) return;
-    owned.push_back({option + " " + path, path, resolved(path), directory});
-  };
+std::vector<OutputClaim> outputClaims(const RunOutputs& outputs) {
+  std::vector<OutputClaim> claims;
   for (const ResolvedOutput& out : outputs.all()) {
-    const std::string option = optionName(out.row->option);
-    const bool directory = out.is(WriterKind::DemTileDirectory);
-    add(option, out.path, directory);
-    if (!directory)
-      for (const std::string& t : out.targets(outputs.context))
-        if (t != out.path) add(option, t, false);
+    OutputClaim c;
+    c.option = optionName(out.row->option);
+    c.path = out.path;
+    c.directory = out.is(WriterKind::DemTileDirectory);
+    if (!c.directory) c.files = out.targets(outputs.context);
+    claims.push_back(std::move(c));
   }
-  add("--report", o.reportPath, false);
-  add("-o", o.finalizedOutput, false);
-  for (const auto& [option, path] : extra) add(option, path, false);
-  for (std::size_t i = 0; i < owned.size(); ++i)
-    for (std::size_t j = i + 1; j < owned.size(); ++j) {
-      const Owned& a = owned[i];
-      const Owned& b = owned[j];
-      if (a.at == b.at || sameFile(a.path, b.path))
-        throw UsageError(a.label + " and " + b.label + " name the same file: give each output its own path");
-      if (a.directory && inside(b.at, a.at))
-        throw UsageError(b.label + " lies inside the DEM directory " + a.path + ": put it elsewhere");
-      if (b.directory && inside(a.at, b.at))
-        throw UsageError(a.label + " lies inside the DEM directory " + b.path + ": put it elsewhere");
-    }
-  for (const std::string& input : o.inputs) {
-    if (input == "-") continue;
-    const fs::path at = resolved(input);
-    for (const Owned& out : owned) {
-      if (out.at == at || sameFile(out.path, input))
-        throw UsageError(out.label + " is an input of this run (" + input +
-                         "): an output never replaces an input; name another path");
-      if (out.directory && inside(at, out.at))
-        throw UsageError("the input " + input + " lies inside the DEM directory " + out.path +
-                         ": the DEM directory holds the DEM only");
-    }
-  }
+  return claims;
 }
 
-RunLock lockOutputs(const PipelineOptions& o, const RunOutputs& outputs, const std::vector<std::string>& extra) {
-  std::vector<std::string> paths, sidecars;
-  for (const ResolvedOutput& out : outputs.all()) {
-    paths.push_back(out.path);
-    if (out.is(WriterKind::DemTileDirectory)) continue;
-    for (const std::string& t : out.targets(outputs.context))
-      if (t != out.path) sidecars.push_back(t);
+std::vector<OutputClaim> plannedClaims(const RunOutputs& outputs, int parts) {
+  std::vector<OutputClaim> claims;
+  for (OutputClaim c : outputClaims(outputs)) {
+    c.lock = false;
+    if (c.option == optionName(OutputOption::Mesh)) {
+      c.files = {meshManifestPath(c.path), seamMeshPath(c.path)};
+      for (int i = 0; i < parts; ++i) c.files.push_back(partMeshPath(c.path, i));
+      c.path = c.files.front();
+    }
+    claims.push_back(std::move(c));
   }
-  if (!o.finalizedOutput.empty()) paths.push_back(o.finalizedOutput);
-  paths.insert(paths.end(), extra.begin(), extra.end());
-  RunLock lock(paths, o.commandLine);
-  for (const std::string& p : paths) {
-    if (p.empty() || p == "-") continue;
-    rollForwardJournal(p);
-    removeStaleTemporaries(p);
-  }
-  for (const std::string& p : sidecars) removeStaleTemporaries(p);
-  // A DEM directory: the staging folders (.tinbuild-*) of runs that died inside it.
-  if (outputs.dem.is(WriterKind::DemTileDirectory)) {
-    std::error_code ec;
-    for (fs::directory_iterator it(outputs.dem.path, ec), end; !ec && it != end; it.increment(ec))
-      if (it->path().filename().string().rfind(".tinbuild-", 0) == 0) {
-        std::error_code re;
-        fs::remove_all(it->path(), re);
-      }
-  }
-  if (OutputTransaction* t = OutputTransaction::current()) {
-    t->adopt(std::move(lock), paths);
-    return RunLock();
-  }
-  return lock;
+  return claims;
 }
 
-void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, int parts) {
-  if (o.overwrite) return;
-  for (const ResolvedOutput& out : outputs.all()) {
-    if (out.row->option != OutputOption::Mesh) {
-      for (const std::string& path : out.targets(outputs.context)) refuseExistingFile(path);
-      continue;
-    }
-    refuseExistingFile(meshManifestPath(out.path));
-    refuseExistingFile(seamMeshPath(out.path));
-    for (int i = 0; i < parts; ++i) refuseExistingFile(partMeshPath(out.path, i));
-  }
+std::vector<std::pair<std::string, std::string>> runInputs(const PipelineOptions& o) {
+  std::vector<std::pair<std::string, std::string>> in;
+  for (const std::string& i : o.inputs) in.emplace_back("input", i);
+  for (const std::string& f : o.constraints.breaklines) in.emplace_back("--breaklines", f);
+  for (const std::string& f : o.constraints.water) in.emplace_back("--water", f);
+  for (const std::string& f : o.constraints.flows) in.emplace_back("--flow", f);
+  return in;
+}
+
+RunLock claimRun(const PipelineOptions& o, std::vector<OutputClaim> outputs, const ClaimSet& more) {
+  ClaimSet set = more;
+  set.outputs.insert(set.outputs.begin(), outputs.begin(), outputs.end());
+  if (!o.finalizedOutput.empty())
+    set.outputs.insert(set.outputs.begin(), OutputClaim("-o", o.finalizedOutput));
+  const auto inputs = runInputs(o);
+  set.inputs.insert(set.inputs.end(), inputs.begin(), inputs.end());
+  if (!o.reportPath.empty()) set.others.emplace_back("--report", o.reportPath);
+  set.overwrite = o.overwrite;
+  set.commandLine = o.commandLine;
+  return claimOutputs(set);
 }
 
 void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInfo& crs, double zUnitToMetre,
@@ -196,7 +114,12 @@ void completeOutputs(RunOutputs& outputs, const PipelineOptions& o, const CrsInf
   d.tempDir = o.finalizer.tempDir;
   if (!o.dem.tileSizeLength.empty()) {
     const double len = parseLength(o.dem.tileSizeLength, crs, "--tile-size-m");
-    d.tileSize = static_cast<int>(std::llround(len / d.step));
+    const double pixels = len / d.step;
+    if (!(pixels >= 15.5 && pixels < 65536.5))
+      throw UsageError("--tile-size-m " + o.dem.tileSizeLength + " is " + formatDouble("%.6g", pixels) +
+                       " pixels of --step " + formatDouble("%.6g", d.step) +
+                       ": a tile is 16 to 65536 pixels");
+    d.tileSize = static_cast<int>(std::llround(pixels));
     if (std::fabs(d.tileSize * d.step - len) > 1e-9 * len)
       diag.warn("dem.tile_size_rounded", "",
                 "--tile-size-m " + o.dem.tileSizeLength +

@@ -2,7 +2,7 @@
 // writer context for all of them.
 //
 // resolveOutputs() resolves every output option once and builds the context from the user's options;
-// refuseExistingOutputs() checks, before any work, that no target exists (without --overwrite);
+// claimRun() claims them before any work (app/jobs/output_claim.h: ownership, locks, no clobbering);
 // completeOutputs() completes the same context once the survey is known (the working CRS, the DEM's
 // lengths in CRS units).  The rows then open their writers from it.
 #pragma once
@@ -11,6 +11,7 @@
 #include <vector>
 
 #include "app/jobs/job_options.h"
+#include "app/jobs/output_claim.h"
 #include "app/jobs/run_report.h"
 #include "formats/crs/crs.h"
 #include "formats/io/run_lock.h"
@@ -32,33 +33,23 @@ RunOutputs resolveOutputs(const PipelineOptions& o);
 // The writer context of `o` (the CRS and the DEM's lengths are completed by completeOutputs).
 WriterContext writerContext(const PipelineOptions& o);
 
-// Without --overwrite, an existing output is an error before any work (batch jobs must not clobber a
-// previous result by accident).  Devices and FIFOs (/dev/null, a pipe) and "-" are always writable.
-// Also checks o.finalizedOutput.
-void refuseExistingOutputs(const PipelineOptions& o, const std::vector<ResolvedOutput>& outputs,
-                           const WriterContext& context);
+// The claims of a run's resolved outputs (app/jobs/output_claim.h): each output's option, path and the
+// files its row names (a DEM tile directory as a folder the run writes inside).
+std::vector<OutputClaim> outputClaims(const RunOutputs& outputs);
 
-// A planned or MPI run of `parts` parts: without --overwrite, any file it will write under its final
-// name -- the mesh's parts, seam and manifest, the DEM directory's tiles, the GeoPackage TIN, the contours
-// -- that exists already is an error before any work (the parts and the merge then write only their own
-// plan's files).
-void refusePlannedOutputs(const PipelineOptions& o, const RunOutputs& outputs, int parts);
+// A planned or MPI run of `parts` parts: the files it will write under their final names -- the mesh's
+// parts, seam and manifest, the DEM directory, the GeoPackage TIN, the contours -- as claims that are
+// refused when they exist but not locked (the parts and the merge lock what each writes).
+std::vector<OutputClaim> plannedClaims(const RunOutputs& outputs, int parts);
 
-// Before any work: every path a run writes is owned once.  Its outputs' targets (and a DEM directory
-// itself), the report, the finalized stream and `extra` ((option, path): a plan file) must be distinct
-// files, none may be one of the run's inputs (the same path, or the same device and inode: a hard link),
-// and none may lie inside an output directory (a DEM tile directory, whose stale files --overwrite
-// removes), nor may an input.  UsageError naming both sides.  "-" and devices are never owned.
-void checkOutputOwnership(const PipelineOptions& o, const RunOutputs& outputs,
-                          const std::vector<std::pair<std::string, std::string>>& extra = {});
+// The files a run reads (claims never name one of them): the survey's inputs and the constraint files.
+std::vector<std::pair<std::string, std::string>> runInputs(const PipelineOptions& o);
 
-// Takes the run's lock on every output (formats/io/run_lock.h): its outputs' paths, the finalized stream and
-// `extra` (the report is the CLI's to lock).  Then, holding them: finishes the commit of a run that died
-// inside one (its journal), and removes the temporaries dead runs left beside them (and a DEM directory's
-// staging folders).  Call it after checkOutputOwnership and before refusing existing outputs.  While an
-// output transaction is current it holds the lock (the returned one is empty); otherwise the caller
-// holds it for the run.
-RunLock lockOutputs(const PipelineOptions& o, const RunOutputs& outputs, const std::vector<std::string>& extra = {});
+// Claims what a run writes, before any work: `outputs` (and the finalized stream of `finalize -o`), kept
+// apart from the run's inputs, the report and each other; locked, refused when they exist without
+// --overwrite, and registered with the run's transaction.  `more` adds inputs and outputs of the job's
+// own (a plan file, the state of a part).  The one path every command's outputs go through.
+RunLock claimRun(const PipelineOptions& o, std::vector<OutputClaim> outputs, const ClaimSet& more = {});
 
 // Completes the context once the run's CRS is known: the CRS the outputs are labelled with, and the DEM's
 // lengths (typed in metres or with a unit) in CRS units, recorded in `dem`.

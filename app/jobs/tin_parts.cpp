@@ -132,15 +132,11 @@ RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Dia
   RunOutputs owned;
   owned.mesh = out;
   owned.context = context;
-  {
-    PipelineOptions withInputs = o;  // the manifest and every file it lists are this run's inputs
-    withInputs.inputs = m.parts;
-    withInputs.inputs.push_back(m.seam);
-    withInputs.inputs.push_back(manifestPath);
-    checkOutputOwnership(withInputs, owned);
-  }
-  const RunLock lock = lockOutputs(o, owned);
-  refuseExistingOutputs(o, {out}, context);
+  ClaimSet manifest;  // the manifest and every file it lists are this run's inputs
+  for (const std::string& part : m.parts) manifest.inputs.emplace_back("a part of " + manifestPath, part);
+  manifest.inputs.emplace_back("the seam of " + manifestPath, m.seam);
+  manifest.inputs.emplace_back("the manifest", manifestPath);
+  const RunLock lock = claimRun(o, outputClaims(owned), manifest);
   if (!m.crsWkt.empty()) context.crs = crsFromRecordedWkt(m.crsWkt);
   r.crs = context.crs;
   const auto opened = out.row->open(out.path, context);

@@ -10,6 +10,7 @@
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
+#include <vector>
 
 #include "formats/io/output_transaction.h"
 #include "libterrain/core/error.h"
@@ -38,8 +39,17 @@ void createParentDirectories(const std::string& path) {
   if (parent.empty()) return;
   std::error_code ec;
   if (std::filesystem::is_directory(parent, ec)) return;
+  // The folders that are missing, outermost first: a run that fails or is cancelled removes them again
+  // (OutputTransaction::rollback), so it leaves no empty folder behind.
+  std::vector<std::filesystem::path> missing;
+  for (std::filesystem::path p = parent; !p.empty() && !std::filesystem::exists(p, ec); p = p.parent_path()) {
+    missing.push_back(p);
+    if (p == p.parent_path()) break;
+  }
   std::filesystem::create_directories(parent, ec);
   if (ec) throw DataError(path, "cannot create its folder " + parent.string() + ": " + ec.message());
+  if (OutputTransaction* t = OutputTransaction::current())
+    for (auto it = missing.rbegin(); it != missing.rend(); ++it) t->createdDirectory(it->string());
 }
 
 int createTemporaryBeside(const std::string& path, std::string& tempPath) {
@@ -47,7 +57,10 @@ int createTemporaryBeside(const std::string& path, std::string& tempPath) {
   for (unsigned attempt = 0;; ++attempt) {
     tempPath = temporaryName(path, attempt);
     const int fd = ::open(tempPath.c_str(), O_WRONLY | O_CREAT | O_EXCL | O_CLOEXEC, 0666);
-    if (fd >= 0) return fd;
+    if (fd >= 0) {
+      faultPoint("output");
+      return fd;
+    }
     if (errno != EEXIST || attempt >= 100)
       throw DataError(path, "cannot create " + tempPath + ": " + std::strerror(errno));
   }

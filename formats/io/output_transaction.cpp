@@ -23,6 +23,19 @@ namespace fs = std::filesystem;
 namespace {
 
 std::atomic<OutputTransaction*> g_current{nullptr};
+std::atomic<bool> g_required{false};
+
+// A path as compared for claims: absolute and normalized (symbolic links are not followed: a claim and a
+// write name the same spelling, both made from the user's words).
+std::string claimKey(const std::string& path) {
+  std::error_code ec;
+  fs::path p = fs::absolute(path, ec);
+  if (ec) p = path;
+  p = p.lexically_normal();
+  std::string s = p.string();
+  while (s.size() > 1 && s.back() == '/') s.pop_back();
+  return s;
+}
 
 // The journal beside PATH: .NAME.tinbuild-journal.
 std::string journalPath(const std::string& path) {
@@ -101,6 +114,39 @@ void OutputTransaction::rollback() {
   after_.clear();
   locks_.clear();  // (their lock files go)
   lockedPaths_.clear();
+  // The folders made for the outputs, deepest first, when nothing else is in them (rmdir refuses then).
+  for (auto it = createdDirs_.rbegin(); it != createdDirs_.rend(); ++it) ::rmdir(it->c_str());
+  createdDirs_.clear();
+  claimedFiles_.clear();
+  claimedDirs_.clear();
+}
+
+void OutputTransaction::claim(const std::string& path) {
+  if (path.empty() || path == "-") return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  claimedFiles_.push_back(claimKey(path));
+}
+
+void OutputTransaction::claimDirectory(const std::string& dir) {
+  if (dir.empty() || dir == "-") return;
+  std::lock_guard<std::mutex> lock(mutex_);
+  claimedDirs_.push_back(claimKey(dir));
+}
+
+bool OutputTransaction::claims(const std::string& final) const {
+  const std::string key = claimKey(final);
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (const std::string& f : claimedFiles_)
+    if (f == key) return true;
+  for (const std::string& d : claimedDirs_)
+    if (key.size() > d.size() && key.compare(0, d.size(), d) == 0 && (key[d.size()] == '/' || d == "/"))
+      return true;
+  return false;
+}
+
+void OutputTransaction::createdDirectory(const std::string& dir) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  createdDirs_.push_back(claimKey(dir));
 }
 
 OutputTransaction* OutputTransaction::current() {
@@ -140,6 +186,7 @@ void OutputTransaction::commit() {
   std::lock_guard<std::mutex> lock(mutex_);
   commitLocked();
   provisional_.clear();
+  createdDirs_.clear();  // (they hold the outputs now)
 }
 
 void OutputTransaction::commitProvisionally() {
@@ -188,10 +235,28 @@ void OutputTransaction::commitLocked() {
 
 void commitRename(const std::string& temp, const std::string& final) {
   if (OutputTransaction* t = OutputTransaction::current()) {
+    if (!t->claims(final))
+      throw Error("internal error: " + final +
+                  " would be written without the run's claim on it (every output goes through "
+                  "app/jobs/output_claim.h); nothing was written");
     t->stage(temp, final);
     return;
   }
+  if (g_required.load())
+    throw Error("internal error: " + final +
+                " would be written outside the run's output transaction; nothing was written");
   renameOrThrow(temp, final);
+}
+
+void faultPoint(const char* name) {
+  static const char* wanted = std::getenv("TINBUILD_FAULT_SIGNAL");
+  static std::atomic<bool> fired{false};
+  if (!wanted || std::strcmp(wanted, name) != 0 || fired.exchange(true)) return;
+  ::kill(::getpid(), SIGTERM);
+}
+
+void requireOutputTransactions() {
+  g_required.store(true);
 }
 
 std::uint64_t outputSize(const std::string& final) {

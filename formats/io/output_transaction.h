@@ -14,6 +14,14 @@
 // run that locks one of those outputs finds it and finishes the renames (rollForwardJournals), so the
 // earlier run's result becomes whole, and the new run then replaces it or is refused as usual.
 //
+// Claims.  A transaction writes only what its run claimed (app/jobs/output_claim.h: the one place where a
+// command's outputs are checked against its inputs, locked and refused when they exist): a staged rename
+// whose final name is neither claimed nor inside a claimed directory is an internal error, and so is any
+// finishing rename while the process requires transactions (the CLI: every command runs inside one) but
+// none is current.  So a command that writes without going through the contract fails its first test.
+// Folders the run created for its outputs (createParentDirectories) are removed again, when empty, if the
+// transaction is rolled back.
+//
 // Threads: writers on any thread may stage; commit() and the destructor run on the thread that made the
 // transaction.  One transaction is current per process at a time.
 #pragma once
@@ -41,6 +49,14 @@ class OutputTransaction {
 
   // Records that `temp` becomes `final` at the commit.
   void stage(const std::string& temp, const std::string& final);
+  // The run may write `path` (a file), or anything inside `dir`.
+  void claim(const std::string& path);
+  void claimDirectory(const std::string& dir);
+  // Whether `final` was claimed (by name, or inside a claimed directory).
+  bool claims(const std::string& final) const;
+  // A folder createParentDirectories made for this run's outputs (removed on roll-back when empty).
+  void createdDirectory(const std::string& dir);
+
   // A step to run after the renames (and never when the transaction is rolled back); `undo` (optional) runs
   // instead when it is rolled back.
   void afterCommit(std::function<void()> step, std::function<void()> undo = nullptr);
@@ -73,12 +89,24 @@ class OutputTransaction {
   std::vector<std::pair<std::function<void()>, std::function<void()>>> after_;
   std::vector<RunLock> locks_;
   std::vector<std::string> lockedPaths_;
+  std::vector<std::string> claimedFiles_, claimedDirs_;  // absolute, normalized
+  std::vector<std::string> createdDirs_;                 // in creation order (parents first)
   OutputTransaction* previous_ = nullptr;
 };
 
 // A writer's finishing rename: staged in the current transaction, or done at once when there is none.
-// DataError naming `final` when the rename fails.
+// DataError naming `final` when the rename fails; Error when `final` is not the run's (see Claims above).
 void commitRename(const std::string& temp, const std::string& final);
+
+// A test hook for the fault-injection tests: with TINBUILD_FAULT_SIGNAL=NAME in the environment the process
+// sends itself SIGTERM the first time it reaches the point NAME -- "output" (its first temporary output file
+// created: the work under way), "commit" (the commit's start, after the work) -- so that a signal at those
+// moments is tested without depending on the machine's speed.
+void faultPoint(const char* name);
+
+// The CLI's promise that every command runs inside a transaction: from then on a finishing rename with no
+// transaction current is an internal error (library callers, the tests, keep renaming at once).
+void requireOutputTransactions();
 
 // The size of an output by its final name: its staged temporary's while a transaction holds it.
 std::uint64_t outputSize(const std::string& final);

@@ -335,6 +335,27 @@ TEST(Faults, AFullDiskLeavesNothing) {
   }
 }
 
+// tetrahedralize on a disk too small for its mesh: found while the tetrahedra are computed (the .vtu and
+// TetGen writers spool beside the output, on its file system), an error naming the output, nothing left.
+TEST(Faults, AFullDiskUnderTetrahedralizeIsFoundWhileItComputes) {
+  const Survey s = prepare();
+  const fs::path disk = s.dir / "disk";
+  const std::string errFile = (s.dir / "full.err").string();
+  for (const char* mesh : {"disk/o/cloud.vtu", "disk/o/cloud.ele"}) {
+    Tmpfs small(disk, "4m");
+    if (!small.mounted) GTEST_SKIP() << "cannot mount a tmpfs here (not root, or no CAP_SYS_ADMIN)";
+    const int code = runWith(s.dir, std::string("tetrahedralize s/survey.las -o ") + mesh + " -q", -1,
+                             SIGTERM, {}, errFile.c_str());
+    const std::string err = test::slurp(errFile);
+    EXPECT_EQ(code, 1) << mesh << ": " << err;
+    EXPECT_NE(err.find(std::string("tinbuild: error: ") + mesh + ": cannot write the spool file beside it"),
+              std::string::npos)
+        << "found while computing, named: " << err;
+    const std::vector<std::string> left = filesBelow(disk);
+    EXPECT_TRUE(left.empty()) << mesh << ": " << left.size() << " files left, the first " << left.front();
+  }
+}
+
 TEST(Faults, AStoppedPartOrMergeLeavesNothingAndReruns) {
   const Survey s = prepare();
   const std::string plan = "plan s/survey.las --mesh p/tin.smb --dem p/dem --step 1 --parts 3 -o p/plan.json -q";
@@ -652,6 +673,94 @@ TEST(Faults, SigtermToMpiRanksExitsThreeEverywhere) {
     EXPECT_TRUE(fs::exists(s.dir / "m/tin.parts.json")) << input;
     fs::remove_all(s.dir / "m");
   }
+}
+
+// The process id of rank `rank` among the running processes whose command line starts with `prefix`
+// (Open MPI puts OMPI_COMM_WORLD_RANK in each rank's environment); 0 when none is running yet.
+pid_t rankPid(const std::string& prefix, int rank) {
+  for (const auto& e : fs::directory_iterator("/proc")) {
+    const std::string name = e.path().filename().string();
+    if (name.find_first_not_of("0123456789") != std::string::npos) continue;
+    std::string cmd = test::slurp(e.path() / "cmdline");
+    for (char& c : cmd)
+      if (c == '\0') c = ' ';
+    if (cmd.rfind(prefix, 0) != 0) continue;
+    const std::string env = test::slurp(e.path() / "environ");
+    if (env.find(std::string("OMPI_COMM_WORLD_RANK=") + std::to_string(rank) + '\0') != std::string::npos)
+      return static_cast<pid_t>(std::stol(name));
+  }
+  return 0;
+}
+
+// Under MPI, SIGTERM to one rank alone (a node's task stopped, Ctrl-C in one terminal) stops every rank
+// within a second: the rank's watcher sends a stop over the stop channel to all others, wherever their
+// work is.  Exit 3, nothing final-named; a rerun succeeds.
+TEST(Faults, SigtermToOneMpiRankStopsEveryRankWithinASecond) {
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
+  const Survey s = prepare();
+  if (test::tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos)
+    GTEST_SKIP() << "tinbuild built without MPI";
+  const std::string prefix = std::string(TINBUILD_EXE) + " build s/survey.las --mesh one/tin.smb";
+  const std::string run = "cd " + s.dir.string() + " && mpirun --allow-run-as-root --oversubscribe -np 2 " +
+                          prefix + " --dem one/dem --step 1 --mpi --threads 1 -q > /dev/null 2>&1";
+  int stopped = 0;
+  for (const int victim : {1, 0}) {
+    for (double delay : {0.6, 1.2}) {
+      const pid_t child = ::fork();
+      if (child == 0) {
+        const int rc = std::system(run.c_str());
+        ::_exit(WIFEXITED(rc) ? WEXITSTATUS(rc) : 99);
+      }
+      std::this_thread::sleep_for(std::chrono::duration<double>(delay));
+      const pid_t pid = rankPid(prefix, victim);
+      const auto signalled = Clock::now();
+      if (pid > 0) ::kill(pid, SIGTERM);
+      // The ranks' end, not mpirun's: after a rank exits non-zero Open MPI's mpirun lingers about a second
+      // before it exits itself.
+      while ((rankPid(prefix, 0) > 0 || rankPid(prefix, 1) > 0) &&
+             std::chrono::duration<double>(Clock::now() - signalled).count() < 30)
+        std::this_thread::sleep_for(std::chrono::milliseconds(5));
+      const double took = std::chrono::duration<double>(Clock::now() - signalled).count();
+      int status = 0;
+      ::waitpid(child, &status, 0);
+      const int code = WEXITSTATUS(status);
+      if (pid > 0 && code != 0) {
+        ++stopped;
+        EXPECT_EQ(code, 3) << "rank " << victim << " stopped at " << delay;
+        EXPECT_LT(took, 1.0) << "rank " << victim << " stopped at " << delay << ": the others went on";
+        const std::vector<std::string> left = filesBelow(s.dir / "one");
+        EXPECT_TRUE(left.empty()) << left.size() << " files left, the first " << left.front();
+      }
+      fs::remove_all(s.dir / "one");
+    }
+  }
+  EXPECT_GT(stopped, 0);
+  // SIGUSR2 to mpirun itself: forwarded to every rank, which stop as on SIGTERM; mpirun then exits 3 (on its
+  // own SIGTERM Open MPI aborts and exits 1, whatever the ranks return: docs/usage.md).
+  {
+    const pid_t launcher = ::fork();
+    if (launcher == 0) {
+      if (::chdir(s.dir.c_str()) != 0) ::_exit(126);
+      if (!::freopen("/dev/null", "w", stdout) || !::freopen("/dev/null", "w", stderr)) ::_exit(125);
+      const std::string cmd = "exec mpirun --allow-run-as-root --oversubscribe -np 2 " + prefix +
+                              " --dem one/dem --step 1 --mpi --threads 1 -q";
+      ::execl("/bin/sh", "sh", "-c", cmd.c_str(), static_cast<char*>(nullptr));
+      ::_exit(127);
+    }
+    std::this_thread::sleep_for(std::chrono::milliseconds(900));
+    ::kill(launcher, SIGUSR2);
+    int status = 0;
+    ::waitpid(launcher, &status, 0);
+    const int code = WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+    if (code != 0) {
+      EXPECT_EQ(code, 3) << "mpirun after SIGUSR2";
+      EXPECT_TRUE(filesBelow(s.dir / "one").empty());
+    }
+    fs::remove_all(s.dir / "one");
+  }
+  const int rc = std::system(run.c_str());
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0);
+  EXPECT_TRUE(fs::exists(s.dir / "one/tin.parts.json"));
 }
 
 }  // namespace

@@ -35,6 +35,8 @@ TEST(OutputTransaction, NothingAppearsBeforeTheCommitAndEverythingAfter) {
   const fs::path dir = test::scratchDir();
   {
     OutputTransaction t;
+    t.claim((dir / "a.txt").string());
+    t.claimDirectory((dir / "sub").string());
     write(dir / "a.txt", "a");
     write(dir / "sub" / "b.txt", "b");  // parents are created
     EXPECT_FALSE(fs::exists(dir / "a.txt"));
@@ -56,7 +58,9 @@ TEST(OutputTransaction, RolledBackLeavesNothing) {
   bool undone = false, stepped = false;
   {
     OutputTransaction t;
+    t.claimDirectory(dir.string());
     write(dir / "a.txt", "a");
+    write(dir / "new" / "deeper" / "c.txt", "c");  // (folders it created go with a roll-back)
     t.afterCommit([&] { stepped = true; }, [&] { undone = true; });
   }
   EXPECT_TRUE(undone);
@@ -73,6 +77,7 @@ TEST(OutputTransaction, ProvisionalCommitsAreUndoneByARollBack) {
   const fs::path dir = test::scratchDir();
   {
     OutputTransaction t;
+    t.claimDirectory(dir.string());
     write(dir / "part0.smb", "p");
     t.commitProvisionally();
     EXPECT_EQ(slurp(dir / "part0.smb"), "p");  // readable by name, by anyone
@@ -81,6 +86,7 @@ TEST(OutputTransaction, ProvisionalCommitsAreUndoneByARollBack) {
   EXPECT_TRUE(fs::is_empty(dir)) << "a rolled-back run left " << fs::directory_iterator(dir)->path();
   {
     OutputTransaction t;
+    t.claimDirectory(dir.string());
     write(dir / "part0.smb", "p");
     t.commitProvisionally();
     write(dir / "merged.smb", "m");
@@ -99,6 +105,8 @@ TEST(OutputTransaction, AKilledCommitIsFinishedFromItsJournal) {
     ::setenv("TINBUILD_FAULT_COMMIT_AFTER", "1", 1);
     OutputTransaction t;
     t.adopt(RunLock({a, b}), {a, b});
+    t.claim(a);
+    t.claim(b);
     write(a, "a");
     write(b, "b");
     t.commit();  // killed after one rename
@@ -116,6 +124,23 @@ TEST(OutputTransaction, AKilledCommitIsFinishedFromItsJournal) {
   EXPECT_EQ(slurp(b), "b");
   EXPECT_EQ(rollForwardJournal(a), 0) << "every journal of the commit is gone";
   EXPECT_EQ(removeStaleTemporaries(a) + removeStaleTemporaries(b), 0);
+}
+
+// A transaction commits only what was claimed (app/jobs/output_claim.h): anything else is an internal error
+// and nothing is written; the CLI also requires a transaction for every finishing rename.
+TEST(OutputTransaction, WritesOnlyWhatWasClaimed) {
+  const fs::path dir = test::scratchDir();
+  {
+    OutputTransaction t;
+    t.claim((dir / "mine.txt").string());
+    write(dir / "mine.txt", "m");
+    EXPECT_THROW(write(dir / "other.txt", "o"), Error);
+    t.commit();
+  }
+  EXPECT_TRUE(fs::exists(dir / "mine.txt"));
+  EXPECT_FALSE(fs::exists(dir / "other.txt"));
+  for (const auto& e : fs::directory_iterator(dir))
+    EXPECT_EQ(e.path().filename().string().find(".tmp-"), std::string::npos) << e.path();
 }
 
 TEST(RunLock, ExclusiveBetweenProcessesAndReleasedByDeath) {
