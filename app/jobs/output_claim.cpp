@@ -2,6 +2,7 @@
 
 #include <sys/stat.h>
 
+#include <algorithm>
 #include <filesystem>
 
 #include "formats/io/output_file.h"
@@ -32,13 +33,6 @@ bool inside(const fs::path& inner, const fs::path& dir) {
   return i != inner.end();
 }
 
-bool sameFile(const std::string& a, const std::string& b) {
-  struct stat sa {
-  }, sb{};
-  return ::stat(a.c_str(), &sa) == 0 && ::stat(b.c_str(), &sb) == 0 && sa.st_dev == sb.st_dev &&
-         sa.st_ino == sb.st_ino;
-}
-
 struct Owned {
   std::string label, path;
   fs::path at;
@@ -60,28 +54,66 @@ void checkOwnership(const ClaimSet& set) {
         if (f != c.path) add(c.option, f, false);
   }
   for (const auto& [option, path] : set.others) add(option, path, false);
-  for (std::size_t i = 0; i < owned.size(); ++i)
-    for (std::size_t j = i + 1; j < owned.size(); ++j) {
-      const Owned& a = owned[i];
-      const Owned& b = owned[j];
-      if (a.at == b.at || sameFile(a.path, b.path))
-        throw UsageError(a.label + " and " + b.label + " name the same file: give each output its own path");
-      if (a.directory && inside(b.at, a.at))
-        throw UsageError(b.label + " lies inside " + a.folder + " " + a.path + ": put it elsewhere");
-      if (b.directory && inside(a.at, b.at))
-        throw UsageError(a.label + " lies inside " + b.folder + " " + b.path + ": put it elsewhere");
-    }
+  // Two outputs on one file: the same resolved path, or the same device and inode (a hard link).  Sorted,
+  // so a plan of 16,384 parts is checked in n log n, not n^2.
+  auto sameFileError = [](const Owned& a, const Owned& b) {
+    return UsageError(a.label + " and " + b.label + " name the same file: give each output its own path");
+  };
+  std::vector<std::size_t> order(owned.size());
+  for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
+  std::sort(order.begin(), order.end(), [&](std::size_t i, std::size_t j) { return owned[i].at < owned[j].at; });
+  for (std::size_t k = 1; k < order.size(); ++k)
+    if (owned[order[k - 1]].at == owned[order[k]].at) throw sameFileError(owned[order[k - 1]], owned[order[k]]);
+  struct Node {
+    dev_t dev;
+    ino_t ino;
+    std::size_t index;
+  };
+  std::vector<Node> nodes;
+  for (std::size_t i = 0; i < owned.size(); ++i) {
+    struct stat st {};
+    if (::stat(owned[i].path.c_str(), &st) == 0) nodes.push_back({st.st_dev, st.st_ino, i});
+  }
+  std::sort(nodes.begin(), nodes.end(),
+            [](const Node& a, const Node& b) { return a.dev != b.dev ? a.dev < b.dev : a.ino < b.ino; });
+  for (std::size_t k = 1; k < nodes.size(); ++k)
+    if (nodes[k - 1].dev == nodes[k].dev && nodes[k - 1].ino == nodes[k].ino)
+      throw sameFileError(owned[nodes[k - 1].index], owned[nodes[k].index]);
+  // Nothing inside an output folder (there are few folders).
+  std::vector<const Owned*> folders;
+  for (const Owned& d : owned)
+    if (d.directory) folders.push_back(&d);
+  for (const Owned* f : folders) {
+    const Owned& d = *f;
+    for (const Owned& o : owned)
+      if (&o != &d && inside(o.at, d.at))
+        throw UsageError(o.label + " lies inside " + d.folder + " " + d.path + ": put it elsewhere");
+  }
   for (const auto& [what, input] : set.inputs) {
     if (!claimable(input)) continue;
     const fs::path at = resolved(input);
-    for (const Owned& out : owned) {
-      if (out.at == at || sameFile(out.path, input))
-        throw UsageError(out.label + " is an input of this run (" + what + " " + input +
-                         "): an output never replaces an input; name another path");
-      if (out.directory && inside(at, out.at))
+    struct stat st {};
+    const bool exists = ::stat(input.c_str(), &st) == 0;
+    const auto same = std::lower_bound(order.begin(), order.end(), at,
+                                       [&](std::size_t i, const fs::path& p) { return owned[i].at < p; });
+    if (same != order.end() && owned[*same].at == at)
+      throw UsageError(owned[*same].label + " is an input of this run (" + what + " " + input +
+                       "): an output never replaces an input; name another path");
+    for (const Owned* folder : folders) {
+      const Owned& out = *folder;
+      if (inside(at, out.at))
         throw UsageError("the input " + input + " lies inside " + out.folder + " " + out.path + ": " +
                          (out.folder == "the DEM directory" ? "the DEM directory holds the DEM only"
                                                             : "the folder holds this run's output only"));
+    }
+    if (exists) {
+      const Node key{st.st_dev, st.st_ino, 0};
+      const auto hit = std::lower_bound(nodes.begin(), nodes.end(), key, [](const Node& a, const Node& b) {
+        return a.dev != b.dev ? a.dev < b.dev : a.ino < b.ino;
+      });
+      if (hit != nodes.end() && hit->dev == st.st_dev && hit->ino == st.st_ino)
+        throw UsageError(owned[hit->index].label + " is an input of this run (" + what + " " + input +
+                         "): an output never replaces an input; name another path");
     }
   }
 }

@@ -345,6 +345,25 @@ TEST(Contract, Demo) {
   EXPECT_EQ(run(dir, "demo d --points 1 --survey-only --las --overwrite --progress none").code, 0);
 }
 
+// A count no survey can hold ends in an error at once: a plan of more parts than it has regions.
+TEST(Contract, AbsurdCountsEndAtOnce) {
+  const fs::path dir = test::scratchDir();
+  fs::copy_file(makeSurvey(), dir / "in.smb", fs::copy_options::overwrite_existing);
+  const std::vector<std::pair<std::string, std::string>> cases = {
+      {"plan in.smb --parts 1000000 --mesh m/tin.smb -o plan.json" + kCrs, "at most 16384 parts"},
+      {"plan in.smb --parts 16000 --mesh m/tin.smb -o plan.json" + kCrs, "regions hold points: use --parts"},
+  };
+  for (const auto& [args, message] : cases) {
+    const auto t0 = std::chrono::steady_clock::now();
+    const Outcome o = run(dir, args);
+    EXPECT_NE(o.code, 0) << args;
+    EXPECT_NE(o.err.find(message), std::string::npos) << args << ": " << o.err;
+    EXPECT_LT(std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count(), 10) << args;
+    EXPECT_FALSE(fs::exists(dir / "plan.json"));
+    EXPECT_FALSE(fs::exists(dir / "m"));
+  }
+}
+
 // info and verify write nothing, and stop with exit 3 at once on SIGTERM (nothing to clean up).
 TEST(Contract, ReadOnlyCommandsWriteNothing) {
   const fs::path dir = test::scratchDir();
