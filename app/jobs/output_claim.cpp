@@ -61,9 +61,11 @@ void checkOwnership(const ClaimSet& set) {
   };
   std::vector<std::size_t> order(owned.size());
   for (std::size_t i = 0; i < order.size(); ++i) order[i] = i;
-  std::sort(order.begin(), order.end(), [&](std::size_t i, std::size_t j) { return owned[i].at < owned[j].at; });
+  std::sort(order.begin(), order.end(),
+            [&](std::size_t i, std::size_t j) { return owned[i].at < owned[j].at; });
   for (std::size_t k = 1; k < order.size(); ++k)
-    if (owned[order[k - 1]].at == owned[order[k]].at) throw sameFileError(owned[order[k - 1]], owned[order[k]]);
+    if (owned[order[k - 1]].at == owned[order[k]].at)
+      throw sameFileError(owned[order[k - 1]], owned[order[k]]);
   struct Node {
     dev_t dev;
     ino_t ino;

@@ -132,7 +132,8 @@ RunReport runPlan(const PipelineOptions& o, int parts, Plan& plan, Diagnostics& 
   // A part holds at least one region, and a plan has at most 4^7 of them: more parts could never be made
   // (said now, before the passes; fewer than that can still be too many for where the points lie).
   if (parts > (1 << 14))
-    throw UsageError("--parts " + std::to_string(parts) + ": a plan splits the survey into at most 16384 regions "
+    throw UsageError("--parts " + std::to_string(parts) +
+                     ": a plan splits the survey into at most 16384 regions "
                      "(4^7), so at most 16384 parts");
   for (const std::string& input : o.inputs)
     if (input == "-") throw UsageError("plan: the inputs must be files (every part reads them again), not stdin");
