@@ -31,9 +31,9 @@ namespace tinbuild::app {
 
 namespace {
 
-// What the demo's own options bind to.
 namespace fs = std::filesystem;
 
+// What the demo's own options bind to.
 struct DemoSettings {
   int millions = 2;
   int tiles = 0;  // 0: one file

@@ -201,8 +201,9 @@ int tetrahedralizeStream(const std::string& input, const PipelineArgs& a) {
     throw UsageError("tetrahedralize: give the output mesh: -o FILE.sma|FILE.smb|FILE.vtu|FILE.ele");
   const std::vector<std::string> files = tetMeshFiles(a.run.output);
   const auto t0 = std::chrono::steady_clock::now();
-  CommandFrame frame(a.run, inputsOf(a, input));
-  claimOutput(a, "-o", files, inputsOf(a, input));
+  const auto inputs = inputsOf(a, input);
+  CommandFrame frame(a.run, inputs);
+  claimOutput(a, "-o", files, inputs);
   std::unique_ptr<TetMeshSink> writer = openTetMeshWriter(a.run.output, cancelFlag());
   ParallelDelaunay3d dt(*writer, regionOptions(a));
   if (tetThreads(a) > 1) {
@@ -243,8 +244,9 @@ int runTetrahedralizeCommand(const cli::ParsedArgs& args) {
   const std::string output = a.run.output;
   const std::vector<std::string> files = tetMeshFiles(output);  // (a usage error before any work)
   const auto t0 = std::chrono::steady_clock::now();
-  CommandFrame frame(a.run, inputsOf(a));
-  claimOutput(a, "-o", files, inputsOf(a));
+  const auto inputs = inputsOf(a);
+  CommandFrame frame(a.run, inputs);
+  claimOutput(a, "-o", files, inputs);
   Diagnostics diag;
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "tetrahedralize", diag, in);
@@ -279,8 +281,9 @@ int runFinalize3dCommand(const cli::ParsedArgs& args) {
     throw UsageError(
         "finalize --3d: refusing to write a binary stream to a terminal (redirect it or use -o FILE)");
   const auto t0 = std::chrono::steady_clock::now();
-  CommandFrame frame(a.run, inputsOf(a));
-  claimOutput(a, "-o", {a.run.output}, inputsOf(a));
+  const auto inputs = inputsOf(a);
+  CommandFrame frame(a.run, inputs);
+  claimOutput(a, "-o", {a.run.output}, inputs);
   Diagnostics diag;
   Survey in;
   const Finalizer3dOptions fo = openSurvey3d(a, "finalize --3d", diag, in);

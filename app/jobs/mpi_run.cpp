@@ -461,8 +461,7 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
   return out;
 }
 
-// Finalizes MPI on the way out, whatever happens.
-// The run's MPI: initialised once, and a watcher thread on every rank that carries a stop to all of them
+// The run's MPI: initialised once and finalized on the way out, whatever happens, and a watcher thread on every rank that carries a stop to all of them
 // (mpi_api.h, the stop channel).  A SIGTERM to one rank (a node's job step stopped, a Ctrl-C in one
 // terminal) sets that rank's cancel flag; its watcher sends a stop to every rank, whose watchers set their
 // own flags within a poll (20 ms), and every rank unwinds from wherever its work is to the next collective

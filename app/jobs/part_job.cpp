@@ -169,13 +169,11 @@ RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
     throw UsageError("build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, "
                      "--contours FILE");
   RunOutputs outputs = resolveOutputs(o);  // (a part's files are its own: no refusal, see partOptions)
-  // A part locks its own files only, and rewrites them when run again: the parts of a plan write into one
-  // DEM directory side by side (each tile is one part's, or a piece the merge combines).
+  // A part locks its own files only (and rewrites them when run again: partOptions): the parts of a plan
+  // write into one DEM directory side by side (each tile is one part's, or a piece the merge combines).
   std::vector<OutputClaim> own = outputClaims(outputs);
-  for (OutputClaim& c : own) {
-    c.refuse = false;
+  for (OutputClaim& c : own)
     if (c.directory) c.lock = false;
-  }
   ClaimSet more;
   more.inputs = {{"--plan", plan.path}};
   for (const char* kind : {"seam", "dem", "json"})

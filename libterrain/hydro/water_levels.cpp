@@ -327,6 +327,7 @@ PreparedWater ShoreSampler::finish(const Bounds3& survey) const {
   std::vector<std::vector<float>> pooled(m.bodies.size());
   std::vector<std::optional<double>> givenLevel(m.bodies.size());
   std::vector<std::size_t> givenBy(m.bodies.size(), 0);
+  std::vector<std::optional<double>> pooledLevel(m.bodies.size());
   for (std::uint32_t bi = 0; bi < m.bodies.size(); ++bi) {
     const Impl::Body& b = m.bodies[bi];
     const std::size_t root = b.poly->body;
@@ -404,7 +405,12 @@ PreparedWater ShoreSampler::finish(const Bounds3& survey) const {
           throw Error(b.poly->source + ": no lidar point within " + distance +
                       " of this water polygon's shore to set its level: give it a level (a POLYGON Z at one z) or a "
                       "larger --shore-distance");
-        level = percentileOf(zs, m.o.percentile);
+        if (!joined) {
+          level = percentileOf(zs, m.o.percentile);
+        } else {
+          if (!pooledLevel[root]) pooledLevel[root] = percentileOf(zs, m.o.percentile);  // (once a body)
+          level = *pooledLevel[root];
+        }
       }
       report.level = report.lastLevel = level;
       allRings([level](const ConstraintPoint&) { return level; });
