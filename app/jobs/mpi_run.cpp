@@ -461,11 +461,12 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
   return out;
 }
 
-// The run's MPI: initialised once and finalized on the way out, whatever happens, and a watcher thread on every rank that carries a stop to all of them
-// (mpi_api.h, the stop channel).  A SIGTERM to one rank (a node's job step stopped, a Ctrl-C in one
-// terminal) sets that rank's cancel flag; its watcher sends a stop to every rank, whose watchers set their
-// own flags within a poll (20 ms), and every rank unwinds from wherever its work is to the next collective
-// step, which then stops them all together: exit 3 everywhere, within a second, nothing left.
+// The run's MPI: initialised once and finalized on the way out, whatever happens, and a watcher thread on
+// every rank that carries a stop to all of them (mpi_api.h, the stop channel).  A SIGTERM to one rank (a
+// node's job step stopped, a Ctrl-C in one terminal) sets that rank's cancel flag; its watcher sends a stop
+// to every rank, whose watchers set their own flags within a poll (20 ms), and every rank unwinds from
+// wherever its work is to the next collective step, which then stops them all together: exit 3 everywhere,
+// within a second, nothing left.
 struct MpiSession {
   int rank = 0, size = 1;
   bool owned = false, channel = false;
