@@ -17,11 +17,15 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
   const auto t0 = JobClock::now();
   VerifyReport r;
   r.mesh = mesh;
+  // Every check reads the TIN again, one streaming mesh or a TIN written in parts (tinbuild merge).
+  auto readTin = [&mesh](MeshSink& sink) {
+    if (isMeshManifest(mesh))
+      readMeshParts(mesh, sink);
+    else
+      readStreamingMesh(mesh, sink);
+  };
   MeshVerifier verifier;
-  if (isMeshManifest(mesh))
-    readMeshParts(mesh, verifier);  // a TIN written in parts (tinbuild merge)
-  else
-    readStreamingMesh(mesh, verifier);
+  readTin(verifier);
   r.check = verifier.report();
   if (o.constraints.any() && o.inputs.empty())
     throw UsageError("verify --breaklines/--water: give the inputs the mesh was built from (--points INPUT...): "
@@ -35,10 +39,7 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
     applyConstraints(constraints, fo, in);
     if (!constraints.empty()) {
       ConstraintEdgeCheck edges(constraints.conforming);
-      if (isMeshManifest(mesh))
-        readMeshParts(mesh, edges);
-      else
-        readStreamingMesh(mesh, edges);
+      readTin(edges);
       r.constraintsChecked = true;
       r.pieces = edges.pieces();
       r.piecesMissing = edges.piecesMissing();
@@ -50,10 +51,7 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
         if (!b.river) lakes.push_back({constraints.water[b.area], b.body, b.level, b.source});
       if (!lakes.empty()) {
         WaterFlatnessCheck flat(std::move(lakes));
-        if (isMeshManifest(mesh))
-          readMeshParts(mesh, flat);
-        else
-          readStreamingMesh(mesh, flat);
+        readTin(flat);
         r.waterChecked = true;
         r.lakes = flat.bodies();
         r.lakesNotFlat = flat.bodiesNotFlat();

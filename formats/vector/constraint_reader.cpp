@@ -549,26 +549,29 @@ std::string ringName(std::uint32_t r) {
   return r == 0 ? "the outer ring" : "hole " + std::to_string(r);
 }
 
+// Appends the edges of `ring` as ring number sizes.size() (the ContactFinder's input), and its size.
+void appendRingEdges(const Ring& ring, std::vector<Edge>& edges, std::vector<std::size_t>& sizes) {
+  const auto r = static_cast<std::uint32_t>(sizes.size());
+  sizes.push_back(ring.size());
+  for (std::size_t i = 0; i < ring.size(); ++i) {
+    const ConstraintPoint& p = ring[i];
+    const ConstraintPoint& q = ring[(i + 1) % ring.size()];
+    edges.push_back(Edge{{p.x, p.y},
+                         {q.x, q.y},
+                         r,
+                         static_cast<std::uint32_t>(i),
+                         std::min(p.x, q.x),
+                         std::max(p.x, q.x),
+                         std::min(p.y, q.y),
+                         std::max(p.y, q.y)});
+  }
+}
+
 // "" when the polygon (rings[0] outer, the others holes, all cleaned) is simple; else what is wrong.
 std::string polygonProblem(const std::vector<Ring>& rings) {
   std::vector<Edge> edges;
   std::vector<std::size_t> sizes;
-  for (std::size_t r = 0; r < rings.size(); ++r) {
-    const Ring& ring = rings[r];
-    sizes.push_back(ring.size());
-    for (std::size_t i = 0; i < ring.size(); ++i) {
-      const ConstraintPoint& p = ring[i];
-      const ConstraintPoint& q = ring[(i + 1) % ring.size()];
-      edges.push_back(Edge{{p.x, p.y},
-                           {q.x, q.y},
-                           static_cast<std::uint32_t>(r),
-                           static_cast<std::uint32_t>(i),
-                           std::min(p.x, q.x),
-                           std::max(p.x, q.x),
-                           std::min(p.y, q.y),
-                           std::max(p.y, q.y)});
-    }
-  }
+  for (const Ring& ring : rings) appendRingEdges(ring, edges, sizes);
   Contact c;
   if (ContactFinder(edges, sizes).find(c)) {
     const std::string at = " at " + pointText(c.where.x, c.where.y);
@@ -889,21 +892,8 @@ void groupWater(std::vector<WaterPolygon>& water, const CancelFlag* cancel) {
       std::vector<std::size_t> sizes;
       std::vector<std::size_t> ringOwner;  // which polygon each ring is
       auto addRing = [&](const Ring& ring, std::size_t owner) {
-        const auto r = static_cast<std::uint32_t>(sizes.size());
-        sizes.push_back(ring.size());
         ringOwner.push_back(owner);
-        for (std::size_t k = 0; k < ring.size(); ++k) {
-          const ConstraintPoint& p = ring[k];
-          const ConstraintPoint& q = ring[(k + 1) % ring.size()];
-          edges.push_back(Edge{{p.x, p.y},
-                               {q.x, q.y},
-                               r,
-                               static_cast<std::uint32_t>(k),
-                               std::min(p.x, q.x),
-                               std::max(p.x, q.x),
-                               std::min(p.y, q.y),
-                               std::max(p.y, q.y)});
-        }
+        appendRingEdges(ring, edges, sizes);
       };
       for (std::size_t owner : {a, b}) {
         addRing(water[owner].outer, owner);
