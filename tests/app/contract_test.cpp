@@ -305,15 +305,16 @@ TEST(Contract, PlanAndMerge) {
                false},
               makeSurvey());
   // merge's other form: a TIN in parts joined into one mesh (it reads the manifest and every part).
-  checkWriter({"merge --join",
-               {"plan in.smb --parts 2 --mesh m/tin.smb -o plan.json" + kCrs, "build --plan plan.json --part 0 -q",
-                "build --plan plan.json --part 1 -q", "merge plan.json -q"},
-               "merge m/tin.parts.json -o {out} -q",
-               "joined.smb",
-               false,
-               "m/tin.parts.json",
-               false},
-              makeSurvey());
+  checkWriter(
+      {"merge --join",
+       {"plan in.smb --parts 2 --mesh m/tin.smb -o plan.json" + kCrs, "build --plan plan.json --part 0 -q",
+        "build --plan plan.json --part 1 -q", "merge plan.json -q"},
+       "merge m/tin.parts.json -o {out} -q",
+       "joined.smb",
+       false,
+       "m/tin.parts.json",
+       false},
+      makeSurvey());
 }
 
 // The parts of a plan: the merge's case needs them done before it; checked here on their own (a part
