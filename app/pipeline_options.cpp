@@ -229,8 +229,10 @@ PipelineTable constraintGroup() {
            "breaklines: the longest constraint piece, and the width cleared of lidar points along them "
            "(metres or unit; default: the survey's mean point spacing)")
       .text([](A& a, const std::string& v) { a.options.constraints.buffer = v; });
-  t.option("--shore-distance", "L",
-           "water: bank points lie within L of the shore (metres or unit; default 3 x the point spacing)")
+  t.option(
+       "--shore-distance", "L",
+       "water: the bank band: bank points lie within L of the shore, and the DEM is checked there (metres or "
+       "unit; default the largest of 3 m, 3 DEM pixels and 3 x the point spacing)")
       .needs(cli::needs("--water", "--water FILE"))
       .text([](A& a, const std::string& v) { a.options.constraints.shoreDistance = v; });
   t.option("--water-percentile", "P",

@@ -6,6 +6,8 @@
 #include "app/jobs/part_job.h"
 #include "formats/pointcloud/finalized_stream.h"
 #include "libterrain/core/error.h"
+#include "libterrain/core/report_text.h"
+#include "libterrain/hydro/bank_check.h"
 #include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
@@ -209,6 +211,12 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   }
   // Open every output before any work, so an unwritable target or a bad length fails at once.
   completeOutputs(outputs, o, in.crs, in.zUnitToMetre, r.dem, diag);
+  // Hydro-flattening's product check: every DEM pixel this run computes by a shore (bank_check.h).
+  if (outputs.dem && !constraints.bodies.empty()) {
+    outputs.context.bankCheck = std::make_shared<BankCheck>(constraints.water, constraints.bodies,
+                                                            constraints.band, constraints.spacing);
+    if (outputs.context.bankCheck->empty()) outputs.context.bankCheck.reset();
+  }
   if (hooks) hooks->outputs(outputs, r);
   const std::vector<ResolvedOutput> resolved = outputs.all();
   std::vector<std::unique_ptr<OpenedOutput>> opened;
@@ -270,6 +278,18 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     addOutputResults(r, o, resolved[i], results.back());
     if (results.back().dem && r.dem.stats.tilesWritten == 0 && !hooks)
       diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
+  }
+  if (outputs.context.bankCheck) {
+    r.constraints.bankChecked = true;
+    r.constraints.bank = outputs.context.bankCheck->figures();
+    if (r.constraints.bank.violations && !hooks)
+      diag.warn("water.above_ground", o.dem.path,
+                withCommas(r.constraints.bank.violations) + " DEM pixels within " +
+                    formatDouble("%.3g", constraints.band) +
+                    " of a shore lie below the water beside them (the worst: " + r.constraints.bank.worstAt +
+                    "): a level given with a polygon above the ground there, or a gap in the survey the bank "
+                    "points did not "
+                    "see (the run report lists them by water body)");
   }
   if (hooks) hooks->finished(r, outputs, results);
   in.reportTransform(r, diag);

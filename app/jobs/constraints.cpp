@@ -8,6 +8,9 @@
 #include <fstream>
 #include <limits>
 #include <thread>
+#ifdef __GLIBC__
+#include <malloc.h>
+#endif
 
 #include "formats/crs/reprojection.h"
 #include "formats/io/output_file.h"
@@ -98,7 +101,7 @@ void checkConstraintLengths(const ConstraintRequest& q, const CrsInfo& crs, doub
                      "--shore-distance", "a band that narrow holds no bank point to set a level");
 }
 
-constexpr char kMagic[8] = {'T', 'B', 'C', 'O', 'N', 'S', '0', '1'};
+constexpr char kMagic[8] = {'T', 'B', 'C', 'O', 'N', 'S', '0', '2'};
 
 }  // namespace
 
@@ -139,9 +142,29 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   // kept points' spacing is at least that) before any work; again below with the kept points' spacing.
   if (survey.headerBounds && survey.headerPoints > 0)
     checkConstraintLengths(q, survey.crs, spacingOf(*survey.headerBounds, survey.headerPoints));
+  // Lengths in metres, in CRS units (a survey without a CRS: metres).
+  auto metres = [&survey](double m) {
+    return survey.crs.geographic ? m : parseLength(formatDouble("%.17g", m) + "m", survey.crs, "(a length)");
+  };
+  // The bank band: at least 3 m, 3 DEM pixels and 3 point spacings (the specification's "immediately
+  // surrounding terrain", checked on the product: bank_check.h).
+  double demStep = 0;
+  if (!o.dem.path.empty()) {
+    try {
+      demStep = parseLength(o.dem.step, survey.crs, "--step");
+    } catch (const UsageError&) {
+      demStep = 0;  // (said by the DEM's own check, later)
+    }
+  }
   auto makeSampler = [&](double sp) {
-    wo.shoreDistance = lengthOption(q.shoreDistance, 3 * sp, survey.crs, "--shore-distance");
+    wo.shoreDistance = lengthOption(q.shoreDistance, std::max({metres(3), 3 * demStep, 3 * sp}), survey.crs,
+                                    "--shore-distance");
     wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
+    wo.spacing = sp;
+    wo.margin = 2 * sp;
+    wo.outlierDepth = metres(0.05);
+    wo.sectionRise = metres(0.01);
+    wo.dropOutliers = true;
     sampler = std::make_unique<ShoreSampler>(input, wo);
   };
   // The sampler when some level must come from the points (none when every level is given).
@@ -157,14 +180,17 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     // the gathered points (the same as a second pass would give it); else a second pass.
     const double headerSpacing = spacingOf(*survey.headerBounds, survey.headerPoints);
     WaterLevelOptions wide = wo;
-    wide.shoreDistance = q.shoreDistance.empty() ? 6 * headerSpacing : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
+    wide.shoreDistance = q.shoreDistance.empty()
+                             ? std::max({metres(3), 3 * demStep, 6 * headerSpacing})
+                             : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
+    wide.margin = 4 * headerSpacing;
     wide.stationSpacing = 1;
     ShoreSampler gather(input, wide);
     std::vector<PointRecord> near;
     pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel, gather.needsPoints() ? &gather : nullptr, &near);
     makeSampler(spacingOf(pass.bounds, pass.points));
     if (ShoreSampler* s = sampling()) {
-      if (wo.shoreDistance <= wide.shoreDistance)
+      if (wo.shoreDistance + wo.margin <= wide.shoreDistance + wide.margin)
         s->add(near.data(), near.size());
       else
         passOverPoints(survey, o.finalizer.filter, s, o.finalizer.cancel);
@@ -183,6 +209,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   t = Clock::now();
   c.spacing = spacing;
   c.shoreDistance = wo.shoreDistance;
+  c.band = wo.shoreDistance;
   c.stationSpacing = wo.stationSpacing;
   c.buffer = lengthOption(q.buffer, spacing, survey.crs, "--breakline-buffer");
 
@@ -193,7 +220,9 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     segments = water.segments;
     c.water = water.areas;
     c.bodies = water.bodies;
+    c.outliers = water.outliers;
   }
+  sampler.reset();  // (its bank points and indexes: not needed past the levels)
   const std::vector<ConstraintSegment> lines = breaklineSegments(input);
   segments.insert(segments.end(), lines.begin(), lines.end());
   ConformingOptions co;
@@ -206,6 +235,11 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   co.cancel = o.finalizer.cancel;
   c.conforming = std::make_shared<const ConformingConstraints>(conformConstraints(segments, c.water, co));
   c.conformSeconds = since(t);
+#ifdef __GLIBC__
+  // The preparation's scratch (the points near the shores, the bank points, the split's work) is freed
+  // now; hand the heap's free pages back, so the run's peak does not carry them.
+  malloc_trim(0);
+#endif
   if (c.conforming->vertices.empty())
     diag.warn("constraints.outside", q.breaklines.empty() ? q.water.front() : q.breaklines.front(),
               "no constraint meets the survey's extent: nothing is constrained");
@@ -215,6 +249,7 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
 void applyConstraints(const PreparedConstraints& c, FinalizerOptions& fo, Survey& survey) {
   if (c.empty()) return;
   if (!c.water.empty()) fo.filter.stages.push_back(std::make_shared<WaterStage>(c.water));
+  if (!c.outliers.empty()) fo.filter.stages.push_back(std::make_shared<BankOutlierStage>(c.outliers));
   fo.filter.stages.push_back(std::make_shared<BufferStage>(c.conforming));
   if (fo.filter.stages.size() > kMaxPointStages)
     throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
@@ -240,6 +275,7 @@ void reportConstraints(const PreparedConstraints& c, RunReport& r) {
   f.shoreDistance = c.shoreDistance;
   f.stationSpacing = c.stationSpacing;
   f.bodies = c.bodies;
+  f.band = c.band;
   f.readSeconds = c.readSeconds;
   f.passSeconds = c.passSeconds;
   f.conformSeconds = c.conformSeconds;
@@ -287,7 +323,32 @@ void writeConstraints(const PreparedConstraints& c, const std::string& path) {
     f64(b.lastLevel);
     u64(b.bankPoints);
     u64(b.stations);
+    u64(b.body);
+    u64(b.members);
+    u64(b.area);
+    u64(b.outliers);
+    u64(b.profile ? 1 : 0);
+    if (b.profile) {
+      const RiverProfile& p = *b.profile;
+      ring(p.centreline);
+      f64(p.s0);
+      f64(p.step);
+      u64(p.sections);
+      u64(p.level.size());
+      for (std::size_t k = 0; k < p.level.size(); ++k) {
+        f64(p.raw[k]);
+        f64(p.level[k]);
+        u64(p.points[k]);
+      }
+    }
   }
+  u64(c.outliers.size());
+  for (const ConstraintPoint& p : c.outliers) {
+    f64(p.x);
+    f64(p.y);
+    f64(p.z);
+  }
+  f64(c.band);
   f.write(kMagic, 8);  // (the end: a file cut short is found)
   f.commit();
 }
@@ -358,8 +419,39 @@ PreparedConstraints readConstraintsFile(const std::string& path) {
     b.lastLevel = in.get<double>();
     b.bankPoints = in.get<std::uint64_t>();
     b.stations = static_cast<std::uint32_t>(in.get<std::uint64_t>());
+    b.body = in.get<std::uint64_t>();
+    b.members = in.get<std::uint64_t>();
+    b.area = in.get<std::uint64_t>();
+    b.outliers = in.get<std::uint64_t>();
+    if (b.body >= nb || b.area >= nw) throw DataError(path, "corrupt constraint file (a water body)");
+    if (in.get<std::uint64_t>()) {
+      auto p = std::make_shared<RiverProfile>();
+      p->centreline = ring();
+      p->s0 = in.get<double>();
+      p->step = in.get<double>();
+      p->sections = static_cast<std::uint32_t>(in.get<std::uint64_t>());
+      const std::uint64_t ns = in.get<std::uint64_t>();
+      if (ns > (std::uint64_t{1} << 28)) throw DataError(path, "corrupt constraint file");
+      in.need(ns * 24);
+      for (std::uint64_t k = 0; k < ns; ++k) {
+        p->raw.push_back(in.get<double>());
+        p->level.push_back(in.get<double>());
+        p->points.push_back(static_cast<std::uint32_t>(in.get<std::uint64_t>()));
+      }
+      b.profile = std::move(p);
+    }
     c.bodies.push_back(b);
   }
+  const std::uint64_t no = in.get<std::uint64_t>();
+  if (no > (std::uint64_t{1} << 31)) throw DataError(path, "corrupt constraint file");
+  in.need(no * 24);
+  c.outliers.resize(no);
+  for (auto& p : c.outliers) {
+    p.x = in.get<double>();
+    p.y = in.get<double>();
+    p.z = in.get<double>();
+  }
+  c.band = in.get<double>();
   in.bytes(magic, 8);
   if (std::memcmp(magic, kMagic, 8) != 0) throw DataError(path, "corrupt constraint file (its end)");
   cc->stats.vertices = cc->vertices.size();

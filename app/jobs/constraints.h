@@ -5,7 +5,8 @@
 // not: the plan makes this pass for its parts) gives the survey's extent, its mean point spacing and, when
 // a water level must be derived, the bank points (water_levels.h).  Then:
 //   - the lengths left to the survey: the breakline buffer (longest constraint piece) = the point spacing,
-//     the shore distance = 3 x spacing, the station spacing = 10 x spacing;
+//     the shore distance (the bank band) = max(3 m, 3 DEM pixels, 3 x spacing), the station spacing =
+//     10 x spacing;
 //   - the water levels, the shores at their levels and the river cross-sections;
 //   - the conforming split (conforming.h);
 //   - the stages (water, breaklines) go after the user's filter, and the constraint vertices are one more
@@ -32,6 +33,8 @@ struct PreparedConstraints {
   std::shared_ptr<const ConformingConstraints> conforming;
   std::vector<WaterArea> water;
   std::vector<WaterBody> bodies;
+  std::vector<ConstraintPoint> outliers;  // low outliers on the banks, left out of the survey
+  double band = 0;                        // the bank band the product check covers (the shore distance)
   double spacing = 0, buffer = 0, shoreDistance = 0, stationSpacing = 0;  // CRS units
   std::uint64_t breaklines = 0;  // lines and rings read
   double readSeconds = 0, passSeconds = 0, conformSeconds = 0;  // the vector files, the passes, the split

@@ -4,6 +4,7 @@
 #include <functional>
 #include <memory>
 
+#include "app/jobs/constraints.h"
 #include "app/jobs/run_outputs.h"
 #include "app/jobs/tin_parts.h"
 #include "formats/io/output_file.h"
@@ -149,6 +150,17 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     seamMesh = seamMeshPath(o.meshOutput);
     mesh = outputs.mesh.row->open(seamMesh, context);  // (the seam file has the mesh's format)
   }
+  // Hydro-flattening's product check: the parts checked the pixels they computed; the merge checks the
+  // pixels of the seam's triangles (each pixel is computed once), and adds them up.
+  PreparedConstraints constraints;
+  if (outputs.dem && !plan.constraints.empty()) {
+    constraints = readConstraintsFile(plan.constraintsFile());
+    if (!constraints.bodies.empty()) {
+      context.bankCheck = std::make_shared<BankCheck>(constraints.water, constraints.bodies, constraints.band,
+                                                      constraints.spacing);
+      if (context.bankCheck->empty()) context.bankCheck.reset();
+    }
+  }
   if (outputs.dem) dem = outputs.dem.row->open(outputs.dem.path, context);
   MergeSeamOutput seamOut(mesh ? mesh->meshSink() : nullptr, dem ? dem->triangleSink() : nullptr);
   SeamStep step(seamOut, o.delaunay);
@@ -243,6 +255,19 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   r.parallel.seamWritten = ss.written;
   r.parallel.seamDropped = ss.dropped;
   r.duplicateRule = duplicateRuleName(o.delaunay.duplicates);
+  if (context.bankCheck) {
+    reportConstraints(constraints, r);
+    r.constraints.bankChecked = true;
+    r.constraints.bank = context.bankCheck->figures();
+    for (const PartDone& d : done)
+      if (d.bankChecked) r.constraints.bank.add(d.bank);
+    if (r.constraints.bank.violations)
+      diag.warn("water.above_ground", o.dem.path,
+                std::to_string(r.constraints.bank.violations) +
+                    " DEM pixels within the bank band of a shore lie "
+                    "below the water beside them (the worst: " +
+                    r.constraints.bank.worstAt + "): the run report lists them by water body");
+  }
   finishReport(r, diag, t0);
   return r;
 }

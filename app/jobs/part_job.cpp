@@ -131,6 +131,8 @@ class PartHooks : public BuildHooks {
     done.peakRssBytes = peakRssBytes();
     done.crs = survey_.crs;
     done.zUnitToMetre = survey_.zUnitToMetre;
+    done.bankChecked = r.constraints.bankChecked;
+    done.bank = r.constraints.bank;
     // What the merge will read, as it is now: it checks each file's size and bytes before it writes.
     auto record = [&done](const std::string& role, const std::string& path, bool whole) {
       const std::string now = readablePath(path);  // (still staged in the run's transaction)

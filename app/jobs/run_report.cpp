@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <fstream>
 #include <string>
 
@@ -159,11 +160,31 @@ std::string formatRunSummary(const RunReport& r) {
                            formatDouble("%.3f", c.readSeconds) + ", pass over the points " +
                            formatDouble("%.3f", c.passSeconds) + ", split " + formatDouble("%.3f", c.conformSeconds) + ")");
     for (const WaterBody& b : c.bodies)
-      line("water", b.source + ": " +
-                        (b.river ? "a river, " + std::to_string(b.stations) + " stations from " +
-                                       formatDouble("%.3f", b.level) + " down to " + formatDouble("%.3f", b.lastLevel)
-                                 : "level " + formatDouble("%.3f", b.level)) +
-                        (b.given ? " (given)" : " (" + withCommas(b.bankPoints) + " bank points)"));
+      line(
+          "water",
+          b.source + ": " +
+              (b.river ? "a river, " + std::to_string(b.stations) + " stations from " +
+                             formatDouble("%.3f", b.level) + " down to " + formatDouble("%.3f", b.lastLevel)
+                       : "level " + formatDouble("%.3f", b.level)) +
+              (b.given
+                   ? " (given)"
+                   : " (" + withCommas(b.bankPoints) + " bank points" +
+                         (b.outliers ? ", " + withCommas(b.outliers) + " low outliers left out" : "") + ")") +
+              (b.profile ? ", " + withCommas(b.profile->sections) + " cross-sections" : "") +
+              [&]() -> std::string {
+            const std::size_t k = static_cast<std::size_t>(&b - c.bodies.data());
+            if (!c.bankChecked || k >= c.bank.bodyViolations.size() || !c.bank.bodyViolations[k]) return "";
+            return "; " + withCommas(c.bank.bodyViolations[k]) + " of its " +
+                   withCommas(c.bank.bodySamples[k]) + " bank pixels below its water";
+          }());
+    if (c.bankChecked)
+      line("water check",
+           c.bank.violations == 0
+               ? "every one of the " + withCommas(c.bank.samples) + " DEM pixels within " +
+                     formatDouble("%.3g", c.band) + " of a shore is at or above the water beside it"
+               : "PROBLEM: " + withCommas(c.bank.violations) + " of the " + withCommas(c.bank.samples) +
+                     " DEM pixels within " + formatDouble("%.3g", c.band) +
+                     " of a shore lie below the water beside them; the worst: " + c.bank.worstAt);
   }
   if (r.haveDelaunay) {
     const DelaunayStats& d = r.delaunay;
@@ -509,9 +530,48 @@ std::string formatRunJson(const RunReport& r) {
       j.key("last_level").value(b.lastLevel);
       j.key("bank_points").value(b.bankPoints);
       j.key("stations").value(static_cast<std::uint64_t>(b.stations));
+      j.key("low_outliers").value(b.outliers);
+      if (c.bankChecked) {
+        const std::size_t k = static_cast<std::size_t>(&b - c.bodies.data());
+        j.key("bank_check").beginObject();
+        j.key("pixels").value(k < c.bank.bodySamples.size() ? c.bank.bodySamples[k] : 0);
+        j.key("below_water").value(k < c.bank.bodyViolations.size() ? c.bank.bodyViolations[k] : 0);
+        j.endObject();
+      }
+      if (b.profile) {
+        // The river's levels before the fit (each station's bank statistic) and after it.
+        const RiverProfile& p = *b.profile;
+        j.key("cross_sections").value(static_cast<std::uint64_t>(p.sections));
+        j.key("profile").beginArray();
+        for (std::size_t k = 0; k < p.level.size(); ++k) {
+          j.beginObject();
+          j.key("s").value(p.s0 + static_cast<double>(k) * p.step);
+          j.key("bank_points").value(static_cast<std::uint64_t>(p.points[k]));
+          j.key("raw");
+          if (std::isnan(p.raw[k]))
+            j.null();
+          else
+            j.value(p.raw[k]);
+          j.key("level").value(p.level[k]);
+          j.endObject();
+        }
+        j.endArray();
+      }
       j.endObject();
     }
     j.endArray();
+    j.key("band").value(c.band);
+    std::uint64_t outliers = 0;
+    for (const WaterBody& b : c.bodies) outliers += b.outliers;
+    j.key("low_outliers").value(outliers);
+    if (c.bankChecked) {
+      j.key("bank_check").beginObject();
+      j.key("pixels").value(c.bank.samples);
+      j.key("below_water").value(c.bank.violations);
+      j.key("worst").value(c.bank.worst);
+      j.key("worst_at").value(c.bank.worstAt);
+      j.endObject();
+    }
     j.endObject();
   }
   if (!r.contoursOutput.empty()) {

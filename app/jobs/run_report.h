@@ -13,6 +13,7 @@
 #include "libterrain/delaunay/parallel_delaunay.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
 #include "libterrain/finalizer/finalizer.h"
+#include "libterrain/hydro/bank_check.h"
 #include "libterrain/hydro/water_levels.h"
 #include "libterrain/raster/dem_rasterizer.h"
 
@@ -38,6 +39,9 @@ struct ConstraintFigures {
   double readSeconds = 0, passSeconds = 0, conformSeconds = 0;  // reading the files, the passes, the split
   double spacing = 0, buffer = 0, shoreDistance = 0, stationSpacing = 0;  // CRS units
   std::vector<WaterBody> bodies;
+  double band = 0;           // the bank band (CRS units)
+  bool bankChecked = false;  // the DEM's pixels by the shores were checked (bank_check.h)
+  BankCheckFigures bank;
 };
 
 struct RunReport {

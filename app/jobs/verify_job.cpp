@@ -9,6 +9,7 @@
 #include "libterrain/core/json_writer.h"
 #include "libterrain/core/report_text.h"
 #include "libterrain/finalizer/survey_stats.h"
+#include "libterrain/hydro/bank_check.h"
 #include "libterrain/hydro/hydro_stage.h"
 
 namespace tinbuild {
@@ -57,6 +58,28 @@ VerifyReport runVerify(const std::string& mesh, const PipelineOptions& o, Diagno
         r.lakesNotFlat = flat.bodiesNotFlat();
         r.worstLakeSpread = flat.worstSpread();
         r.firstLakeNotFlat = flat.firstNotFlat();
+      }
+      if (!constraints.bodies.empty()) {
+        BankCheck banks(constraints.water, constraints.bodies, constraints.band, constraints.spacing);
+        struct Vertices final : MeshSink {
+          BankCheck& check;
+          explicit Vertices(BankCheck& c) : check(c) {}
+          void begin(const MeshInfo&) override {}
+          void vertex(std::uint64_t, double x, double y, double z) override { check.sample(x, y, z); }
+          void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override {}
+          void finalizeVertex(std::uint64_t) override {}
+          void end() override {}
+        } vertices(banks);
+        if (!banks.empty()) {
+          readTin(vertices);
+          const BankCheckFigures f = banks.figures();
+          r.banksChecked = true;
+          r.bankVertices = f.samples;
+          for (std::size_t i = 0; i < constraints.bodies.size() && i < f.bodyViolations.size(); ++i)
+            (constraints.bodies[i].given ? r.bankBelowGiven : r.bankBelowDerived) += f.bodyViolations[i];
+          r.worstBank = f.worstAt;
+          r.worstBankDerived = f.worstDerivedAt;
+        }
       }
     }
     ConcatPointStream stream(in.streams);
@@ -122,6 +145,19 @@ std::string formatVerifyText(const VerifyReport& r) {
       o += "  water: PROBLEM: " + withCommas(r.lakesNotFlat) + " of " + withCommas(r.lakes) +
            " lakes are not flat (the first " + r.firstLakeNotFlat + ")\n";
   }
+  if (r.banksChecked) {
+    if (r.bankBelowDerived == 0 && r.bankBelowGiven == 0)
+      o += "  banks: every one of the " + withCommas(r.bankVertices) +
+           " TIN vertices within the bank band is at or above the water beside it\n";
+    else if (r.bankBelowDerived)
+      o += "  banks: PROBLEM: " + withCommas(r.bankBelowDerived) + " of the " + withCommas(r.bankVertices) +
+           " TIN vertices within the bank band lie below a level derived from the banks (the worst: " +
+           r.worstBankDerived + ")\n";
+    if (r.bankBelowGiven)
+      o += "  banks: " + withCommas(r.bankBelowGiven) + " of the " + withCommas(r.bankVertices) +
+           " TIN vertices within the bank band lie below a level given with its polygon (the worst: " +
+           r.worstBank + ")\n";
+  }
   o += r.ok() ? "verify: OK\n" : "verify: FAILED\n";
   return o;
 }
@@ -174,6 +210,14 @@ std::string formatVerifyJson(const VerifyReport& r) {
     j.key("lakes").value(r.lakes);
     j.key("lakes_not_flat").value(r.lakesNotFlat);
     j.key("largest_spread").value(r.worstLakeSpread);
+    j.endObject();
+  }
+  if (r.banksChecked) {
+    j.key("banks").beginObject();
+    j.key("vertices").value(r.bankVertices);
+    j.key("below_derived_level").value(r.bankBelowDerived);
+    j.key("below_given_level").value(r.bankBelowGiven);
+    j.key("worst").value(r.worstBank);
     j.endObject();
   }
   j.key("seconds").value(r.seconds);

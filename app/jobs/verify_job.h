@@ -31,11 +31,19 @@ struct VerifyReport {
   std::uint64_t lakes = 0, lakesNotFlat = 0;
   double worstLakeSpread = 0;
   std::string firstLakeNotFlat;
+  // Water at or below the ground: the TIN's vertices within the bank band of a shore (bank_check.h).  Below
+  // a derived level: a problem; below a level given with its polygon: said (the user's level).
+  bool banksChecked = false;
+  std::uint64_t bankVertices = 0, bankBelowDerived = 0, bankBelowGiven = 0;
+  std::string worstBank, worstBankDerived;
   double seconds = 0;
   bool constraintsOk() const {
     return piecesMissing == 0 && constraintVerticesMissing == 0 && heightsDiffering == 0 && lakesNotFlat == 0;
   }
-  bool ok() const { return check.ok() && (!pointsChecked || pointsMatch) && (!constraintsChecked || constraintsOk()); }
+  bool ok() const {
+    return check.ok() && (!pointsChecked || pointsMatch) && (!constraintsChecked || constraintsOk()) &&
+           bankBelowDerived == 0;
+  }
 };
 VerifyReport runVerify(const std::string& mesh, const PipelineOptions& options, Diagnostics& diag);
 std::string formatVerifyText(const VerifyReport& report);

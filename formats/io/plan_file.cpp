@@ -351,6 +351,20 @@ void writePartDone(const PartDone& d, const std::string& path) {
   j.endArray();
   j.key("seconds").value(d.seconds);
   j.key("peak_rss_bytes").value(d.peakRssBytes);
+  if (d.bankChecked) {
+    j.key("bank_check").beginObject();
+    j.key("pixels").value(d.bank.samples);
+    j.key("below_water").value(d.bank.violations);
+    j.key("worst").value(hexDouble(d.bank.worst));
+    j.key("worst_at").value(d.bank.worstAt);
+    j.key("body_pixels").beginArray();
+    for (std::uint64_t v : d.bank.bodySamples) j.value(v);
+    j.endArray();
+    j.key("body_below_water").beginArray();
+    for (std::uint64_t v : d.bank.bodyViolations) j.value(v);
+    j.endArray();
+    j.endObject();
+  }
   j.key("crs").beginObject();
   writeCrsFields(j, d.crs);
   j.endObject();
@@ -390,6 +404,18 @@ PartDone readPartDone(const std::string& path) {
   for (const auto& t : root.GetArray("dem_tiles")) d.demTiles.push_back(t.ToString());
   d.seconds = root.GetDouble("seconds", 0);
   d.peakRssBytes = getU64(root, "peak_rss_bytes");
+  const CPLJSONObject bank = root.GetObj("bank_check");
+  if (bank.IsValid() && bank.GetType() == CPLJSONObject::Type::Object) {
+    d.bankChecked = true;
+    d.bank.samples = getU64(bank, "pixels");
+    d.bank.violations = getU64(bank, "below_water");
+    d.bank.worst = parseHexDouble(bank.GetString("worst"), path, "bank_check");
+    d.bank.worstAt = bank.GetString("worst_at");
+    for (const auto& v : bank.GetArray("body_pixels"))
+      d.bank.bodySamples.push_back(static_cast<std::uint64_t>(v.ToLong()));
+    for (const auto& v : bank.GetArray("body_below_water"))
+      d.bank.bodyViolations.push_back(static_cast<std::uint64_t>(v.ToLong()));
+  }
   const CPLJSONObject crs = root.GetObj("crs");
   if (!crs.IsValid()) throw DataError(path, "the part record has no CRS (written by an older tinbuild: run the part again)");
   // The one JSON form of a CRS (formats/crs/crs.h: writeCrsFields), read back field by field.

@@ -18,6 +18,7 @@
 #include "formats/crs/crs.h"
 #include "libterrain/core/point.h"
 #include "libterrain/finalizer/grid.h"
+#include "libterrain/hydro/bank_check.h"
 
 namespace tinbuild {
 
@@ -111,6 +112,10 @@ struct PartDone {
   CrsInfo crs;
   double zUnitToMetre = 1;
   std::vector<PartFile> files;  // the seam file, the DEM pieces, the part's mesh
+  // Hydro-flattening's product check of the DEM pixels this part computed (bank_check.h): absent when
+  // not run.
+  bool bankChecked = false;
+  BankCheckFigures bank;
 };
 
 // Checks that every file a part recorded is there, of its size and fingerprint: DataError naming the part,

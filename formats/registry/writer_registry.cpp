@@ -131,6 +131,10 @@ class DemOutput : public OpenedOutput {
       merge_ = std::make_unique<MergeDemSink>(*writer_, *c.demMerge, d.nodata, c.cancel);
       sink = merge_.get();
     }
+    if (c.bankCheck && !c.bankCheck->empty()) {
+      bank_ = std::make_unique<BankCheckSink>(*c.bankCheck, *sink);
+      sink = bank_.get();
+    }
     rasterizer_ = std::make_unique<DemRasterizer>(d, *sink);
   }
   void attach(MeshTee& tee) override { tee.add(*rasterizer_); }
@@ -155,6 +159,7 @@ class DemOutput : public OpenedOutput {
   std::unique_ptr<DemPieceWriter> pieces_;
   std::unique_ptr<PartDemSink> part_;
   std::unique_ptr<MergeDemSink> merge_;
+  std::unique_ptr<BankCheckSink> bank_;
   std::unique_ptr<DemRasterizer> rasterizer_;
 };
 

@@ -31,6 +31,7 @@
 
 #include "formats/crs/crs.h"
 #include "libterrain/contour/contour_tracer.h"
+#include "libterrain/hydro/bank_check.h"
 #include "libterrain/raster/dem_rasterizer.h"
 
 namespace tinbuild {
@@ -74,6 +75,9 @@ struct WriterContext {
   // Polled by the writers' long loops (their last tiles, spatial index, lines: core/cancel.h); the DEM's
   // and the contours' options carry the same flag.
   const CancelFlag* cancel = nullptr;
+  // Hydro-flattening's product check (libterrain/hydro/bank_check.h): every DEM pixel this run computes
+  // is sampled (null: none).
+  std::shared_ptr<BankCheck> bankCheck;
 };
 
 // What an output did (OpenedOutput::results, after the run): its files and bytes, and the figures the run

@@ -24,6 +24,18 @@ bool edgeMeetsBox(double ax, double ay, double bx, double by, double minX, doubl
   return !((s1 > 0 && s2 > 0 && s3 > 0 && s4 > 0) || (s1 < 0 && s2 < 0 && s3 < 0 && s4 < 0));
 }
 
+// Whether the segment c-p crosses the ring edge a-b, counting a ring vertex on the segment's line as
+// on its left: where the segment passes through a vertex, exactly one of the vertex's two edges counts
+// (or neither, or both, where the ring only touches the segment), so the parity of the crossings is right.
+bool crossesOnce(double cx, double cy, double px, double py, double ax, double ay, double bx, double by) {
+  const double ux = px - cx, uy = py - cy;
+  const bool aLeft = ux * (ay - cy) - uy * (ax - cx) >= 0, bLeft = ux * (by - cy) - uy * (bx - cx) >= 0;
+  if (aLeft == bLeft) return false;
+  const double vx = bx - ax, vy = by - ay;
+  const double oc = vx * (cy - ay) - vy * (cx - ax), op = vx * (py - ay) - vy * (px - ax);
+  return (oc > 0) != (op > 0);
+}
+
 std::string plural(std::size_t n, const char* one, const char* many) {
   return std::to_string(n) + " " + (n == 1 ? one : many);
 }
@@ -35,31 +47,43 @@ std::string plural(std::size_t n, const char* one, const char* many) {
 // which ring edges cross it; a point is then inside when the centre is, flipped once per edge that the
 // segment from the centre to the point crosses.
 
-WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
-  if (areas_.empty()) return;
+WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) {
+  if (areas.empty()) return;
+  empty_ = false;
   double minX = std::numeric_limits<double>::infinity(), minY = minX, maxX = -minX, maxY = -minX;
   std::size_t edges = 0;
-  for (const WaterArea& w : areas_)
+  for (const WaterArea& w : areas)
     for (const auto& p : w.outer) {
       minX = std::min(minX, p[0]), maxX = std::max(maxX, p[0]);
       minY = std::min(minY, p[1]), maxY = std::max(maxY, p[1]);
       ++edges;
     }
-  // About one edge per cell along the rings, and at most 2^20 cells.
+  // About one edge per cell along the rings, and at most 2^22 cells (bits: 1 MiB).
   const double w = maxX - minX, h = maxY - minY;
   double cell = std::max(w, h) / std::max<double>(1.0, static_cast<double>(edges) / 4.0);
-  cell = std::max(cell, std::sqrt(std::max(w * h, 1e-12) / 1048576.0));
+  cell = std::max(cell, std::sqrt(std::max(w * h, 1e-12) / 4194304.0));
   cell = std::max(cell, 1e-6);
   x0_ = minX;
   y0_ = minY;
   cell_ = cell;
   cols_ = static_cast<std::int64_t>(w / cell) + 1;
   rows_ = static_cast<std::int64_t>(h / cell) + 1;
-  cells_.resize(static_cast<std::size_t>(cols_ * rows_));
-  any_.assign(static_cast<std::size_t>((cols_ * rows_ + 63) / 64), 0);
-  whole_.assign(any_.size(), 0);
-  for (std::uint32_t a = 0; a < areas_.size(); ++a) {
-    const WaterArea& area = areas_[a];
+  const auto words = static_cast<std::size_t>((cols_ * rows_ + 63) / 64);
+  whole_.assign(words, 0);
+  crossed_.assign(words, 0);
+  auto setBit = [](std::vector<std::uint64_t>& bits, std::size_t k) {
+    bits[k >> 6] |= std::uint64_t{1} << (k & 63);
+  };
+  // (cell, area, centre inside, edge): the crossed cells' entries, sorted by cell after.
+  struct Entry {
+    std::uint64_t cell;
+    std::uint32_t area;
+    std::uint32_t edge;
+  };
+  std::vector<Entry> entries;
+  std::vector<std::uint64_t> inCells;  // crossed cells of this area whose centre is inside
+  for (std::uint32_t a = 0; a < areas.size(); ++a) {
+    const WaterArea& area = areas[a];
     double ax0 = std::numeric_limits<double>::infinity(), ay0 = ax0, ax1 = -ax0, ay1 = -ax0;
     for (const auto& p : area.outer) {
       ax0 = std::min(ax0, p[0]), ax1 = std::max(ax1, p[0]);
@@ -68,12 +92,13 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
     const auto c0 = static_cast<std::int64_t>((ax0 - x0_) / cell_), c1 = std::min(cols_ - 1, static_cast<std::int64_t>((ax1 - x0_) / cell_));
     const auto r0 = static_cast<std::int64_t>((ay0 - y0_) / cell_), r1 = std::min(rows_ - 1, static_cast<std::int64_t>((ay1 - y0_) / cell_));
     // The ring edges into the cells they meet.
-    std::vector<std::vector<Edge>> local(static_cast<std::size_t>((c1 - c0 + 1) * (r1 - r0 + 1)));
+    const std::size_t first = entries.size();
     auto addRing = [&](const std::vector<std::array<double, 2>>& ring) {
       for (std::size_t i = 0; i < ring.size(); ++i) {
         const auto& p = ring[i];
         const auto& q = ring[(i + 1) % ring.size()];
-        const Edge e{p[0], p[1], q[0], q[1]};
+        const auto id = static_cast<std::uint32_t>(edges_.size());
+        edges_.push_back(Edge{p[0], p[1], q[0], q[1]});
         const auto ec0 = std::max(c0, static_cast<std::int64_t>((std::min(p[0], q[0]) - x0_) / cell_));
         const auto ec1 = std::min(c1, static_cast<std::int64_t>((std::max(p[0], q[0]) - x0_) / cell_));
         const auto er0 = std::max(r0, static_cast<std::int64_t>((std::min(p[1], q[1]) - y0_) / cell_));
@@ -81,16 +106,22 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
         for (std::int64_t r = er0; r <= er1; ++r)
           for (std::int64_t c = ec0; c <= ec1; ++c) {
             const double bx = x0_ + static_cast<double>(c) * cell_, by = y0_ + static_cast<double>(r) * cell_;
-            if (edgeMeetsBox(e.ax, e.ay, e.bx, e.by, bx, by, bx + cell_, by + cell_))
-              local[static_cast<std::size_t>((r - r0) * (c1 - c0 + 1) + (c - c0))].push_back(e);
+            if (edgeMeetsBox(p[0], p[1], q[0], q[1], bx, by, bx + cell_, by + cell_))
+              entries.push_back({static_cast<std::uint64_t>(r * cols_ + c), a, id});
           }
       }
     };
     addRing(area.outer);
     for (const auto& hole : area.holes) addRing(hole);
+    std::sort(
+        entries.begin() + static_cast<std::ptrdiff_t>(first), entries.end(),
+        [](const Entry& x, const Entry& y) { return x.cell != y.cell ? x.cell < y.cell : x.edge < y.edge; });
     // Which cell centres are inside: a scanline per row of centres (the rings' crossings of it, sorted;
-    // even-odd over the outer ring and the holes alike), not a ring walk per cell.
+    // even-odd over the outer ring and the holes alike), not a ring walk per cell.  A centre inside in a
+    // cell no ring crosses: the cell is inside whole.
     std::vector<double> crossings;
+    std::size_t e = first;
+    inCells.clear();
     for (std::int64_t r = r0; r <= r1; ++r) {
       const double cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
       crossings.clear();
@@ -107,37 +138,86 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) : areas_(areas) {
       for (std::int64_t c = c0; c <= c1; ++c) {
         const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_;
         while (passed < crossings.size() && crossings[passed] <= cx) ++passed;
-        CellArea ca;
-        ca.area = a;
-        ca.centreInside = passed % 2 == 1;
-        ca.edges = std::move(local[static_cast<std::size_t>((r - r0) * (c1 - c0 + 1) + (c - c0))]);
-        if (!ca.centreInside && ca.edges.empty()) continue;
-        const auto k = static_cast<std::size_t>(r * cols_ + c);
-        any_[k >> 6] |= std::uint64_t{1} << (k & 63);
-        if (ca.centreInside && ca.edges.empty()) whole_[k >> 6] |= std::uint64_t{1} << (k & 63);
-        cells_[k].push_back(std::move(ca));
+        const auto k = static_cast<std::uint64_t>(r * cols_ + c);
+        while (e < entries.size() && entries[e].cell < k) ++e;
+        const bool crossedHere = e < entries.size() && entries[e].cell == k;
+        if (passed % 2 == 1) {
+          if (crossedHere)
+            inCells.push_back(k);
+          else
+            setBit(whole_, static_cast<std::size_t>(k));
+        }
       }
     }
+    // Group this area's entries by cell.
+    for (std::size_t i = first; i < entries.size();) {
+      std::size_t j = i;
+      while (j < entries.size() && entries[j].cell == entries[i].cell) ++j;
+      setBit(crossed_, static_cast<std::size_t>(entries[i].cell));
+      i = j;
+    }
+    // (the centre flags are carried by the entries' area field's top bit until the cells are laid out)
+    for (std::size_t i = first; i < entries.size(); ++i)
+      if (std::binary_search(inCells.begin(), inCells.end(), entries[i].cell)) entries[i].area |= 0x80000000u;
+  }
+  // The crossed cells' areas, in cell order, each with its run of edges.
+  std::stable_sort(entries.begin(), entries.end(),
+                   [](const Entry& x, const Entry& y) { return x.cell < y.cell; });
+  std::vector<Edge> ordered;
+  ordered.reserve(entries.size());
+  std::uint64_t lastCell = ~std::uint64_t{0};
+  for (std::size_t i = 0; i < entries.size(); ++i) {
+    const std::uint32_t area = entries[i].area & 0x7fffffffu;
+    if (entries[i].cell != lastCell) {
+      cellStart_.push_back(static_cast<std::uint32_t>(cellAreas_.size()));
+      lastCell = entries[i].cell;
+    }
+    if (cellAreas_.size() == cellStart_.back() || cellAreas_.back().area != area) {
+      CellArea ca;
+      ca.area = area;
+      ca.centreInside = (entries[i].area & 0x80000000u) != 0;
+      ca.edge0 = ca.edge1 = static_cast<std::uint32_t>(ordered.size());
+      cellAreas_.push_back(ca);
+    }
+    ordered.push_back(edges_[entries[i].edge]);
+    cellAreas_.back().edge1 = static_cast<std::uint32_t>(ordered.size());
+  }
+  cellStart_.push_back(static_cast<std::uint32_t>(cellAreas_.size()));
+  edges_ = std::move(ordered);
+  edges_.shrink_to_fit();
+  rank_.assign(words, 0);
+  std::uint32_t before = 0;
+  for (std::size_t i = 0; i < words; ++i) {
+    rank_[i] = before;
+    before += static_cast<std::uint32_t>(__builtin_popcountll(crossed_[i]));
   }
 }
 
+std::size_t WaterIndex::bytes() const {
+  return (whole_.size() + crossed_.size()) * 8 + rank_.size() * 4 + cellStart_.size() * 4 +
+         cellAreas_.size() * sizeof(CellArea) + edges_.size() * sizeof(Edge);
+}
+
 bool WaterIndex::inside(double x, double y) const {
-  if (areas_.empty()) return false;
+  if (empty_) return false;
   const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
   const auto c = static_cast<std::int64_t>(fc), r = static_cast<std::int64_t>(fr);
   const auto k = static_cast<std::size_t>(r * cols_ + c);
-  if (!((any_[k >> 6] >> (k & 63)) & 1)) return false;
   if ((whole_[k >> 6] >> (k & 63)) & 1) return true;
+  const std::uint64_t word = crossed_[k >> 6];
+  if (!((word >> (k & 63)) & 1)) return false;
+  const std::size_t slot =
+      rank_[k >> 6] +
+      static_cast<std::size_t>(__builtin_popcountll(word & ((std::uint64_t{1} << (k & 63)) - 1)));
   const double cx = x0_ + (static_cast<double>(c) + 0.5) * cell_, cy = y0_ + (static_cast<double>(r) + 0.5) * cell_;
-  for (const CellArea& ca : cells_[k]) {
-    if (ca.edges.empty()) {
-      if (ca.centreInside) return true;
-      continue;
-    }
+  for (std::uint32_t i = cellStart_[slot]; i < cellStart_[slot + 1]; ++i) {
+    const CellArea& ca = cellAreas_[i];
     bool in = ca.centreInside;
-    for (const Edge& e : ca.edges)
-      if (segmentsCross(cx, cy, x, y, e.ax, e.ay, e.bx, e.by)) in = !in;
+    for (std::uint32_t j = ca.edge0; j < ca.edge1; ++j) {
+      const Edge& e = edges_[j];
+      if (crossesOnce(cx, cy, x, y, e.ax, e.ay, e.bx, e.by)) in = !in;
+    }
     if (in) return true;
   }
   return false;
@@ -151,6 +231,50 @@ std::size_t WaterStage::apply(PointRecord* p, std::size_t n) const {
   std::size_t kept = 0;
   for (std::size_t i = 0; i < n; ++i) {
     if (!(p[i].flags & kFlagConstraint) && index_.inside(p[i].x, p[i].y)) continue;
+    if (kept != i) p[kept] = p[i];
+    ++kept;
+  }
+  return kept;
+}
+
+// ---------------------------------------------------------------------------------------------------
+// BankOutlierStage
+
+namespace {
+std::uint64_t positionBits(double x, double y) {
+  std::uint64_t a, b;
+  std::memcpy(&a, &x, 8);
+  std::memcpy(&b, &y, 8);
+  std::uint64_t k = a * 0x9e3779b97f4a7c15ull ^ b;
+  k ^= k >> 29;
+  k *= 0xbf58476d1ce4e5b9ull;
+  return k ^ (k >> 32);
+}
+}  // namespace
+
+BankOutlierStage::BankOutlierStage(std::vector<ConstraintPoint> points) : bits_(1024, 0) {
+  for (const ConstraintPoint& p : points) {
+    points_.push_back({p.x, p.y, p.z});
+    const std::uint64_t h = positionBits(p.x, p.y) & 0xffff;
+    bits_[h >> 6] |= std::uint64_t{1} << (h & 63);
+  }
+  std::sort(points_.begin(), points_.end());
+}
+
+bool BankOutlierStage::contains(double x, double y, double z) const {
+  const std::uint64_t h = positionBits(x, y) & 0xffff;
+  if (!((bits_[h >> 6] >> (h & 63)) & 1)) return false;
+  return std::binary_search(points_.begin(), points_.end(), std::array<double, 3>{x, y, z});
+}
+
+std::string BankOutlierStage::describe() const {
+  return plural(points_.size(), "low outlier", "low outliers") + " on the banks of the water";
+}
+
+std::size_t BankOutlierStage::apply(PointRecord* p, std::size_t n) const {
+  std::size_t kept = 0;
+  for (std::size_t i = 0; i < n; ++i) {
+    if (!(p[i].flags & kFlagConstraint) && contains(p[i].x, p[i].y, p[i].z)) continue;
     if (kept != i) p[kept] = p[i];
     ++kept;
   }
@@ -397,7 +521,10 @@ void WaterFlatnessCheck::vertex(std::uint64_t, double x, double y, double z) {
     Seen& s = seen_[lakes_[i].body];
     s.lo = std::min(s.lo, z);
     s.hi = std::max(s.hi, z);
-    if (std::fabs(z - lakes_[i].level) > tolerance_) s.off = true;
+    if (std::fabs(z - lakes_[i].level) > tolerance_ && !s.off) {
+      s.off = true;
+      s.offX = x, s.offY = y, s.offZ = z;
+    }
   }
 }
 
@@ -425,7 +552,10 @@ std::string WaterFlatnessCheck::firstNotFlat() const {
     const Seen& s = it->second;
     if (s.off || (s.hi > s.lo && s.hi - s.lo > tolerance_))
       return l.source + ": TIN vertices in it from z " + std::to_string(s.lo) + " to " +
-             std::to_string(s.hi) + ", its level " + std::to_string(l.level);
+             std::to_string(s.hi) + ", its level " + std::to_string(l.level) +
+             (s.off ? ", e.g. at " + std::to_string(s.offX) + ", " + std::to_string(s.offY) + " z " +
+                          std::to_string(s.offZ)
+                    : std::string());
   }
   return "";
 }

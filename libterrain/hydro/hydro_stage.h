@@ -1,6 +1,7 @@
 // The constraints in the point stream (finalizer/point_stage.h): two stages and one added stream.
 //
 //   - WaterStage ("water"): leaves out every lidar point strictly inside a water area (islands stay land);
+//   - BankOutlierStage ("bank_outliers"): leaves out the low outliers among the bank points;
 //   - BufferStage ("breaklines"): leaves out every lidar point in the closed diametral disc of a
 //     constraint piece (conforming.h), the specification's buffer around a breakline: what would keep
 //     a piece from being a TIN edge;
@@ -27,12 +28,15 @@
 
 namespace tinbuild {
 
-// A uniform grid over water areas that answers "inside water?" in a cell's few edges.
+// A uniform grid over water areas that answers "inside water?" in a cell's few edges.  Memory follows the
+// shores, not the areas' box: two bits a cell (inside an area whole; crossed by a ring), and the ring
+// edges of the crossed cells only.
 class WaterIndex {
  public:
   explicit WaterIndex(const std::vector<WaterArea>& areas);
   bool inside(double x, double y) const;
-  bool empty() const { return areas_.empty(); }
+  bool empty() const { return empty_; }
+  std::size_t bytes() const;  // what the index holds
 
  private:
   struct Edge {
@@ -41,14 +45,17 @@ class WaterIndex {
   struct CellArea {
     std::uint32_t area = 0;
     bool centreInside = false;
-    std::vector<Edge> edges;  // the area's ring edges that meet the cell
+    std::uint32_t edge0 = 0, edge1 = 0;  // its ring edges that meet the cell: edges_[edge0 .. edge1)
   };
-  std::vector<WaterArea> areas_;
+  bool empty_ = true;
   double x0_ = 0, y0_ = 0, cell_ = 1;
   std::int64_t cols_ = 0, rows_ = 0;
-  std::vector<std::vector<CellArea>> cells_;
-  // One bit per cell: any area meets it; it lies inside an area whole (most points need only these).
-  std::vector<std::uint64_t> any_, whole_;
+  // One bit per cell: inside an area whole (most points need only these); crossed by a ring.
+  std::vector<std::uint64_t> whole_, crossed_;
+  std::vector<std::uint32_t> rank_;       // crossed cells before each word of crossed_
+  std::vector<std::uint32_t> cellStart_;  // the k-th crossed cell's areas: cellAreas_[cellStart_[k] ..)
+  std::vector<CellArea> cellAreas_;
+  std::vector<Edge> edges_;
 };
 
 class WaterStage final : public PointStage {
@@ -61,6 +68,21 @@ class WaterStage final : public PointStage {
  private:
   WaterIndex index_;
   std::size_t count_;
+};
+
+// "bank_outliers": leaves out the low outliers found among the bank points (water_levels.h), by their
+// exact coordinates: isolated low returns that would pull the DEM below the water beside them.
+class BankOutlierStage final : public PointStage {
+ public:
+  explicit BankOutlierStage(std::vector<ConstraintPoint> points);
+  std::string name() const override { return "bank_outliers"; }
+  std::string describe() const override;
+  std::size_t apply(PointRecord* p, std::size_t n) const override;
+  bool contains(double x, double y, double z) const;
+
+ private:
+  std::vector<std::array<double, 3>> points_;  // sorted
+  std::vector<std::uint64_t> bits_;  // 2^16 bits over a hash of the position: most points need only this
 };
 
 class BufferStage final : public PointStage {
@@ -172,6 +194,7 @@ class WaterFlatnessCheck final : public MeshSink {
   struct Seen {
     double lo = 1e300, hi = -1e300;
     bool off = false;
+    double offX = 0, offY = 0, offZ = 0;  // the first vertex off the level
   };
   std::unordered_map<std::size_t, Seen> seen_;  // by body
 };

@@ -1,27 +1,41 @@
-// Water levels for hydro-flattening (USGS Lidar Base Specification: lakes flat at or below their shore,
-// rivers level from bank to bank and never rising downstream).
+// Water levels for hydro-flattening (USGS Lidar Base Specification: water at or below the immediately
+// surrounding terrain, lakes flat, rivers level from bank to bank and never rising downstream).
 //
-// The rules, in CRS units:
+// The rules, in CRS units (docs/usage.md, "Hydro-flattening", says them with their defaults):
 //   - A water polygon given as POLYGON Z whose vertices share one z is at that level.
 //   - Otherwise its level comes from its *bank points*: the kept lidar points outside every water polygon
-//     (an island is land) within `shoreDistance` of its shore.  A lake's level is the `percentile` of its
-//     bank points' z (0, the default: the lowest, so the water is at or below every bank point).
+//     (an island is land) within `shoreDistance` of its shore (the *bank band*), and `margin` beyond it
+//     (the TIN's triangles reach that far into the band: a pixel at the band's edge is interpolated from
+//     them too).
+//   - *Low outliers* are taken out first: a bank point more than max(`outlierDepth`, 4 x the local noise)
+//     below the plane fitted to its neighbours (within 2.5 point spacings; the noise is the neighbours'
+//     robust spread about that plane) is an isolated low return, not ground.  It sets no level and, with
+//     `dropOutliers`, is left out of the survey (hydro_stage.h: BankOutlierStage), so no DEM pixel dips
+//     to it either.  One noisy point therefore never decides a level.
+//   - A lake's level is the `percentile` of its body's bank points' z (0, the default: the lowest, so the
+//     water is at or below every bank point and every DEM pixel interpolated between them).
 //   - A water polygon that a --flow centerline crosses is a river.  Stations every `stationSpacing` along
-//     the centerline (digitised downstream); a bank point belongs to the station nearest its projection
-//     on the centerline, and a station's level is the `percentile` of its bank points on both banks (so
-//     at or below both); a station without bank points takes the level interpolated between its
-//     neighbours; then, going downstream, each level is at most the one before (never rising).  At each
-//     station a cross-section, perpendicular to the centerline from bank to bank, becomes a constraint at
-//     the station's level, so the river is exactly level across at every station; between two stations
-//     it slopes by at most their drop.  Every shore vertex takes the level at its projection on the
-//     centerline.
+//     the centerline (digitised downstream).  A bank point projecting onto the centerline at s bounds the
+//     water from s - 2 x spacing downstream (the triangles beside it reach that far upstream): it joins
+//     the station at or before that place.  A station's *raw* level is the `percentile` of its bank
+//     points (none: interpolated between its neighbours); the *fitted* profile is the greatest
+//     non-increasing profile at or below every raw level (the lower isotonic envelope): the water never
+//     rises downstream and stays at or below every bank point.  Between stations the level is linear in s.
+//   - Cross-sections, perpendicular to the centerline from bank to bank, become constraints wherever the
+//     fitted level passes a multiple of `sectionRise` (and no closer than one point spacing): every
+//     triangle of the river lies between two neighbouring cross-sections, so the water surface varies
+//     across the river by at most `sectionRise` (or the fall over one point spacing, where the river is
+//     steeper than that).  The river's shore is densified to the point spacing, each vertex at the level
+//     of its projection on the centerline.
 // The sampling is one pass over the kept points (add(), from one thread); the levels are then a function
 // of the set of bank points, not of their order.
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
 #include <string>
+#include <unordered_map>
 #include <utility>
 #include <vector>
 
@@ -32,10 +46,43 @@
 namespace tinbuild {
 
 struct WaterLevelOptions {
-  double shoreDistance = 3;   // bank points within this distance of the shore
+  double shoreDistance = 3;   // the bank band: bank points within this distance of the shore
+  double margin = 0;          // and this much beyond it (the TIN's reach into the band)
+  double spacing = 0;         // the survey's mean point spacing (0: shoreDistance / 3)
   double percentile = 0;      // 0..100 of the bank points' z: 0 = the lowest
   double stationSpacing = 10;  // rivers: distance between stations along the centerline
+  double outlierDepth = 0.05;  // least depth below its neighbours' plane that makes a low outlier
+  double sectionRise = 0.01;   // rivers: the most the level changes between neighbouring cross-sections
+  bool dropOutliers = true;    // low outliers left out of the survey (else they only set no level)
   const CancelFlag* cancel = nullptr;  // polled along the centerlines and the bodies
+  double spacingOrDefault() const { return spacing > 0 ? spacing : shoreDistance / 3; }
+};
+
+// A river's centerline with its arclength: the nearest point's arclength for any position.
+class RiverLine {
+ public:
+  RiverLine(const std::vector<std::array<double, 2>>& points, double cell);
+  double project(double x, double y) const;
+  std::array<double, 4> pointAndTangent(double s) const;  // x, y, unit tangent
+  double length() const { return length_; }
+  const std::vector<std::array<double, 2>>& points() const { return p_; }
+
+ private:
+  std::vector<std::array<double, 2>> p_;
+  std::vector<double> cum_;
+  double length_ = 0, cell_ = 1;
+  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> cells_;
+};
+
+// A river's levels along its centerline: stations at s0 + k * step.
+struct RiverProfile {
+  std::vector<std::array<double, 2>> centreline;
+  double s0 = 0, step = 1;
+  std::vector<double> raw;            // the stations' bank statistic before the fit (NaN: no bank point)
+  std::vector<double> level;          // the fitted profile
+  std::vector<std::uint32_t> points;  // bank points at each station
+  std::uint32_t sections = 0;         // cross-sections made
+  double levelAt(double s) const;     // linear between stations, constant beyond the ends
 };
 
 // What was decided for each water polygon (the report's "water" section).
@@ -50,6 +97,8 @@ struct WaterBody {
   std::size_t body = 0;     // the water body: the index of its first polygon (constraint_input.h)
   std::size_t members = 1;  // polygons in that body
   std::size_t area = 0;     // this polygon's index in PreparedWater::areas
+  std::uint64_t outliers = 0;                   // low outliers among its bank points (left out of its level)
+  std::shared_ptr<const RiverProfile> profile;  // a river's levels (null for a lake)
 };
 
 struct PreparedWater {
@@ -60,6 +109,7 @@ struct PreparedWater {
   // that make no river, a centreline that seems digitised upstream.
   std::vector<std::pair<std::string, std::string>> warnings;
   std::uint64_t outside = 0;  // water polygons that do not meet the survey: left out
+  std::vector<ConstraintPoint> outliers;  // the low outliers found among the bank points (exact xyz)
 };
 
 class ShoreSampler {
