@@ -6,8 +6,10 @@
 #include <cmath>
 #include <cstdint>
 #include <cstdio>
+#include <exception>
 #include <limits>
 #include <optional>
+#include <thread>
 #include <unordered_map>
 #include <unordered_set>
 
@@ -108,85 +110,121 @@ std::vector<char> lowOutliers(const std::vector<BankPoint>& pts, double radius, 
   std::vector<std::pair<std::int64_t, std::uint32_t>> byCell(pts.size());
   for (std::uint32_t i = 0; i < pts.size(); ++i) byCell[i] = {cellKey(cellOf(pts[i].x), cellOf(pts[i].y)), i};
   std::sort(byCell.begin(), byCell.end());
-  std::vector<std::uint32_t> near;
-  std::vector<double> residuals;
+  std::unordered_map<std::int64_t, std::pair<std::uint32_t, std::uint32_t>>
+      cells;  // key -> its run in byCell
+  cells.reserve(byCell.size() / 4 + 16);
+  for (std::uint32_t i = 0; i < byCell.size();) {
+    std::uint32_t j = i;
+    while (j < byCell.size() && byCell[j].first == byCell[i].first) ++j;
+    cells.emplace(byCell[i].first, std::pair<std::uint32_t, std::uint32_t>{i, j});
+    i = j;
+  }
   const double r2 = radius * radius;
-  for (std::uint32_t i = 0; i < pts.size(); ++i) {
-    if ((i & 4095) == 0) throwIfCancelled(cancel);
-    const BankPoint& p = pts[i];
-    near.clear();
-    const std::int64_t cx = cellOf(p.x), cy = cellOf(p.y);
-    for (std::int64_t dy = -1; dy <= 1; ++dy)
-      for (std::int64_t dx = -1; dx <= 1; ++dx) {
-        const std::int64_t key = cellKey(cx + dx, cy + dy);
-        auto it =
-            std::lower_bound(byCell.begin(), byCell.end(), std::pair<std::int64_t, std::uint32_t>{key, 0});
-        for (; it != byCell.end() && it->first == key; ++it) {
-          const BankPoint& q = pts[it->second];
-          if (it->second != i && (q.x - p.x) * (q.x - p.x) + (q.y - p.y) * (q.y - p.y) <= r2)
-            near.push_back(it->second);
+  // (the points in two halves, on two threads: the flags of one point depend on its neighbours only)
+  auto judge = [&](std::size_t from, std::size_t to) {
+    std::vector<std::uint32_t> near;
+    std::vector<double> residuals;
+    for (std::size_t i = from; i < to; ++i) {
+      if ((i & 4095) == 0 && cancelRequested(cancel)) return;
+      const BankPoint& p = pts[i];
+      near.clear();
+      double sumZ = 0;
+      const std::int64_t cx = cellOf(p.x), cy = cellOf(p.y);
+      for (std::int64_t dy = -1; dy <= 1; ++dy)
+        for (std::int64_t dx = -1; dx <= 1; ++dx) {
+          const auto it = cells.find(cellKey(cx + dx, cy + dy));
+          if (it == cells.end()) continue;
+          for (std::uint32_t k = it->second.first; k < it->second.second; ++k) {
+            const std::uint32_t j = byCell[k].second;
+            const BankPoint& q = pts[j];
+            if (j != i && (q.x - p.x) * (q.x - p.x) + (q.y - p.y) * (q.y - p.y) <= r2) {
+              near.push_back(j);
+              sumZ += q.z;
+            }
+          }
+        }
+      if (near.size() < 6) continue;
+      // (a point not below its neighbours' mean height is no low outlier: most points end here)
+      if (p.z >= sumZ / static_cast<double>(near.size()) - 0.5 * depth) continue;
+      // The surface z = a + b u + c v (+ d u^2 + e u v + f v^2 with 10 neighbours or more: the curvature of a
+      // bank's foot is no outlier), (u, v) relative to p in units of the radius, by least squares.
+      const int terms = near.size() >= 15 ? 6 : 3;
+      double ata[6][8] = {};  // the normal equations, with Aᵀz and e0 (for the leverage of p) beside them
+      auto basis = [](double u, double v, double* f) {
+        f[0] = 1, f[1] = u, f[2] = v, f[3] = u * u, f[4] = u * v, f[5] = v * v;
+      };
+      for (std::uint32_t j : near) {
+        double f[6];
+        basis((pts[j].x - p.x) / radius, (pts[j].y - p.y) / radius, f);
+        const double z = pts[j].z - p.z;
+        for (int r = 0; r < terms; ++r) {
+          for (int c = 0; c < terms; ++c) ata[r][c] += f[r] * f[c];
+          ata[r][6] += f[r] * z;
         }
       }
-    if (near.size() < 6) continue;
-    // The surface z = a + b u + c v (+ d u^2 + e u v + f v^2 with 10 neighbours or more: the curvature of a
-    // bank's foot is no outlier), (u, v) relative to p in units of the radius, by least squares.
-    const int terms = near.size() >= 15 ? 6 : 3;
-    double ata[6][8] = {};  // the normal equations, with Aᵀz and e0 (for the leverage of p) beside them
-    auto basis = [](double u, double v, double* f) {
-      f[0] = 1, f[1] = u, f[2] = v, f[3] = u * u, f[4] = u * v, f[5] = v * v;
-    };
-    for (std::uint32_t j : near) {
-      double f[6];
-      basis((pts[j].x - p.x) / radius, (pts[j].y - p.y) / radius, f);
-      const double z = pts[j].z - p.z;
-      for (int r = 0; r < terms; ++r) {
-        for (int c = 0; c < terms; ++c) ata[r][c] += f[r] * f[c];
-        ata[r][6] += f[r] * z;
+      ata[0][7] = 1;
+      // Gaussian elimination with partial pivoting; a singular system (neighbours on a line): not judged.
+      bool singular = false;
+      for (int c = 0; c < terms && !singular; ++c) {
+        int pivot = c;
+        for (int r = c + 1; r < terms; ++r)
+          if (std::fabs(ata[r][c]) > std::fabs(ata[pivot][c])) pivot = r;
+        if (!(std::fabs(ata[pivot][c]) > 1e-9 * static_cast<double>(near.size()))) {
+          singular = true;
+          break;
+        }
+        if (pivot != c)
+          for (int k = 0; k < 8; ++k) std::swap(ata[c][k], ata[pivot][k]);
+        for (int r = 0; r < terms; ++r) {
+          if (r == c) continue;
+          const double f = ata[r][c] / ata[c][c];
+          for (int k = c; k < 8; ++k)
+            if (k < terms || k >= 6) ata[r][k] -= f * ata[c][k];
+        }
       }
-    }
-    ata[0][7] = 1;
-    // Gaussian elimination with partial pivoting; a singular system (neighbours on a line): not judged.
-    bool singular = false;
-    for (int c = 0; c < terms && !singular; ++c) {
-      int pivot = c;
-      for (int r = c + 1; r < terms; ++r)
-        if (std::fabs(ata[r][c]) > std::fabs(ata[pivot][c])) pivot = r;
-      if (!(std::fabs(ata[pivot][c]) > 1e-9 * static_cast<double>(near.size()))) {
-        singular = true;
-        break;
+      if (singular) continue;
+      double coef[6] = {};
+      for (int r = 0; r < terms; ++r) coef[r] = ata[r][6] / ata[r][r];
+      const double a = coef[0];
+      residuals.clear();
+      for (std::uint32_t j : near) {
+        double f[6];
+        basis((pts[j].x - p.x) / radius, (pts[j].y - p.y) / radius, f);
+        double fit = 0;
+        for (int r = 0; r < terms; ++r) fit += coef[r] * f[r];
+        residuals.push_back(std::fabs(pts[j].z - p.z - fit));
       }
-      if (pivot != c)
-        for (int k = 0; k < 8; ++k) std::swap(ata[c][k], ata[pivot][k]);
-      for (int r = 0; r < terms; ++r) {
-        if (r == c) continue;
-        const double f = ata[r][c] / ata[c][c];
-        for (int k = c; k < 8; ++k)
-          if (k < terms || k >= 6) ata[r][k] -= f * ata[c][k];
-      }
+      std::nth_element(residuals.begin(),
+                       residuals.begin() + static_cast<std::ptrdiff_t>(residuals.size() / 2),
+                       residuals.end());
+      // The noise, corrected for the terms fitted, and the prediction's spread at p (its leverage: p lies
+      // at the edge of its neighbours by a shore, where the surface is extrapolated).
+      const double dof = static_cast<double>(near.size()) /
+                         static_cast<double>(near.size() - static_cast<std::size_t>(terms));
+      const double leverage = std::max(0.0, ata[0][7] / ata[0][0]);
+      const double noise = 1.4826 * residuals[residuals.size() / 2] * std::sqrt(dof * (1 + leverage));
+      // (the surface at p is p.z + a: p lies a below it)
+      if (a > std::max(depth, 4 * noise)) out[i] = 1;
     }
-    if (singular) continue;
-    double coef[6] = {};
-    for (int r = 0; r < terms; ++r) coef[r] = ata[r][6] / ata[r][r];
-    const double a = coef[0];
-    residuals.clear();
-    for (std::uint32_t j : near) {
-      double f[6];
-      basis((pts[j].x - p.x) / radius, (pts[j].y - p.y) / radius, f);
-      double fit = 0;
-      for (int r = 0; r < terms; ++r) fit += coef[r] * f[r];
-      residuals.push_back(std::fabs(pts[j].z - p.z - fit));
+  };
+  const std::size_t half = pts.size() / 2;
+  std::exception_ptr failed;
+  std::thread other([&] {
+    try {
+      judge(half, pts.size());
+    } catch (...) {
+      failed = std::current_exception();
     }
-    std::nth_element(residuals.begin(), residuals.begin() + static_cast<std::ptrdiff_t>(residuals.size() / 2),
-                     residuals.end());
-    // The noise, corrected for the terms fitted, and the prediction's spread at p (its leverage: p lies
-    // at the edge of its neighbours by a shore, where the surface is extrapolated).
-    const double dof =
-        static_cast<double>(near.size()) / static_cast<double>(near.size() - static_cast<std::size_t>(terms));
-    const double leverage = std::max(0.0, ata[0][7] / ata[0][0]);
-    const double noise = 1.4826 * residuals[residuals.size() / 2] * std::sqrt(dof * (1 + leverage));
-    // (the surface at p is p.z + a: p lies a below it)
-    if (a > std::max(depth, 4 * noise)) out[i] = 1;
+  });
+  try {
+    judge(0, half);
+  } catch (...) {
+    other.join();
+    throw;
   }
+  other.join();
+  if (failed) std::rethrow_exception(failed);
+  throwIfCancelled(cancel);
   return out;
 }
 
