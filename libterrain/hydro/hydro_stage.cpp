@@ -66,6 +66,7 @@ WaterIndex::WaterIndex(const std::vector<WaterArea>& areas) {
   x0_ = minX;
   y0_ = minY;
   cell_ = cell;
+  invCell_ = 1 / cell;
   cols_ = static_cast<std::int64_t>(w / cell) + 1;
   rows_ = static_cast<std::int64_t>(h / cell) + 1;
   const auto words = static_cast<std::size_t>((cols_ * rows_ + 63) / 64);
@@ -200,7 +201,9 @@ std::size_t WaterIndex::bytes() const {
 
 bool WaterIndex::inside(double x, double y) const {
   if (empty_) return false;
-  const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
+  // (by the inverse: a point on a cell's side may fall in either cell, and either answers it right -- the
+  // ring edges of a cell are those meeting its closed box)
+  const double fc = (x - x0_) * invCell_, fr = (y - y0_) * invCell_;
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
   const auto c = static_cast<std::int64_t>(fc), r = static_cast<std::int64_t>(fr);
   const auto k = static_cast<std::size_t>(r * cols_ + c);
@@ -330,9 +333,21 @@ BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraint
   start_.push_back(static_cast<std::uint32_t>(pieceIds_.size()));
   // The bitmap of occupied cells, when it is small (at most 2^27 cells: 16 MiB).
   if (static_cast<double>(cols_) * static_cast<double>(rows_) <= 134217728.0) {
+    // (the occupied cells and their neighbours: the test below finds the cell by the inverse of the cell
+    // size, which may land on a neighbour for a point on a cell's side; the key is then found exactly)
     occupied_.assign(static_cast<std::size_t>((cols_ * rows_ + 63) / 64), 0);
-    for (const std::uint64_t k : keys_) occupied_[k >> 6] |= std::uint64_t{1} << (k & 63);
+    for (const std::uint64_t k : keys_) {
+      const auto r = static_cast<std::int64_t>(k / static_cast<std::uint64_t>(cols_)),
+                 c = static_cast<std::int64_t>(k % static_cast<std::uint64_t>(cols_));
+      for (std::int64_t dr = -1; dr <= 1; ++dr)
+        for (std::int64_t dc = -1; dc <= 1; ++dc) {
+          if (r + dr < 0 || c + dc < 0 || r + dr >= rows_ || c + dc >= cols_) continue;
+          const auto n = static_cast<std::uint64_t>((r + dr) * cols_ + (c + dc));
+          occupied_[n >> 6] |= std::uint64_t{1} << (n & 63);
+        }
+    }
   }
+  invCell_ = 1 / cell_;
   std::uint64_t size = 16;
   while (size < 2 * keys_.size()) size <<= 1;
   mask_ = size - 1;
@@ -357,10 +372,18 @@ const std::uint32_t* BufferStage::find(std::uint64_t key, std::uint32_t& count) 
 
 bool BufferStage::inBuffer(double x, double y) const {
   if (keys_.empty()) return false;
-  const double fc = std::floor((x - x0_) / cell_), fr = std::floor((y - y0_) / cell_);
+  if (!occupied_.empty()) {  // (most points: a multiplication and one bit)
+    const double gc = (x - x0_) * invCell_, gr = (y - y0_) * invCell_;
+    if (!(gc >= 0 && gr >= 0 && gc < static_cast<double>(cols_) && gr < static_cast<double>(rows_)))
+      return false;
+    const std::uint64_t near =
+        static_cast<std::uint64_t>(gr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(gc);
+    if (!((occupied_[near >> 6] >> (near & 63)) & 1)) return false;
+  }
+  const double fc = (x - x0_) / cell_, fr = (y - y0_) / cell_;  // (truncated below: non-negative)
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
-  const std::uint64_t key = static_cast<std::uint64_t>(fr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(fc);
-  if (!occupied_.empty() && !((occupied_[key >> 6] >> (key & 63)) & 1)) return false;
+  const std::uint64_t key =
+      static_cast<std::uint64_t>(fr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(fc);
   std::uint32_t n = 0;
   const std::uint32_t* ids = find(key, n);
   if (!ids) return false;

@@ -48,7 +48,7 @@ class WaterIndex {
     std::uint32_t edge0 = 0, edge1 = 0;  // its ring edges that meet the cell: edges_[edge0 .. edge1)
   };
   bool empty_ = true;
-  double x0_ = 0, y0_ = 0, cell_ = 1;
+  double x0_ = 0, y0_ = 0, cell_ = 1, invCell_ = 1;
   std::int64_t cols_ = 0, rows_ = 0;
   // One bit per cell: inside an area whole (most points need only these); crossed by a ring.
   std::vector<std::uint64_t> whole_, crossed_;
@@ -99,14 +99,15 @@ class BufferStage final : public PointStage {
   // The pieces by the cells their discs meet, over the occupied cells only (constraints are thin lines
   // across a large area): the cells' keys sorted, their pieces in one array, and an open-addressing table
   // from a key to its place.
-  double x0_ = 0, y0_ = 0, cell_ = 1;
+  double x0_ = 0, y0_ = 0, cell_ = 1, invCell_ = 1;
   std::int64_t cols_ = 0;
   std::vector<std::uint64_t> keys_;      // occupied cells, sorted
   std::vector<std::uint32_t> start_;     // keys_[k]'s pieces: pieceIds_[start_[k] .. start_[k + 1])
   std::vector<std::uint32_t> pieceIds_;
   std::vector<std::uint32_t> table_;     // hash slot -> k + 1 (0: empty)
   std::uint64_t mask_ = 0;
-  std::vector<std::uint64_t> occupied_;  // one bit per cell (rows_ x cols_): most points need only this
+  std::vector<std::uint64_t>
+      occupied_;  // one bit per cell and its neighbours (rows_ x cols_): most points need only this
   std::int64_t rows_ = 0;
   const std::uint32_t* find(std::uint64_t key, std::uint32_t& count) const;
 };

@@ -45,7 +45,9 @@ struct SegmentCells {
   }
   const std::vector<std::uint32_t>* at(double x, double y) const {
     if (!bits.empty()) {  // (most points are far from any segment: one bit answers)
-      const double fx = std::floor(x / cell) - static_cast<double>(c0), fy = std::floor(y / cell) - static_cast<double>(r0);
+      // (truncated: non-negative; by the inverse, a point on a cell's side may test either cell's bit, so
+      // the bits are those of the cells and their neighbours -- seal() -- and the lookup below decides)
+      const double fx = x * inv - static_cast<double>(c0), fy = y * inv - static_cast<double>(r0);
       if (!(fx >= 0 && fy >= 0 && fx < static_cast<double>(w) && fy < static_cast<double>(h))) return nullptr;
       const auto k = static_cast<std::uint64_t>(fy) * static_cast<std::uint64_t>(w) + static_cast<std::uint64_t>(fx);
       if (!((bits[k >> 6] >> (k & 63)) & 1)) return nullptr;
@@ -61,17 +63,22 @@ struct SegmentCells {
       const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
       cmin = std::min(cmin, col), cmax = std::max(cmax, col), rmin = std::min(rmin, r), rmax = std::max(rmax, r);
     }
-    if (static_cast<double>(cmax - cmin + 1) * static_cast<double>(rmax - rmin + 1) > 134217728.0) return;
-    c0 = cmin, r0 = rmin, w = cmax - cmin + 1, h = rmax - rmin + 1;
+    if (static_cast<double>(cmax - cmin + 3) * static_cast<double>(rmax - rmin + 3) > 134217728.0) return;
+    c0 = cmin - 1, r0 = rmin - 1, w = cmax - cmin + 3, h = rmax - rmin + 3;
+    inv = 1 / cell;
     bits.assign(static_cast<std::size_t>((w * h + 63) / 64), 0);
     for (const auto& [key, list] : cells) {
       const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
-      const auto k = static_cast<std::uint64_t>((r - r0) * w + (col - c0));
-      bits[k >> 6] |= std::uint64_t{1} << (k & 63);
+      for (std::int64_t dr = -1; dr <= 1; ++dr)
+        for (std::int64_t dc = -1; dc <= 1; ++dc) {
+          const auto k = static_cast<std::uint64_t>((r + dr - r0) * w + (col + dc - c0));
+          bits[k >> 6] |= std::uint64_t{1} << (k & 63);
+        }
     }
   }
-  std::vector<std::uint64_t> bits;
+  std::vector<std::uint64_t> bits;  // the occupied cells and their neighbours
   std::int64_t c0 = 0, r0 = 0, w = 0, h = 0;
+  double inv = 1;
 };
 
 double pointSegmentDistance(double x, double y, double ax, double ay, double bx, double by, double* tOut = nullptr) {
@@ -79,7 +86,8 @@ double pointSegmentDistance(double x, double y, double ax, double ay, double bx,
   double t = len2 > 0 ? ((x - ax) * dx + (y - ay) * dy) / len2 : 0;
   t = std::clamp(t, 0.0, 1.0);
   if (tOut) *tOut = t;
-  return std::hypot(ax + t * dx - x, ay + t * dy - y);
+  const double ex = ax + t * dx - x, ey = ay + t * dy - y;
+  return std::sqrt(ex * ex + ey * ey);
 }
 
 double percentileOf(std::vector<float> v, double p) {
