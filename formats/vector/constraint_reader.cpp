@@ -132,6 +132,14 @@ class LayerTransform {
     OGRSpatialReference source(*layerSrs);
     source.SetAxisMappingStrategy(OAMS_TRADITIONAL_GIS_ORDER);
     if (source.IsSame(run, sameOptions)) return;
+    // A 2D layer in the horizontal CRS of a compound run CRS (UTM + a vertical datum, as lidar comes):
+    // nothing to transform (z is kept as the file gives it, below), and no transformation is searched
+    // for in PROJ's database (which would keep its page cache resident for the whole run).
+    if (!hasVerticalPart(source) && hasVerticalPart(*run)) {
+      OGRSpatialReference horizontal(*run);
+      horizontal.StripVertical();
+      if (source.IsSame(&horizontal, sameOptions)) return;
+    }
     from_ = srsName(source);
     to_ = srsName(*run);
     CPLErrorReset();
