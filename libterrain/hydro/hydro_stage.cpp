@@ -333,19 +333,8 @@ BufferStage::BufferStage(std::shared_ptr<const ConformingConstraints> constraint
   start_.push_back(static_cast<std::uint32_t>(pieceIds_.size()));
   // The bitmap of occupied cells, when it is small (at most 2^27 cells: 16 MiB).
   if (static_cast<double>(cols_) * static_cast<double>(rows_) <= 134217728.0) {
-    // (the occupied cells and their neighbours: the test below finds the cell by the inverse of the cell
-    // size, which may land on a neighbour for a point on a cell's side; the key is then found exactly)
     occupied_.assign(static_cast<std::size_t>((cols_ * rows_ + 63) / 64), 0);
-    for (const std::uint64_t k : keys_) {
-      const auto r = static_cast<std::int64_t>(k / static_cast<std::uint64_t>(cols_)),
-                 c = static_cast<std::int64_t>(k % static_cast<std::uint64_t>(cols_));
-      for (std::int64_t dr = -1; dr <= 1; ++dr)
-        for (std::int64_t dc = -1; dc <= 1; ++dc) {
-          if (r + dr < 0 || c + dc < 0 || r + dr >= rows_ || c + dc >= cols_) continue;
-          const auto n = static_cast<std::uint64_t>((r + dr) * cols_ + (c + dc));
-          occupied_[n >> 6] |= std::uint64_t{1} << (n & 63);
-        }
-    }
+    for (const std::uint64_t k : keys_) occupied_[k >> 6] |= std::uint64_t{1} << (k & 63);
   }
   invCell_ = 1 / cell_;
   std::uint64_t size = 16;
@@ -372,18 +361,25 @@ const std::uint32_t* BufferStage::find(std::uint64_t key, std::uint32_t& count) 
 
 bool BufferStage::inBuffer(double x, double y) const {
   if (keys_.empty()) return false;
-  if (!occupied_.empty()) {  // (most points: a multiplication and one bit)
-    const double gc = (x - x0_) * invCell_, gr = (y - y0_) * invCell_;
-    if (!(gc >= 0 && gr >= 0 && gc < static_cast<double>(cols_) && gr < static_cast<double>(rows_)))
-      return false;
-    const std::uint64_t near =
-        static_cast<std::uint64_t>(gr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(gc);
-    if (!((occupied_[near >> 6] >> (near & 63)) & 1)) return false;
+  // The cell by the inverse of its size (a multiplication); where that lands within a hair of a cell's
+  // side, where it may differ from the quotient, by the division the pieces were registered with.
+  double fc = (x - x0_) * invCell_, fr = (y - y0_) * invCell_;
+  if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) {
+    // (a hair outside the grid by the product may be inside by the quotient: x0_ and the last cell are
+    // a whole cell from any piece, so such a point is in no buffer)
+    return false;
   }
-  const double fc = (x - x0_) / cell_, fr = (y - y0_) / cell_;  // (truncated below: non-negative)
+  const double hair = 1e-6;
+  const double uc = fc - static_cast<double>(static_cast<std::int64_t>(fc)),
+               ur = fr - static_cast<double>(static_cast<std::int64_t>(fr));
+  if (uc < hair || uc > 1 - hair || ur < hair || ur > 1 - hair) {
+    fc = (x - x0_) / cell_;
+    fr = (y - y0_) / cell_;
+  }
   if (!(fc >= 0 && fr >= 0 && fc < static_cast<double>(cols_) && fr < static_cast<double>(rows_))) return false;
-  const std::uint64_t key =
-      static_cast<std::uint64_t>(fr) * static_cast<std::uint64_t>(cols_) + static_cast<std::uint64_t>(fc);
+  const std::uint64_t key = static_cast<std::uint64_t>(fr) * static_cast<std::uint64_t>(cols_) +
+                            static_cast<std::uint64_t>(fc);  // (non-negative: truncation is the floor)
+  if (!occupied_.empty() && !((occupied_[key >> 6] >> (key & 63)) & 1)) return false;
   std::uint32_t n = 0;
   const std::uint32_t* ids = find(key, n);
   if (!ids) return false;

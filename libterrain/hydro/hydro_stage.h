@@ -106,8 +106,7 @@ class BufferStage final : public PointStage {
   std::vector<std::uint32_t> pieceIds_;
   std::vector<std::uint32_t> table_;     // hash slot -> k + 1 (0: empty)
   std::uint64_t mask_ = 0;
-  std::vector<std::uint64_t>
-      occupied_;  // one bit per cell and its neighbours (rows_ x cols_): most points need only this
+  std::vector<std::uint64_t> occupied_;  // one bit per cell (rows_ x cols_): most points need only this
   std::int64_t rows_ = 0;
   const std::uint32_t* find(std::uint64_t key, std::uint32_t& count) const;
 };
