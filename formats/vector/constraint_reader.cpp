@@ -13,14 +13,12 @@
 #include <charconv>
 #include <cmath>
 #include <cstdint>
-#include <exception>
 #include <filesystem>
 #include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
 #include <system_error>
-#include <thread>
 #include <utility>
 #include <vector>
 
@@ -945,34 +943,7 @@ void groupWater(std::vector<WaterPolygon>& water, const CancelFlag* cancel) {
 
 }  // namespace
 
-namespace {
-ConstraintInput readConstraintsHere(const ConstraintFiles& files, const CrsInfo& runCrs, Diagnostics& diag);
-}  // namespace
-
-// The files are read on a thread of their own, and PROJ's caches are cleared after: comparing and
-// transforming the layers' CRSs opens PROJ's database in that thread's PROJ context (GDAL keeps one per
-// thread, released when the thread ends), and PROJ keeps the database handle -- with SQLite's page cache,
-// about 2 MB resident -- in a process-wide cache that proj_cleanup() empties.  Nothing else uses GDAL or
-// PROJ at this point of a run (no output is open, no point read); objects still alive keep their own
-// references, and only the caches' entries go.
 ConstraintInput readConstraints(const ConstraintFiles& files, const CrsInfo& runCrs, Diagnostics& diag) {
-  ConstraintInput out;
-  std::exception_ptr failed;
-  std::thread reader([&] {
-    try {
-      out = readConstraintsHere(files, runCrs, diag);
-    } catch (...) {
-      failed = std::current_exception();
-    }
-  });
-  reader.join();
-  proj_cleanup();
-  if (failed) std::rethrow_exception(failed);
-  return out;
-}
-
-namespace {
-ConstraintInput readConstraintsHere(const ConstraintFiles& files, const CrsInfo& runCrs, Diagnostics& diag) {
   ConstraintInput out;
   if (files.breaklines.empty() && files.water.empty() && files.flows.empty()) return out;
   registerVectorDrivers();
@@ -992,7 +963,5 @@ ConstraintInput readConstraintsHere(const ConstraintFiles& files, const CrsInfo&
   groupWater(out.water, files.cancel);
   return out;
 }
-
-}  // namespace
 
 }  // namespace tinbuild
