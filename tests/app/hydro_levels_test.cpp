@@ -4,9 +4,11 @@
 // independently and by the run report), and levels that one noisy low point cannot drag down; verify
 // proves the TIN Delaunay with every constraint an edge.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <array>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <random>
 #include <string>
@@ -316,6 +318,19 @@ TEST(HydroLevels, PartsCheckTheBanksAsOneProcess) {
   EXPECT_EQ(pixels(merged), pixels(one));
   EXPECT_EQ(levelsOf(merged).belowWater, 0);
   EXPECT_TRUE(readRaster(out / "parts" / "mosaic.vrt").z == readRaster(out / "one" / "mosaic.vrt").z);
+  // Two MPI ranks: the same figures in rank 0's report.
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) return;
+  if (test::tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos)
+    return;
+  const std::string run = std::string("mpirun --allow-run-as-root --oversubscribe -np 2 ") + TINBUILD_EXE +
+                          " build " + args + " --dem " + (out / "mpi").string() +
+                          " --step 0.5 --threads 1 --mpi -q --report " + (out / "mpi.json").string() + " > " +
+                          (out / "mpi.log").string() + " 2>&1";
+  const int rc = std::system(run.c_str());
+  ASSERT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0) << test::slurp(out / "mpi.log");
+  const std::string mpi = test::slurp(out / "mpi.json");
+  EXPECT_EQ(pixels(mpi), pixels(one));
+  EXPECT_EQ(levelsOf(mpi).belowWater, 0);
 }
 
 TEST(HydroLevels, AMeanderingRiverWithSurveyNoise) {
