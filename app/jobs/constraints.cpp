@@ -166,9 +166,10 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
     wo.spacing = sp;
     wo.margin = 2 * sp;
-    wo.outlierDepth = metres(0.05);
-    wo.sectionRise = metres(0.01);
-    wo.dropOutliers = true;
+    // (heights: in the unit of z, which may differ from the horizontal one)
+    const double zMetre = survey.zUnitToMetre > 0 ? survey.zUnitToMetre : 1;
+    wo.outlierDepth = 0.05 / zMetre;
+    wo.sectionRise = 0.01 / zMetre;
     sampler = std::make_unique<ShoreSampler>(input, wo);
   };
   // The sampler when some level must come from the points (none when every level is given).

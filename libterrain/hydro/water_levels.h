@@ -7,10 +7,12 @@
 //     (an island is land) within `shoreDistance` of its shore (the *bank band*), and `margin` beyond it
 //     (the TIN's triangles reach that far into the band: a pixel at the band's edge is interpolated from
 //     them too).
-//   - *Low outliers* are taken out first: a bank point more than max(`outlierDepth`, 4 x the local noise)
-//     below the plane fitted to its neighbours (within 2.5 point spacings; the noise is the neighbours'
-//     robust spread about that plane) is an isolated low return, not ground.  It sets no level and, with
-//     `dropOutliers`, is left out of the survey (hydro_stage.h: BankOutlierStage), so no DEM pixel dips
+//   - *Low outliers* are taken out first: a bank point below its neighbours' mean height and more than
+//     max(`outlierDepth`, 4 x the local noise) below the least-squares surface of its neighbours (within 3
+//     point spacings: a quadric from 15 of them, a plane from 6; the noise is the neighbours' robust spread
+//     about it, corrected for the terms fitted and the point's leverage) is an isolated low return, not
+//     ground.  It sets no level and is left
+//     out of the survey (PreparedWater::outliers, hydro_stage.h: BankOutlierStage), so no DEM pixel dips
 //     to it either.  One noisy point therefore never decides a level.
 //   - A lake's level is the `percentile` of its body's bank points' z (0, the default: the lowest, so the
 //     water is at or below every bank point and every DEM pixel interpolated between them).
@@ -51,9 +53,9 @@ struct WaterLevelOptions {
   double spacing = 0;         // the survey's mean point spacing (0: shoreDistance / 3)
   double percentile = 0;      // 0..100 of the bank points' z: 0 = the lowest
   double stationSpacing = 10;  // rivers: distance between stations along the centerline
-  double outlierDepth = 0.05;  // least depth below its neighbours' plane that makes a low outlier
-  double sectionRise = 0.01;   // rivers: the most the level changes between neighbouring cross-sections
-  bool dropOutliers = true;    // low outliers left out of the survey (else they only set no level)
+  double outlierDepth = 0.05;  // least depth below its neighbours' surface that makes a low outlier (z units)
+  double sectionRise =
+      0.01;  // rivers: the most the level changes between neighbouring cross-sections (z units)
   const CancelFlag* cancel = nullptr;  // polled along the centerlines and the bodies
   double spacingOrDefault() const { return spacing > 0 ? spacing : shoreDistance / 3; }
 };
