@@ -4,9 +4,9 @@
 #include <cmath>
 #include <cstdio>
 #include <limits>
-#include <unordered_map>
 
 #include "libterrain/hydro/hydro_stage.h"
+#include "libterrain/hydro/segment_cells.h"
 
 namespace tinbuild {
 
@@ -36,53 +36,26 @@ struct BankCheck::Impl {
   std::vector<WaterBody> reports;
   std::vector<Body> bodies;
   std::vector<Edge> edges;
-  // The edges by the cells (of the band's size) within a band of them.
-  double cell = 1, band = 1, spacing = 1, tolerance = 1e-3;
-  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> cells;
-  std::int64_t c0 = 0, r0 = 0, w = 0, h = 0;
-  std::vector<std::uint64_t> bits;  // occupied cells, when their box is small
+  double band = 1, spacing = 1, tolerance = 1e-3;
+  SegmentCells cells;  // the edges, by cells of the band's size
   std::unique_ptr<WaterIndex> water;
   std::mutex mutex;
   BankCheckFigures figures;
   std::vector<std::uint32_t> near;
 
-  static std::int64_t key(std::int64_t c, std::int64_t r) { return (r << 32) ^ (c & 0xffffffffll); }
-  std::int64_t at(double v) const { return static_cast<std::int64_t>(std::floor(v / cell)); }
-
   void addEdge(std::uint32_t body, double ax, double ay, double bx, double by) {
-    const auto id = static_cast<std::uint32_t>(edges.size());
+    cells.add(static_cast<std::uint32_t>(edges.size()), ax, ay, bx, by);
     edges.push_back({body, ax, ay, bx, by});
-    for (std::int64_t r = at(std::min(ay, by) - band); r <= at(std::max(ay, by) + band); ++r)
-      for (std::int64_t c = at(std::min(ax, bx) - band); c <= at(std::max(ax, bx) + band); ++c) {
-        // (only the cells whose centre lies within the band and a cell's half-diagonal of the edge)
-        const Edge& e = edges.back();
-        if (distance((static_cast<double>(c) + 0.5) * cell, (static_cast<double>(r) + 0.5) * cell, e) >
-            band + 0.7072 * cell)
-          continue;
-        cells[key(c, r)].push_back(id);
-      }
-  }
-
-  static double distance(double x, double y, const Edge& e) {
-    const double dx = e.bx - e.ax, dy = e.by - e.ay, len2 = dx * dx + dy * dy;
-    const double t = len2 > 0 ? std::clamp(((x - e.ax) * dx + (y - e.ay) * dy) / len2, 0.0, 1.0) : 0;
-    return std::hypot(e.ax + t * dx - x, e.ay + t * dy - y);
   }
 
   void one(double x, double y, double z) {
-    const std::int64_t c = at(x), r = at(y);
-    if (!bits.empty()) {
-      if (c < c0 || r < r0 || c >= c0 + w || r >= r0 + h) return;
-      const auto k = static_cast<std::uint64_t>((r - r0) * w + (c - c0));
-      if (!((bits[k >> 6] >> (k & 63)) & 1)) return;
-    }
-    auto it = cells.find(key(c, r));
-    if (it == cells.end()) return;
+    const std::vector<std::uint32_t>* list = cells.at(x, y);
+    if (!list) return;
     near.clear();
     double nearest = band;
-    for (std::uint32_t e : it->second) {
+    for (std::uint32_t e : *list) {
       const Edge& edge = edges[e];
-      const double d = distance(x, y, edge);
+      const double d = pointSegmentDistance(x, y, edge.ax, edge.ay, edge.bx, edge.by);
       nearest = std::min(nearest, d);
       if (d <= band && std::find(near.begin(), near.end(), edge.body) == near.end())
         near.push_back(edge.body);
@@ -129,7 +102,7 @@ BankCheck::BankCheck(const std::vector<WaterArea>& water, const std::vector<Wate
   Impl& m = *impl_;
   m.reports = bodies;
   m.band = band > 0 ? band : 1;
-  m.cell = m.band;
+  m.cells.cell = m.band;
   m.spacing = spacing;
   m.tolerance = tolerance;
   m.water = std::make_unique<WaterIndex>(water);
@@ -156,20 +129,7 @@ BankCheck::BankCheck(const std::vector<WaterArea>& water, const std::vector<Wate
     ring(water[b.area].outer);
     for (const auto& hole : water[b.area].holes) ring(hole);
   }
-  if (m.cells.empty()) return;
-  std::int64_t cmin = INT64_MAX, cmax = INT64_MIN, rmin = INT64_MAX, rmax = INT64_MIN;
-  for (const auto& [k, list] : m.cells) {
-    const std::int64_t r = k >> 32, c = static_cast<std::int32_t>(k & 0xffffffffll);
-    cmin = std::min(cmin, c), cmax = std::max(cmax, c), rmin = std::min(rmin, r), rmax = std::max(rmax, r);
-  }
-  if (static_cast<double>(cmax - cmin + 1) * static_cast<double>(rmax - rmin + 1) > 134217728.0) return;
-  m.c0 = cmin, m.r0 = rmin, m.w = cmax - cmin + 1, m.h = rmax - rmin + 1;
-  m.bits.assign(static_cast<std::size_t>((m.w * m.h + 63) / 64), 0);
-  for (const auto& [k, list] : m.cells) {
-    const std::int64_t r = k >> 32, c = static_cast<std::int32_t>(k & 0xffffffffll);
-    const auto i = static_cast<std::uint64_t>((r - m.r0) * m.w + (c - m.c0));
-    m.bits[i >> 6] |= std::uint64_t{1} << (i & 63);
-  }
+  m.cells.seal();
 }
 
 BankCheck::~BankCheck() = default;

@@ -11,84 +11,16 @@
 #include <optional>
 #include <thread>
 #include <unordered_map>
-#include <unordered_set>
 
 #include "libterrain/core/error.h"
 #include "libterrain/hydro/hydro_stage.h"
+#include "libterrain/hydro/segment_cells.h"
 
 namespace tinbuild {
 
 namespace {
 
 using Ring = std::vector<std::array<double, 2>>;
-
-std::int64_t cellKey(std::int64_t c, std::int64_t r) {
-  return (r << 32) ^ (c & 0xffffffffll);
-}
-
-// Segments in the cells of a sparse grid, each cell within `reach` of the segment holding it.
-struct SegmentCells {
-  double cell = 1;
-  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> cells;
-  std::int64_t c(double x) const { return static_cast<std::int64_t>(std::floor(x / cell)); }
-  void add(std::uint32_t id, double ax, double ay, double bx, double by) {
-    const double len = std::hypot(bx - ax, by - ay);
-    const auto steps = static_cast<std::int64_t>(std::ceil(len / cell)) + 1;
-    std::unordered_set<std::int64_t> mine;
-    for (std::int64_t k = 0; k <= steps; ++k) {
-      const double t = static_cast<double>(k) / static_cast<double>(steps);
-      const std::int64_t cx = c(ax + t * (bx - ax)), cy = c(ay + t * (by - ay));
-      for (std::int64_t dy = -1; dy <= 1; ++dy)
-        for (std::int64_t dx = -1; dx <= 1; ++dx)
-          if (mine.insert(cellKey(cx + dx, cy + dy)).second) cells[cellKey(cx + dx, cy + dy)].push_back(id);
-    }
-  }
-  const std::vector<std::uint32_t>* at(double x, double y) const {
-    if (!bits.empty()) {  // (most points are far from any segment: one bit answers)
-      // (truncated: non-negative; by the inverse, a point on a cell's side may test either cell's bit, so
-      // the bits are those of the cells and their neighbours -- seal() -- and the lookup below decides)
-      const double fx = x * inv - static_cast<double>(c0), fy = y * inv - static_cast<double>(r0);
-      if (!(fx >= 0 && fy >= 0 && fx < static_cast<double>(w) && fy < static_cast<double>(h))) return nullptr;
-      const auto k = static_cast<std::uint64_t>(fy) * static_cast<std::uint64_t>(w) + static_cast<std::uint64_t>(fx);
-      if (!((bits[k >> 6] >> (k & 63)) & 1)) return nullptr;
-    }
-    auto it = cells.find(cellKey(c(x), c(y)));
-    return it == cells.end() ? nullptr : &it->second;
-  }
-  // Builds the bitmap of occupied cells when their box is small enough (at most 2^27 cells).
-  void seal() {
-    if (cells.empty()) return;
-    std::int64_t cmin = INT64_MAX, cmax = INT64_MIN, rmin = INT64_MAX, rmax = INT64_MIN;
-    for (const auto& [key, list] : cells) {
-      const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
-      cmin = std::min(cmin, col), cmax = std::max(cmax, col), rmin = std::min(rmin, r), rmax = std::max(rmax, r);
-    }
-    if (static_cast<double>(cmax - cmin + 3) * static_cast<double>(rmax - rmin + 3) > 134217728.0) return;
-    c0 = cmin - 1, r0 = rmin - 1, w = cmax - cmin + 3, h = rmax - rmin + 3;
-    inv = 1 / cell;
-    bits.assign(static_cast<std::size_t>((w * h + 63) / 64), 0);
-    for (const auto& [key, list] : cells) {
-      const std::int64_t r = key >> 32, col = static_cast<std::int32_t>(key & 0xffffffffll);
-      for (std::int64_t dr = -1; dr <= 1; ++dr)
-        for (std::int64_t dc = -1; dc <= 1; ++dc) {
-          const auto k = static_cast<std::uint64_t>((r + dr - r0) * w + (col + dc - c0));
-          bits[k >> 6] |= std::uint64_t{1} << (k & 63);
-        }
-    }
-  }
-  std::vector<std::uint64_t> bits;  // the occupied cells and their neighbours
-  std::int64_t c0 = 0, r0 = 0, w = 0, h = 0;
-  double inv = 1;
-};
-
-double pointSegmentDistance(double x, double y, double ax, double ay, double bx, double by, double* tOut = nullptr) {
-  const double dx = bx - ax, dy = by - ay, len2 = dx * dx + dy * dy;
-  double t = len2 > 0 ? ((x - ax) * dx + (y - ay) * dy) / len2 : 0;
-  t = std::clamp(t, 0.0, 1.0);
-  if (tOut) *tOut = t;
-  const double ex = ax + t * dx - x, ey = ay + t * dy - y;
-  return std::sqrt(ex * ex + ey * ey);
-}
 
 double percentileOf(std::vector<float> v, double p) {
   std::sort(v.begin(), v.end());
@@ -107,9 +39,10 @@ struct BankPoint {
   double x, y, z;
 };
 
-// The low outliers among `pts` (flags): points more than max(depth, 4 x the local noise) below the
-// least-squares surface of their neighbours within `radius` (a quadric from 10 neighbours, a plane from 6;
-// fewer: not judged).  The noise is 1.4826 x the median absolute residual of the neighbours about it.
+// The low outliers among `pts` (flags): points below their neighbours' mean height and more than
+// max(depth, 4 x the local noise) below the least-squares surface of their neighbours within `radius` (a
+// quadric from 15 neighbours, a plane from 6; fewer: not judged).  The noise is 1.4826 x the median
+// absolute residual of the neighbours about it, corrected for the terms fitted and the point's leverage.
 std::vector<char> lowOutliers(const std::vector<BankPoint>& pts, double radius, double depth,
                               const CancelFlag* cancel) {
   std::vector<char> out(pts.size(), 0);
@@ -154,7 +87,7 @@ std::vector<char> lowOutliers(const std::vector<BankPoint>& pts, double radius, 
       if (near.size() < 6) continue;
       // (a point not below its neighbours' mean height is no low outlier: most points end here)
       if (p.z >= sumZ / static_cast<double>(near.size()) - 0.5 * depth) continue;
-      // The surface z = a + b u + c v (+ d u^2 + e u v + f v^2 with 10 neighbours or more: the curvature of a
+      // The surface z = a + b u + c v (+ d u^2 + e u v + f v^2 with 15 neighbours or more: the curvature of a
       // bank's foot is no outlier), (u, v) relative to p in units of the radius, by least squares.
       const int terms = near.size() >= 15 ? 6 : 3;
       double ata[6][8] = {};  // the normal equations, with Aᵀz and e0 (for the leverage of p) beside them
