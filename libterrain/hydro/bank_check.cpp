@@ -21,6 +21,10 @@ void BankCheckFigures::add(const BankCheckFigures& o) {
     worst = o.worst;
     worstAt = o.worstAt;
   }
+  if (o.worstDerived > worstDerived) {
+    worstDerived = o.worstDerived;
+    worstDerivedAt = o.worstDerivedAt;
+  }
 }
 
 struct BankCheck::Impl {
