@@ -186,14 +186,27 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   r.inputs = o.inputs;
   const int threads = effectiveThreads(o.threads);
   FinalizerOptions fo = finalizerOptions(o, in, threads);
-  // Breaklines and water (before any output is opened: a bad vector file fails first).
-  BuildHooks oneProcess;
-  const PreparedConstraints constraints = (hooks ? hooks : &oneProcess)->constraints(o, in, diag);
-  applyConstraints(constraints, fo, in);
-  reportConstraints(constraints, r);
+  // Breaklines and water (before any output is opened: a bad vector file fails first).  One process
+  // prepares them in the finalizer's count pass when it can (foldConstraints: the levels come from the
+  // points that pass reads anyway); then `constraints` is filled, and the bank check configured, between
+  // the count pass and the stream.  Else, and in a part of a plan, before the run.
+  PreparedConstraints constraints;
+  std::unique_ptr<ConstraintPreparation> prep;
+  std::shared_ptr<BankCheck> lateBankCheck;
+  bool folded = false;
+  if (!hooks) {
+    prep = std::make_unique<ConstraintPreparation>(o, in, diag);
+    if (prep->any()) {
+      if (!o.dem.path.empty() && !o.constraints.water.empty()) lateBankCheck = std::make_shared<BankCheck>();
+      folded = foldConstraints(*prep, fo, in, constraints, lateBankCheck);
+      if (!folded) constraints = prep->prepare();
+    }
+  } else {
+    constraints = hooks->constraints(o, in, diag);
+  }
+  if (!folded) applyConstraints(constraints, fo, in);
   r.crs = in.crs;
   r.filter = fo.filter.describe();
-  r.stages = stageNames(fo.filter);
   r.memoryBudget = o.finalizer.memoryBudget;
 
   // Contours of a TIN that keeps vegetation or buildings are isolines of every tree and roof: millions of
@@ -212,7 +225,9 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   // Open every output before any work, so an unwritable target or a bad length fails at once.
   completeOutputs(outputs, o, in.crs, in.zUnitToMetre, r.dem, diag);
   // Hydro-flattening's product check: every DEM pixel this run computes by a shore (bank_check.h).
-  if (outputs.dem && !constraints.bodies.empty()) {
+  if (outputs.dem && lateBankCheck) {
+    outputs.context.bankCheck = lateBankCheck;  // (configured once the levels are known)
+  } else if (outputs.dem && !constraints.bodies.empty()) {
     outputs.context.bankCheck = std::make_shared<BankCheck>(constraints.water, constraints.bodies,
                                                             constraints.band, constraints.spacing);
     if (outputs.context.bankCheck->empty()) outputs.context.bankCheck.reset();
@@ -246,6 +261,8 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     PointSink& sink = threads >= 2 ? static_cast<PointSink&>(feed) : delaunay;
     r.finalizer = finalizePoints(in.streams, fo, hooks ? hooks->pointSink(sink) : sink, diag);
   }
+  reportConstraints(constraints, r);
+  r.stages = runStageNames(fo, constraints, folded);
   in.countSkipped(r);
   // The constraint vertices passed the filter as records; they were not read from the survey.
   if (!constraints.empty()) {
@@ -279,7 +296,7 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     if (results.back().dem && r.dem.stats.tilesWritten == 0 && !hooks)
       diag.warn("dem.empty", o.dem.path, "the DEM has no pixel with a value: nothing was written");
   }
-  if (outputs.context.bankCheck) {
+  if (outputs.context.bankCheck && !outputs.context.bankCheck->empty()) {
     r.constraints.bankChecked = true;
     r.constraints.bank = outputs.context.bankCheck->figures();
     if (r.constraints.bank.violations && !hooks)

@@ -42,6 +42,7 @@ SurveyPass passOverPoints(Survey& survey, const PointFilter& filter, ShoreSample
     s->setDecodeThreads(std::max(1, static_cast<int>(std::thread::hardware_concurrency())));  // (the finalizer sets its own)
     if (!s->rewindable())
       throw UsageError("--breaklines/--water read the survey once before the run: the input must be a file, not stdin");
+    s->rewind();  // (in the finalizer's count pass, the input may stand anywhere: its first pass spooled it)
     for (;;) {
       throwIfCancelled(cancel);
       std::size_t n = s->read(batch.data(), batch.size());
@@ -104,63 +105,43 @@ void checkConstraintLengths(const ConstraintRequest& q, const CrsInfo& crs, doub
 
 constexpr char kMagic[8] = {'T', 'B', 'C', 'O', 'N', 'S', '0', '2'};
 
+using Clock = std::chrono::steady_clock;
+double since(Clock::time_point t) {
+  return std::chrono::duration<double>(Clock::now() - t).count();
+}
+
 }  // namespace
 
-PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey, Diagnostics& diag) {
-  PreparedConstraints c;
-  const ConstraintRequest& q = o.constraints;
-  if (!q.any()) {
-    if (!q.flows.empty()) throw UsageError("--flow needs --water (the rivers' polygons)");
-    return c;
-  }
-  using Clock = std::chrono::steady_clock;
-  auto since = [](Clock::time_point t) { return std::chrono::duration<double>(Clock::now() - t).count(); };
-  auto t = Clock::now();
-  ConstraintFiles files;
-  files.breaklines = q.breaklines;
-  files.water = q.water;
-  files.flows = q.flows;
-  files.cancel = o.finalizer.cancel;
-  const ConstraintInput input = readConstraints(files, survey.crs, diag);
-  // Comparing and transforming the layers' CRSs opened PROJ's database (its SQLite page cache, about 2 MB,
-  // stayed resident for the whole run): released as after opening the inputs (survey.cpp).
-  releaseCrsCaches(survey.transforms.empty());
-  c.breaklines = input.breaklines.size();
-  c.readSeconds = since(t);
-  t = Clock::now();
-  if (!survey.crs.wkt.empty() && survey.crs.geographic)
-    throw UsageError("--breaklines/--water need a projected CRS (lengths in metres): give --t_srs");
+// ---------------------------------------------------------------------------------------------------
+// ConstraintPreparation
 
-  // The pass: the spacing needs the extent and count of the kept points; the bank points need the shore
-  // distance, which defaults to a multiple of that spacing.  One pass when both lengths are given, or
-  // when the header's spacing bounds the default (see below); else a second one for the bank points.
-  std::unique_ptr<ShoreSampler> sampler;  // (with --water)
+struct ConstraintPreparation::State {
+  const PipelineOptions& o;
+  Survey& survey;
+  Diagnostics& diag;
+  ConstraintInput input;
+  PreparedConstraints c;
   WaterLevelOptions wo;
-  wo.percentile = q.percentile;
-  auto spacingOf = [](const Bounds3& b, std::uint64_t n) {
+  std::unique_ptr<ShoreSampler> sampler;  // the real one (with --water), once its lengths are known
+  std::unique_ptr<ShoreSampler> gather;   // the points near the shores, within the wide band (below)
+  WaterLevelOptions wide;
+  std::vector<PointRecord> near;
+  double demStep = 0;
+  bool fold = false;  // the points come through observe()
+  double observeSeconds = 0;
+
+  State(const PipelineOptions& options, Survey& s, Diagnostics& d) : o(options), survey(s), diag(d) {}
+
+  static double spacingOf(const Bounds3& b, std::uint64_t n) {
     const double area = std::max((b.maxX - b.minX) * (b.maxY - b.minY), 1e-12);
     return std::sqrt(area / static_cast<double>(std::max<std::uint64_t>(n, 1)));
-  };
-  wo.cancel = o.finalizer.cancel;
-  // The lengths the user gave, against the spacing the headers promise (every point of the survey: the
-  // kept points' spacing is at least that) before any work; again below with the kept points' spacing.
-  if (survey.headerBounds && survey.headerPoints > 0)
-    checkConstraintLengths(q, survey.crs, spacingOf(*survey.headerBounds, survey.headerPoints));
-  // Lengths in metres, in CRS units (a survey without a CRS: metres).
-  auto metres = [&survey](double m) {
-    return survey.crs.geographic ? m : parseLength(formatDouble("%.17g", m) + "m", survey.crs, "(a length)");
-  };
-  // The bank band: at least 3 m, 3 DEM pixels and 3 point spacings (the specification's "immediately
-  // surrounding terrain", checked on the product: bank_check.h).
-  double demStep = 0;
-  if (!o.dem.path.empty()) {
-    try {
-      demStep = parseLength(o.dem.step, survey.crs, "--step");
-    } catch (const UsageError&) {
-      demStep = 0;  // (said by the DEM's own check, later)
-    }
   }
-  auto makeSampler = [&](double sp) {
+  // Lengths in metres, in CRS units (a survey without a CRS: metres).
+  double metres(double m) const {
+    return survey.crs.geographic ? m : parseLength(formatDouble("%.17g", m) + "m", survey.crs, "(a length)");
+  }
+  void makeSampler(double sp) {
+    const ConstraintRequest& q = o.constraints;
     wo.shoreDistance = lengthOption(q.shoreDistance, std::max({metres(3), 3 * demStep, 3 * sp}), survey.crs,
                                     "--shore-distance");
     wo.stationSpacing = lengthOption(q.stationSpacing, 10 * sp, survey.crs, "--station-spacing");
@@ -171,73 +152,157 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
     wo.outlierDepth = 0.05 / zMetre;
     wo.sectionRise = 0.01 / zMetre;
     sampler = std::make_unique<ShoreSampler>(input, wo);
-  };
+  }
   // The sampler when some level must come from the points (none when every level is given).
-  auto sampling = [&sampler]() { return sampler && sampler->needsPoints() ? sampler.get() : nullptr; };
-  SurveyPass pass;
-  if (!q.water.empty() && !q.shoreDistance.empty() && !q.stationSpacing.empty()) {
-    makeSampler(1);  // (both lengths given: the spacing is not needed)
-    pass = passOverPoints(survey, o.finalizer.filter, sampling(), o.finalizer.cancel);
-  } else if (!q.water.empty() && survey.headerBounds && survey.headerPoints > 0) {
-    // The points near the shores are gathered within twice the default distance for the header's
-    // spacing (every point of the survey): the kept points' spacing, and so the default distance, is
-    // larger only when the filters keep less than a quarter of the points.  Then the real sampler takes
-    // the gathered points (the same as a second pass would give it); else a second pass.
-    const double headerSpacing = spacingOf(*survey.headerBounds, survey.headerPoints);
-    WaterLevelOptions wide = wo;
-    wide.shoreDistance = q.shoreDistance.empty()
-                             ? std::max({metres(3), 3 * demStep, 6 * headerSpacing})
-                             : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
-    wide.margin = 4 * headerSpacing;
-    wide.stationSpacing = 1;
-    ShoreSampler gather(input, wide);
-    std::vector<PointRecord> near;
-    pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel, gather.needsPoints() ? &gather : nullptr, &near);
-    makeSampler(spacingOf(pass.bounds, pass.points));
-    if (ShoreSampler* s = sampling()) {
-      if (wo.shoreDistance + wo.margin <= wide.shoreDistance + wide.margin)
-        s->add(near.data(), near.size());
-      else
-        passOverPoints(survey, o.finalizer.filter, s, o.finalizer.cancel);
-    }
-  } else {
-    pass = passOverPoints(survey, o.finalizer.filter, nullptr, o.finalizer.cancel);
-    if (!q.water.empty()) {
-      makeSampler(spacingOf(pass.bounds, pass.points));
-      if (ShoreSampler* s = sampling()) passOverPoints(survey, o.finalizer.filter, s, o.finalizer.cancel);
+  ShoreSampler* sampling() const { return sampler && sampler->needsPoints() ? sampler.get() : nullptr; }
+};
+
+ConstraintPreparation::ConstraintPreparation(const PipelineOptions& o, Survey& survey, Diagnostics& diag)
+    : s_(std::make_unique<State>(o, survey, diag)) {
+  State& st = *s_;
+  const ConstraintRequest& q = o.constraints;
+  if (!q.any()) {
+    if (!q.flows.empty()) throw UsageError("--flow needs --water (the rivers' polygons)");
+    return;
+  }
+  const auto t = Clock::now();
+  ConstraintFiles files;
+  files.breaklines = q.breaklines;
+  files.water = q.water;
+  files.flows = q.flows;
+  files.cancel = o.finalizer.cancel;
+  st.input = readConstraints(files, survey.crs, diag);
+  // Comparing and transforming the layers' CRSs opened PROJ's database (its SQLite page cache, about 2 MB,
+  // stayed resident for the whole run): released as after opening the inputs (survey.cpp).
+  releaseCrsCaches(survey.transforms.empty());
+  st.c.breaklines = st.input.breaklines.size();
+  st.c.readSeconds = since(t);
+  if (!survey.crs.wkt.empty() && survey.crs.geographic)
+    throw UsageError("--breaklines/--water need a projected CRS (lengths in metres): give --t_srs");
+  st.wo.percentile = q.percentile;
+  st.wo.cancel = o.finalizer.cancel;
+  // The lengths the user gave, against the spacing the headers promise (every point of the survey: the
+  // kept points' spacing is at least that) before any work; again in finish() with the kept points'.
+  if (survey.headerBounds && survey.headerPoints > 0)
+    checkConstraintLengths(q, survey.crs, State::spacingOf(*survey.headerBounds, survey.headerPoints));
+  // The bank band: at least 3 m, 3 DEM pixels and 3 point spacings (the specification's "immediately
+  // surrounding terrain", checked on the product: bank_check.h).
+  if (!o.dem.path.empty()) {
+    try {
+      st.demStep = parseLength(o.dem.step, survey.crs, "--step");
+    } catch (const UsageError&) {
+      st.demStep = 0;  // (said by the DEM's own check, later)
     }
   }
-  const double spacing = spacingOf(pass.bounds, pass.points);
-  if (pass.points == 0) throw DataError(o.inputs.empty() ? "build" : o.inputs.front(), "no point is kept by the filters: nothing to constrain");
-  checkConstraintLengths(q, survey.crs, spacing);
-  c.passSeconds = since(t);
+  // The points: the spacing needs the extent and count of the kept points; the bank points need the
+  // shore distance, which defaults to a multiple of that spacing.  They can come in the finalizer's count
+  // pass (observe) when both lengths are given, or when the header's spacing bounds the default: the
+  // points near the shores are gathered within twice the default distance for the header's spacing
+  // (every point of the survey: the kept points' spacing, and so the default distance, is larger only
+  // when the filters keep less than a quarter of the points); then the real sampler takes the gathered
+  // points (the same as a pass of its own would give it), else finish() reads the survey once more.
+  // Without either (no header bounds), prepare() makes the passes itself.
+  if (q.water.empty()) {
+    st.fold = true;  // (breaklines alone: the extent and count only)
+  } else if (!q.shoreDistance.empty() && !q.stationSpacing.empty()) {
+    st.makeSampler(1);  // (both lengths given: the spacing is not needed)
+    st.fold = true;
+  } else if (survey.headerBounds && survey.headerPoints > 0) {
+    const double headerSpacing = State::spacingOf(*survey.headerBounds, survey.headerPoints);
+    st.wide = st.wo;
+    st.wide.shoreDistance = q.shoreDistance.empty()
+                                ? std::max({st.metres(3), 3 * st.demStep, 6 * headerSpacing})
+                                : lengthOption(q.shoreDistance, 1, survey.crs, "--shore-distance");
+    st.wide.margin = 4 * headerSpacing;
+    st.wide.stationSpacing = 1;
+    st.gather = std::make_unique<ShoreSampler>(st.input, st.wide);
+    if (!st.gather->needsPoints()) st.gather.reset();
+    st.fold = true;
+  }
+}
+
+ConstraintPreparation::~ConstraintPreparation() = default;
+
+bool ConstraintPreparation::any() const {
+  return s_->o.constraints.any();
+}
+bool ConstraintPreparation::foldable() const {
+  return any() && s_->fold;
+}
+
+void ConstraintPreparation::observe(const PointRecord* p, std::size_t n) {
+  State& st = *s_;
+  const auto t = Clock::now();
+  if (st.gather)
+    st.gather->collect(p, n, st.near);
+  else if (ShoreSampler* sm = st.sampling())
+    sm->add(p, n);
+  st.observeSeconds += since(t);
+}
+
+PreparedConstraints ConstraintPreparation::prepare() {
+  State& st = *s_;
+  if (!any()) return {};
+  // The pass (see the constructor): the kept points' extent and count, and what observe() would take.
+  const auto t = Clock::now();
+  const SurveyPass pass =
+      passOverPoints(st.survey, st.o.finalizer.filter, st.gather ? nullptr : st.sampling(),
+                     st.o.finalizer.cancel, st.gather.get(), &st.near);
+  st.observeSeconds = since(t);
+  return finish(pass.bounds, pass.points);
+}
+
+PreparedConstraints ConstraintPreparation::finish(const Bounds3& bounds, std::uint64_t points) {
+  State& st = *s_;
+  const ConstraintRequest& q = st.o.constraints;
+  PreparedConstraints& c = st.c;
+  auto t = Clock::now();
+  const double spacing = State::spacingOf(bounds, points);
+  if (points == 0)
+    throw DataError(st.o.inputs.empty() ? "build" : st.o.inputs.front(),
+                    "no point is kept by the filters: nothing to constrain");
+  if (!q.water.empty()) {
+    const bool fed = st.sampler != nullptr;  // (both lengths given: it took the points as they came)
+    if (!st.sampler) st.makeSampler(spacing);
+    ShoreSampler* sm = st.sampling();
+    if (sm && !fed) {
+      if (st.gather && st.wo.shoreDistance + st.wo.margin <= st.wide.shoreDistance + st.wide.margin)
+        sm->add(st.near.data(), st.near.size());
+      else  // (no header to gather by, or filters that keep less than a quarter: one more pass)
+        passOverPoints(st.survey, st.o.finalizer.filter, sm, st.o.finalizer.cancel);
+    }
+  }
+  std::vector<PointRecord>().swap(st.near);
+  st.gather.reset();
+  checkConstraintLengths(q, st.survey.crs, spacing);
+  c.passSeconds = st.observeSeconds + since(t);
   t = Clock::now();
   c.spacing = spacing;
-  c.shoreDistance = wo.shoreDistance;
-  c.band = wo.shoreDistance;
-  c.stationSpacing = wo.stationSpacing;
-  c.buffer = lengthOption(q.buffer, spacing, survey.crs, "--breakline-buffer");
+  c.shoreDistance = st.wo.shoreDistance;
+  c.band = st.wo.shoreDistance;
+  c.stationSpacing = st.wo.stationSpacing;
+  c.buffer = lengthOption(q.buffer, spacing, st.survey.crs, "--breakline-buffer");
 
   std::vector<ConstraintSegment> segments;
-  if (!input.water.empty()) {
-    const PreparedWater water = sampler->finish(pass.bounds);
-    for (const auto& [kind, message] : water.warnings) diag.warn(kind, "", message);
+  if (!st.input.water.empty()) {
+    const PreparedWater water = st.sampler->finish(bounds);
+    for (const auto& [kind, message] : water.warnings) st.diag.warn(kind, "", message);
     segments = water.segments;
     c.water = water.areas;
     c.bodies = water.bodies;
     c.outliers = water.outliers;
   }
-  sampler.reset();  // (its bank points and indexes: not needed past the levels)
-  const std::vector<ConstraintSegment> lines = breaklineSegments(input);
+  st.sampler.reset();  // (its bank points and indexes: not needed past the levels)
+  const std::vector<ConstraintSegment> lines = breaklineSegments(st.input);
   segments.insert(segments.end(), lines.begin(), lines.end());
   ConformingOptions co;
-  co.minX = pass.bounds.minX;
-  co.minY = pass.bounds.minY;
-  co.maxX = pass.bounds.maxX;
-  co.maxY = pass.bounds.maxY;
+  co.minX = bounds.minX;
+  co.minY = bounds.minY;
+  co.maxX = bounds.maxX;
+  co.maxY = bounds.maxY;
   co.maxPiece = c.buffer;
   co.snap = std::min(1e-3, c.buffer * 1e-3);
-  co.cancel = o.finalizer.cancel;
+  co.cancel = st.o.finalizer.cancel;
   c.conforming = std::make_shared<const ConformingConstraints>(conformConstraints(segments, c.water, co));
   c.conformSeconds = since(t);
 #ifdef __GLIBC__
@@ -246,25 +311,76 @@ PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey,
   malloc_trim(0);
 #endif
   if (c.conforming->vertices.empty())
-    diag.warn("constraints.outside", q.breaklines.empty() ? q.water.front() : q.breaklines.front(),
-              "no constraint meets the survey's extent: nothing is constrained");
-  return c;
+    st.diag.warn("constraints.outside", q.breaklines.empty() ? q.water.front() : q.breaklines.front(),
+                 "no constraint meets the survey's extent: nothing is constrained");
+  return std::move(c);
 }
+
+PreparedConstraints prepareConstraints(const PipelineOptions& o, Survey& survey, Diagnostics& diag) {
+  ConstraintPreparation prep(o, survey, diag);
+  return prep.prepare();
+}
+
+namespace {
+// The stages of the constraints, in their order (water, bank outliers, breaklines' buffers).
+std::vector<std::shared_ptr<const PointStage>> constraintStages(const PreparedConstraints& c) {
+  std::vector<std::shared_ptr<const PointStage>> stages;
+  if (!c.water.empty()) stages.push_back(std::make_shared<WaterStage>(c.water));
+  if (!c.outliers.empty()) stages.push_back(std::make_shared<BankOutlierStage>(c.outliers));
+  stages.push_back(std::make_shared<BufferStage>(c.conforming));
+  return stages;
+}
+const char* const kVerticesName = "the constraint vertices";
+}  // namespace
 
 void applyConstraints(const PreparedConstraints& c, FinalizerOptions& fo, Survey& survey) {
   if (c.empty()) return;
-  if (!c.water.empty()) fo.filter.stages.push_back(std::make_shared<WaterStage>(c.water));
-  if (!c.outliers.empty()) fo.filter.stages.push_back(std::make_shared<BankOutlierStage>(c.outliers));
-  fo.filter.stages.push_back(std::make_shared<BufferStage>(c.conforming));
+  for (auto& stage : constraintStages(c)) fo.filter.stages.push_back(std::move(stage));
   if (fo.filter.stages.size() > kMaxPointStages)
     throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
   survey.addedStreams.push_back(std::make_unique<ConstraintStream>(c.conforming));
   survey.streams.push_back(survey.addedStreams.back().get());
-  survey.names.push_back("the constraint vertices");
+  survey.names.push_back(kVerticesName);
   fo.inputNames = survey.names;
   if (fo.knownBounds)
     for (const ConstraintPoint& v : c.conforming->vertices) fo.knownBounds->add(v.x, v.y, v.z);
   if (fo.expectedPoints) fo.expectedPoints += c.conforming->vertices.size();
+}
+
+LateStages lateConstraints(const PreparedConstraints& c, Survey& survey) {
+  LateStages late;
+  if (c.empty()) return late;
+  late.stages = constraintStages(c);
+  survey.addedStreams.push_back(std::make_unique<ConstraintStream>(c.conforming));
+  late.input = survey.addedStreams.back().get();
+  late.inputName = kVerticesName;
+  return late;
+}
+
+bool foldConstraints(ConstraintPreparation& prep, FinalizerOptions& fo, Survey& survey,
+                     PreparedConstraints& out, std::shared_ptr<BankCheck> bankCheck) {
+  if (!prep.foldable()) return false;
+  if (fo.filter.stages.size() + 3 > kMaxPointStages)
+    throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
+  fo.countBlocks = false;  // (the count pass reads the points: no counting from a hierarchy)
+  fo.countObserver = [&prep](const PointRecord* p, std::size_t n) { prep.observe(p, n); };
+  fo.lateStages = [&prep, &survey, &out, bankCheck](const Bounds3& kept, std::uint64_t n) {
+    out = prep.finish(kept, n);
+    if (bankCheck && !out.bodies.empty()) bankCheck->configure(out.water, out.bodies, out.band, out.spacing);
+    return lateConstraints(out, survey);
+  };
+  return true;
+}
+
+std::vector<std::string> runStageNames(const FinalizerOptions& fo, const PreparedConstraints& c,
+                                       bool folded) {
+  std::vector<std::string> names = stageNames(fo.filter);
+  if (folded && !c.empty()) {
+    if (!c.water.empty()) names.push_back(WaterStage(std::vector<WaterArea>{}).name());
+    if (!c.outliers.empty()) names.push_back(BankOutlierStage({}).name());
+    names.push_back(BufferStage(std::make_shared<const ConformingConstraints>()).name());  // (names only)
+  }
+  return names;
 }
 
 void reportConstraints(const PreparedConstraints& c, RunReport& r) {

@@ -161,16 +161,27 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   r.threads = effectiveThreads(o.threads);
   FinalizerOptions fo = finalizerOptions(o, in, r.threads);
   // Breaklines and water: prepared once here, for every part (constraints.bin, fingerprinted in the plan);
-  // the plan then counts the points the parts will stream, stages and vertices included.
-  const PreparedConstraints constraints = prepareConstraints(o, in, diag);
-  if (!constraints.empty()) {
-    applyConstraints(constraints, fo, in);
+  // the plan then counts the points the parts will stream, stages and vertices included.  As in one
+  // process, in the count pass when it can (foldConstraints), so the plan's bounds are one process's.
+  ConstraintPreparation prep(o, in, diag);
+  PreparedConstraints constraints;
+  bool folded = false;
+  if (prep.any()) {
+    folded = foldConstraints(prep, fo, in, constraints, nullptr);
+    if (!folded) {
+      constraints = prep.prepare();
+      applyConstraints(constraints, fo, in);
+    }
+  }
+  auto keepConstraints = [&]() {
+    if (constraints.empty()) return;
     reportConstraints(constraints, r);
     std::error_code ec;
     std::filesystem::create_directories(plan.stateDir(), ec);
     writeConstraints(constraints, plan.constraintsFile());
     plan.constraints = fileFingerprint(readablePath(plan.constraintsFile()), true);
-  }
+  };
+  if (!folded) keepConstraints();
   r.crs = in.crs;
   r.filter = fo.filter.describe();
   r.stages = stageNames(fo.filter);
@@ -184,7 +195,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     PointStream::BlockFrame frame;
     fromHierarchy = in.readsItself(i) && in.readers[i]->describeBlocks(blocks[i], frame);
   }
-  if (!fromHierarchy && constraints.empty()) {
+  if (!fromHierarchy && !prep.any()) {
     // Any other survey: read in one slice, the same code as the ranks of an MPI run.
     struct OneSlice : PlanReducer {
       int slice() const override { return 0; }
@@ -212,6 +223,10 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     r.finalizer.points = counter.info().points;
     r.finalizer.blockMode = true;
     for (const auto& b : blocks) counter.addBlocks(b);
+  }
+  if (folded) {
+    keepConstraints();
+    r.stages = runStageNames(fo, constraints, folded);
   }
   r.haveFinalizer = true;
   in.countSkipped(r);

@@ -131,7 +131,7 @@ class DemOutput : public OpenedOutput {
       merge_ = std::make_unique<MergeDemSink>(*writer_, *c.demMerge, d.nodata, c.cancel);
       sink = merge_.get();
     }
-    if (c.bankCheck && !c.bankCheck->empty()) {
+    if (c.bankCheck) {  // (an empty one -- its water still to come -- checks nothing)
       bank_ = std::make_unique<BankCheckSink>(*c.bankCheck, *sink);
       sink = bank_.get();
     }

@@ -214,8 +214,20 @@ class Sources {
   }
   std::string name(std::size_t i) const {
     if (i < options_.inputNames.size() && !options_.inputNames[i].empty()) return options_.inputNames[i];
+    if (i < addedNames_.size() && !addedNames_[i].empty()) return addedNames_[i];
     return "input " + std::to_string(i + 1);
   }
+  // One more input after the others, in the middle of a pass (FinalizerOptions::lateStages): next() goes
+  // on with it once the others are read, and every later pass reads it too.
+  void addInput(PointStream* input, const std::string& name) {
+    if (!input) throw Error("finalizer: null input stream");
+    inputs_.push_back(input);
+    spools_.emplace_back();
+    rawPos_.push_back(0);
+    addedNames_.resize(inputs_.size());
+    addedNames_.back() = name;
+  }
+  std::size_t inputCount() const { return inputs_.size(); }
   std::size_t current() const { return std::min(current_, inputs_.size() - 1); }
 
   // A piece of one pass: the raw records [start, start + raw) of one input (records of its spool when
@@ -454,7 +466,8 @@ class Sources {
     spooledBytes_ += size;
   }
 
-  const std::vector<PointStream*>& inputs_;
+  std::vector<PointStream*> inputs_;
+  std::vector<std::string> addedNames_;  // of inputs added by addInput (by index; "" for the others)
   const FinalizerOptions& options_;
   std::vector<Spool> spools_;
   std::size_t batch_;
@@ -581,6 +594,7 @@ class Prefetcher {
   struct Batch {
     const PointRecord* points = nullptr;
     const std::uint32_t* cells = nullptr;  // with a CellMap: the cell of each point
+    const std::uint8_t* dropped = nullptr;  // with late stages: 1 where one of them leaves the point out
     std::size_t n = 0;
     std::uint64_t read = 0;     // points offered to the filter so far in this pass
     std::size_t input = 0;      // the input the batch came from
@@ -591,11 +605,19 @@ class Prefetcher {
 
   // background = false reads each batch on the caller's thread when it is asked for (no thread).
   // `cells`, when given, maps every batch on the reading thread (it must be safe to call from there).
-  Prefetcher(Sources& sources, bool background, const CellMap* cells = nullptr)
-      : sources_(sources), background_(background), cellMap_(cells) {
+  // `late`, when given and not empty: the late stages (FinalizerOptions::lateStages) mark what they leave
+  // out in Batch::dropped, on the reading thread, counted under byStage[lateBase + k].
+  Prefetcher(Sources& sources, bool background, const CellMap* cells = nullptr,
+             const std::vector<std::shared_ptr<const PointStage>>* late = nullptr, std::size_t lateBase = 0)
+      : sources_(sources),
+        background_(background),
+        cellMap_(cells),
+        late_(late && !late->empty() ? late : nullptr),
+        lateBase_(lateBase) {
     for (auto& slot : slots_) {
       slot.points.resize(sources_.batch());
       if (cellMap_) slot.cells.resize(sources_.batch());
+      if (late_) slot.dropped.resize(sources_.batch());
     }
     if (background_) thread_ = std::thread([this] { run(); });
   }
@@ -628,7 +650,7 @@ class Prefetcher {
     Slot& slot = slots_[tail_ % kSlots];
     if (slot.n == 0) {
       if (error_) std::rethrow_exception(error_);
-      return {nullptr, nullptr, 0, slot.read, slot.input, slot.ordinal, slot.segment, slot.step};
+      return {nullptr, nullptr, nullptr, 0, slot.read, slot.input, slot.ordinal, slot.segment, slot.step};
     }
     holding_ = true;
     return batchOf(slot);
@@ -641,6 +663,7 @@ class Prefetcher {
   struct Slot {
     std::vector<PointRecord> points;
     std::vector<std::uint32_t> cells;
+    std::vector<std::uint8_t> dropped;
     std::size_t n = 0;
     std::uint64_t read = 0;
     std::size_t input = 0;
@@ -649,14 +672,29 @@ class Prefetcher {
     std::size_t step = 0;
   };
   static Batch batchOf(const Slot& s) {
-    return {s.points.data(), s.cells.empty() ? nullptr : s.cells.data(), s.n, s.read, s.input, s.ordinal,
-            s.segment, s.step};
+    return {s.points.data(),
+            s.cells.empty() ? nullptr : s.cells.data(),
+            s.dropped.empty() ? nullptr : s.dropped.data(),
+            s.n,
+            s.read,
+            s.input,
+            s.ordinal,
+            s.segment,
+            s.step};
   }
 
   // Reads the next batch into `slot` (and maps it), with where the pass stands.
   void fill(Slot& slot) {
     slot.n = sources_.next(slot.points.data(), counts_);
     if (cellMap_) cellMap_->map(slot.points.data(), slot.n, slot.cells.data());
+    if (late_) {
+      std::fill_n(slot.dropped.data(), slot.n, std::uint8_t{0});
+      for (std::size_t k = 0; k < late_->size() && lateBase_ + k < kMaxPointStages; ++k) {
+        const std::size_t marked = (*late_)[k]->mark(slot.points.data(), slot.n, slot.dropped.data());
+        counts_.byStage[lateBase_ + k] += marked;
+        counts_.kept -= marked;
+      }
+    }
     slot.read = counts_.read;
     slot.input = sources_.current();
     slot.ordinal = sources_.batchOrdinal();
@@ -695,6 +733,8 @@ class Prefetcher {
   Sources& sources_;
   bool background_;
   const CellMap* cellMap_;
+  const std::vector<std::shared_ptr<const PointStage>>* late_;
+  std::size_t lateBase_;
   std::array<Slot, kSlots> slots_;
   FilterCounts counts_;
   std::mutex mutex_;
@@ -814,7 +854,10 @@ class Finalizer {
       frameGrid_ = *options_.fixedGrid;
       forcedDepth_ = options_.fixedGrid->depth;
     }
-    blockMode_ = !options_.fixedGrid && options_.countBlocks && haveHeader && rewindable && collectBlocks();
+    if (options_.lateStages && options_.fixedGrid)
+      throw Error("finalizer: late stages need the count pass over the whole survey, not a plan's part");
+    blockMode_ = !options_.fixedGrid && options_.countBlocks && !options_.lateStages && haveHeader &&
+                 rewindable && collectBlocks();
     // (Block mode reads each block once, in pass 3, by seeking: every input must allow it.)
     stats_.blockMode = blockMode_;
     stats_.pass1Run = !blockMode_ && (!haveHeader || !rewindable || sources_.anyCostly());
@@ -892,10 +935,11 @@ class Finalizer {
         if (options_.allowEmpty) return emptyStream();
         throw Error(noPointsMessage());
       }
-      if (known != 0 && n != known)
+      // (the points of a late input are not in pass 1's count)
+      if (known != 0 && n - lateCount_ != known)
         throw Error("finalizer: the inputs yielded " + withCommas(known) + " points in one pass and " +
-                    withCommas(n) + " in the next (was a file modified while being read?)");
-      known = n;
+                    withCommas(n - lateCount_) + " in the next (was a file modified while being read?)");
+      known = n - lateCount_;
       if (stats_.boundsFromHeader && !options_.fixedGrid) {
         const double headerExtent =
             std::max(gridBounds.maxX - gridBounds.minX, gridBounds.maxY - gridBounds.minY);
@@ -1046,8 +1090,7 @@ class Finalizer {
       box.r1 = ((box.r1 + 1) << histShift) - 1;
       return box;
     };
-    for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
-      if (measureBounds) addBounds(b, batch.points, batch.n);
+    auto countBatch = [&](const Prefetcher::Batch& batch) {
       // The batch's box (for chooseReadOrder), from the columns and rows computed anyway: histograms of
       // its columns and rows, so that a few stray points (a bird, a multipath return) do not stretch
       // the box of a batch across the survey.
@@ -1099,9 +1142,62 @@ class Finalizer {
         }
       }
       if (reorder_) boxes_.push_back(trimmedBox(batch.n));
+    };
+    const bool observe = options_.countObserver && !lateDone_;
+    for (Prefetcher::Batch batch; (batch = reader.next()).n > 0;) {
+      if (measureBounds) addBounds(b, batch.points, batch.n);
+      if (observe) options_.countObserver(batch.points, batch.n);
+      countBatch(batch);
       progress_.update(batch.read);
     }
-    const FilterCounts& counts = reader.counts();
+    FilterCounts counts = reader.counts();
+    // The stages known only now (FinalizerOptions::lateStages): called once, with the kept points' bounds
+    // and count; the input it adds is counted here, after the survey's points.
+    LateStages late;
+    const bool first = options_.lateStages && !lateDone_;
+    if (first) {
+      lateDone_ = true;
+      late = options_.lateStages(measureBounds ? b : real, ordinal);
+      lateStages_ = std::move(late.stages);
+      if (lateStages_.size() + options_.filter.stages.size() > kMaxPointStages)
+        throw Error("finalizer: at most " + std::to_string(kMaxPointStages) + " point stages in one run");
+    }
+    if (!lateStages_.empty()) {
+      // A sprinkle candidate the stages leave out is none (it will arrive in pass 3 and be dropped); the
+      // first point of the added input in such a cell takes its place.
+      std::unordered_map<std::uint64_t, std::uint32_t> orphans;  // fine cell key -> index in cells
+      for (std::uint32_t i = 0; i < cells.size(); ++i) {
+        FineCell& c = cells[i];
+        if (c.candOrdinal == kNoCandidate) continue;
+        std::uint8_t drop = 0;
+        for (const auto& stage : lateStages_) stage->mark(&c.cand, 1, &drop);
+        if (!drop) continue;
+        c.candOrdinal = kNoCandidate;
+        orphans.emplace(c.key, i);
+      }
+      if (first && late.input) {
+        const std::uint64_t before = ordinal;
+        reorder_ = reorder_ && late.input->seekable();
+        sources_.addInput(late.input, late.inputName);
+        Prefetcher more(sources_, false);
+        for (Prefetcher::Batch batch; (batch = more.next()).n > 0;) {
+          addBounds(lateBounds_, batch.points, batch.n);
+          if (!orphans.empty())
+            for (std::size_t i = 0; i < batch.n; ++i) {
+              const PointRecord& p = batch.points[i];
+              const auto it = orphans.find(fg.key(fg.column(p.x), fg.row(p.y)));
+              if (it == orphans.end() || cells[it->second].candOrdinal != kNoCandidate) continue;
+              cells[it->second].cand = p;
+              cells[it->second].candOrdinal = ordinal + i;
+            }
+          countBatch(batch);
+        }
+        const FilterCounts& added = more.counts();
+        counts.add(added);
+        if (firstCountsTaken_) firstCounts_.add(added);  // (pass 1 counted the survey without it)
+        lateCount_ = ordinal - before;
+      }
+    }
     stats_.fineTableBytes = std::max<std::uint64_t>(
         stats_.fineTableBytes,
         fineCounts.size() * sizeof(std::uint32_t) + cells.capacity() * sizeof(FineCell) + index.bytes());
@@ -1116,6 +1212,10 @@ class Finalizer {
       firstCountsTaken_ = true;
     }
     if (measureBounds) real = b;
+    if (!lateBounds_.empty()) {  // (a re-run reads the added input with the others: in b already)
+      real.add(lateBounds_.minX, lateBounds_.minY, lateBounds_.minZ);
+      real.add(lateBounds_.maxX, lateBounds_.maxY, lateBounds_.maxZ);
+    }
     n = ordinal;
     return cells;
   }
@@ -1640,7 +1740,7 @@ class Finalizer {
     info.points = stats_.points;
     info.crsWkt = options_.crsWkt;
     for (int i = 0; i < 3; ++i) info.scale[i] = options_.scale[i];
-    info.pointsAtMost = blockMode_;
+    info.pointsAtMost = blockMode_ || !lateStages_.empty();
     out_.begin(info);
     emitEmptyTags();
 
@@ -1649,7 +1749,7 @@ class Finalizer {
     sources_.startPass(false);
     std::uint64_t done = 0;
     const CellMap cellMap(grid_, denseLeaves_ ? &leafDense_ : nullptr, &leafIndex_);
-    Prefetcher reader(sources_, options_.readAhead, &cellMap);
+    Prefetcher reader(sources_, options_.readAhead, &cellMap, &lateStages_, options_.filter.stages.size());
     std::size_t input = 0;
     std::size_t stepsDone = 0;
     for (;;) {
@@ -1659,15 +1759,17 @@ class Finalizer {
         if (blockMode_) {
           streamBlock(blocks_[segBlock_[batch.segment]], batch);
         } else {
-          // Ordinals are those of pass 2 (the stored order), whatever order the batches come in.
+          // Ordinals are those of pass 2 (the stored order), whatever order the batches come in.  A point a
+          // late stage leaves out counts down its cell all the same (it was counted there).
           std::uint64_t ordinal = batch.ordinal;
+          const std::uint8_t* dropped = batch.dropped;
           for (std::size_t i = 0; i < batch.n; ++i) {
             const PointRecord& p = batch.points[i];
             const std::uint32_t memo = batch.cells[i];
             if (memo == kNone) throw changedInput(input);
             Leaf& leaf = leaves_[memo];
             if (leaf.remaining == 0) throw changedInput(input);
-            if (ordinal != leaf.sprinkleOrdinal) append(memo, p);
+            if (ordinal != leaf.sprinkleOrdinal && !(dropped && dropped[i])) append(memo, p);
             ++ordinal;
             if (--leaf.remaining == 0) release(memo);
           }
@@ -1692,6 +1794,18 @@ class Finalizer {
       stats_.points = done;
     }
     if (done != stats_.points || released_ != leaves_.size()) throw changedInput(input);
+    if (!lateStages_.empty()) {  // what the late stages left out, known now
+      const FilterCounts& c3 = reader.counts();
+      std::uint64_t dropped = 0;
+      for (std::size_t k = options_.filter.stages.size(); k < kMaxPointStages; ++k) {
+        stats_.filter.byStage[k] += c3.byStage[k];
+        dropped += c3.byStage[k];
+      }
+      stats_.filter.kept -= dropped;
+      firstCounts_ = stats_.filter;
+      stats_.points = done - dropped;
+      if (stats_.points == 0 && !options_.allowEmpty) throw Error(noPointsMessage());
+    }
     progress_.update(done);  // the last chance to cancel before the outputs are committed
     out_.end();
     stats_.peakPoolBytes = pool_.peak() * BlockPool::kBlockBytes;
@@ -1965,6 +2079,9 @@ class Finalizer {
     for (std::size_t i = 0; i < options_.filter.stages.size() && i < kMaxPointStages; ++i)
       if (c.byStage[i])
         s += ", " + withCommas(c.byStage[i]) + " left out as " + options_.filter.stages[i]->describe();
+    for (std::size_t k = 0, i = options_.filter.stages.size(); k < lateStages_.size() && i < kMaxPointStages;
+         ++k, ++i)
+      if (c.byStage[i]) s += ", " + withCommas(c.byStage[i]) + " left out as " + lateStages_[k]->describe();
     return s;
   }
 
@@ -1986,6 +2103,13 @@ class Finalizer {
   std::vector<std::uint32_t> segBlock_;  // pass 3: per segment, its block
   std::vector<bool> segLast_;            // pass 3: the segment is its block's last
   std::vector<std::pair<std::uint64_t, std::uint32_t>> completed_;  // finishBlock: (Morton, leaf)
+
+  // FinalizerOptions::lateStages: called once (lateDone_); the stages it gave, the bounds and count of
+  // the input it added.
+  bool lateDone_ = false;
+  std::vector<std::shared_ptr<const PointStage>> lateStages_;
+  Bounds3 lateBounds_;
+  std::uint64_t lateCount_ = 0;
 
   bool reorder_ = false;  // pass 2 records its batches for chooseReadOrder
   struct CellBox {

@@ -122,6 +122,8 @@
 #include <cstdint>
 #include <deque>
 #include <exception>
+#include <functional>
+#include <memory>
 #include <mutex>
 #include <optional>
 #include <string>
@@ -139,6 +141,19 @@
 namespace tinbuild {
 
 class Diagnostics;
+
+// What FinalizerOptions::lateStages adds to a run once the count pass has seen the survey:
+//   - `stages` run after the filter's own (their counts follow them in FilterCounts::byStage).  The cells
+//     were counted without them: a point a late stage leaves out still arrives in pass 3, counts down its
+//     cell and is dropped there (and no sprinkle point is one of them);
+//   - `input` (may be null): one more input read after the survey's, counted into its cells now and
+//     streamed in pass 3 where its batches lie (the constraint vertices; it must be seekable to be read in
+//     the sweep's order, and must outlive the run); `inputName` names it in messages.
+struct LateStages {
+  std::vector<std::shared_ptr<const PointStage>> stages;
+  PointStream* input = nullptr;
+  std::string inputName;
+};
 
 struct FinalizerOptions {
   int depth = -1;                                     // -1: chosen from the data; else 0..15
@@ -196,6 +211,14 @@ struct FinalizerOptions {
   // No point left after the filters is an empty stream (begin, then end), not an error: a part of a
   // plan whose window holds no kept point (a COPC plan counts before the filters).
   bool allowEmpty = false;
+  // Stages known only once the survey has been read (hydro-flattening: the water levels come from the
+  // survey's own bank points).  The count pass sees the points the filter keeps through `countObserver`
+  // (on the finalizing thread, each batch once, in stored order) and then calls `lateStages` once, with
+  // the kept points' bounds and count; what it returns joins the run (see LateStages).  So a job needs no
+  // pass of its own before the finalizer.  Not with block mode (nothing is read before the stream: set
+  // countBlocks = false) nor with a plan's fixed grid.
+  std::function<void(const PointRecord*, std::size_t)> countObserver;
+  std::function<LateStages(const Bounds3& kept, std::uint64_t keptPoints)> lateStages;
 };
 
 struct FinalizerStats {

@@ -41,6 +41,21 @@ class PointStage {
   virtual std::string describe() const = 0;
   // Keeps some of p[0..n): the kept records move to the front, in their order; returns how many.
   virtual std::size_t apply(PointRecord* p, std::size_t n) const = 0;
+  // The same verdicts without moving anything (a stage run late, FinalizerOptions::lateStages): sets
+  // drop[i] = 1 for each record of p[0..n) it would leave out among those with drop[i] == 0, and returns
+  // how many it set.  The default asks apply() one record at a time; a stage overrides it with its test.
+  virtual std::size_t mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const {
+    std::size_t marked = 0;
+    for (std::size_t i = 0; i < n; ++i) {
+      if (drop[i]) continue;
+      PointRecord copy = p[i];
+      if (apply(&copy, 1) == 0) {
+        drop[i] = 1;
+        ++marked;
+      }
+    }
+    return marked;
+  }
 };
 
 }  // namespace tinbuild

@@ -47,6 +47,16 @@ struct BankCheck::Impl {
   BankCheckFigures figures;
   std::vector<std::uint32_t> near;
 
+  // Back to empty (configure() again; the mutex is held).
+  void reset() {
+    reports.clear();
+    bodies.clear();
+    edges.clear();
+    cells = SegmentCells{};
+    water.reset();
+    figures = BankCheckFigures{};
+  }
+
   void addEdge(std::uint32_t body, double ax, double ay, double bx, double by) {
     cells.add(static_cast<std::uint32_t>(edges.size()), ax, ay, bx, by);
     edges.push_back({body, ax, ay, bx, by});
@@ -100,9 +110,18 @@ struct BankCheck::Impl {
   }
 };
 
+BankCheck::BankCheck() : impl_(std::make_unique<Impl>()) {}
+
 BankCheck::BankCheck(const std::vector<WaterArea>& water, const std::vector<WaterBody>& bodies, double band,
                      double spacing, double tolerance)
     : impl_(std::make_unique<Impl>()) {
+  configure(water, bodies, band, spacing, tolerance);
+}
+
+void BankCheck::configure(const std::vector<WaterArea>& water, const std::vector<WaterBody>& bodies,
+                          double band, double spacing, double tolerance) {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
+  impl_->reset();
   Impl& m = *impl_;
   m.reports = bodies;
   m.band = band > 0 ? band : 1;
@@ -139,6 +158,7 @@ BankCheck::BankCheck(const std::vector<WaterArea>& water, const std::vector<Wate
 BankCheck::~BankCheck() = default;
 
 bool BankCheck::empty() const {
+  std::lock_guard<std::mutex> lock(impl_->mutex);
   return impl_->bodies.empty();
 }
 
@@ -163,7 +183,7 @@ void BankCheckSink::begin(const DemLayout& layout, const MeshInfo& info) {
 }
 
 void BankCheckSink::pixels(const DemTile& t) {
-  if (t.z.empty()) return;
+  if (t.z.empty() || check_.empty()) return;
   std::vector<double> xs, ys;
   std::vector<float> zs;
   for (int r = 0; r < t.height; ++r) {

@@ -41,6 +41,12 @@ class BankCheck {
   // spacing.
   BankCheck(const std::vector<WaterArea>& water, const std::vector<WaterBody>& bodies, double band,
             double spacing, double tolerance = 1e-3);
+  // A check whose water is known only later (a build that derives the levels during its count pass):
+  // empty, and checks nothing, until configure() gives it the same arguments as the constructor above,
+  // before the first sample.
+  BankCheck();
+  void configure(const std::vector<WaterArea>& water, const std::vector<WaterBody>& bodies, double band,
+                 double spacing, double tolerance = 1e-3);
   ~BankCheck();
   BankCheck(const BankCheck&) = delete;
   BankCheck& operator=(const BankCheck&) = delete;

@@ -230,6 +230,16 @@ std::string WaterStage::describe() const {
   return "points inside " + plural(count_, "water polygon", "water polygons");
 }
 
+std::size_t WaterStage::mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const {
+  std::size_t marked = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (!drop[i] && !(p[i].flags & kFlagConstraint) && index_.inside(p[i].x, p[i].y)) {
+      drop[i] = 1;
+      ++marked;
+    }
+  return marked;
+}
+
 std::size_t WaterStage::apply(PointRecord* p, std::size_t n) const {
   std::size_t kept = 0;
   for (std::size_t i = 0; i < n; ++i) {
@@ -272,6 +282,16 @@ bool BankOutlierStage::contains(double x, double y, double z) const {
 
 std::string BankOutlierStage::describe() const {
   return plural(points_.size(), "low outlier", "low outliers") + " on the banks of the water";
+}
+
+std::size_t BankOutlierStage::mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const {
+  std::size_t marked = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (!drop[i] && !(p[i].flags & kFlagConstraint) && contains(p[i].x, p[i].y, p[i].z)) {
+      drop[i] = 1;
+      ++marked;
+    }
+  return marked;
 }
 
 std::size_t BankOutlierStage::apply(PointRecord* p, std::size_t n) const {
@@ -393,6 +413,16 @@ bool BufferStage::inBuffer(double x, double y) const {
 
 std::string BufferStage::describe() const {
   return "points within the buffers of " + plural(c_->pieces.size(), "constraint piece", "constraint pieces");
+}
+
+std::size_t BufferStage::mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const {
+  std::size_t marked = 0;
+  for (std::size_t i = 0; i < n; ++i)
+    if (!drop[i] && !(p[i].flags & kFlagConstraint) && inBuffer(p[i].x, p[i].y)) {
+      drop[i] = 1;
+      ++marked;
+    }
+  return marked;
 }
 
 std::size_t BufferStage::apply(PointRecord* p, std::size_t n) const {

@@ -64,6 +64,7 @@ class WaterStage final : public PointStage {
   std::string name() const override { return "water"; }
   std::string describe() const override;
   std::size_t apply(PointRecord* p, std::size_t n) const override;
+  std::size_t mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const override;
 
  private:
   WaterIndex index_;
@@ -78,6 +79,7 @@ class BankOutlierStage final : public PointStage {
   std::string name() const override { return "bank_outliers"; }
   std::string describe() const override;
   std::size_t apply(PointRecord* p, std::size_t n) const override;
+  std::size_t mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const override;
   bool contains(double x, double y, double z) const;
 
  private:
@@ -91,6 +93,7 @@ class BufferStage final : public PointStage {
   std::string name() const override { return "breaklines"; }
   std::string describe() const override;
   std::size_t apply(PointRecord* p, std::size_t n) const override;
+  std::size_t mark(const PointRecord* p, std::size_t n, std::uint8_t* drop) const override;
   // Whether (x, y) lies in a piece's closed diametral disc.
   bool inBuffer(double x, double y) const;
 
