@@ -199,7 +199,10 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     if (prep->any()) {
       if (!o.dem.path.empty() && !o.constraints.water.empty()) lateBankCheck = std::make_shared<BankCheck>();
       folded = foldConstraints(*prep, fo, in, constraints, lateBankCheck);
-      if (!folded) constraints = prep->prepare();
+      if (!folded) {
+        constraints = prep->prepare();
+        lateBankCheck.reset();  // (made below from the constraints, as in a part)
+      }
     }
   } else {
     constraints = hooks->constraints(o, in, diag);

@@ -8,6 +8,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <cstdlib>
 #include <filesystem>
 #include <random>
@@ -15,8 +16,10 @@
 #include <vector>
 
 #include "cli_support.h"
+#include "formats/pointcloud/las_reader.h"
 #include "formats/pointcloud/las_writer.h"
 #include "hydro_support.h"
+#include "libterrain/core/diagnostics.h"
 #include "test_support.h"
 
 namespace tinbuild {
@@ -331,6 +334,51 @@ TEST(HydroLevels, PartsCheckTheBanksAsOneProcess) {
   const std::string mpi = test::slurp(out / "mpi.json");
   EXPECT_EQ(pixels(mpi), pixels(one));
   EXPECT_EQ(levelsOf(mpi).belowWater, 0);
+}
+
+// One process derives the levels in the finalizer's count pass when the survey's header gives the band
+// to gather the bank points by (a LAS file); without a header (XYZ text) it makes its own passes first.
+// The same points either way: the same levels, the same bank check, the same DEM pixels.
+TEST(HydroLevels, TheCountPassAndAPassOfItsOwnAgree) {
+  const ValleySpec spec{5, 0.002, 5, 0.02};
+  const fs::path out = test::scratchDir();
+  const MadeValley v = makeValley(spec, out / "valley", false);
+  // The LAS file's points (as read back, quantized) as XYZ text.
+  const fs::path xyz = out / "valley.xyz";
+  {
+    Diagnostics diag;
+    LasReader in(v.las.string(), diag);
+    std::FILE* f = std::fopen(xyz.c_str(), "w");
+    ASSERT_TRUE(f);
+    std::vector<PointRecord> batch(4096);
+    for (std::size_t n; (n = in.read(batch.data(), batch.size())) > 0;)
+      for (std::size_t i = 0; i < n; ++i)
+        std::fprintf(f, "%.17g %.17g %.17g\n", batch[i].x, batch[i].y, batch[i].z);
+    std::fclose(f);
+  }
+  const std::string constraints = " --water " + v.water.string() + " --flow " + v.flow.string();
+  auto run = [&](const std::string& input, const std::string& tag) {
+    const auto r =
+        test::tinbuild("build " + input + constraints + " --dem " + (out / (tag + ".tif")).string() +
+                       " --step 0.5 --report " + (out / (tag + ".json")).string() + " -q");
+    EXPECT_EQ(r.code, 0) << r.err;
+    return test::slurp(out / (tag + ".json"));
+  };
+  const std::string folded = run(v.las.string(), "las");
+  const std::string own = run(xyz.string() + " --a_srs EPSG:32610", "xyz");
+  const Levels a = levelsOf(folded), b = levelsOf(own);
+  ASSERT_GT(a.river.size(), 10u);
+  EXPECT_EQ(a.river, b.river);
+  EXPECT_EQ(a.pond, b.pond);
+  EXPECT_EQ(a.outliers, b.outliers);
+  EXPECT_EQ(a.belowWater, 0);
+  EXPECT_EQ(b.belowWater, 0);
+  const auto pixels = [](const std::string& text) {
+    return numbersAfter(text, "pixels", text.find("\"band\": ")).at(0);
+  };
+  EXPECT_GT(pixels(folded), 5000);
+  EXPECT_EQ(pixels(own), pixels(folded)) << "the bank check of the run that made its own passes";
+  EXPECT_TRUE(readRaster(out / "las.tif").z == readRaster(out / "xyz.tif").z);
 }
 
 TEST(HydroLevels, AMeanderingRiverWithSurveyNoise) {
