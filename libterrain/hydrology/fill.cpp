@@ -1,0 +1,264 @@
+// Depression filling, tile by tile (header).
+#include "libterrain/hydrology/fill.h"
+
+#include <chrono>
+#include <deque>
+#include <queue>
+#include <unordered_map>
+#include <vector>
+
+#include "libterrain/hydrology/spill_graph.h"
+#include "libterrain/hydrology/tile_runner.h"
+
+namespace tinbuild::hydrology {
+
+namespace {
+
+constexpr std::uint32_t kNoLabel = ~std::uint32_t{0};
+
+// One tile's first flood: its fills and labels, and the edges between its labels.
+class TileFlood {
+ public:
+  struct Edge {
+    std::uint32_t a, b;
+    float level;
+  };
+
+  // `halo`: the tile's heights with a halo of one cell ((w + 2) x (h + 2)).
+  void run(const TileRect& r, const std::vector<float>& halo) {
+    w_ = r.width;
+    h_ = r.height;
+    const std::size_t n = r.cells();
+    fill.assign(n, kNoData);
+    label.assign(n, kNoLabel);
+    labels = 1;
+    edges_.clear();
+    std::uint64_t seq = 0;
+    const int hw = w_ + 2;
+    auto haloAt = [&](int c, int row) {
+      return halo[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(hw) +
+                  static_cast<std::size_t>(c + 1)];
+    };
+    // Seeds: outlets (next to nodata or the DEM's border) of the outside, other perimeter cells their own.
+    for (int row = 0; row < h_; ++row)
+      for (int c = 0; c < w_; ++c) {
+        const float z = haloAt(c, row);
+        if (!valid(z)) continue;
+        bool outlet = false;
+        for (int k = 0; k < 8 && !outlet; ++k) outlet = !valid(haloAt(c + kDx[k], row + kDy[k]));
+        if (!outlet && !onPerimeter(w_, h_, c, row)) continue;
+        const std::size_t i = index(c, row);
+        label[i] = outlet ? 0 : labels++;
+        fill[i] = z;
+        open_.push({z, seq++, static_cast<std::uint32_t>(i)});
+      }
+    // The flood: the lowest open cell next; a neighbour no higher than it is in its depression and goes
+    // to the pit queue (raised to its level, taken before anything higher).
+    for (;;) {
+      std::uint32_t i;
+      if (!pit_.empty()) {
+        i = pit_.front();
+        pit_.pop_front();
+      } else if (!open_.empty()) {
+        i = open_.top().cell;
+        open_.pop();
+      } else {
+        break;
+      }
+      const int c = static_cast<int>(i % static_cast<std::uint32_t>(w_)),
+                row = static_cast<int>(i / static_cast<std::uint32_t>(w_));
+      const float level = fill[i];
+      const std::uint32_t l = label[i];
+      for (int k = 0; k < 8; ++k) {
+        const int nc = c + kDx[k], nr = row + kDy[k];
+        if (nc < 0 || nr < 0 || nc >= w_ || nr >= h_) continue;
+        const float z = haloAt(nc, nr);
+        if (!valid(z)) continue;
+        const std::size_t j = index(nc, nr);
+        if (label[j] == kNoLabel) {
+          label[j] = l;
+          if (z <= level) {
+            fill[j] = level;
+            pit_.push_back(static_cast<std::uint32_t>(j));
+          } else {
+            fill[j] = z;
+            open_.push({z, seq++, static_cast<std::uint32_t>(j)});
+          }
+        } else if (label[j] != l) {
+          addEdge(l, label[j], std::max(level, fill[j]));
+        }
+      }
+    }
+  }
+
+  std::size_t index(int c, int row) const {
+    return static_cast<std::size_t>(row) * static_cast<std::size_t>(w_) + static_cast<std::size_t>(c);
+  }
+  std::vector<Edge> edges() const {
+    std::vector<Edge> out;
+    out.reserve(edges_.size());
+    for (const auto& [key, level] : edges_)
+      out.push_back({static_cast<std::uint32_t>(key >> 32), static_cast<std::uint32_t>(key), level});
+    return out;
+  }
+
+  std::vector<float> fill;
+  std::vector<std::uint32_t> label;
+  std::uint32_t labels = 1;  // local labels 0 (the outside) .. labels - 1
+
+ private:
+  void addEdge(std::uint32_t a, std::uint32_t b, float level) {
+    if (a > b) std::swap(a, b);
+    const std::uint64_t key = (std::uint64_t{a} << 32) | b;
+    auto [it, inserted] = edges_.try_emplace(key, level);
+    if (!inserted && level < it->second) it->second = level;
+  }
+  struct Open {
+    float z;
+    std::uint64_t seq;  // (ties in the order cells were reached: one flood for one tile, every time)
+    std::uint32_t cell;
+    bool operator>(const Open& o) const { return z > o.z || (z == o.z && seq > o.seq); }
+  };
+  int w_ = 0, h_ = 0;
+  std::priority_queue<Open, std::vector<Open>, std::greater<>> open_;
+  std::deque<std::uint32_t> pit_;
+  std::unordered_map<std::uint64_t, float> edges_;
+};
+
+// What pass 1 keeps of a tile.
+struct TileSummary {
+  std::uint32_t labels = 1;
+  std::vector<std::uint32_t> perimeterLabel;  // by perimeterSlot
+  std::vector<float> perimeterFill;
+  std::vector<TileFlood::Edge> edges;
+};
+
+double since(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double>(std::chrono::steady_clock::now() - t).count();
+}
+
+}  // namespace
+
+FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<float>& filled,
+                          const FillOptions& options) {
+  FillStats stats;
+  const std::int64_t tiles = grid.tiles();
+  stats.tiles = static_cast<std::uint64_t>(tiles);
+  const int threads = std::max(1, options.threads);
+  std::vector<TileFlood> floods(static_cast<std::size_t>(threads));
+  std::vector<std::vector<float>> halos(static_cast<std::size_t>(threads));
+  auto flood = [&](std::int64_t t, int worker) -> TileFlood& {
+    const TileRect r = grid.tile(t);
+    std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
+    halo.resize(static_cast<std::size_t>(r.width + 2) * static_cast<std::size_t>(r.height + 2));
+    dem.readWithHalo(r, halo.data());
+    TileFlood& f = floods[static_cast<std::size_t>(worker)];
+    f.run(r, halo);
+    return f;
+  };
+
+  // Pass 1: each tile's perimeter and edges.
+  auto t0 = std::chrono::steady_clock::now();
+  std::vector<TileSummary> summaries(static_cast<std::size_t>(tiles));
+  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int worker) {
+    const TileRect r = grid.tile(t);
+    TileFlood& f = flood(t, worker);
+    TileSummary& s = summaries[static_cast<std::size_t>(t)];
+    s.labels = f.labels;
+    s.perimeterLabel.assign(perimeterCells(r.width, r.height), kNoLabel);
+    s.perimeterFill.assign(s.perimeterLabel.size(), kNoData);
+    for (int row = 0; row < r.height; ++row)
+      for (int c = 0; c < r.width; ++c) {
+        if (!onPerimeter(r.width, r.height, c, row)) {
+          c = r.width - 2;  // (to the last column)
+          continue;
+        }
+        const std::size_t slot = perimeterSlot(r.width, r.height, c, row), i = f.index(c, row);
+        s.perimeterLabel[slot] = f.label[i];
+        s.perimeterFill[slot] = f.fill[i];
+      }
+    s.edges = f.edges();
+  });
+  stats.pass1Seconds = since(t0);
+
+  // The perimeter graph: every tile's labels (0 is the outside, shared), the edges inside the tiles and
+  // between touching perimeter cells of neighbouring tiles.
+  t0 = std::chrono::steady_clock::now();
+  std::vector<std::uint32_t> offset(static_cast<std::size_t>(tiles) + 1, 1);
+  for (std::int64_t t = 0; t < tiles; ++t)
+    offset[static_cast<std::size_t>(t) + 1] =
+        offset[static_cast<std::size_t>(t)] + summaries[static_cast<std::size_t>(t)].labels - 1;
+  auto global = [&](std::int64_t t, std::uint32_t l) {
+    return l == 0 ? 0 : offset[static_cast<std::size_t>(t)] + l - 1;
+  };
+  SpillGraph graph(offset.back());
+  for (std::int64_t t = 0; t < tiles; ++t) {
+    const TileSummary& s = summaries[static_cast<std::size_t>(t)];
+    for (const TileFlood::Edge& e : s.edges) graph.addEdge(global(t, e.a), global(t, e.b), e.level);
+    const TileRect r = grid.tile(t);
+    for (int row = 0; row < r.height; ++row)
+      for (int c = 0; c < r.width; ++c) {
+        if (!onPerimeter(r.width, r.height, c, row)) {
+          c = r.width - 2;
+          continue;
+        }
+        const std::size_t slot = perimeterSlot(r.width, r.height, c, row);
+        if (s.perimeterLabel[slot] == kNoLabel) continue;
+        const std::int64_t gc = r.col0 + c, gr = r.row0 + row;
+        for (int k = 0; k < 8; ++k) {
+          const std::int64_t nc = gc + kDx[k], nr = gr + kDy[k];
+          if (nc < 0 || nr < 0 || nc >= grid.width() || nr >= grid.height()) continue;
+          const std::int64_t u = grid.tileOf(nc, nr);
+          if (u <= t) continue;  // (each pair of tiles once, from the lower)
+          const TileRect ur = grid.tile(u);
+          const TileSummary& us = summaries[static_cast<std::size_t>(u)];
+          const std::size_t uslot = perimeterSlot(ur.width, ur.height, static_cast<int>(nc - ur.col0),
+                                                  static_cast<int>(nr - ur.row0));
+          if (us.perimeterLabel[uslot] == kNoLabel) continue;
+          graph.addEdge(global(t, s.perimeterLabel[slot]), global(u, us.perimeterLabel[uslot]),
+                        std::max(s.perimeterFill[slot], us.perimeterFill[uslot]));
+        }
+      }
+  }
+  for (const TileSummary& s : summaries)
+    stats.graphBytes += s.perimeterLabel.capacity() * 8 + s.edges.capacity() * sizeof(TileFlood::Edge);
+  stats.graphBytes += graph.bytes();
+  stats.labels = graph.nodes();
+  stats.edges = graph.edges();
+  std::vector<TileSummary>().swap(summaries);
+  const std::vector<float> level = graph.solve();
+  stats.solveSeconds = since(t0);
+
+  // Pass 2: the same flood again, each cell at max(tile fill, its label's level).
+  t0 = std::chrono::steady_clock::now();
+  std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), raised(cells);
+  std::vector<std::vector<float>> outs(static_cast<std::size_t>(threads));
+  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int worker) {
+    const TileRect r = grid.tile(t);
+    TileFlood& f = flood(t, worker);
+    const std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
+    std::vector<float>& out = outs[static_cast<std::size_t>(worker)];
+    out.assign(r.cells(), kNoData);
+    const int hw = r.width + 2;
+    for (int row = 0; row < r.height; ++row)
+      for (int c = 0; c < r.width; ++c) {
+        const std::size_t i = f.index(c, row);
+        if (f.label[i] == kNoLabel) continue;
+        const float z = halo[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(hw) +
+                             static_cast<std::size_t>(c + 1)];
+        const float v = std::max(f.fill[i], level[global(t, f.label[i])]);
+        out[i] = v;
+        ++cells[static_cast<std::size_t>(worker)];
+        raised[static_cast<std::size_t>(worker)] += v > z;
+      }
+    filled.write(r, out.data());
+  });
+  for (int w = 0; w < threads; ++w) {
+    stats.cells += cells[static_cast<std::size_t>(w)];
+    stats.raised += raised[static_cast<std::size_t>(w)];
+  }
+  stats.pass2Seconds = since(t0);
+  return stats;
+}
+
+}  // namespace tinbuild::hydrology

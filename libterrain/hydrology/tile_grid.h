@@ -1,0 +1,142 @@
+// The tile grid every hydrology pass walks (docs/design.md, "Terrain hydrology").
+//
+// A DEM of width x height cells is cut into tiles of tileSize x tileSize cells (the last column and row
+// of tiles narrower), numbered row by row.  A pass reads one tile at a time, with a halo of one cell
+// around it (the neighbours its 8-connected rules look at), works on it alone, and keeps only what
+// crosses the tile's edges: its perimeter.  Nothing a pass computes depends on the tile size: each pass
+// says why in its essay.
+//
+// Cells hold float heights; nodata is NaN inside the passes (the readers map the raster's nodata value to
+// it), and so is everything outside the DEM: water leaves the DEM at its border and into nodata alike.
+#pragma once
+
+#include <algorithm>
+#include <cmath>
+#include <cstddef>
+#include <cstdint>
+#include <limits>
+#include <vector>
+
+namespace tinbuild::hydrology {
+
+constexpr float kNoData = std::numeric_limits<float>::quiet_NaN();
+
+inline bool valid(float z) {
+  return !std::isnan(z);
+}
+
+// A tile's cells: columns [col0, col0 + width), rows [row0, row0 + height) of the DEM (row 0 at the top).
+struct TileRect {
+  std::int64_t col0 = 0, row0 = 0;
+  int width = 0, height = 0;
+  std::size_t cells() const { return static_cast<std::size_t>(width) * static_cast<std::size_t>(height); }
+};
+
+class TileGrid {
+ public:
+  TileGrid(std::int64_t width, std::int64_t height, int tileSize)
+      : width_(width), height_(height), tile_(std::max(tileSize, 1)) {}
+  std::int64_t width() const { return width_; }
+  std::int64_t height() const { return height_; }
+  int tileSize() const { return tile_; }
+  std::int64_t tilesX() const { return (width_ + tile_ - 1) / tile_; }
+  std::int64_t tilesY() const { return (height_ + tile_ - 1) / tile_; }
+  std::int64_t tiles() const { return tilesX() * tilesY(); }
+  TileRect tile(std::int64_t index) const {
+    const std::int64_t tx = index % tilesX(), ty = index / tilesX();
+    TileRect r;
+    r.col0 = tx * tile_;
+    r.row0 = ty * tile_;
+    r.width = static_cast<int>(std::min<std::int64_t>(tile_, width_ - r.col0));
+    r.height = static_cast<int>(std::min<std::int64_t>(tile_, height_ - r.row0));
+    return r;
+  }
+  // The tile holding cell (col, row).
+  std::int64_t tileOf(std::int64_t col, std::int64_t row) const {
+    return (row / tile_) * tilesX() + col / tile_;
+  }
+
+ private:
+  std::int64_t width_, height_;
+  int tile_;
+};
+
+// The cells on a tile's perimeter, in row-major order: slot() numbers them 0 .. perimeterCells() - 1.
+inline std::size_t perimeterCells(int w, int h) {
+  if (w <= 2 || h <= 2) return static_cast<std::size_t>(w) * static_cast<std::size_t>(h);
+  return 2 * static_cast<std::size_t>(w) + 2 * static_cast<std::size_t>(h) - 4;
+}
+// The slot of local cell (c, r), which must lie on the perimeter.
+inline std::size_t perimeterSlot(int w, int h, int c, int r) {
+  if (w <= 2 || h <= 2)
+    return static_cast<std::size_t>(r) * static_cast<std::size_t>(w) + static_cast<std::size_t>(c);
+  if (r == 0) return static_cast<std::size_t>(c);
+  if (r == h - 1)
+    return static_cast<std::size_t>(w) + 2 * static_cast<std::size_t>(h - 2) + static_cast<std::size_t>(c);
+  return static_cast<std::size_t>(w) + 2 * static_cast<std::size_t>(r - 1) + (c == 0 ? 0 : 1);
+}
+inline bool onPerimeter(int w, int h, int c, int r) {
+  return r == 0 || c == 0 || r == h - 1 || c == w - 1;
+}
+
+// The 8 neighbours, in ESRI's D8 order: E, SE, S, SW, W, NW, N, NE (codes 1, 2, 4, ..., 128).
+constexpr int kDx[8] = {1, 1, 0, -1, -1, -1, 0, 1};
+constexpr int kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
+
+// Reads tiles of the DEM.
+class TileSource {
+ public:
+  virtual ~TileSource() = default;
+  // Fills z ((r.width + 2) x (r.height + 2), row-major) with the tile and a halo of one cell around it:
+  // NaN for nodata and for cells outside the DEM.  May be called from several threads at once.
+  virtual void readWithHalo(const TileRect& r, float* z) = 0;
+};
+
+// Takes finished tiles of an output (r.width x r.height, row-major).  Called from several threads, in
+// any order of tiles; each tile once.
+template <typename T>
+class TileTarget {
+ public:
+  virtual ~TileTarget() = default;
+  virtual void write(const TileRect& r, const T* values) = 0;
+};
+
+// A whole DEM in memory as a TileSource (tests, small rasters).
+class MemoryDem final : public TileSource {
+ public:
+  MemoryDem(std::int64_t width, std::int64_t height, std::vector<float> z)
+      : width_(width), height_(height), z_(std::move(z)) {}
+  void readWithHalo(const TileRect& r, float* z) override {
+    const int w = r.width + 2;
+    for (int y = 0; y < r.height + 2; ++y)
+      for (int x = 0; x < w; ++x) {
+        const std::int64_t c = r.col0 + x - 1, row = r.row0 + y - 1;
+        z[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x)] =
+            c < 0 || row < 0 || c >= width_ || row >= height_
+                ? kNoData
+                : z_[static_cast<std::size_t>(row * width_ + c)];
+      }
+  }
+
+ private:
+  std::int64_t width_, height_;
+  std::vector<float> z_;
+};
+
+// An output gathered whole in memory (tests, small rasters).
+template <typename T>
+class MemoryRaster final : public TileTarget<T> {
+ public:
+  MemoryRaster(std::int64_t width, std::int64_t height, T fill = T{})
+      : width_(width), values(static_cast<std::size_t>(width * height), fill) {}
+  void write(const TileRect& r, const T* v) override {
+    for (int y = 0; y < r.height; ++y)
+      std::copy(v + static_cast<std::size_t>(y) * static_cast<std::size_t>(r.width),
+                v + static_cast<std::size_t>(y + 1) * static_cast<std::size_t>(r.width),
+                values.begin() + static_cast<std::ptrdiff_t>((r.row0 + y) * width_ + r.col0));
+  }
+  std::int64_t width_;
+  std::vector<T> values;
+};
+
+}  // namespace tinbuild::hydrology
