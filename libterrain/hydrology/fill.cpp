@@ -151,7 +151,7 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
     const TileRect r = grid.tile(t);
     std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
     halo.resize(static_cast<std::size_t>(r.width + 2) * static_cast<std::size_t>(r.height + 2));
-    dem.readWithHalo(r, halo.data());
+    dem.read(r, 1, halo.data());
     TileFlood& f = floods[static_cast<std::size_t>(worker)];
     f.run(r, halo);
     return f;

@@ -87,9 +87,9 @@ constexpr int kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
 class TileSource {
  public:
   virtual ~TileSource() = default;
-  // Fills z ((r.width + 2) x (r.height + 2), row-major) with the tile and a halo of one cell around it:
-  // NaN for nodata and for cells outside the DEM.  May be called from several threads at once.
-  virtual void readWithHalo(const TileRect& r, float* z) = 0;
+  // Fills z ((r.width + 2 halo) x (r.height + 2 halo), row-major) with the tile and a halo of `halo`
+  // cells around it: NaN for nodata and for cells outside the DEM.  May be called from several threads.
+  virtual void read(const TileRect& r, int halo, float* z) = 0;
 };
 
 // Takes finished tiles of an output (r.width x r.height, row-major).  Called from several threads, in
@@ -106,11 +106,11 @@ class MemoryDem final : public TileSource {
  public:
   MemoryDem(std::int64_t width, std::int64_t height, std::vector<float> z)
       : width_(width), height_(height), z_(std::move(z)) {}
-  void readWithHalo(const TileRect& r, float* z) override {
-    const int w = r.width + 2;
-    for (int y = 0; y < r.height + 2; ++y)
+  void read(const TileRect& r, int halo, float* z) override {
+    const int w = r.width + 2 * halo;
+    for (int y = 0; y < r.height + 2 * halo; ++y)
       for (int x = 0; x < w; ++x) {
-        const std::int64_t c = r.col0 + x - 1, row = r.row0 + y - 1;
+        const std::int64_t c = r.col0 + x - halo, row = r.row0 + y - halo;
         z[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x)] =
             c < 0 || row < 0 || c >= width_ || row >= height_
                 ? kNoData

@@ -96,3 +96,114 @@ inline Dem randomDem(int w, int h, std::uint64_t seed, bool holes = true) {
 }
 
 }  // namespace tinbuild::hydrology::reference
+
+namespace tinbuild::hydrology::reference {
+
+// D8 directions of a filled surface by the rule of flow_directions.h, over the whole raster.
+inline std::vector<std::uint8_t> flowDirections(const Dem& f, double dx = 1, double dy = 1) {
+  const int w = f.w, h = f.h;
+  const std::size_t n = f.z.size();
+  auto idx = [w](int c, int r) { return static_cast<std::size_t>(r) * w + c; };
+  auto z = [&](int c, int r) { return f.inside(c, r) ? f.at(c, r) : kNoData; };
+  const double dist[8] = {dx, std::hypot(dx, dy), dy, std::hypot(dx, dy),
+                          dx, std::hypot(dx, dy), dy, std::hypot(dx, dy)};
+  enum { kNone, kDefined, kFlat };
+  std::vector<int> status(n, kNone);
+  for (int r = 0; r < h; ++r)
+    for (int c = 0; c < w; ++c) {
+      if (!valid(z(c, r))) continue;
+      bool defined = false;
+      for (int k = 0; k < 8; ++k) {
+        const float v = z(c + kDx[k], r + kDy[k]);
+        defined = defined || !valid(v) || v < z(c, r);
+      }
+      status[idx(c, r)] = defined ? kDefined : kFlat;
+    }
+  // Distances through the flats from the low edge and from the high edge, and each flat's largest dH.
+  const std::uint32_t inf = ~std::uint32_t{0};
+  auto bfs = [&](bool low) {
+    std::vector<std::uint32_t> d(n, inf);
+    std::vector<std::size_t> queue;
+    for (int r = 0; r < h; ++r)
+      for (int c = 0; c < w; ++c) {
+        if (status[idx(c, r)] != kFlat) continue;
+        bool source = false;
+        for (int k = 0; k < 8; ++k) {
+          const int nc = c + kDx[k], nr = r + kDy[k];
+          const float v = z(nc, nr);
+          if (low)
+            source = source || (v == z(c, r) && status[idx(nc, nr)] == kDefined);
+          else
+            source = source || (valid(v) && v > z(c, r));
+        }
+        if (source) {
+          d[idx(c, r)] = 1;
+          queue.push_back(idx(c, r));
+        }
+      }
+    for (std::size_t q = 0; q < queue.size(); ++q) {
+      const int c = static_cast<int>(queue[q] % w), r = static_cast<int>(queue[q] / w);
+      for (int k = 0; k < 8; ++k) {
+        const int nc = c + kDx[k], nr = r + kDy[k];
+        if (!f.inside(nc, nr) || status[idx(nc, nr)] != kFlat || d[idx(nc, nr)] != inf) continue;
+        d[idx(nc, nr)] = d[queue[q]] + 1;
+        queue.push_back(idx(nc, nr));
+      }
+    }
+    return d;
+  };
+  const std::vector<std::uint32_t> dL = bfs(true), dH = bfs(false);
+  std::vector<std::uint32_t> mH(n, 0), comp(n, inf);
+  for (std::size_t s = 0; s < n; ++s) {
+    if (status[s] != kFlat || comp[s] != inf) continue;
+    std::vector<std::size_t> members{s};
+    comp[s] = static_cast<std::uint32_t>(s);
+    std::uint32_t most = 0;
+    for (std::size_t q = 0; q < members.size(); ++q) {
+      if (dH[members[q]] != inf) most = std::max(most, dH[members[q]]);
+      const int c = static_cast<int>(members[q] % w), r = static_cast<int>(members[q] / w);
+      for (int k = 0; k < 8; ++k) {
+        const int nc = c + kDx[k], nr = r + kDy[k];
+        if (!f.inside(nc, nr) || status[idx(nc, nr)] != kFlat || comp[idx(nc, nr)] != inf) continue;
+        comp[idx(nc, nr)] = static_cast<std::uint32_t>(s);
+        members.push_back(idx(nc, nr));
+      }
+    }
+    for (std::size_t m : members) mH[m] = most;
+  }
+  std::vector<std::uint8_t> out(n, 255);
+  for (int r = 0; r < h; ++r)
+    for (int c = 0; c < w; ++c) {
+      const std::size_t i = idx(c, r);
+      if (status[i] == kDefined) {
+        int best = -1;
+        double steepest = 0;
+        for (int k = 0; k < 8; ++k) {
+          const float v = z(c + kDx[k], r + kDy[k]);
+          if (!valid(v) || !(v < z(c, r))) continue;
+          const double slope = (static_cast<double>(z(c, r)) - v) / dist[k];
+          if (best < 0 || slope > steepest) best = k, steepest = slope;
+        }
+        out[i] = best < 0 ? 0 : static_cast<std::uint8_t>(1u << best);
+      } else if (status[i] == kFlat) {
+        int best = -1;
+        std::int64_t least = 0;
+        for (int k = 0; k < 8; ++k) {
+          const int nc = c + kDx[k], nr = r + kDy[k];
+          if (z(nc, nr) != z(c, r)) continue;
+          const std::size_t j = idx(nc, nr);
+          std::int64_t m;
+          if (status[j] == kDefined)
+            m = 0;
+          else
+            m = 2 * static_cast<std::int64_t>(dL[j]) +
+                (dH[j] == inf ? 0 : static_cast<std::int64_t>(mH[j]) - dH[j]);
+          if (best < 0 || m < least) best = k, least = m;
+        }
+        out[i] = static_cast<std::uint8_t>(1u << best);
+      }
+    }
+  return out;
+}
+
+}  // namespace tinbuild::hydrology::reference

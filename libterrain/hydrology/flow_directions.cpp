@@ -1,0 +1,397 @@
+// D8 flow directions, flats by Barnes et al. 2014, tile by tile (header).
+#include "libterrain/hydrology/flow_directions.h"
+
+#include <algorithm>
+#include <atomic>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <vector>
+
+#include "libterrain/hydrology/tile_runner.h"
+
+namespace tinbuild::hydrology {
+
+namespace {
+
+constexpr std::uint32_t kInf = std::numeric_limits<std::uint32_t>::max();
+constexpr int kHalo = 2;
+
+// What a tile keeps of its perimeter's flat cells between rounds (kInf: not a flat cell, or not reached).
+struct Perimeter {
+  std::vector<std::uint32_t> dL, dH, mH;
+  bool flat = false;  // some perimeter cell is a flat cell
+};
+
+enum class Status : std::uint8_t { kNoData, kDefined, kFlat };
+
+class TileFlats {
+ public:
+  TileFlats(const TileGrid& grid, const FlowOptions& o) : grid_(grid), o_(o) {
+    dist_[0] = dist_[4] = o.dx;
+    dist_[2] = dist_[6] = o.dy;
+    dist_[1] = dist_[3] = dist_[5] = dist_[7] = std::hypot(o.dx, o.dy);
+  }
+
+  // Reads tile t and works out its cells' status, its flat cells and their components.
+  void load(std::int64_t t, TileSource& source) {
+    t_ = t;
+    r_ = grid_.tile(t);
+    hw_ = r_.width + 2 * kHalo;
+    z_.resize(static_cast<std::size_t>(hw_) * static_cast<std::size_t>(r_.height + 2 * kHalo));
+    source.read(r_, kHalo, z_.data());
+    // Status of the tile's cells and of the ring around it.
+    sw_ = r_.width + 2;
+    status_.assign(static_cast<std::size_t>(sw_) * static_cast<std::size_t>(r_.height + 2), Status::kNoData);
+    for (int row = -1; row <= r_.height; ++row)
+      for (int c = -1; c <= r_.width; ++c) {
+        const float z = at(c, row);
+        if (!valid(z)) continue;
+        bool defined = false;
+        for (int k = 0; k < 8 && !defined; ++k) {
+          const float n = at(c + kDx[k], row + kDy[k]);
+          defined = !valid(n) || n < z;
+        }
+        status(c, row) = defined ? Status::kDefined : Status::kFlat;
+      }
+    // The flat cells of the tile, and their components within it.
+    const std::size_t n = r_.cells();
+    local_.assign(n, kInf);
+    flats_.clear();
+    for (int row = 0; row < r_.height; ++row)
+      for (int c = 0; c < r_.width; ++c)
+        if (status(c, row) == Status::kFlat) {
+          local_[cell(c, row)] = static_cast<std::uint32_t>(flats_.size());
+          flats_.push_back(static_cast<std::uint32_t>(cell(c, row)));
+        }
+    comp_.assign(flats_.size(), kInf);
+    comps_ = 0;
+    compMax_.clear();  // (maxima() sets them)
+    std::vector<std::uint32_t> stack;
+    for (std::uint32_t f = 0; f < flats_.size(); ++f) {
+      if (comp_[f] != kInf) continue;
+      comp_[f] = comps_;
+      stack.push_back(f);
+      while (!stack.empty()) {
+        const std::uint32_t g = stack.back();
+        stack.pop_back();
+        const int c = col(flats_[g]), row = rowOf(flats_[g]);
+        for (int k = 0; k < 8; ++k) {
+          const std::uint32_t h = flatAt(c + kDx[k], row + kDy[k]);
+          if (h != kInf && comp_[h] == kInf) {
+            comp_[h] = comps_;
+            stack.push_back(h);
+          }
+        }
+      }
+      ++comps_;
+    }
+  }
+
+  bool perimeterFlat() const {
+    for (std::uint32_t g : flats_)
+      if (onPerimeter(r_.width, r_.height, col(g), rowOf(g))) return true;
+    return false;
+  }
+
+  // dL and dH of the flat cells, seeded by the neighbours' perimeters (`perims`, the last round's).
+  void distances(const std::vector<Perimeter>& perims) {
+    bfs(dL_, perims, true);
+    bfs(dH_, perims, false);
+  }
+
+  // mH of each component: its cells' largest dH and its neighbours' mH across the tile's edges.
+  void maxima(const std::vector<Perimeter>& perims) {
+    compMax_.assign(comps_, 0);
+    for (std::uint32_t f = 0; f < flats_.size(); ++f)
+      if (dH_[f] != kInf) compMax_[comp_[f]] = std::max(compMax_[comp_[f]], dH_[f]);
+    forEachAcross(perims, [&](std::uint32_t f, const Perimeter& p, std::size_t slot) {
+      if (p.mH[slot] != kInf) compMax_[comp_[f]] = std::max(compMax_[comp_[f]], p.mH[slot]);
+    });
+  }
+
+  // The tile's perimeter values.
+  void perimeter(Perimeter& p) const {
+    const std::size_t slots = perimeterCells(r_.width, r_.height);
+    p.dL.assign(slots, kInf);
+    p.dH.assign(slots, kInf);
+    p.mH.assign(slots, kInf);
+    p.flat = false;
+    for (std::uint32_t f = 0; f < flats_.size(); ++f) {
+      const int c = col(flats_[f]), row = rowOf(flats_[f]);
+      if (!onPerimeter(r_.width, r_.height, c, row)) continue;
+      const std::size_t slot = perimeterSlot(r_.width, r_.height, c, row);
+      p.dL[slot] = dL_[f];
+      p.dH[slot] = dH_[f];
+      p.mH[slot] = compMax_.empty() ? kInf : compMax_[comp_[f]];
+      p.flat = true;
+    }
+  }
+
+  // The directions (perims: the converged perimeters, maxima included).
+  void codes(const std::vector<Perimeter>& perims, std::vector<std::uint8_t>& out, FlowStats& s) const {
+    out.assign(r_.cells(), kFlowNoData);
+    for (int row = 0; row < r_.height; ++row)
+      for (int c = 0; c < r_.width; ++c) {
+        const std::size_t i = cell(c, row);
+        const Status st = status(c, row);
+        if (st == Status::kNoData) continue;
+        ++s.cells;
+        const float z = at(c, row);
+        if (st == Status::kDefined) {
+          int best = -1;
+          double steepest = 0;
+          for (int k = 0; k < 8; ++k) {
+            const float n = at(c + kDx[k], row + kDy[k]);
+            if (!valid(n) || !(n < z)) continue;
+            const double slope = (static_cast<double>(z) - static_cast<double>(n)) / dist_[k];
+            if (best < 0 || slope > steepest) best = k, steepest = slope;
+          }
+          out[i] = best < 0 ? kFlowOut : flowCode(best);
+          s.out += best < 0;
+          continue;
+        }
+        // A flat cell: the neighbour of least mask.
+        ++s.flatCells;
+        int best = -1;
+        std::int64_t least = 0;
+        for (int k = 0; k < 8; ++k) {
+          const int nc = c + kDx[k], nr = row + kDy[k];
+          if (at(nc, nr) != z) continue;
+          std::int64_t m;
+          if (status(nc, nr) == Status::kDefined)
+            m = 0;
+          else if (status(nc, nr) == Status::kFlat)
+            m = maskOf(nc, nr, perims);
+          else
+            continue;
+          if (best < 0 || m < least) best = k, least = m;
+        }
+        out[i] = flowCode(best);  // (a flat cell always has a flat or low-edge neighbour)
+      }
+  }
+
+  const TileRect& rect() const { return r_; }
+
+ private:
+  float at(int c, int row) const {
+    return z_[static_cast<std::size_t>(row + kHalo) * static_cast<std::size_t>(hw_) +
+              static_cast<std::size_t>(c + kHalo)];
+  }
+  Status& status(int c, int row) {
+    return status_[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(sw_) +
+                   static_cast<std::size_t>(c + 1)];
+  }
+  Status status(int c, int row) const {
+    return status_[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(sw_) +
+                   static_cast<std::size_t>(c + 1)];
+  }
+  std::size_t cell(int c, int row) const {
+    return static_cast<std::size_t>(row) * static_cast<std::size_t>(r_.width) + static_cast<std::size_t>(c);
+  }
+  int col(std::uint32_t i) const { return static_cast<int>(i % static_cast<std::uint32_t>(r_.width)); }
+  int rowOf(std::uint32_t i) const { return static_cast<int>(i / static_cast<std::uint32_t>(r_.width)); }
+  // The flat index of a tile cell, kInf outside the tile or for a cell not flat.
+  std::uint32_t flatAt(int c, int row) const {
+    if (c < 0 || row < 0 || c >= r_.width || row >= r_.height) return kInf;
+    return local_[cell(c, row)];
+  }
+
+  // f(flat index, the neighbouring tile's perimeter, its slot) for each flat cell's flat neighbour across
+  // the tile's edge.
+  template <typename F>
+  void forEachAcross(const std::vector<Perimeter>& perims, F&& f) const {
+    for (std::uint32_t g = 0; g < flats_.size(); ++g) {
+      const int c = col(flats_[g]), row = rowOf(flats_[g]);
+      if (!onPerimeter(r_.width, r_.height, c, row)) continue;
+      for (int k = 0; k < 8; ++k) {
+        const int nc = c + kDx[k], nr = row + kDy[k];
+        if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) continue;
+        if (status(nc, nr) != Status::kFlat) continue;
+        const std::int64_t gc = r_.col0 + nc, gr = r_.row0 + nr;
+        const std::int64_t u = grid_.tileOf(gc, gr);
+        const TileRect ur = grid_.tile(u);
+        const Perimeter& p = perims[static_cast<std::size_t>(u)];
+        if (p.dL.empty()) continue;  // (not computed yet)
+        f(g, p,
+          perimeterSlot(ur.width, ur.height, static_cast<int>(gc - ur.col0), static_cast<int>(gr - ur.row0)));
+      }
+    }
+  }
+
+  // Multi-source distances through the tile's flat cells: 1 on the local sources (beside the low edge, or
+  // beside higher ground), and one more than a flat neighbour's across the tile's edge.  A breadth-first
+  // search whose queue is merged with the seeds sorted by distance (every step costs 1, so the queue's
+  // distances never fall): each cell is settled once, in order of distance.
+  void bfs(std::vector<std::uint32_t>& d, const std::vector<Perimeter>& perims, bool low) {
+    d.assign(flats_.size(), kInf);
+    seeds_.clear();
+    for (std::uint32_t f = 0; f < flats_.size(); ++f) {
+      const int c = col(flats_[f]), row = rowOf(flats_[f]);
+      const float z = at(c, row);
+      bool source = false;
+      for (int k = 0; k < 8 && !source; ++k) {
+        const int nc = c + kDx[k], nr = row + kDy[k];
+        const float n = at(nc, nr);
+        source = low ? (n == z && status(nc, nr) == Status::kDefined) : (valid(n) && n > z);
+      }
+      if (source) {
+        d[f] = 1;
+        seeds_.push_back({1, f});
+      }
+    }
+    forEachAcross(perims, [&](std::uint32_t f, const Perimeter& p, std::size_t slot) {
+      const std::uint32_t v = low ? p.dL[slot] : p.dH[slot];
+      if (v != kInf && v + 1 < d[f]) {
+        d[f] = v + 1;
+        seeds_.push_back({v + 1, f});
+      }
+    });
+    std::sort(seeds_.begin(), seeds_.end());
+    queue_.clear();
+    std::size_t head = 0, next = 0;
+    while (head < queue_.size() || next < seeds_.size()) {
+      std::uint32_t f, v;
+      if (next < seeds_.size() && (head >= queue_.size() || seeds_[next].first <= d[queue_[head]])) {
+        v = seeds_[next].first;
+        f = seeds_[next++].second;
+        if (v != d[f]) continue;  // (a better seed, or the search, got there first)
+      } else {
+        f = queue_[head++];
+        v = d[f];
+      }
+      const int c = col(flats_[f]), row = rowOf(flats_[f]);
+      for (int k = 0; k < 8; ++k) {
+        const std::uint32_t g = flatAt(c + kDx[k], row + kDy[k]);
+        if (g != kInf && v + 1 < d[g]) {
+          d[g] = v + 1;
+          queue_.push_back(g);
+        }
+      }
+    }
+  }
+
+  std::int64_t maskOf(int c, int row, const std::vector<Perimeter>& perims) const {
+    std::uint32_t dl, dh, mh;
+    const std::uint32_t f = flatAt(c, row);
+    if (f != kInf) {
+      dl = dL_[f];
+      dh = dH_[f];
+      mh = compMax_[comp_[f]];
+    } else {  // a flat cell of a neighbouring tile: its perimeter's values
+      const std::int64_t gc = r_.col0 + c, gr = r_.row0 + row;
+      const std::int64_t u = grid_.tileOf(gc, gr);
+      const TileRect ur = grid_.tile(u);
+      const Perimeter& p = perims[static_cast<std::size_t>(u)];
+      const std::size_t slot =
+          perimeterSlot(ur.width, ur.height, static_cast<int>(gc - ur.col0), static_cast<int>(gr - ur.row0));
+      dl = p.dL[slot];
+      dh = p.dH[slot];
+      mh = p.mH[slot];
+    }
+    const std::int64_t away = dh == kInf ? 0 : static_cast<std::int64_t>(mh) - dh;
+    return 2 * static_cast<std::int64_t>(dl) + away;
+  }
+
+  const TileGrid& grid_;
+  const FlowOptions& o_;
+  double dist_[8];
+  std::int64_t t_ = 0;
+  TileRect r_;
+  int hw_ = 0, sw_ = 0;
+  std::vector<float> z_;
+  std::vector<Status> status_;
+  std::vector<std::uint32_t> local_;  // tile cell -> flat index (kInf: not flat)
+  std::vector<std::uint32_t> flats_;  // flat index -> tile cell
+  std::vector<std::uint32_t> comp_;   // flat index -> component
+  std::uint32_t comps_ = 0;
+  std::vector<std::uint32_t> dL_, dH_, compMax_;
+  std::vector<std::pair<std::uint32_t, std::uint32_t>> seeds_;  // (distance, flat index)
+  std::vector<std::uint32_t> queue_;
+};
+
+}  // namespace
+
+FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<std::uint8_t>& flowdir,
+                         const FlowOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  FlowStats stats;
+  const std::int64_t tiles = grid.tiles();
+  const int threads = std::max(1, options.threads);
+  std::vector<TileFlats> work;
+  for (int w = 0; w < threads; ++w) work.emplace_back(grid, options);
+  std::vector<Perimeter> prev(static_cast<std::size_t>(tiles)), next(static_cast<std::size_t>(tiles));
+  std::vector<std::uint8_t> active(static_cast<std::size_t>(tiles), 1);
+  // A tile is worked again in a round only when a neighbouring tile's perimeter changed in the last one.
+  std::vector<std::uint8_t> changedTile(static_cast<std::size_t>(tiles), 1),
+      changedNow(changedTile.size(), 0);
+  auto neighbourChanged = [&](std::int64_t t) {
+    const std::int64_t tx = t % grid.tilesX(), ty = t / grid.tilesX();
+    for (std::int64_t y = std::max<std::int64_t>(ty - 1, 0); y <= std::min(ty + 1, grid.tilesY() - 1); ++y)
+      for (std::int64_t x = std::max<std::int64_t>(tx - 1, 0); x <= std::min(tx + 1, grid.tilesX() - 1); ++x)
+        if (changedTile[static_cast<std::size_t>(y * grid.tilesX() + x)]) return true;
+    return false;
+  };
+
+  // Rounds: the distances, then the maxima, until no perimeter value changes.  Round 1 visits every tile
+  // (and finds those whose perimeter holds a flat cell); later rounds those only.
+  for (int phase = 0; phase < 2; ++phase) {
+    for (;;) {
+      std::atomic<bool> changed{false};
+      forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+        const auto ti = static_cast<std::size_t>(t);
+        changedNow[ti] = 0;
+        if (!active[ti]) return;
+        if (!neighbourChanged(t)) {  // (the same inputs: the same perimeter)
+          next[ti] = prev[ti];
+          return;
+        }
+        TileFlats& f = work[static_cast<std::size_t>(w)];
+        f.load(t, filled);
+        if (!f.perimeterFlat()) {
+          active[ti] = 0;
+          next[ti] = Perimeter{};
+          return;
+        }
+        f.distances(prev);
+        if (phase == 1) f.maxima(prev);
+        f.perimeter(next[ti]);
+        if (phase == 0) next[ti].mH = prev[ti].mH;  // (maxima: the next phase)
+        if (next[ti].dL != prev[ti].dL || next[ti].dH != prev[ti].dH || next[ti].mH != prev[ti].mH) {
+          changedNow[ti] = 1;
+          changed = true;
+        }
+      });
+      ++stats.rounds;
+      prev.swap(next);
+      changedTile.swap(changedNow);
+      if (!changed) break;
+    }
+    std::fill(changedTile.begin(), changedTile.end(), 1);  // (the next phase starts with every tile)
+    // (phase 0 ended with the converged distances in prev; phase 1 starts its maxima from nothing)
+    if (phase == 0)
+      for (Perimeter& p : prev) p.mH.assign(p.dL.size(), kInf);
+  }
+
+  // The last pass: every tile's directions.
+  std::vector<FlowStats> per(static_cast<std::size_t>(threads));
+  std::vector<std::vector<std::uint8_t>> outs(static_cast<std::size_t>(threads));
+  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+    TileFlats& f = work[static_cast<std::size_t>(w)];
+    f.load(t, filled);
+    f.distances(prev);
+    f.maxima(prev);
+    std::vector<std::uint8_t>& out = outs[static_cast<std::size_t>(w)];
+    f.codes(prev, out, per[static_cast<std::size_t>(w)]);
+    flowdir.write(f.rect(), out.data());
+  });
+  for (const FlowStats& s : per) {
+    stats.cells += s.cells;
+    stats.out += s.out;
+    stats.flatCells += s.flatCells;
+  }
+  stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return stats;
+}
+
+}  // namespace tinbuild::hydrology
