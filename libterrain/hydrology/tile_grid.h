@@ -83,13 +83,40 @@ inline bool onPerimeter(int w, int h, int c, int r) {
 constexpr int kDx[8] = {1, 1, 0, -1, -1, -1, 0, 1};
 constexpr int kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
 
-// Reads tiles of the DEM.
-class TileSource {
+// Reads tiles of a raster: the DEM (float heights) or an earlier pass's output (flow codes...).
+template <typename T>
+class TileSourceOf {
  public:
-  virtual ~TileSource() = default;
-  // Fills z ((r.width + 2 halo) x (r.height + 2 halo), row-major) with the tile and a halo of `halo`
-  // cells around it: NaN for nodata and for cells outside the DEM.  May be called from several threads.
-  virtual void read(const TileRect& r, int halo, float* z) = 0;
+  virtual ~TileSourceOf() = default;
+  // Fills v ((r.width + 2 halo) x (r.height + 2 halo), row-major) with the tile and a halo of `halo`
+  // cells around it: the nodata value (NaN for heights, 255 for flow codes) for nodata and for cells
+  // outside the raster.  May be called from several threads at once.
+  virtual void read(const TileRect& r, int halo, T* v) = 0;
+};
+using TileSource = TileSourceOf<float>;
+
+// A raster held whole in memory as a TileSourceOf (tests, small rasters).
+template <typename T>
+class MemoryTiles final : public TileSourceOf<T> {
+ public:
+  MemoryTiles(std::int64_t width, std::int64_t height, std::vector<T> values, T outside)
+      : width_(width), height_(height), v_(std::move(values)), outside_(outside) {}
+  void read(const TileRect& r, int halo, T* v) override {
+    const int w = r.width + 2 * halo;
+    for (int y = 0; y < r.height + 2 * halo; ++y)
+      for (int x = 0; x < w; ++x) {
+        const std::int64_t c = r.col0 + x - halo, row = r.row0 + y - halo;
+        v[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x)] =
+            c < 0 || row < 0 || c >= width_ || row >= height_
+                ? outside_
+                : v_[static_cast<std::size_t>(row * width_ + c)];
+      }
+  }
+
+ private:
+  std::int64_t width_, height_;
+  std::vector<T> v_;
+  T outside_;
 };
 
 // Takes finished tiles of an output (r.width x r.height, row-major).  Called from several threads, in
@@ -105,22 +132,11 @@ class TileTarget {
 class MemoryDem final : public TileSource {
  public:
   MemoryDem(std::int64_t width, std::int64_t height, std::vector<float> z)
-      : width_(width), height_(height), z_(std::move(z)) {}
-  void read(const TileRect& r, int halo, float* z) override {
-    const int w = r.width + 2 * halo;
-    for (int y = 0; y < r.height + 2 * halo; ++y)
-      for (int x = 0; x < w; ++x) {
-        const std::int64_t c = r.col0 + x - halo, row = r.row0 + y - halo;
-        z[static_cast<std::size_t>(y) * static_cast<std::size_t>(w) + static_cast<std::size_t>(x)] =
-            c < 0 || row < 0 || c >= width_ || row >= height_
-                ? kNoData
-                : z_[static_cast<std::size_t>(row * width_ + c)];
-      }
-  }
+      : tiles_(width, height, std::move(z), kNoData) {}
+  void read(const TileRect& r, int halo, float* z) override { tiles_.read(r, halo, z); }
 
  private:
-  std::int64_t width_, height_;
-  std::vector<float> z_;
+  MemoryTiles<float> tiles_;
 };
 
 // An output gathered whole in memory (tests, small rasters).

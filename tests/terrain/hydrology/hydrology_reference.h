@@ -207,3 +207,28 @@ inline std::vector<std::uint8_t> flowDirections(const Dem& f, double dx = 1, dou
 }
 
 }  // namespace tinbuild::hydrology::reference
+
+namespace tinbuild::hydrology::reference {
+
+// Upstream cell counts: every cell's path walked to its end, one count to each cell on it.
+inline std::vector<std::uint64_t> accumulate(int w, int h, const std::vector<std::uint8_t>& dir) {
+  std::vector<std::uint64_t> count(dir.size(), 0);
+  for (int r0 = 0; r0 < h; ++r0)
+    for (int c0 = 0; c0 < w; ++c0) {
+      if (dir[static_cast<std::size_t>(r0) * w + c0] == 255) continue;
+      int c = c0, r = r0;
+      for (std::size_t steps = 0; steps <= dir.size(); ++steps) {
+        const std::uint8_t d = dir[static_cast<std::size_t>(r) * w + c];
+        ++count[static_cast<std::size_t>(r) * w + c];
+        if (d == 0 || d == 255) break;
+        int k = 0;
+        while ((1u << k) != d) ++k;
+        c += kDx[k];
+        r += kDy[k];
+        if (c < 0 || r < 0 || c >= w || r >= h) break;
+      }
+    }
+  return count;
+}
+
+}  // namespace tinbuild::hydrology::reference
