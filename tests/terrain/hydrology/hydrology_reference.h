@@ -232,3 +232,47 @@ inline std::vector<std::uint64_t> accumulate(int w, int h, const std::vector<std
 }
 
 }  // namespace tinbuild::hydrology::reference
+
+namespace tinbuild::hydrology::reference {
+
+// HAND (and the depth for a stage) by walking every cell's path to its first stream cell.
+struct Hand {
+  std::vector<float> hand, depth;
+  std::vector<std::uint64_t> drain;  // global index + 1; 0: none
+};
+inline Hand hand(const Dem& dem, const std::vector<float>& filled, const std::vector<std::uint8_t>& dir,
+                 const std::vector<std::uint64_t>& count, double cellArea, double streamArea, double stage) {
+  const int w = dem.w, h = dem.h;
+  Hand out;
+  out.hand.assign(dir.size(), kNoData);
+  out.depth.assign(dir.size(), kNoData);
+  out.drain.assign(dir.size(), 0);
+  for (int r0 = 0; r0 < h; ++r0)
+    for (int c0 = 0; c0 < w; ++c0) {
+      const std::size_t i0 = static_cast<std::size_t>(r0) * w + c0;
+      if (dir[i0] == 255) continue;
+      out.depth[i0] = 0;
+      int c = c0, r = r0;
+      for (;;) {
+        const std::size_t i = static_cast<std::size_t>(r) * w + c;
+        if (static_cast<double>(count[i]) * cellArea >= streamArea) {
+          const double above = static_cast<double>(filled[i0]) - filled[i];
+          out.hand[i0] = static_cast<float>(above);
+          out.drain[i0] = i + 1;
+          if (above <= stage)
+            out.depth[i0] =
+                static_cast<float>(std::max(0.0, static_cast<double>(filled[i]) + stage - dem.z[i0]));
+          break;
+        }
+        const std::uint8_t d = dir[i];
+        if (d == 0 || d == 255) break;
+        int k = 0;
+        while ((1u << k) != d) ++k;
+        c += kDx[k];
+        r += kDy[k];
+      }
+    }
+  return out;
+}
+
+}  // namespace tinbuild::hydrology::reference

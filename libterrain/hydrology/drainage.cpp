@@ -1,0 +1,218 @@
+// HAND and the flood depth for a stage, tile by tile (header).
+#include "libterrain/hydrology/drainage.h"
+
+#include <bit>
+#include <chrono>
+#include <cmath>
+#include <vector>
+
+#include "libterrain/hydrology/tile_runner.h"
+
+namespace tinbuild::hydrology {
+
+namespace {
+
+// A cell's drainage as far as its tile knows it: a stream cell (its global index and filled height), none
+// (the path leaves the DEM first), or "the answer of global cell `follow`" (the path leaves the tile there).
+struct Answer {
+  enum Kind : std::uint8_t { kNone, kStream, kFollow };
+  Kind kind = kNone;
+  std::int64_t cell = 0;  // kStream: the stream cell; kFollow: the cell to follow
+  float height = 0;       // kStream: its filled height
+};
+
+class TileDrainage {
+ public:
+  void run(const TileGrid& grid, std::int64_t t, TileSourceOf<std::uint8_t>& flowdir,
+           TileSourceOf<std::uint64_t>& counts, TileSource& filled, const DrainageOptions& o) {
+    r_ = grid.tile(t);
+    width_ = grid.width();
+    const std::size_t n = r_.cells();
+    codes_.resize(n);
+    count_.resize(n);
+    filled_.resize(n);
+    flowdir.read(r_, 0, codes_.data());
+    counts.read(r_, 0, count_.data());
+    filled.read(r_, 0, filled_.data());
+    target_.assign(n, -1);
+    indeg_.assign(n, 0);
+    answer.assign(n, Answer{});
+    order_.clear();
+    streamCells = 0;
+    for (int row = 0; row < r_.height; ++row)
+      for (int c = 0; c < r_.width; ++c) {
+        const std::size_t i = cell(c, row);
+        const std::uint8_t d = codes_[i];
+        if (d == 0 || d == 255) continue;
+        const int k = std::countr_zero(static_cast<unsigned>(d));
+        const int nc = c + kDx[k], nr = row + kDy[k];
+        if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) {
+          target_[i] = static_cast<std::int64_t>(cell(nc, nr));
+          ++indeg_[cell(nc, nr)];
+        } else {
+          target_[i] = -2 - ((r_.row0 + nr) * width_ + (r_.col0 + nc));  // (outside the tile: encoded)
+        }
+      }
+    for (std::size_t i = 0; i < n; ++i)
+      if (codes_[i] != 255 && indeg_[i] == 0) order_.push_back(static_cast<std::uint32_t>(i));
+    for (std::size_t q = 0; q < order_.size(); ++q) {
+      const std::int64_t to = target_[order_[q]];
+      if (to < 0) continue;
+      if (--indeg_[static_cast<std::size_t>(to)] == 0) order_.push_back(static_cast<std::uint32_t>(to));
+    }
+    // Downstream first: each cell after the cell it drains to.
+    for (std::size_t q = order_.size(); q-- > 0;) {
+      const std::uint32_t i = order_[q];
+      Answer& a = answer[i];
+      if (count_[i] > 0 && static_cast<double>(count_[i]) * o.cellArea >= o.streamArea) {
+        a.kind = Answer::kStream;
+        a.cell = global(i);
+        a.height = filled_[i];
+        ++streamCells;
+      } else if (target_[i] >= 0) {
+        a = answer[static_cast<std::size_t>(target_[i])];
+      } else if (target_[i] <= -2) {
+        a.kind = Answer::kFollow;
+        a.cell = -2 - target_[i];
+      }
+    }
+  }
+
+  std::int64_t global(std::size_t i) const {
+    return (r_.row0 + static_cast<std::int64_t>(i / static_cast<std::size_t>(r_.width))) * width_ + r_.col0 +
+           static_cast<std::int64_t>(i % static_cast<std::size_t>(r_.width));
+  }
+  std::size_t cell(int c, int row) const {
+    return static_cast<std::size_t>(row) * static_cast<std::size_t>(r_.width) + static_cast<std::size_t>(c);
+  }
+  const TileRect& rect() const { return r_; }
+  const std::vector<float>& filledHeights() const { return filled_; }
+  const std::vector<std::uint8_t>& codes() const { return codes_; }
+
+  std::vector<Answer> answer;
+  std::uint64_t streamCells = 0;
+
+ private:
+  TileRect r_;
+  std::int64_t width_ = 0;
+  std::vector<std::uint8_t> codes_;
+  std::vector<std::uint64_t> count_;
+  std::vector<float> filled_;
+  std::vector<std::int64_t> target_;
+  std::vector<std::uint32_t> indeg_, order_;
+};
+
+}  // namespace
+
+DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir,
+                       TileSourceOf<std::uint64_t>& counts, TileSource& filled, TileSource* dem,
+                       TileTarget<float>& hand, TileTarget<float>* depth, TileTarget<std::uint64_t>* drain,
+                       const DrainageOptions& options) {
+  const auto t0 = std::chrono::steady_clock::now();
+  DrainageStats stats;
+  const std::int64_t tiles = grid.tiles();
+  const int threads = std::max(1, options.threads);
+  std::vector<TileDrainage> work(static_cast<std::size_t>(threads));
+
+  // Pass 1: every tile's perimeter answers, by perimeter slot.
+  std::vector<std::vector<Answer>> perimeter(static_cast<std::size_t>(tiles));
+  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+    TileDrainage& td = work[static_cast<std::size_t>(w)];
+    td.run(grid, t, flowdir, counts, filled, options);
+    const TileRect& r = td.rect();
+    std::vector<Answer>& p = perimeter[static_cast<std::size_t>(t)];
+    p.assign(perimeterCells(r.width, r.height), Answer{});
+    for (int row = 0; row < r.height; ++row)
+      for (int c = 0; c < r.width; ++c) {
+        if (!onPerimeter(r.width, r.height, c, row)) {
+          c = r.width - 2;
+          continue;
+        }
+        p[perimeterSlot(r.width, r.height, c, row)] = td.answer[td.cell(c, row)];
+      }
+  });
+  // The chains between tiles, followed to their ends (each perimeter answer resolved once).
+  auto slotOf = [&grid](std::int64_t g, std::int64_t& t) {
+    const std::int64_t c = g % grid.width(), row = g / grid.width();
+    t = grid.tileOf(c, row);
+    const TileRect r = grid.tile(t);
+    return perimeterSlot(r.width, r.height, static_cast<int>(c - r.col0), static_cast<int>(row - r.row0));
+  };
+  std::vector<std::pair<std::int64_t, std::size_t>> chain;
+  auto resolve = [&](std::int64_t g) -> Answer {
+    chain.clear();
+    Answer a;
+    for (;;) {
+      std::int64_t t;
+      const std::size_t s = slotOf(g, t);
+      a = perimeter[static_cast<std::size_t>(t)][s];
+      if (a.kind != Answer::kFollow) break;
+      chain.push_back({t, s});
+      g = a.cell;
+    }
+    for (const auto& [t, s] : chain) perimeter[static_cast<std::size_t>(t)][s] = a;  // (path compression)
+    return a;
+  };
+  for (std::int64_t t = 0; t < tiles; ++t)
+    for (Answer& a : perimeter[static_cast<std::size_t>(t)])
+      if (a.kind == Answer::kFollow) a = resolve(a.cell);
+
+  // Pass 2: every cell's answer, HAND and the depth.
+  std::vector<DrainageStats> per(static_cast<std::size_t>(threads));
+  std::vector<std::vector<float>> hands(static_cast<std::size_t>(threads)), depths(hands), zs(hands);
+  std::vector<std::vector<std::uint64_t>> drains(static_cast<std::size_t>(threads));
+  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+    const auto wi = static_cast<std::size_t>(w);
+    TileDrainage& td = work[wi];
+    td.run(grid, t, flowdir, counts, filled, options);
+    const TileRect& r = td.rect();
+    const std::size_t n = r.cells();
+    DrainageStats& s = per[wi];
+    s.streamCells += td.streamCells;
+    std::vector<float>& h = hands[wi];
+    std::vector<float>& dp = depths[wi];
+    std::vector<std::uint64_t>& dr = drains[wi];
+    h.assign(n, kNoData);
+    dr.assign(n, 0);
+    if (depth) {
+      dp.assign(n, kNoData);
+      zs[wi].resize(n);
+      if (dem) dem->read(r, 0, zs[wi].data());
+    }
+    for (std::size_t i = 0; i < n; ++i) {
+      if (td.codes()[i] == 255) continue;
+      ++s.cells;
+      Answer a = td.answer[i];
+      if (a.kind == Answer::kFollow) {  // (the cell its path leaves the tile into: resolved above)
+        std::int64_t u = 0;
+        const std::size_t slot = slotOf(a.cell, u);
+        a = perimeter[static_cast<std::size_t>(u)][slot];
+      }
+      if (depth) dp[i] = 0;
+      if (a.kind != Answer::kStream) continue;
+      ++s.drained;
+      const double above = static_cast<double>(td.filledHeights()[i]) - static_cast<double>(a.height);
+      h[i] = static_cast<float>(above);
+      dr[i] = static_cast<std::uint64_t>(a.cell) + 1;
+      if (depth && above <= options.stageHeight) {
+        const double z = dem ? static_cast<double>(zs[wi][i]) : static_cast<double>(td.filledHeights()[i]);
+        const double d = static_cast<double>(a.height) + options.stageHeight - z;
+        dp[i] = static_cast<float>(std::max(d, 0.0));
+        s.flooded += d > 0;
+      }
+    }
+    hand.write(r, h.data());
+    if (depth) depth->write(r, dp.data());
+    if (drain) drain->write(r, dr.data());
+  });
+  for (const DrainageStats& s : per) {
+    stats.cells += s.cells;
+    stats.streamCells += s.streamCells;
+    stats.drained += s.drained;
+    stats.flooded += s.flooded;
+  }
+  stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  return stats;
+}
+
+}  // namespace tinbuild::hydrology

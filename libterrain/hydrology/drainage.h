@@ -1,0 +1,51 @@
+// Height above nearest drainage (HAND) and the flood depth for a stage, tile by tile.
+//
+// The rule.  A cell is a stream cell when its upstream area (accumulation.h) is at least the stream area A
+// (its count times the cell's area, compared in double: the same test everywhere).  Every stream cell's
+// downstream neighbour is one too (the count only grows downstream).  A cell's *drainage* is the first
+// stream cell on its flow path (itself, on a stream); a path that leaves the DEM before reaching a stream
+// has none.  HAND = filled(cell) - filled(its drainage), in double, stored as Float32; NaN without a
+// drainage.  With a stage H, the water stands at filled(drainage) + H over the drainage's cells: the depth
+// is filled(drainage) + H - z (the DEM's own height) where HAND <= H, else 0.
+//
+// Tile by tile.  Inside a tile, each cell's drainage is found walking down its path (in reverse Kahn order:
+// a cell after the cell it drains to) or, where the path leaves the tile first, carried to the outflow cell
+// it leaves from.  Pass 1 keeps each outflow cell's answer (a stream cell, none, or "the answer of the
+// cell it drains into") and each entry's; the chains between tiles are followed to their ends (they never
+// circle: flow paths do not); pass 2 writes every cell's answer.  Only whole cell indices and copied
+// heights move, so any tiling gives the same bits.
+#pragma once
+
+#include <cstdint>
+
+#include "libterrain/core/cancel.h"
+#include "libterrain/hydrology/tile_grid.h"
+
+namespace tinbuild::hydrology {
+
+struct DrainageOptions {
+  int threads = 1;
+  double cellArea = 1;    // CRS units squared
+  double streamArea = 1;  // A, CRS units squared
+  bool stage = false;     // compute the depth for `stageHeight`
+  double stageHeight = 0;
+  const CancelFlag* cancel = nullptr;
+};
+
+struct DrainageStats {
+  std::uint64_t cells = 0;
+  std::uint64_t streamCells = 0;
+  std::uint64_t drained = 0;  // with a drainage (a HAND value)
+  std::uint64_t flooded = 0;  // depth > 0 (with a stage)
+  double seconds = 0;
+};
+
+// `flowdir` (codes), `counts` (upstream cells), `filled` (heights), `dem` (heights, for the depth; may be
+// null without a stage).  Writes `hand` and, with a stage, `depth`; `drain` (the drainage's global cell
+// index + 1, 0 for none) when given.
+DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir,
+                       TileSourceOf<std::uint64_t>& counts, TileSource& filled, TileSource* dem,
+                       TileTarget<float>& hand, TileTarget<float>* depth, TileTarget<std::uint64_t>* drain,
+                       const DrainageOptions& options);
+
+}  // namespace tinbuild::hydrology
