@@ -276,3 +276,86 @@ inline Hand hand(const Dem& dem, const std::vector<float>& filled, const std::ve
 }
 
 }  // namespace tinbuild::hydrology::reference
+
+namespace tinbuild::hydrology::reference {
+
+struct Links {
+  std::vector<std::uint32_t> id;                         // per cell
+  std::vector<std::uint32_t> downstream, strahler;       // per link (index id - 1)
+  std::vector<std::uint64_t> cells, upstream, steps[3];  // x, y, diagonal
+};
+// Links by walking down from every top cell (row-major order: ids 1, 2, ...).
+inline Links links(int w, int h, const std::vector<std::uint8_t>& dir,
+                   const std::vector<std::uint64_t>& count, double cellArea, double streamArea) {
+  const std::size_t n = dir.size();
+  auto stream = [&](std::size_t i) {
+    return dir[i] != 255 && count[i] > 0 && static_cast<double>(count[i]) * cellArea >= streamArea;
+  };
+  auto down = [&](std::size_t i, int& k) -> long long {
+    const std::uint8_t d = dir[i];
+    if (d == 0 || d == 255) return -1;
+    k = 0;
+    while ((1u << k) != d) ++k;
+    const int c = static_cast<int>(i % w) + kDx[k], r = static_cast<int>(i / w) + kDy[k];
+    return static_cast<long long>(r) * w + c;
+  };
+  std::vector<int> ups(n, 0);
+  for (std::size_t i = 0; i < n; ++i) {
+    int k;
+    const long long j = down(i, k);
+    if (stream(i) && j >= 0 && stream(static_cast<std::size_t>(j))) ++ups[static_cast<std::size_t>(j)];
+  }
+  Links l;
+  l.id.assign(n, 0);
+  std::vector<std::size_t> tops;
+  for (std::size_t i = 0; i < n; ++i)
+    if (stream(i) && ups[i] != 1) tops.push_back(i);
+  const std::size_t m = tops.size();
+  l.downstream.assign(m, 0);
+  l.strahler.assign(m, 0);
+  l.cells.assign(m, 0);
+  l.upstream.assign(m, 0);
+  for (auto& s : l.steps) s.assign(m, 0);
+  std::vector<std::uint32_t> topId(n, 0);
+  for (std::size_t t = 0; t < m; ++t) topId[tops[t]] = static_cast<std::uint32_t>(t + 1);
+  for (std::size_t t = 0; t < m; ++t) {
+    std::size_t i = tops[t];
+    for (;;) {
+      l.id[i] = static_cast<std::uint32_t>(t + 1);
+      ++l.cells[t];
+      l.upstream[t] = std::max(l.upstream[t], count[i]);
+      int k = 0;
+      const long long j = down(i, k);
+      if (j < 0) break;
+      ++l.steps[k % 2 ? 2 : (k % 4 == 0 ? 0 : 1)][t];
+      if (topId[static_cast<std::size_t>(j)]) {
+        l.downstream[t] = topId[static_cast<std::size_t>(j)];
+        break;
+      }
+      i = static_cast<std::size_t>(j);
+    }
+  }
+  // Strahler, by repeated sweeps (small rasters).
+  for (bool changed = true; changed;) {
+    changed = false;
+    for (std::size_t t = 0; t < m; ++t) {
+      if (l.strahler[t]) continue;
+      std::uint32_t best = 0, ties = 0;
+      bool ready = true;
+      for (std::size_t u = 0; u < m; ++u) {
+        if (l.downstream[u] != t + 1) continue;
+        if (!l.strahler[u]) ready = false;
+        if (l.strahler[u] > best)
+          best = l.strahler[u], ties = 1;
+        else if (l.strahler[u] == best)
+          ++ties;
+      }
+      if (!ready) continue;
+      l.strahler[t] = best == 0 ? 1 : best + (ties >= 2 ? 1 : 0);
+      changed = true;
+    }
+  }
+  return l;
+}
+
+}  // namespace tinbuild::hydrology::reference
