@@ -17,23 +17,25 @@ namespace {
 struct Answer {
   enum Kind : std::uint8_t { kNone, kStream, kFollow };
   Kind kind = kNone;
-  std::int64_t cell = 0;  // kStream: the stream cell; kFollow: the cell to follow
-  float height = 0;       // kStream: its filled height
+  std::int64_t cell = 0;   // kStream: the stream cell; kFollow: the cell to follow
+  float height = 0;        // kStream: its filled height
+  std::uint32_t link = 0;  // kStream: its link (with the links raster)
 };
 
 class TileDrainage {
  public:
-  void run(const TileGrid& grid, std::int64_t t, TileSourceOf<std::uint8_t>& flowdir,
-           TileSourceOf<std::uint64_t>& counts, TileSource& filled, const DrainageOptions& o) {
+  void run(const TileGrid& grid, std::int64_t t, const DrainageIO& io, const DrainageOptions& o) {
     r_ = grid.tile(t);
     width_ = grid.width();
     const std::size_t n = r_.cells();
     codes_.resize(n);
     count_.resize(n);
     filled_.resize(n);
-    flowdir.read(r_, 0, codes_.data());
-    counts.read(r_, 0, count_.data());
-    filled.read(r_, 0, filled_.data());
+    io.flowdir->read(r_, 0, codes_.data());
+    io.counts->read(r_, 0, count_.data());
+    io.filled->read(r_, 0, filled_.data());
+    links_.assign(n, 0);
+    if (io.links) io.links->read(r_, 0, links_.data());
     target_.assign(n, -1);
     indeg_.assign(n, 0);
     answer.assign(n, Answer{});
@@ -68,6 +70,7 @@ class TileDrainage {
         a.kind = Answer::kStream;
         a.cell = global(i);
         a.height = filled_[i];
+        a.link = links_[i];
         ++streamCells;
       } else if (target_[i] >= 0) {
         a = answer[static_cast<std::size_t>(target_[i])];
@@ -98,16 +101,17 @@ class TileDrainage {
   std::vector<std::uint8_t> codes_;
   std::vector<std::uint64_t> count_;
   std::vector<float> filled_;
+  std::vector<std::uint32_t> links_;
   std::vector<std::int64_t> target_;
   std::vector<std::uint32_t> indeg_, order_;
 };
 
 }  // namespace
 
-DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir,
-                       TileSourceOf<std::uint64_t>& counts, TileSource& filled, TileSource* dem,
-                       TileTarget<float>& hand, TileTarget<float>* depth, TileTarget<std::uint64_t>* drain,
-                       const DrainageOptions& options) {
+DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const DrainageOptions& options) {
+  TileSource* dem = io.dem;
+  TileTarget<float>* depth = io.depth;
+  TileTarget<std::uint64_t>* drain = io.drain;
   const auto t0 = std::chrono::steady_clock::now();
   DrainageStats stats;
   const std::int64_t tiles = grid.tiles();
@@ -118,7 +122,7 @@ DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir
   std::vector<std::vector<Answer>> perimeter(static_cast<std::size_t>(tiles));
   forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
     TileDrainage& td = work[static_cast<std::size_t>(w)];
-    td.run(grid, t, flowdir, counts, filled, options);
+    td.run(grid, t, io, options);
     const TileRect& r = td.rect();
     std::vector<Answer>& p = perimeter[static_cast<std::size_t>(t)];
     p.assign(perimeterCells(r.width, r.height), Answer{});
@@ -161,10 +165,11 @@ DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir
   std::vector<DrainageStats> per(static_cast<std::size_t>(threads));
   std::vector<std::vector<float>> hands(static_cast<std::size_t>(threads)), depths(hands), zs(hands);
   std::vector<std::vector<std::uint64_t>> drains(static_cast<std::size_t>(threads));
+  std::vector<std::vector<std::uint32_t>> catchments(static_cast<std::size_t>(threads));
   forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileDrainage& td = work[wi];
-    td.run(grid, t, flowdir, counts, filled, options);
+    td.run(grid, t, io, options);
     const TileRect& r = td.rect();
     const std::size_t n = r.cells();
     DrainageStats& s = per[wi];
@@ -174,6 +179,8 @@ DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir
     std::vector<std::uint64_t>& dr = drains[wi];
     h.assign(n, kNoData);
     dr.assign(n, 0);
+    std::vector<std::uint32_t>& ca = catchments[wi];
+    ca.assign(n, 0);
     if (depth) {
       dp.assign(n, kNoData);
       zs[wi].resize(n);
@@ -194,6 +201,7 @@ DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir
       const double above = static_cast<double>(td.filledHeights()[i]) - static_cast<double>(a.height);
       h[i] = static_cast<float>(above);
       dr[i] = static_cast<std::uint64_t>(a.cell) + 1;
+      ca[i] = a.link;
       if (depth && above <= options.stageHeight) {
         const double z = dem ? static_cast<double>(zs[wi][i]) : static_cast<double>(td.filledHeights()[i]);
         const double d = static_cast<double>(a.height) + options.stageHeight - z;
@@ -201,7 +209,8 @@ DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir
         s.flooded += d > 0;
       }
     }
-    hand.write(r, h.data());
+    if (io.hand) io.hand->write(r, h.data());
+    if (io.catchments) io.catchments->write(r, ca.data());
     if (depth) depth->write(r, dp.data());
     if (drain) drain->write(r, dr.data());
   });

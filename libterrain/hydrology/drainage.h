@@ -4,9 +4,10 @@
 // (its count times the cell's area, compared in double: the same test everywhere).  Every stream cell's
 // downstream neighbour is one too (the count only grows downstream).  A cell's *drainage* is the first
 // stream cell on its flow path (itself, on a stream); a path that leaves the DEM before reaching a stream
-// has none.  HAND = filled(cell) - filled(its drainage), in double, stored as Float32; NaN without a
-// drainage.  With a stage H, the water stands at filled(drainage) + H over the drainage's cells: the depth
-// is filled(drainage) + H - z (the DEM's own height) where HAND <= H, else 0.
+// has none; its catchment is the link (streams.h) of its drainage.  HAND = filled(cell) - filled(its
+// drainage), in double, stored as Float32; NaN without a drainage.  With a stage H, the water stands at
+// filled(drainage) + H over the drainage's cells: the depth is filled(drainage) + H - z (the DEM's own
+// height) where HAND <= H, else 0.
 //
 // Tile by tile.  Inside a tile, each cell's drainage is found walking down its path (in reverse Kahn order:
 // a cell after the cell it drains to) or, where the path leaves the tile first, carried to the outflow cell
@@ -40,12 +41,19 @@ struct DrainageStats {
   double seconds = 0;
 };
 
-// `flowdir` (codes), `counts` (upstream cells), `filled` (heights), `dem` (heights, for the depth; may be
-// null without a stage).  Writes `hand` and, with a stage, `depth`; `drain` (the drainage's global cell
-// index + 1, 0 for none) when given.
-DrainageStats drainage(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdir,
-                       TileSourceOf<std::uint64_t>& counts, TileSource& filled, TileSource* dem,
-                       TileTarget<float>& hand, TileTarget<float>* depth, TileTarget<std::uint64_t>* drain,
-                       const DrainageOptions& options);
+// The rasters a drainage pass reads and writes.
+struct DrainageIO {
+  TileSourceOf<std::uint8_t>* flowdir = nullptr;  // codes
+  TileSourceOf<std::uint64_t>* counts = nullptr;  // upstream cells
+  TileSource* filled = nullptr;                   // heights
+  TileSource* dem = nullptr;                      // heights, for the depth (null: the filled ones)
+  TileSourceOf<std::uint32_t>* links = nullptr;   // stream link ids (streams.h), for the catchments
+  TileTarget<float>* hand = nullptr;
+  TileTarget<float>* depth = nullptr;               // with a stage
+  TileTarget<std::uint64_t>* drain = nullptr;       // the drainage's global cell index + 1, 0 for none
+  TileTarget<std::uint32_t>* catchments = nullptr;  // the link id of the drainage, 0 for none (needs links)
+};
+
+DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const DrainageOptions& options);
 
 }  // namespace tinbuild::hydrology

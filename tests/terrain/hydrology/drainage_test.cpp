@@ -32,6 +32,11 @@ TEST(Drainage, AnyTilingAndThreadsGiveTheReference) {
     const reference::Hand want = reference::hand(d, f.z, dir, count, cellArea, streamArea, stage);
     std::uint64_t drained = 0;
     for (std::uint64_t v : want.drain) drained += v != 0;
+    // The catchments: the link of each cell's drainage.
+    const reference::Links links = reference::links(w, h, dir, count, cellArea, streamArea);
+    std::vector<std::uint32_t> wantCatchments(dir.size(), 0);
+    for (std::size_t i = 0; i < dir.size(); ++i)
+      if (want.drain[i]) wantCatchments[i] = links.id[want.drain[i] - 1];
     ASSERT_GT(drained, dir.size() / 4) << "seed " << seed;
     for (const int t : {1, 2, 3, 7, 16, 1000})
       for (const int threads : {1, 2, 3}) {
@@ -48,11 +53,23 @@ TEST(Drainage, AnyTilingAndThreadsGiveTheReference) {
         o.streamArea = streamArea;
         o.stage = true;
         o.stageHeight = stage;
-        const DrainageStats s =
-            drainage(TileGrid(w, h, t), dirs, counts, filled, &dem, hand, &depth, &drain, o);
+        MemoryTiles<std::uint32_t> linkIds(w, h, links.id, 0);
+        MemoryRaster<std::uint32_t> catchments(w, h, 99);
+        DrainageIO io;
+        io.flowdir = &dirs;
+        io.counts = &counts;
+        io.filled = &filled;
+        io.dem = &dem;
+        io.links = &linkIds;
+        io.hand = &hand;
+        io.depth = &depth;
+        io.drain = &drain;
+        io.catchments = &catchments;
+        const DrainageStats s = drainage(TileGrid(w, h, t), io, o);
         ASSERT_TRUE(sameBits(hand.values, want.hand));
         ASSERT_TRUE(sameBits(depth.values, want.depth));
         ASSERT_EQ(drain.values, want.drain);
+        ASSERT_EQ(catchments.values, wantCatchments);
         EXPECT_EQ(s.drained, drained);
       }
   }

@@ -287,6 +287,7 @@ struct Links {
 // Links by walking down from every top cell (row-major order: ids 1, 2, ...).
 inline Links links(int w, int h, const std::vector<std::uint8_t>& dir,
                    const std::vector<std::uint64_t>& count, double cellArea, double streamArea) {
+  (void)h;  // (the cells' count says it)
   const std::size_t n = dir.size();
   auto stream = [&](std::size_t i) {
     return dir[i] != 255 && count[i] > 0 && static_cast<double>(count[i]) * cellArea >= streamArea;
