@@ -25,6 +25,9 @@
 //   hydro/      breaklines and hydro-flattening: water levels from bank points and river stations, the
 //               conforming split (constraint pieces made Delaunay edges), the water and breakline stages,
 //               the constraint vertices as a stream, verify's edge check.
+//   hydrology/  terrain hydrology on DEM tiles, each pass keeping only its tiles' perimeters: the fill
+//               (spill graph), D8 flow directions with flats, upstream area, stream links and Strahler
+//               orders, HAND, the depth for a stage and the catchments.
 //   synthetic/  realistic synthetic surveys (terrain, classes, returns, flight strips) for the demo,
 //               tests and benchmarks.
 // Nothing here includes formats/ or app/.
