@@ -126,40 +126,12 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
     const TileRect& r = td.rect();
     std::vector<Answer>& p = perimeter[static_cast<std::size_t>(t)];
     p.assign(perimeterCells(r.width, r.height), Answer{});
-    for (int row = 0; row < r.height; ++row)
-      for (int c = 0; c < r.width; ++c) {
-        if (!onPerimeter(r.width, r.height, c, row)) {
-          c = r.width - 2;
-          continue;
-        }
-        p[perimeterSlot(r.width, r.height, c, row)] = td.answer[td.cell(c, row)];
-      }
+    forEachPerimeterCell(r.width, r.height,
+                         [&](int c, int row, std::size_t slot) { p[slot] = td.answer[td.cell(c, row)]; });
   });
-  // The chains between tiles, followed to their ends (each perimeter answer resolved once).
-  auto slotOf = [&grid](std::int64_t g, std::int64_t& t) {
-    const std::int64_t c = g % grid.width(), row = g / grid.width();
-    t = grid.tileOf(c, row);
-    const TileRect r = grid.tile(t);
-    return perimeterSlot(r.width, r.height, static_cast<int>(c - r.col0), static_cast<int>(row - r.row0));
-  };
-  std::vector<std::pair<std::int64_t, std::size_t>> chain;
-  auto resolve = [&](std::int64_t g) -> Answer {
-    chain.clear();
-    Answer a;
-    for (;;) {
-      std::int64_t t;
-      const std::size_t s = slotOf(g, t);
-      a = perimeter[static_cast<std::size_t>(t)][s];
-      if (a.kind != Answer::kFollow) break;
-      chain.push_back({t, s});
-      g = a.cell;
-    }
-    for (const auto& [t, s] : chain) perimeter[static_cast<std::size_t>(t)][s] = a;  // (path compression)
-    return a;
-  };
-  for (std::int64_t t = 0; t < tiles; ++t)
-    for (Answer& a : perimeter[static_cast<std::size_t>(t)])
-      if (a.kind == Answer::kFollow) a = resolve(a.cell);
+  // The chains between tiles, followed to their ends.
+  resolveChains(grid, perimeter,
+                [](const Answer& a) { return a.kind == Answer::kFollow ? a.cell : std::int64_t{-1}; });
 
   // Pass 2: every cell's answer, HAND and the depth.
   std::vector<DrainageStats> per(static_cast<std::size_t>(threads));
@@ -192,7 +164,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
       Answer a = td.answer[i];
       if (a.kind == Answer::kFollow) {  // (the cell its path leaves the tile into: resolved above)
         std::int64_t u = 0;
-        const std::size_t slot = slotOf(a.cell, u);
+        const std::size_t slot = perimeterSlotOf(grid, a.cell, u);
         a = perimeter[static_cast<std::size_t>(u)][slot];
       }
       if (depth) dp[i] = 0;

@@ -167,16 +167,10 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
     s.labels = f.labels;
     s.perimeterLabel.assign(perimeterCells(r.width, r.height), kNoLabel);
     s.perimeterFill.assign(s.perimeterLabel.size(), kNoData);
-    for (int row = 0; row < r.height; ++row)
-      for (int c = 0; c < r.width; ++c) {
-        if (!onPerimeter(r.width, r.height, c, row)) {
-          c = r.width - 2;  // (to the last column)
-          continue;
-        }
-        const std::size_t slot = perimeterSlot(r.width, r.height, c, row), i = f.index(c, row);
-        s.perimeterLabel[slot] = f.label[i];
-        s.perimeterFill[slot] = f.fill[i];
-      }
+    forEachPerimeterCell(r.width, r.height, [&](int c, int row, std::size_t slot) {
+      s.perimeterLabel[slot] = f.label[f.index(c, row)];
+      s.perimeterFill[slot] = f.fill[f.index(c, row)];
+    });
     s.edges = f.edges();
   });
   stats.pass1Seconds = since(t0);
@@ -196,29 +190,23 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
     const TileSummary& s = summaries[static_cast<std::size_t>(t)];
     for (const TileFlood::Edge& e : s.edges) graph.addEdge(global(t, e.a), global(t, e.b), e.level);
     const TileRect r = grid.tile(t);
-    for (int row = 0; row < r.height; ++row)
-      for (int c = 0; c < r.width; ++c) {
-        if (!onPerimeter(r.width, r.height, c, row)) {
-          c = r.width - 2;
-          continue;
-        }
-        const std::size_t slot = perimeterSlot(r.width, r.height, c, row);
-        if (s.perimeterLabel[slot] == kNoLabel) continue;
-        const std::int64_t gc = r.col0 + c, gr = r.row0 + row;
-        for (int k = 0; k < 8; ++k) {
-          const std::int64_t nc = gc + kDx[k], nr = gr + kDy[k];
-          if (nc < 0 || nr < 0 || nc >= grid.width() || nr >= grid.height()) continue;
-          const std::int64_t u = grid.tileOf(nc, nr);
-          if (u <= t) continue;  // (each pair of tiles once, from the lower)
-          const TileRect ur = grid.tile(u);
-          const TileSummary& us = summaries[static_cast<std::size_t>(u)];
-          const std::size_t uslot = perimeterSlot(ur.width, ur.height, static_cast<int>(nc - ur.col0),
-                                                  static_cast<int>(nr - ur.row0));
-          if (us.perimeterLabel[uslot] == kNoLabel) continue;
-          graph.addEdge(global(t, s.perimeterLabel[slot]), global(u, us.perimeterLabel[uslot]),
-                        std::max(s.perimeterFill[slot], us.perimeterFill[uslot]));
-        }
+    forEachPerimeterCell(r.width, r.height, [&](int c, int row, std::size_t slot) {
+      if (s.perimeterLabel[slot] == kNoLabel) return;
+      const std::int64_t gc = r.col0 + c, gr = r.row0 + row;
+      for (int k = 0; k < 8; ++k) {
+        const std::int64_t nc = gc + kDx[k], nr = gr + kDy[k];
+        if (nc < 0 || nr < 0 || nc >= grid.width() || nr >= grid.height()) continue;
+        const std::int64_t u = grid.tileOf(nc, nr);
+        if (u <= t) continue;  // (each pair of tiles once, from the lower)
+        const TileRect ur = grid.tile(u);
+        const TileSummary& us = summaries[static_cast<std::size_t>(u)];
+        const std::size_t uslot = perimeterSlot(ur.width, ur.height, static_cast<int>(nc - ur.col0),
+                                                static_cast<int>(nr - ur.row0));
+        if (us.perimeterLabel[uslot] == kNoLabel) continue;
+        graph.addEdge(global(t, s.perimeterLabel[slot]), global(u, us.perimeterLabel[uslot]),
+                      std::max(s.perimeterFill[slot], us.perimeterFill[uslot]));
       }
+    });
   }
   for (const TileSummary& s : summaries)
     stats.graphBytes += s.perimeterLabel.capacity() * 8 + s.edges.capacity() * sizeof(TileFlood::Edge);

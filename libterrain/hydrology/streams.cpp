@@ -148,14 +148,8 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
   auto keepPerimeter = [](const TileStreams& ts, std::vector<Status>& p) {
     const TileRect& r = ts.rect();
     p.assign(perimeterCells(r.width, r.height), Status{});
-    for (int row = 0; row < r.height; ++row)
-      for (int c = 0; c < r.width; ++c) {
-        if (!onPerimeter(r.width, r.height, c, row)) {
-          c = r.width - 2;
-          continue;
-        }
-        p[perimeterSlot(r.width, r.height, c, row)] = ts.status[ts.cell(c, row)];
-      }
+    forEachPerimeterCell(r.width, r.height,
+                         [&](int c, int row, std::size_t slot) { p[slot] = ts.status[ts.cell(c, row)]; });
   };
   forEachTile(grid, threads, o.cancel, [&](std::int64_t t, int w) {
     TileStreams& ts = work[static_cast<std::size_t>(w)];
@@ -172,27 +166,7 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
   };
   auto isTop = [&tops](std::int64_t g) { return std::binary_search(tops.begin(), tops.end(), g); };
   // The chains between tiles, to their top cells.
-  auto slotOf = [&grid](std::int64_t g, std::int64_t& t) {
-    const std::int64_t c = g % grid.width(), row = g / grid.width();
-    t = grid.tileOf(c, row);
-    const TileRect r = grid.tile(t);
-    return perimeterSlot(r.width, r.height, static_cast<int>(c - r.col0), static_cast<int>(row - r.row0));
-  };
-  std::vector<std::pair<std::int64_t, std::size_t>> chain;
-  for (std::int64_t t0i = 0; t0i < tiles; ++t0i)
-    for (Status& s0 : perimeter[static_cast<std::size_t>(t0i)]) {
-      if (!s0.follow) continue;
-      chain.clear();
-      Status s = s0;
-      while (s.follow) {
-        std::int64_t t;
-        const std::size_t slot = slotOf(s.cell, t);
-        chain.push_back({t, slot});
-        s = perimeter[static_cast<std::size_t>(t)][slot];
-      }
-      s0 = s;
-      for (const auto& [t, slot] : chain) perimeter[static_cast<std::size_t>(t)][slot] = s;
-    }
+  resolveChains(grid, perimeter, [](const Status& st) { return st.follow ? st.cell : std::int64_t{-1}; });
 
   // Pass 2: every stream cell's link id, and each link's steps, cells and count.
   std::vector<std::vector<std::pair<std::uint32_t, Partial>>> partials(static_cast<std::size_t>(tiles));
@@ -213,7 +187,7 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
         if (s.cell < 0) continue;
         if (s.follow) {
           std::int64_t u;
-          const std::size_t slot = slotOf(s.cell, u);
+          const std::size_t slot = perimeterSlotOf(grid, s.cell, u);
           s = perimeter[static_cast<std::size_t>(u)][slot];
         }
         const std::uint32_t id = idOf(s.cell);

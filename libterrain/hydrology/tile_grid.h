@@ -79,6 +79,51 @@ inline bool onPerimeter(int w, int h, int c, int r) {
   return r == 0 || c == 0 || r == h - 1 || c == w - 1;
 }
 
+// f(c, row, slot) for every cell on a w x h tile's perimeter, in row-major order.
+template <typename F>
+void forEachPerimeterCell(int w, int h, F&& f) {
+  for (int row = 0; row < h; ++row)
+    for (int c = 0; c < w; ++c) {
+      if (!onPerimeter(w, h, c, row)) {
+        c = w - 2;  // (to the row's last column)
+        continue;
+      }
+      f(c, row, perimeterSlot(w, h, c, row));
+    }
+}
+
+// The tile holding global cell `cell` (row x width + col) and the cell's slot on that tile's perimeter
+// (the cell must lie on it: every cell a path crosses a tile edge from or into does).
+inline std::size_t perimeterSlotOf(const TileGrid& grid, std::int64_t cell, std::int64_t& tile) {
+  const std::int64_t c = cell % grid.width(), row = cell / grid.width();
+  tile = grid.tileOf(c, row);
+  const TileRect r = grid.tile(tile);
+  return perimeterSlot(r.width, r.height, static_cast<int>(c - r.col0), static_cast<int>(row - r.row0));
+}
+
+// What the tiles of a pass keep of their perimeters (by tile, by slot), and the chains between them:
+// an answer that says "as global cell g" (follow(a) gives g, or -1 for an answer of its own) is replaced
+// by g's, followed to the end; each chain is walked once (path compression).  Flow paths never circle,
+// so neither do the chains.
+template <typename A, typename Follow>
+void resolveChains(const TileGrid& grid, std::vector<std::vector<A>>& perimeter, Follow&& follow) {
+  std::vector<std::pair<std::int64_t, std::size_t>> chain;
+  for (auto& tile : perimeter)
+    for (A& start : tile) {
+      if (follow(start) < 0) continue;
+      chain.clear();
+      A a = start;
+      for (std::int64_t g; (g = follow(a)) >= 0;) {
+        std::int64_t t;
+        const std::size_t slot = perimeterSlotOf(grid, g, t);
+        chain.push_back({t, slot});
+        a = perimeter[static_cast<std::size_t>(t)][slot];
+      }
+      start = a;
+      for (const auto& [t, slot] : chain) perimeter[static_cast<std::size_t>(t)][slot] = a;
+    }
+}
+
 // The 8 neighbours, in ESRI's D8 order: E, SE, S, SW, W, NW, N, NE (codes 1, 2, 4, ..., 128).
 constexpr int kDx[8] = {1, 1, 0, -1, -1, -1, 0, 1};
 constexpr int kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
