@@ -23,11 +23,10 @@ bool sameBits(const std::vector<float>& a, const std::vector<float>& b) {
 TEST(Drainage, AnyTilingAndThreadsGiveTheReference) {
   for (std::uint64_t seed = 1; seed <= 8; ++seed) {
     const int w = 16 + static_cast<int>(seed * 17 % 55), h = 14 + static_cast<int>(seed * 3 % 47);
-    const reference::Dem d = reference::randomDem(w, h, seed, seed % 2 == 0);
-    reference::Dem f = d;
-    f.z = reference::fill(d);
-    const std::vector<std::uint8_t> dir = reference::flowDirections(f);
-    const std::vector<std::uint64_t> count = reference::accumulate(w, h, dir);
+    const reference::Passes p = reference::passes(w, h, seed, seed % 2 == 0);
+    const reference::Dem &d = p.dem, &f = p.filled;
+    const std::vector<std::uint8_t>& dir = p.dir;
+    const std::vector<std::uint64_t>& count = p.count;
     const double cellArea = 4, streamArea = 4.0 * static_cast<double>(10 + seed * 3), stage = 1.5;
     const reference::Hand want = reference::hand(d, f.z, dir, count, cellArea, streamArea, stage);
     std::uint64_t drained = 0;

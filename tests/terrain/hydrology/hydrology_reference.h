@@ -360,3 +360,23 @@ inline Links links(int w, int h, const std::vector<std::uint8_t>& dir,
 }
 
 }  // namespace tinbuild::hydrology::reference
+
+namespace tinbuild::hydrology::reference {
+
+// A random DEM through the reference's first passes: its fill, directions and upstream counts.
+struct Passes {
+  Dem dem, filled;
+  std::vector<std::uint8_t> dir;
+  std::vector<std::uint64_t> count;
+};
+inline Passes passes(int w, int h, std::uint64_t seed, bool holes) {
+  Passes p;
+  p.dem = randomDem(w, h, seed, holes);
+  p.filled = p.dem;
+  p.filled.z = fill(p.dem);
+  p.dir = flowDirections(p.filled);
+  p.count = accumulate(w, h, p.dir);
+  return p;
+}
+
+}  // namespace tinbuild::hydrology::reference

@@ -15,11 +15,9 @@ namespace {
 TEST(Streams, AnyTilingAndThreadsGiveTheReference) {
   for (std::uint64_t seed = 1; seed <= 8; ++seed) {
     const int w = 20 + static_cast<int>(seed * 19 % 50), h = 16 + static_cast<int>(seed * 11 % 45);
-    const reference::Dem d = reference::randomDem(w, h, seed, seed % 2 == 0);
-    reference::Dem f = d;
-    f.z = reference::fill(d);
-    const std::vector<std::uint8_t> dir = reference::flowDirections(f);
-    const std::vector<std::uint64_t> count = reference::accumulate(w, h, dir);
+    const reference::Passes p = reference::passes(w, h, seed, seed % 2 == 0);
+    const std::vector<std::uint8_t>& dir = p.dir;
+    const std::vector<std::uint64_t>& count = p.count;
     const double streamArea = 6 + static_cast<double>(seed);
     const reference::Links want = reference::links(w, h, dir, count, 1, streamArea);
     ASSERT_GT(want.downstream.size(), 3u) << "seed " << seed;
