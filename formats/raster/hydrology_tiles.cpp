@@ -1,0 +1,203 @@
+// The hydrology passes' rasters through GDAL (header).
+#include "formats/raster/hydrology_tiles.h"
+
+#include <cpl_conv.h>
+#include <cpl_error.h>
+#include <gdal.h>
+#include <gdal_utils.h>
+
+#include <algorithm>
+#include <cmath>
+#include <filesystem>
+#include <type_traits>
+
+#include "formats/raster/dem_writer.h"
+#include "libterrain/core/error.h"
+
+namespace tinbuild {
+
+namespace {
+
+template <typename T>
+GDALDataType gdalType() {
+  if constexpr (std::is_same_v<T, float>) return GDT_Float32;
+  if constexpr (std::is_same_v<T, double>) return GDT_Float64;
+  if constexpr (std::is_same_v<T, std::uint8_t>) return GDT_Byte;
+  if constexpr (std::is_same_v<T, std::uint32_t>) return GDT_UInt32;
+  if constexpr (std::is_same_v<T, std::uint64_t>) return GDT_UInt64;
+  return GDT_Unknown;
+}
+
+std::string rasterPath(const std::string& path) {
+  std::error_code ec;
+  if (std::filesystem::is_directory(path, ec)) return (std::filesystem::path(path) / "mosaic.vrt").string();
+  return path;
+}
+
+GDALDatasetH openRaster(const std::string& path) {
+  GDALAllRegister();  // (any raster GDAL reads)
+  const std::string p = rasterPath(path);
+  std::error_code ec;
+  if (!std::filesystem::exists(p, ec))
+    throw DataError(path, std::filesystem::is_directory(path, ec)
+                              ? "a directory without a mosaic.vrt: not a tinbuild DEM folder"
+                              : "no such file");
+  CPLErrorReset();
+  GDALDatasetH ds = GDALOpenEx(p.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY, nullptr, nullptr, nullptr);
+  if (!ds) {
+    const std::string why = CPLGetLastErrorMsg();
+    throw DataError(path, "cannot open as a raster" + (why.empty() ? std::string() : ": " + why));
+  }
+  if (GDALGetRasterCount(ds) < 1) {
+    GDALClose(ds);
+    throw DataError(path, "the raster has no band");
+  }
+  return ds;
+}
+
+RasterGrid gridOf(GDALDatasetH ds) {
+  RasterGrid g;
+  g.width = GDALGetRasterXSize(ds);
+  g.height = GDALGetRasterYSize(ds);
+  if (GDALGetGeoTransform(ds, g.geoTransform) != CE_None) {
+    const double identity[6] = {0, 1, 0, 0, 0, -1};
+    std::copy(identity, identity + 6, g.geoTransform);
+  }
+  const char* wkt = GDALGetProjectionRef(ds);
+  g.crsWkt = wkt ? wkt : "";
+  int has = 0;
+  g.noData = GDALGetRasterNoDataValue(GDALGetRasterBand(ds, 1), &has);
+  g.hasNoData = has != 0;
+  return g;
+}
+
+}  // namespace
+
+RasterGrid describeRaster(const std::string& path) {
+  GDALDatasetH ds = openRaster(path);
+  const RasterGrid g = gridOf(ds);
+  GDALClose(ds);
+  return g;
+}
+
+template <typename T>
+GdalTiles<T>::GdalTiles(const std::string& path, T outside) : path_(path), outside_(outside) {
+  dataset_ = openRaster(path);
+  grid_ = gridOf(static_cast<GDALDatasetH>(dataset_));
+}
+
+template <typename T>
+GdalTiles<T>::~GdalTiles() {
+  if (dataset_) GDALClose(static_cast<GDALDatasetH>(dataset_));
+}
+
+template <typename T>
+void GdalTiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
+  const std::int64_t w = r.width + 2 * halo, h = r.height + 2 * halo;
+  std::fill(v, v + w * h, outside_);
+  // The window inside the raster.
+  const std::int64_t c0 = std::max<std::int64_t>(r.col0 - halo, 0),
+                     r0 = std::max<std::int64_t>(r.row0 - halo, 0);
+  const std::int64_t c1 = std::min<std::int64_t>(r.col0 + r.width + halo, grid_.width);
+  const std::int64_t r1 = std::min<std::int64_t>(r.row0 + r.height + halo, grid_.height);
+  if (c1 <= c0 || r1 <= r0) return;
+  const int ww = static_cast<int>(c1 - c0), wh = static_cast<int>(r1 - r0);
+  std::vector<T> window(static_cast<std::size_t>(ww) * static_cast<std::size_t>(wh));
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    GDALRasterBandH band = GDALGetRasterBand(static_cast<GDALDatasetH>(dataset_), 1);
+    CPLErrorReset();
+    if (GDALRasterIO(band, GF_Read, static_cast<int>(c0), static_cast<int>(r0), ww, wh, window.data(), ww, wh,
+                     gdalType<T>(), 0, 0) != CE_None)
+      throw DataError(path_, std::string("cannot read its cells: ") + CPLGetLastErrorMsg());
+  }
+  for (int y = 0; y < wh; ++y)
+    for (int x = 0; x < ww; ++x) {
+      T value =
+          window[static_cast<std::size_t>(y) * static_cast<std::size_t>(ww) + static_cast<std::size_t>(x)];
+      bool none = grid_.hasNoData && static_cast<double>(value) == grid_.noData;
+      if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(value);
+      const std::int64_t bx = c0 + x - (r.col0 - halo), by = r0 + y - (r.row0 - halo);
+      v[by * w + bx] = none ? outside_ : value;
+    }
+}
+
+template <typename T>
+GeoTiffTiles<T>::GeoTiffTiles(const std::string& dir, const std::string& name, const RasterGrid& grid,
+                              T noData)
+    : dir_(dir), name_(name), grid_(grid), noData_(noData) {
+  registerGdalWriters();
+}
+
+template <typename T>
+void GeoTiffTiles<T>::write(const hydrology::TileRect& r, const T* values) {
+  const std::filesystem::path folder = std::filesystem::path(dir_) / name_;
+  const std::string path =
+      (folder / (name_ + "_" + std::to_string(r.col0) + "_" + std::to_string(r.row0) + ".tif")).string();
+  {
+    std::lock_guard<std::mutex> lock(mutex_);
+    std::error_code ec;
+    std::filesystem::create_directories(folder, ec);
+    if (ec) throw DataError(folder.string(), "cannot create the folder: " + ec.message());
+  }
+  GDALDriverH driver = GDALGetDriverByName("GTiff");
+  const char* options[] = {"TILED=YES",
+                           "BLOCKXSIZE=256",
+                           "BLOCKYSIZE=256",
+                           "COMPRESS=DEFLATE",
+                           std::is_floating_point_v<T> ? "PREDICTOR=3" : "PREDICTOR=2",
+                           nullptr};
+  CPLErrorReset();
+  GDALDatasetH ds =
+      GDALCreate(driver, path.c_str(), r.width, r.height, 1, gdalType<T>(), const_cast<char**>(options));
+  if (!ds) throw DataError(path, std::string("cannot create: ") + CPLGetLastErrorMsg());
+  double gt[6];
+  std::copy(grid_.geoTransform, grid_.geoTransform + 6, gt);
+  gt[0] = grid_.geoTransform[0] + static_cast<double>(r.col0) * grid_.geoTransform[1] +
+          static_cast<double>(r.row0) * grid_.geoTransform[2];
+  gt[3] = grid_.geoTransform[3] + static_cast<double>(r.col0) * grid_.geoTransform[4] +
+          static_cast<double>(r.row0) * grid_.geoTransform[5];
+  GDALSetGeoTransform(ds, gt);
+  if (!grid_.crsWkt.empty()) GDALSetProjection(ds, grid_.crsWkt.c_str());
+  GDALRasterBandH band = GDALGetRasterBand(ds, 1);
+  GDALSetRasterNoDataValue(band, static_cast<double>(noData_));
+  std::vector<T> copy(values, values + r.cells());
+  if constexpr (std::is_floating_point_v<T>)
+    for (T& x : copy)
+      if (std::isnan(x)) x = noData_;
+  const CPLErr err = GDALRasterIO(band, GF_Write, 0, 0, r.width, r.height, copy.data(), r.width, r.height,
+                                  gdalType<T>(), 0, 0);
+  GDALClose(ds);
+  if (err != CE_None) throw DataError(path, std::string("cannot write: ") + CPLGetLastErrorMsg());
+  std::lock_guard<std::mutex> lock(mutex_);
+  tiles_.push_back(path);
+}
+
+template <typename T>
+std::string GeoTiffTiles<T>::finish() {
+  std::sort(tiles_.begin(), tiles_.end());
+  const std::string vrt = (std::filesystem::path(dir_) / (name_ + ".vrt")).string();
+  std::vector<const char*> names;
+  for (const std::string& t : tiles_) names.push_back(t.c_str());
+  int usageError = 0;
+  GDALBuildVRTOptions* vo = GDALBuildVRTOptionsNew(nullptr, nullptr);
+  GDALDatasetH ds =
+      GDALBuildVRT(vrt.c_str(), static_cast<int>(names.size()), nullptr, names.data(), vo, &usageError);
+  GDALBuildVRTOptionsFree(vo);
+  if (!ds) throw DataError(vrt, std::string("cannot write the mosaic: ") + CPLGetLastErrorMsg());
+  GDALClose(ds);
+  return vrt;
+}
+
+template class GdalTiles<float>;
+template class GdalTiles<double>;
+template class GdalTiles<std::uint8_t>;
+template class GdalTiles<std::uint32_t>;
+template class GdalTiles<std::uint64_t>;
+template class GeoTiffTiles<float>;
+template class GeoTiffTiles<double>;
+template class GeoTiffTiles<std::uint8_t>;
+template class GeoTiffTiles<std::uint32_t>;
+template class GeoTiffTiles<std::uint64_t>;
+
+}  // namespace tinbuild
