@@ -193,12 +193,13 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
   PreparedConstraints constraints;
   std::unique_ptr<ConstraintPreparation> prep;
   std::shared_ptr<BankCheck> lateBankCheck;
+  std::vector<std::string> lateStageNames;
   bool folded = false;
   if (!hooks) {
     prep = std::make_unique<ConstraintPreparation>(o, in, diag);
     if (prep->any()) {
       if (!o.dem.path.empty() && !o.constraints.water.empty()) lateBankCheck = std::make_shared<BankCheck>();
-      folded = foldConstraints(*prep, fo, in, constraints, lateBankCheck);
+      folded = foldConstraints(*prep, fo, in, constraints, lateBankCheck, lateStageNames);
       if (!folded) {
         constraints = prep->prepare();
         lateBankCheck.reset();  // (made below from the constraints, as in a part)
@@ -265,7 +266,8 @@ RunReport runBuildWith(const PipelineOptions& o, Survey& in, RunOutputs& outputs
     r.finalizer = finalizePoints(in.streams, fo, hooks ? hooks->pointSink(sink) : sink, diag);
   }
   reportConstraints(constraints, r);
-  r.stages = runStageNames(fo, constraints, folded);
+  r.stages = stageNames(fo.filter);
+  r.stages.insert(r.stages.end(), lateStageNames.begin(), lateStageNames.end());
   in.countSkipped(r);
   // The constraint vertices passed the filter as records; they were not read from the survey.
   if (!constraints.empty()) {

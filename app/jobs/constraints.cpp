@@ -358,29 +358,21 @@ LateStages lateConstraints(const PreparedConstraints& c, Survey& survey) {
 }
 
 bool foldConstraints(ConstraintPreparation& prep, FinalizerOptions& fo, Survey& survey,
-                     PreparedConstraints& out, std::shared_ptr<BankCheck> bankCheck) {
+                     PreparedConstraints& out, std::shared_ptr<BankCheck> bankCheck,
+                     std::vector<std::string>& stageNames) {
   if (!prep.foldable()) return false;
   if (fo.filter.stages.size() + 3 > kMaxPointStages)
     throw UsageError("at most " + std::to_string(kMaxPointStages) + " point stages in one run");
   fo.countBlocks = false;  // (the count pass reads the points: no counting from a hierarchy)
   fo.countObserver = [&prep](const PointRecord* p, std::size_t n) { prep.observe(p, n); };
-  fo.lateStages = [&prep, &survey, &out, bankCheck](const Bounds3& kept, std::uint64_t n) {
+  fo.lateStages = [&prep, &survey, &out, bankCheck, &stageNames](const Bounds3& kept, std::uint64_t n) {
     out = prep.finish(kept, n);
     if (bankCheck && !out.bodies.empty()) bankCheck->configure(out.water, out.bodies, out.band, out.spacing);
-    return lateConstraints(out, survey);
+    LateStages late = lateConstraints(out, survey);
+    for (const auto& stage : late.stages) stageNames.push_back(stage->name());
+    return late;
   };
   return true;
-}
-
-std::vector<std::string> runStageNames(const FinalizerOptions& fo, const PreparedConstraints& c,
-                                       bool folded) {
-  std::vector<std::string> names = stageNames(fo.filter);
-  if (folded && !c.empty()) {
-    if (!c.water.empty()) names.push_back(WaterStage(std::vector<WaterArea>{}).name());
-    if (!c.outliers.empty()) names.push_back(BankOutlierStage({}).name());
-    names.push_back(BufferStage(std::make_shared<const ConformingConstraints>()).name());  // (names only)
-  }
-  return names;
 }
 
 void reportConstraints(const PreparedConstraints& c, RunReport& r) {

@@ -83,13 +83,12 @@ LateStages lateConstraints(const PreparedConstraints& c, Survey& survey);
 
 // Folds the preparation into the finalizer's count pass when it can (foldable(), one process): sets
 // fo.countObserver and fo.lateStages, which fill `out` (and configure `bankCheck`, when given) once the
-// count pass has seen the survey.  Returns false, touching nothing, when it cannot; the caller then
-// prepares and applies the constraints before the run.
+// count pass has seen the survey, and append the late stages' names to `stageNames` (they count after
+// the filter's own in FilterCounts::byStage).  Returns false, touching nothing, when it cannot; the
+// caller then prepares and applies the constraints before the run.
 bool foldConstraints(ConstraintPreparation& prep, FinalizerOptions& fo, Survey& survey,
-                     PreparedConstraints& out, std::shared_ptr<BankCheck> bankCheck);
-
-// The names of the stages a run's filter counts under FilterCounts::byStage, the late ones after.
-std::vector<std::string> runStageNames(const FinalizerOptions& fo, const PreparedConstraints& c, bool folded);
+                     PreparedConstraints& out, std::shared_ptr<BankCheck> bankCheck,
+                     std::vector<std::string>& stageNames);
 
 // The report's figures (RunReport::constraints).
 void reportConstraints(const PreparedConstraints& c, RunReport& r);

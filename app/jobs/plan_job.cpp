@@ -163,28 +163,16 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
   // Breaklines and water: prepared once here, for every part (constraints.bin, fingerprinted in the plan);
   // the plan then counts the points the parts will stream, stages and vertices included.  As in one
   // process, in the count pass when it can (foldConstraints), so the plan's bounds are one process's.
+  // The constraints are written (and reported) once the count is made, whichever way they were prepared.
   ConstraintPreparation prep(o, in, diag);
   PreparedConstraints constraints;
-  bool folded = false;
-  if (prep.any()) {
-    folded = foldConstraints(prep, fo, in, constraints, nullptr);
-    if (!folded) {
-      constraints = prep.prepare();
-      applyConstraints(constraints, fo, in);
-    }
+  std::vector<std::string> lateStageNames;
+  if (prep.any() && !foldConstraints(prep, fo, in, constraints, nullptr, lateStageNames)) {
+    constraints = prep.prepare();
+    applyConstraints(constraints, fo, in);
   }
-  auto keepConstraints = [&]() {
-    if (constraints.empty()) return;
-    reportConstraints(constraints, r);
-    std::error_code ec;
-    std::filesystem::create_directories(plan.stateDir(), ec);
-    writeConstraints(constraints, plan.constraintsFile());
-    plan.constraints = fileFingerprint(readablePath(plan.constraintsFile()), true);
-  };
-  if (!folded) keepConstraints();
   r.crs = in.crs;
   r.filter = fo.filter.describe();
-  r.stages = stageNames(fo.filter);
   r.memoryBudget = o.finalizer.memoryBudget;
   // A COPC survey: one process counts it from the octree's hierarchy (block mode) and decodes no point
   // before its stream; so does the plan.  It stops the finalizer when the stream begins (the grid and
@@ -224,9 +212,14 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     r.finalizer.blockMode = true;
     for (const auto& b : blocks) counter.addBlocks(b);
   }
-  if (folded) {
-    keepConstraints();
-    r.stages = runStageNames(fo, constraints, folded);
+  r.stages = stageNames(fo.filter);
+  r.stages.insert(r.stages.end(), lateStageNames.begin(), lateStageNames.end());
+  if (!constraints.empty()) {
+    reportConstraints(constraints, r);
+    std::error_code ec;
+    std::filesystem::create_directories(plan.stateDir(), ec);
+    writeConstraints(constraints, plan.constraintsFile());
+    plan.constraints = fileFingerprint(readablePath(plan.constraintsFile()), true);
   }
   r.haveFinalizer = true;
   in.countSkipped(r);

@@ -227,7 +227,6 @@ class Sources {
     addedNames_.resize(inputs_.size());
     addedNames_.back() = name;
   }
-  std::size_t inputCount() const { return inputs_.size(); }
   std::size_t current() const { return std::min(current_, inputs_.size() - 1); }
 
   // A piece of one pass: the raw records [start, start + raw) of one input (records of its spool when
@@ -1212,10 +1211,7 @@ class Finalizer {
       firstCountsTaken_ = true;
     }
     if (measureBounds) real = b;
-    if (!lateBounds_.empty()) {  // (a re-run reads the added input with the others: in b already)
-      real.add(lateBounds_.minX, lateBounds_.minY, lateBounds_.minZ);
-      real.add(lateBounds_.maxX, lateBounds_.maxY, lateBounds_.maxZ);
-    }
+    real.add(lateBounds_);  // (the added input's; a re-run read it with the others, into b, too)
     n = ordinal;
     return cells;
   }
@@ -2075,13 +2071,12 @@ class Finalizer {
     if (c.clipped) s += ", " + withCommas(c.clipped) + " outside the clip rectangle";
     if (c.otherPart) s += ", " + withCommas(c.otherPart) + " outside this part (other parts')";
     // The run's point stages (the water polygons, the breaklines' buffers): water covering the whole
-    // survey leaves nothing, and says so by name.
-    for (std::size_t i = 0; i < options_.filter.stages.size() && i < kMaxPointStages; ++i)
+    // survey leaves nothing, and says so by name.  The filter's stages count first, the late ones after.
+    const std::size_t early = options_.filter.stages.size();
+    for (std::size_t i = 0; i < early + lateStages_.size() && i < kMaxPointStages; ++i)
       if (c.byStage[i])
-        s += ", " + withCommas(c.byStage[i]) + " left out as " + options_.filter.stages[i]->describe();
-    for (std::size_t k = 0, i = options_.filter.stages.size(); k < lateStages_.size() && i < kMaxPointStages;
-         ++k, ++i)
-      if (c.byStage[i]) s += ", " + withCommas(c.byStage[i]) + " left out as " + lateStages_[k]->describe();
+        s += ", " + withCommas(c.byStage[i]) + " left out as " +
+             (i < early ? options_.filter.stages[i] : lateStages_[i - early])->describe();
     return s;
   }
 
