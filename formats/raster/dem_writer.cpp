@@ -23,9 +23,10 @@
 #include <system_error>
 
 #include "formats/io/output_file.h"
-#include "libterrain/core/error.h"
 #include "formats/io/output_transaction.h"
 #include "formats/io/quiet_gdal.h"
+#include "formats/raster/geotiff_options.h"
+#include "libterrain/core/error.h"
 
 namespace tinbuild {
 
@@ -177,13 +178,7 @@ struct DemWriter::Impl {
   }
 
   CPLStringList gtiffOptions(int kind, bool single) const {
-    CPLStringList opts;
-    opts.SetNameValue("TILED", "YES");
-    opts.SetNameValue("BLOCKXSIZE", "256");
-    opts.SetNameValue("BLOCKYSIZE", "256");
-    opts.SetNameValue("COMPRESS", "DEFLATE");
-    opts.SetNameValue("PREDICTOR", bandType(kind) == GDT_Float32 ? "3" : "2");
-    opts.SetNameValue("BIGTIFF", "IF_SAFER");
+    CPLStringList opts = tiledGeoTiffOptions(bandType(kind));
     if (single) opts.SetNameValue("SPARSE_OK", "TRUE");
     return opts;
   }

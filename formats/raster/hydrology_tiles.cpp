@@ -12,6 +12,7 @@
 #include <type_traits>
 
 #include "formats/raster/dem_writer.h"
+#include "formats/raster/geotiff_options.h"
 #include "libterrain/core/error.h"
 
 namespace tinbuild {
@@ -141,15 +142,9 @@ void GeoTiffTiles<T>::write(const hydrology::TileRect& r, const T* values) {
     if (ec) throw DataError(folder.string(), "cannot create the folder: " + ec.message());
   }
   GDALDriverH driver = GDALGetDriverByName("GTiff");
-  const char* options[] = {"TILED=YES",
-                           "BLOCKXSIZE=256",
-                           "BLOCKYSIZE=256",
-                           "COMPRESS=DEFLATE",
-                           std::is_floating_point_v<T> ? "PREDICTOR=3" : "PREDICTOR=2",
-                           nullptr};
   CPLErrorReset();
-  GDALDatasetH ds =
-      GDALCreate(driver, path.c_str(), r.width, r.height, 1, gdalType<T>(), const_cast<char**>(options));
+  GDALDatasetH ds = GDALCreate(driver, path.c_str(), r.width, r.height, 1, gdalType<T>(),
+                               tiledGeoTiffOptions(gdalType<T>()).List());
   if (!ds) throw DataError(path, std::string("cannot create: ") + CPLGetLastErrorMsg());
   double gt[6];
   std::copy(grid_.geoTransform, grid_.geoTransform + 6, gt);

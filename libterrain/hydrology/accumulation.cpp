@@ -1,7 +1,6 @@
 // Upstream area, tile by tile (header).
 #include "libterrain/hydrology/accumulation.h"
 
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <unordered_map>
@@ -18,10 +17,11 @@ constexpr std::int64_t kNone = -1;
 // One tile's counts: codes with a halo of one cell, the in-tile flow graph in Kahn's order.
 class TileCounts {
  public:
-  // inflow(global cell) -> the count flowing into that tile cell from outside (pass 2), or null.
-  template <typename Inflow>
-  void run(const TileGrid& grid, std::int64_t t, TileSourceOf<std::uint8_t>& source, Inflow* inflow) {
+  // `inflow` (pass 2; null in pass 1): by global cell, the count flowing into an entry from outside.
+  void run(const TileGrid& grid, std::int64_t t, TileSourceOf<std::uint8_t>& source,
+           const std::unordered_map<std::int64_t, std::uint64_t>* inflow) {
     r_ = grid.tile(t);
+    width_ = grid.width();
     const int hw = r_.width + 2;
     codes_.resize(static_cast<std::size_t>(hw) * static_cast<std::size_t>(r_.height + 2));
     source.read(r_, 1, codes_.data());
@@ -37,8 +37,7 @@ class TileCounts {
         const std::uint8_t d = code(c, row);
         if (d == 255) continue;
         count[i] = 1;
-        if (d != 0) {
-          const int k = std::countr_zero(static_cast<unsigned>(d));
+        if (const int k = directionOf(d); k >= 0) {
           const int nc = c + kDx[k], nr = row + kDy[k];
           if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) {
             target_[i] = static_cast<std::int64_t>(cell(nc, nr));
@@ -53,14 +52,12 @@ class TileCounts {
         for (int k = 0; k < 8 && !entry; ++k) {
           const int nc = c + kDx[k], nr = row + kDy[k];
           if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) continue;
-          const std::uint8_t e = code(nc, nr);
-          if (e == 0 || e == 255) continue;
-          const int back = std::countr_zero(static_cast<unsigned>(e));
-          entry = nc + kDx[back] == c && nr + kDy[back] == row;
+          entry = drainsInto(code(nc, nr), nc, nr, c, row);
         }
         if (entry) {
           entries.push_back(i);
-          if (inflow) count[i] += (*inflow)(global(c, row));
+          if (inflow)
+            if (const auto it = inflow->find(global(c, row)); it != inflow->end()) count[i] += it->second;
         }
       }
     // Kahn's order: a cell once every in-tile cell draining into it is counted.
@@ -93,7 +90,7 @@ class TileCounts {
   std::int64_t outflowTarget(const TileGrid& grid, std::size_t i) const {
     const int c = static_cast<int>(i % static_cast<std::size_t>(r_.width)),
               row = static_cast<int>(i / static_cast<std::size_t>(r_.width));
-    const int k = std::countr_zero(static_cast<unsigned>(code(c, row)));
+    const int k = directionOf(code(c, row));
     return (r_.row0 + row + kDy[k]) * grid.width() + (r_.col0 + c + kDx[k]);
   }
   std::int64_t global(std::size_t i) const {
@@ -101,7 +98,6 @@ class TileCounts {
                   static_cast<int>(i / static_cast<std::size_t>(r_.width)));
   }
   std::int64_t global(int c, int row) const { return (r_.row0 + row) * width_ + (r_.col0 + c); }
-  void setWidth(std::int64_t w) { width_ = w; }
   const TileRect& rect() const { return r_; }
 
   std::vector<std::uint64_t> count;  // upstream cells, itself included (0: nodata)
@@ -138,7 +134,6 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
   const std::int64_t tiles = grid.tiles();
   const int threads = std::max(1, options.threads);
   std::vector<TileCounts> work(static_cast<std::size_t>(threads));
-  for (TileCounts& w : work) w.setWidth(grid.width());
 
   // Pass 1: each tile's outflow cells (local count, target) and entries (the exit they reach).
   struct TileKeep {
@@ -147,10 +142,9 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
     std::vector<std::int64_t> targets;                         // of the outflows, in order
   };
   std::vector<TileKeep> keep(static_cast<std::size_t>(tiles));
-  using NoInflow = std::uint64_t (*)(std::int64_t);
   forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
     TileCounts& tc = work[static_cast<std::size_t>(w)];
-    tc.run<NoInflow>(grid, t, flowdir, nullptr);
+    tc.run(grid, t, flowdir, nullptr);
     TileKeep& k = keep[static_cast<std::size_t>(t)];
     for (std::size_t i : tc.outflow) {
       Outflow o;
@@ -203,14 +197,10 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
   // Pass 2: each tile again, its entries fed by their inflow.
   std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), largest(cells);
   std::vector<std::vector<double>> areas(static_cast<std::size_t>(threads));
-  auto inflow = [&inflowOf](std::int64_t g) -> std::uint64_t {
-    const auto it = inflowOf.find(g);
-    return it == inflowOf.end() ? 0 : it->second;
-  };
   forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileCounts& tc = work[wi];
-    tc.run(grid, t, flowdir, &inflow);
+    tc.run(grid, t, flowdir, &inflowOf);
     for (std::uint64_t v : tc.count) {
       cells[wi] += v != 0;
       largest[wi] = std::max(largest[wi], v);

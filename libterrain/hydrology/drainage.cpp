@@ -1,7 +1,6 @@
 // HAND and the flood depth for a stage, tile by tile (header).
 #include "libterrain/hydrology/drainage.h"
 
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <vector>
@@ -45,8 +44,8 @@ class TileDrainage {
       for (int c = 0; c < r_.width; ++c) {
         const std::size_t i = cell(c, row);
         const std::uint8_t d = codes_[i];
-        if (d == 0 || d == 255) continue;
-        const int k = std::countr_zero(static_cast<unsigned>(d));
+        const int k = directionOf(d);
+        if (k < 0) continue;
         const int nc = c + kDx[k], nr = row + kDy[k];
         if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) {
           target_[i] = static_cast<std::int64_t>(cell(nc, nr));

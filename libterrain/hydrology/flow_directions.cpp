@@ -27,7 +27,7 @@ enum class Status : std::uint8_t { kNoData, kDefined, kFlat };
 
 class TileFlats {
  public:
-  TileFlats(const TileGrid& grid, const FlowOptions& o) : grid_(grid), o_(o) {
+  TileFlats(const TileGrid& grid, const FlowOptions& o) : grid_(grid) {
     dist_[0] = dist_[4] = o.dx;
     dist_[2] = dist_[6] = o.dy;
     dist_[1] = dist_[3] = dist_[5] = dist_[7] = std::hypot(o.dx, o.dy);
@@ -35,7 +35,6 @@ class TileFlats {
 
   // Reads tile t and works out its cells' status, its flat cells and their components.
   void load(std::int64_t t, TileSource& source) {
-    t_ = t;
     r_ = grid_.tile(t);
     hw_ = r_.width + 2 * kHalo;
     z_.resize(static_cast<std::size_t>(hw_) * static_cast<std::size_t>(r_.height + 2 * kHalo));
@@ -294,9 +293,7 @@ class TileFlats {
   }
 
   const TileGrid& grid_;
-  const FlowOptions& o_;
   double dist_[8];
-  std::int64_t t_ = 0;
   TileRect r_;
   int hw_ = 0, sw_ = 0;
   std::vector<float> z_;

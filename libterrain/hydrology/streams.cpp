@@ -2,7 +2,6 @@
 #include "libterrain/hydrology/streams.h"
 
 #include <algorithm>
-#include <bit>
 #include <chrono>
 #include <cmath>
 #include <unordered_map>
@@ -56,7 +55,7 @@ class TileStreams {
         std::int64_t upCell = -1;
         for (int k = 0; k < 8; ++k) {
           const int nc = c + kDx[k], nr = row + kDy[k];
-          if (!stream(nc, nr, o) || !drainsInto(nc, nr, c, row)) continue;
+          if (!stream(nc, nr, o) || !drainsInto(code(nc, nr), nc, nr, c, row)) continue;
           ++ups;
           upCell = inside(nc, nr) ? static_cast<std::int64_t>(cell(nc, nr)) : -2 - global(nc, nr);
           if (inside(nc, nr)) ++indeg_[i];
@@ -84,9 +83,8 @@ class TileStreams {
       }
       const int c = static_cast<int>(i % static_cast<std::uint32_t>(r_.width)),
                 row = static_cast<int>(i / static_cast<std::uint32_t>(r_.width));
-      const std::uint8_t d = code(c, row);
-      if (d == 0 || d == 255) continue;
-      const int k = std::countr_zero(static_cast<unsigned>(d));
+      const int k = directionOf(code(c, row));
+      if (k < 0) continue;
       const int nc = c + kDx[k], nr = row + kDy[k];
       if (inside(nc, nr) && stream(nc, nr, o)) {
         const std::size_t j = cell(nc, nr);
@@ -115,12 +113,6 @@ class TileStreams {
   std::size_t haloIndex(int c, int row) const {
     return static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(hw_) +
            static_cast<std::size_t>(c + 1);
-  }
-  bool drainsInto(int c, int row, int tc, int tr) const {
-    const std::uint8_t d = code(c, row);
-    if (d == 0 || d == 255) return false;
-    const int k = std::countr_zero(static_cast<unsigned>(d));
-    return c + kDx[k] == tc && row + kDy[k] == tr;
   }
   TileRect r_;
   std::int64_t width_ = 0;
@@ -196,9 +188,8 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
         Partial& p = mine[id];
         ++p.cells;
         p.upstream = std::max(p.upstream, ts.countAt(c, row));
-        const std::uint8_t d = ts.code(c, row);
-        if (d == 0 || d == 255) continue;
-        const int k = std::countr_zero(static_cast<unsigned>(d));
+        const int k = directionOf(ts.code(c, row));
+        if (k < 0) continue;
         (k % 2 ? p.diagonal : (k % 4 == 0 ? p.sideX : p.sideY)) += 1;
         const std::int64_t next = ts.global(c + kDx[k], row + kDy[k]);
         if (isTop(next)) p.downstream = idOf(next);

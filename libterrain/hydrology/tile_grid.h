@@ -11,6 +11,7 @@
 #pragma once
 
 #include <algorithm>
+#include <bit>
 #include <cmath>
 #include <cstddef>
 #include <cstdint>
@@ -127,6 +128,18 @@ void resolveChains(const TileGrid& grid, std::vector<std::vector<A>>& perimeter,
 // The 8 neighbours, in ESRI's D8 order: E, SE, S, SW, W, NW, N, NE (codes 1, 2, 4, ..., 128).
 constexpr int kDx[8] = {1, 1, 0, -1, -1, -1, 0, 1};
 constexpr int kDy[8] = {0, 1, 1, 1, 0, -1, -1, -1};
+
+// The neighbour a D8 code (1 E, 2 SE, ..., 128 NE) points to, as its index k in kDx/kDy; -1 for 0 (the
+// water leaves the DEM) and 255 (nodata).
+inline int directionOf(std::uint8_t code) {
+  return code == 0 || code == 255 ? -1 : std::countr_zero(static_cast<unsigned>(code));
+}
+
+// Whether a cell at (c, row) with D8 code `code` drains into the cell at (tc, tr).
+inline bool drainsInto(std::uint8_t code, int c, int row, int tc, int tr) {
+  const int k = directionOf(code);
+  return k >= 0 && c + kDx[k] == tc && row + kDy[k] == tr;
+}
 
 // Reads tiles of a raster: the DEM (float heights) or an earlier pass's output (flow codes...).
 template <typename T>

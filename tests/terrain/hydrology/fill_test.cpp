@@ -22,16 +22,6 @@ std::vector<float> tiled(const reference::Dem& d, int tileSize, int threads, Fil
   return out.values;
 }
 
-// Bit for bit, NaN for NaN.
-std::string firstDifference(const std::vector<float>& a, const std::vector<float>& b, int w) {
-  if (a.size() != b.size()) return "sizes differ";
-  for (std::size_t i = 0; i < a.size(); ++i)
-    if (std::memcmp(&a[i], &b[i], sizeof(float)) != 0 && !(std::isnan(a[i]) && std::isnan(b[i])))
-      return "cell (" + std::to_string(i % w) + ", " + std::to_string(i / w) + "): " + std::to_string(a[i]) +
-             " against " + std::to_string(b[i]);
-  return "";
-}
-
 reference::Dem fromRows(const std::vector<std::vector<float>>& rows) {
   reference::Dem d;
   d.h = static_cast<int>(rows.size());
@@ -62,8 +52,8 @@ TEST(Fill, KnownAnswers) {
   EXPECT_EQ(holeRef[1 * 5 + 1], 5.f);
   for (const int t : {1, 2, 3, 5}) {
     SCOPED_TRACE("tile " + std::to_string(t));
-    EXPECT_EQ(firstDifference(tiled(bowl, t, 1), bowlFilled, 5), "");
-    EXPECT_EQ(firstDifference(tiled(hole, t, 1), holeRef, 5), "");
+    EXPECT_EQ(reference::firstDifference(tiled(bowl, t, 1), bowlFilled, 5), "");
+    EXPECT_EQ(reference::firstDifference(tiled(hole, t, 1), holeRef, 5), "");
   }
   // Two nested depressions across a tile edge, spilling east at 6.
   const reference::Dem nested = fromRows({{9, 9, 9, 9, 9, 9, 9, 9},  //
@@ -74,7 +64,7 @@ TEST(Fill, KnownAnswers) {
   const std::vector<float> got = tiled(nested, 3, 2, &s);
   const std::vector<float> want = {9, 9, 9, 9, 9, 9, 9, 9,  //
                                    9, 7, 7, 8, 6, 6, 6, 9, 9, 7, 7, 7, 6, 6, 6, 6, 9, 9, 9, 9, 9, 9, 9, 9};
-  EXPECT_EQ(firstDifference(got, want, 8), "");
+  EXPECT_EQ(reference::firstDifference(got, want, 8), "");
   EXPECT_EQ(s.raised, 10u);
   EXPECT_EQ(s.cells, 32u);
 }
@@ -90,7 +80,7 @@ TEST(Fill, AnyTilingAndThreadsGiveTheReference) {
       for (const int threads : {1, 2, 3}) {
         SCOPED_TRACE("seed " + std::to_string(seed) + ", tile " + std::to_string(t) + ", threads " +
                      std::to_string(threads));
-        ASSERT_EQ(firstDifference(tiled(d, t, threads), want, w), "");
+        ASSERT_EQ(reference::firstDifference(tiled(d, t, threads), want, w), "");
       }
   }
 }
@@ -101,11 +91,11 @@ TEST(Fill, DegenerateRasters) {
   flat.w = 9;
   flat.h = 4;
   flat.z.assign(36, 3.f);
-  EXPECT_EQ(firstDifference(tiled(flat, 2, 2), flat.z, 9), "");
+  EXPECT_EQ(reference::firstDifference(tiled(flat, 2, 2), flat.z, 9), "");
   reference::Dem none = flat;
   none.z.assign(36, kNoData);
   FillStats s;
-  EXPECT_EQ(firstDifference(tiled(none, 4, 1, &s), none.z, 9), "");
+  EXPECT_EQ(reference::firstDifference(tiled(none, 4, 1, &s), none.z, 9), "");
   EXPECT_EQ(s.cells, 0u);
   reference::Dem one;
   one.w = one.h = 1;

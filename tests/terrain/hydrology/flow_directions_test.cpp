@@ -25,15 +25,6 @@ std::vector<std::uint8_t> tiled(const reference::Dem& filled, int tileSize, int 
   return out.values;
 }
 
-std::string firstDifference(const std::vector<std::uint8_t>& a, const std::vector<std::uint8_t>& b, int w) {
-  if (a.size() != b.size()) return "sizes differ";
-  for (std::size_t i = 0; i < a.size(); ++i)
-    if (a[i] != b[i])
-      return "cell (" + std::to_string(i % w) + ", " + std::to_string(i / w) + "): " + std::to_string(a[i]) +
-             " against " + std::to_string(b[i]);
-  return "";
-}
-
 // Every path ends where the water leaves the DEM (code 0), never in a circle, and never climbs.
 std::string pathsEndOutside(const reference::Dem& f, const std::vector<std::uint8_t>& dir) {
   for (int r0 = 0; r0 < f.h; ++r0)
@@ -89,7 +80,7 @@ TEST(FlowDirections, KnownAnswers) {
   EXPECT_EQ(d[3 * 9 + 7], 1) << "the lake cell beside the outlet flows into it";
   EXPECT_EQ(pathsEndOutside(f, d), "");
   EXPECT_GT(s.flatCells, 20u);
-  EXPECT_EQ(firstDifference(d, reference::flowDirections(f), 9), "");
+  EXPECT_EQ(reference::firstDifference(d, reference::flowDirections(f), 9), "");
   // Steepest by drop over distance: a diagonal drop of 3 (over 1.414) beats a side drop of 2.
   const reference::Dem v = [] {
     reference::Dem x;
@@ -115,7 +106,7 @@ TEST(FlowDirections, AnyTilingAndThreadsGiveTheReference) {
         SCOPED_TRACE("seed " + std::to_string(seed) + ", tile " + std::to_string(t) + ", threads " +
                      std::to_string(threads));
         FlowStats s;
-        ASSERT_EQ(firstDifference(tiled(f, t, threads, &s), want, w), "");
+        ASSERT_EQ(reference::firstDifference(tiled(f, t, threads, &s), want, w), "");
         if (t == 1000) {
           EXPECT_EQ(s.rounds, 2u);  // (one tile: nothing to relax)
         }
@@ -138,7 +129,7 @@ TEST(FlowDirections, AFlatAcrossManyTiles) {
   const std::vector<std::uint8_t> want = reference::flowDirections(f);
   EXPECT_EQ(pathsEndOutside(f, want), "");
   FlowStats s;
-  EXPECT_EQ(firstDifference(tiled(f, 4, 2, &s), want, 64), "");
+  EXPECT_EQ(reference::firstDifference(tiled(f, 4, 2, &s), want, 64), "");
   EXPECT_GT(s.rounds, 10u);
 }
 

@@ -4,13 +4,33 @@
 
 #include <cmath>
 #include <cstdint>
+#include <cstring>
 #include <queue>
 #include <random>
+#include <string>
+#include <type_traits>
 #include <vector>
 
 #include "libterrain/hydrology/tile_grid.h"
 
 namespace tinbuild::hydrology::reference {
+
+// "" when a and b hold the same cells (floats bit for bit, NaN as NaN), else the first cell that differs
+// (w: the raster's width).
+template <typename T>
+std::string firstDifference(const std::vector<T>& a, const std::vector<T>& b, int w) {
+  if (a.size() != b.size()) return "sizes differ";
+  for (std::size_t i = 0; i < a.size(); ++i) {
+    bool same = a[i] == b[i];
+    if constexpr (std::is_floating_point_v<T>)
+      same = std::memcmp(&a[i], &b[i], sizeof(T)) == 0 || (std::isnan(a[i]) && std::isnan(b[i]));
+    if (!same)
+      return "cell (" + std::to_string(i % static_cast<std::size_t>(w)) + ", " +
+             std::to_string(i / static_cast<std::size_t>(w)) + "): " + std::to_string(+a[i]) + " against " +
+             std::to_string(+b[i]);
+  }
+  return "";
+}
 
 struct Dem {
   int w = 0, h = 0;
