@@ -3,9 +3,10 @@
 namespace tinbuild::app {
 
 const std::vector<Command>& commands() {
-  static const std::vector<Command> all = {infoCommand(),        buildCommand(),  finalizeCommand(),
-                                           triangulateCommand(), tetrahedralizeCommand(), verifyCommand(), planCommand(),
-                                           mergeCommand(),       demoCommand(),   benchCommand()};
+  static const std::vector<Command> all = {infoCommand(),        buildCommand(),          finalizeCommand(),
+                                           triangulateCommand(), tetrahedralizeCommand(), verifyCommand(),
+                                           planCommand(),        mergeCommand(),          hydrologyCommand(),
+                                           demoCommand(),        benchCommand()};
   return all;
 }
 

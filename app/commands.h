@@ -30,10 +30,12 @@ Command planCommand();
 Command mergeCommand();
 Command verifyCommand();
 Command tetrahedralizeCommand();
+Command hydrologyCommand();
 
 }  // namespace tinbuild::app
 namespace tinbuild {
 struct PipelineOptions;
+struct HydrologyOptions;
 }
 namespace tinbuild::app {
 // `tinbuild verify` on a tetrahedral mesh (app/cmd_tetrahedralize.cpp): exit code 0 when it holds.
@@ -41,5 +43,8 @@ int verifyTetMesh(const std::string& mesh, const std::vector<std::string>& point
                   bool json);
 // `tinbuild finalize --3d` (app/cmd_tetrahedralize.cpp): the 3D finalized stream.
 int runFinalize3dCommand(const cli::ParsedArgs& args);
+// `tinbuild hydrology` and `build --hydrology` (app/cmd_hydrology.cpp): the run in a frame of its own.
+struct RunSettings;
+int runHydrologyJob(HydrologyOptions o, const RunSettings& rs);
 
 }  // namespace tinbuild::app

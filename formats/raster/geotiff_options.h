@@ -8,12 +8,19 @@
 
 namespace tinbuild {
 
-inline CPLStringList tiledGeoTiffOptions(GDALDataType type) {
+// How hard to compress: Deflate (the DEM's tiles: GDAL's default level), Fast (DEFLATE at level 1, which
+// every GeoTIFF reader reads, for outputs written in bulk: the hydrology's), Scratch (ZSTD at level 1: files
+// the run reads back and deletes).
+enum class TiffCompression { Deflate, Fast, Scratch };
+
+inline CPLStringList tiledGeoTiffOptions(GDALDataType type, TiffCompression c = TiffCompression::Deflate) {
   CPLStringList opts;
   opts.SetNameValue("TILED", "YES");
   opts.SetNameValue("BLOCKXSIZE", "256");
   opts.SetNameValue("BLOCKYSIZE", "256");
-  opts.SetNameValue("COMPRESS", "DEFLATE");
+  opts.SetNameValue("COMPRESS", c == TiffCompression::Scratch ? "ZSTD" : "DEFLATE");
+  if (c == TiffCompression::Scratch) opts.SetNameValue("ZSTD_LEVEL", "1");
+  if (c == TiffCompression::Fast) opts.SetNameValue("ZLEVEL", "1");
   opts.SetNameValue("PREDICTOR", GDALDataTypeIsFloating(type) ? "3" : "2");
   opts.SetNameValue("BIGTIFF", "IF_SAFER");
   return opts;

@@ -11,6 +11,7 @@
 #include <filesystem>
 #include <type_traits>
 
+#include "formats/io/output_transaction.h"
 #include "formats/raster/dem_writer.h"
 #include "formats/raster/geotiff_options.h"
 #include "libterrain/core/error.h"
@@ -81,15 +82,23 @@ RasterGrid describeRaster(const std::string& path) {
   return g;
 }
 
+void limitGdalForTiles(std::size_t cacheBytes, int openFiles) {
+  limitGdalBlockCache(cacheBytes);
+  if (!CPLGetConfigOption("GDAL_MAX_DATASET_POOL_SIZE", nullptr))
+    CPLSetConfigOption("GDAL_MAX_DATASET_POOL_SIZE", std::to_string(openFiles).c_str());
+}
+
 template <typename T>
 GdalTiles<T>::GdalTiles(const std::string& path, T outside) : path_(path), outside_(outside) {
-  dataset_ = openRaster(path);
-  grid_ = gridOf(static_cast<GDALDatasetH>(dataset_));
+  GDALDatasetH ds = openRaster(path);
+  grid_ = gridOf(ds);
+  handles_.push_back(ds);
+  spare_.push_back(ds);
 }
 
 template <typename T>
 GdalTiles<T>::~GdalTiles() {
-  if (dataset_) GDALClose(static_cast<GDALDatasetH>(dataset_));
+  for (void* ds : handles_) GDALClose(static_cast<GDALDatasetH>(ds));
 }
 
 template <typename T>
@@ -103,30 +112,53 @@ void GdalTiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
   const std::int64_t r1 = std::min<std::int64_t>(r.row0 + r.height + halo, grid_.height);
   if (c1 <= c0 || r1 <= r0) return;
   const int ww = static_cast<int>(c1 - c0), wh = static_cast<int>(r1 - r0);
-  std::vector<T> window(static_cast<std::size_t>(ww) * static_cast<std::size_t>(wh));
+  // Straight into the tile's buffer, at the window's place in it (no copy).
+  const std::int64_t bx0 = c0 - (r.col0 - halo), by0 = r0 - (r.row0 - halo);
+  T* at = v + by0 * w + bx0;
   {
-    std::lock_guard<std::mutex> lock(mutex_);
-    GDALRasterBandH band = GDALGetRasterBand(static_cast<GDALDatasetH>(dataset_), 1);
+    // A handle of its own for each reading thread (GDAL's datasets are not shared between threads), so
+    // the threads decompress side by side.
+    GDALDatasetH ds = nullptr;
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      if (!spare_.empty()) {
+        ds = static_cast<GDALDatasetH>(spare_.back());
+        spare_.pop_back();
+      }
+    }
+    if (!ds) {
+      ds = openRaster(path_);
+      std::lock_guard<std::mutex> lock(mutex_);
+      handles_.push_back(ds);
+    }
     CPLErrorReset();
-    if (GDALRasterIO(band, GF_Read, static_cast<int>(c0), static_cast<int>(r0), ww, wh, window.data(), ww, wh,
-                     gdalType<T>(), 0, 0) != CE_None)
-      throw DataError(path_, std::string("cannot read its cells: ") + CPLGetLastErrorMsg());
+    const CPLErr err =
+        GDALRasterIO(GDALGetRasterBand(ds, 1), GF_Read, static_cast<int>(c0), static_cast<int>(r0), ww, wh,
+                     at, ww, wh, gdalType<T>(), static_cast<int>(sizeof(T)),
+                     static_cast<int>(sizeof(T) * static_cast<std::size_t>(w)));
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      spare_.push_back(ds);
+    }
+    if (err != CE_None) throw DataError(path_, std::string("cannot read its cells: ") + CPLGetLastErrorMsg());
   }
-  for (int y = 0; y < wh; ++y)
+  const bool floating = std::is_floating_point_v<T>;
+  if (!grid_.hasNoData && !floating) return;
+  for (int y = 0; y < wh; ++y) {
+    T* line = at + static_cast<std::int64_t>(y) * w;
     for (int x = 0; x < ww; ++x) {
-      T value =
-          window[static_cast<std::size_t>(y) * static_cast<std::size_t>(ww) + static_cast<std::size_t>(x)];
+      const T value = line[x];
       bool none = grid_.hasNoData && static_cast<double>(value) == grid_.noData;
       if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(value);
-      const std::int64_t bx = c0 + x - (r.col0 - halo), by = r0 + y - (r.row0 - halo);
-      v[by * w + bx] = none ? outside_ : value;
+      if (none) line[x] = outside_;
     }
+  }
 }
 
 template <typename T>
 GeoTiffTiles<T>::GeoTiffTiles(const std::string& dir, const std::string& name, const RasterGrid& grid,
-                              T noData)
-    : dir_(dir), name_(name), grid_(grid), noData_(noData) {
+                              T noData, bool scratch)
+    : dir_(dir), name_(name), grid_(grid), noData_(noData), scratch_(scratch) {
   registerGdalWriters();
 }
 
@@ -141,10 +173,12 @@ void GeoTiffTiles<T>::write(const hydrology::TileRect& r, const T* values) {
     std::filesystem::create_directories(folder, ec);
     if (ec) throw DataError(folder.string(), "cannot create the folder: " + ec.message());
   }
+  faultPoint("output");  // (the fault-injection tests' signal at the first file written)
   GDALDriverH driver = GDALGetDriverByName("GTiff");
   CPLErrorReset();
-  GDALDatasetH ds = GDALCreate(driver, path.c_str(), r.width, r.height, 1, gdalType<T>(),
-                               tiledGeoTiffOptions(gdalType<T>()).List());
+  GDALDatasetH ds = GDALCreate(
+      driver, path.c_str(), r.width, r.height, 1, gdalType<T>(),
+      tiledGeoTiffOptions(gdalType<T>(), scratch_ ? TiffCompression::Scratch : TiffCompression::Fast).List());
   if (!ds) throw DataError(path, std::string("cannot create: ") + CPLGetLastErrorMsg());
   double gt[6];
   std::copy(grid_.geoTransform, grid_.geoTransform + 6, gt);
@@ -156,12 +190,16 @@ void GeoTiffTiles<T>::write(const hydrology::TileRect& r, const T* values) {
   if (!grid_.crsWkt.empty()) GDALSetProjection(ds, grid_.crsWkt.c_str());
   GDALRasterBandH band = GDALGetRasterBand(ds, 1);
   GDALSetRasterNoDataValue(band, static_cast<double>(noData_));
-  std::vector<T> copy(values, values + r.cells());
-  if constexpr (std::is_floating_point_v<T>)
+  const T* data = values;
+  if constexpr (std::is_floating_point_v<T>) {  // NaN -> the nodata value, in a buffer kept per thread
+    thread_local std::vector<T> copy;
+    copy.assign(values, values + r.cells());
     for (T& x : copy)
       if (std::isnan(x)) x = noData_;
-  const CPLErr err = GDALRasterIO(band, GF_Write, 0, 0, r.width, r.height, copy.data(), r.width, r.height,
-                                  gdalType<T>(), 0, 0);
+    data = copy.data();
+  }
+  const CPLErr err = GDALRasterIO(band, GF_Write, 0, 0, r.width, r.height, const_cast<T*>(data), r.width,
+                                  r.height, gdalType<T>(), 0, 0);
   GDALClose(ds);
   if (err != CE_None) throw DataError(path, std::string("cannot write: ") + CPLGetLastErrorMsg());
   std::lock_guard<std::mutex> lock(mutex_);
@@ -184,6 +222,50 @@ std::string GeoTiffTiles<T>::finish() {
   return vrt;
 }
 
+template <typename T>
+void TileFiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
+  const std::int64_t w = r.width + 2 * halo, h = r.height + 2 * halo;
+  std::fill(v, v + w * h, outside_);
+  const std::int64_t c0 = std::max<std::int64_t>(r.col0 - halo, 0),
+                     r0 = std::max<std::int64_t>(r.row0 - halo, 0);
+  const std::int64_t c1 = std::min<std::int64_t>(r.col0 + r.width + halo, grid_.width());
+  const std::int64_t r1 = std::min<std::int64_t>(r.row0 + r.height + halo, grid_.height());
+  if (c1 <= c0 || r1 <= r0) return;
+  const std::int64_t ts = grid_.tileSize();
+  for (std::int64_t ty = r0 / ts; ty <= (r1 - 1) / ts; ++ty)
+    for (std::int64_t tx = c0 / ts; tx <= (c1 - 1) / ts; ++tx) {
+      const hydrology::TileRect t = grid_.tile(grid_.tileOf(tx * ts, ty * ts));
+      // The part of the window in this tile.
+      const std::int64_t x0 = std::max(c0, t.col0), x1 = std::min(c1, t.col0 + t.width);
+      const std::int64_t y0 = std::max(r0, t.row0), y1 = std::min(r1, t.row0 + t.height);
+      if (x1 <= x0 || y1 <= y0) continue;
+      const std::string path =
+          (std::filesystem::path(dir_) / name_ /
+           (name_ + "_" + std::to_string(t.col0) + "_" + std::to_string(t.row0) + ".tif"))
+              .string();
+      CPLErrorReset();
+      GDALDatasetH ds =
+          GDALOpenEx(path.c_str(), GDAL_OF_RASTER | GDAL_OF_READONLY, nullptr, nullptr, nullptr);
+      if (!ds) throw DataError(path, std::string("cannot open: ") + CPLGetLastErrorMsg());
+      T* at = v + (y0 - (r.row0 - halo)) * w + (x0 - (r.col0 - halo));
+      const CPLErr err = GDALRasterIO(GDALGetRasterBand(ds, 1), GF_Read, static_cast<int>(x0 - t.col0),
+                                      static_cast<int>(y0 - t.row0), static_cast<int>(x1 - x0),
+                                      static_cast<int>(y1 - y0), at, static_cast<int>(x1 - x0),
+                                      static_cast<int>(y1 - y0), gdalType<T>(), static_cast<int>(sizeof(T)),
+                                      static_cast<int>(sizeof(T) * static_cast<std::size_t>(w)));
+      GDALClose(ds);
+      if (err != CE_None) throw DataError(path, std::string("cannot read: ") + CPLGetLastErrorMsg());
+      for (std::int64_t y = 0; y < y1 - y0; ++y) {
+        T* line = at + y * w;
+        for (std::int64_t x = 0; x < x1 - x0; ++x) {
+          bool none = line[x] == noData_;
+          if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(line[x]);
+          if (none) line[x] = outside_;
+        }
+      }
+    }
+}
+
 template class GdalTiles<float>;
 template class GdalTiles<double>;
 template class GdalTiles<std::uint8_t>;
@@ -194,5 +276,10 @@ template class GeoTiffTiles<double>;
 template class GeoTiffTiles<std::uint8_t>;
 template class GeoTiffTiles<std::uint32_t>;
 template class GeoTiffTiles<std::uint64_t>;
+template class TileFiles<float>;
+template class TileFiles<double>;
+template class TileFiles<std::uint8_t>;
+template class TileFiles<std::uint32_t>;
+template class TileFiles<std::uint64_t>;
 
 }  // namespace tinbuild

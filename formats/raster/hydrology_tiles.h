@@ -31,6 +31,10 @@ struct RasterGrid {
 // Opens `path` (a directory: its mosaic.vrt) and describes band 1.  Throws DataError naming the file.
 RasterGrid describeRaster(const std::string& path);
 
+// GDAL's block cache to `cacheBytes` and the files a VRT keeps open to `openFiles` (each with its
+// buffers), unless the user set GDAL_CACHEMAX or GDAL_MAX_DATASET_POOL_SIZE.
+void limitGdalForTiles(std::size_t cacheBytes, int openFiles);
+
 template <typename T>
 class GdalTiles final : public hydrology::TileSourceOf<T> {
  public:
@@ -43,7 +47,7 @@ class GdalTiles final : public hydrology::TileSourceOf<T> {
   std::string path_;
   RasterGrid grid_;
   T outside_;
-  void* dataset_ = nullptr;  // GDALDatasetH
+  std::vector<void*> handles_, spare_;  // GDALDatasetH: every one opened; those no thread reads with now
   std::mutex mutex_;
 };
 
@@ -51,7 +55,9 @@ template <typename T>
 class GeoTiffTiles final : public hydrology::TileTarget<T> {
  public:
   // `noData`: written as the tiles' nodata value (values equal to it, and NaN for floats, are nodata).
-  GeoTiffTiles(const std::string& dir, const std::string& name, const RasterGrid& grid, T noData);
+  // `scratch`: a raster the run reads back and deletes (compressed for speed: geotiff_options.h).
+  GeoTiffTiles(const std::string& dir, const std::string& name, const RasterGrid& grid, T noData,
+               bool scratch = false);
   void write(const hydrology::TileRect& r, const T* values) override;
   // The mosaic; returns its path.
   std::string finish();
@@ -61,8 +67,27 @@ class GeoTiffTiles final : public hydrology::TileTarget<T> {
   std::string dir_, name_;
   RasterGrid grid_;
   T noData_;
+  bool scratch_;
   std::mutex mutex_;
   std::vector<std::string> tiles_;
+};
+
+// The tiles a GeoTiffTiles wrote (DIR/NAME/NAME_COL_ROW.tif, on `grid`'s tiles), read back tile by tile:
+// each read opens the (up to 9) files its window touches and closes them again, so nothing stays open
+// between tiles (a VRT over them would keep a pool of open files and their buffers).  Cells equal to
+// `noData` (and NaN) read as `outside`, as do cells outside the raster.
+template <typename T>
+class TileFiles final : public hydrology::TileSourceOf<T> {
+ public:
+  TileFiles(const std::string& dir, const std::string& name, const hydrology::TileGrid& grid, T noData,
+            T outside)
+      : dir_(dir), name_(name), grid_(grid), noData_(noData), outside_(outside) {}
+  void read(const hydrology::TileRect& r, int halo, T* v) override;
+
+ private:
+  std::string dir_, name_;
+  hydrology::TileGrid grid_;
+  T noData_, outside_;
 };
 
 }  // namespace tinbuild

@@ -58,6 +58,9 @@ int streamMain(const std::vector<std::string>& args);
 // tet_bench.cpp: `tet` (tetrahedralize against CGAL's Delaunay_triangulation_3) and its CGAL child.
 int tetMain(const std::vector<std::string>& args);
 int cgal3ChildMain(const std::vector<std::string>& args);
+// hydrology_bench.cpp: `hydrology` (tinbuild hydrology against GRASS r.watershed) and `dem` (its DEM).
+int hydrologyMain(const std::vector<std::string>& args);
+int demMain(const std::vector<std::string>& args);
 
 // Small command-line helpers shared by the subcommands.
 class Args {

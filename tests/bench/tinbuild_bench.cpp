@@ -92,6 +92,13 @@ const char* kUsage =
     "      its river with its centreline, R roads as breaklines, default 12), in alternating rounds:\n"
     "      median wall time and peak RSS, their ratios, the constraint vertices added and the points\n"
     "      the water and breakline stages left out.\n"
+    "  tinbuild-bench hydrology [--size N] [--repeat R] [--no-grass] [--memory MB] [--threads T]\n"
+    "                           [--tile-size N] [--dir DIR] [--keep] [--tinbuild EXE]\n"
+    "      A synthetic N x N DEM (default 4000; 1 m cells, hills, pits, terraces) through `tinbuild\n"
+    "      hydrology` (every output) and GRASS's `r.watershed -s` in alternating rounds: median time\n"
+    "      (GRASS's start-up subtracted), peak RSS, the ratios and their targets (hydrology_bench.cpp).\n"
+    "  tinbuild-bench dem [--width W] [--height H] -o DIR\n"
+    "      Writes that DEM as GeoTIFF tiles of 2048 and DIR/dem.vrt (bounded memory at any size).\n"
     "  tinbuild-bench suite [--points N] [--seed S] [--repeat R] [--threads T] [--no-cgal] [--dir DIR]\n"
     "                       [--keep] [--tinbuild EXE]\n"
     "      The runs of `delaunay` on a uniform random survey, a flight-strip survey (default swath) and\n"
@@ -1632,6 +1639,8 @@ int main(int argc, char** argv) {
     if (command == "threads") return threadsMain(rest);
     if (command == "parts") return partsMain(rest);
     if (command == "hydro") return hydroMain(rest);
+    if (command == "hydrology") return hydrologyMain(rest);
+    if (command == "dem") return demMain(rest);
     if (command == "scale") return scaleMain(rest);
     if (command == "cgal-child") return cgalChildMain(rest);
     if (command == "tet") return tetMain(rest);

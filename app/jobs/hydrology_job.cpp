@@ -1,0 +1,615 @@
+// `tinbuild hydrology` (header).
+#include "app/jobs/hydrology_job.h"
+
+#include <stdlib.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cctype>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <filesystem>
+#include <memory>
+#include <set>
+#include <thread>
+
+#include "app/jobs/output_claim.h"
+#include "app/jobs/run_report.h"
+#include "formats/crs/crs.h"
+#include "formats/io/output_transaction.h"
+#include "formats/raster/dem_writer.h"
+#include "formats/raster/hydrology_tiles.h"
+#include "formats/vector/constraint_reader.h"
+#include "formats/vector/hydrology_layers.h"
+#include "libterrain/core/error.h"
+#include "libterrain/core/json_writer.h"
+#include "libterrain/hydrology/stream_lines.h"
+
+namespace tinbuild {
+
+namespace fs = std::filesystem;
+using namespace hydrology;
+
+double parseArea(const std::string& text, double unitToMetre, const std::string& option) {
+  std::size_t used = 0;
+  double value = 0;
+  try {
+    value = std::stod(text, &used);
+  } catch (...) {
+    throw UsageError(option + ": '" + text + "' is not an area (e.g. 1km2, 50ha, 250000m2, 2.7e6u)");
+  }
+  std::string unit = text.substr(used);
+  unit.erase(std::remove_if(unit.begin(), unit.end(), [](unsigned char c) { return std::isspace(c); }),
+             unit.end());
+  for (char& c : unit) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  double toSquareMetres = 0;  // 0: CRS units squared
+  if (unit.empty() || unit == "m2" || unit == "sqm")
+    toSquareMetres = 1;
+  else if (unit == "km2" || unit == "sqkm")
+    toSquareMetres = 1e6;
+  else if (unit == "ha")
+    toSquareMetres = 1e4;
+  else if (unit == "acre" || unit == "acres" || unit == "ac")
+    toSquareMetres = 4046.8564224;
+  else if (unit == "mi2" || unit == "sqmi")
+    toSquareMetres = 2589988.110336;
+  else if (unit == "ft2" || unit == "sqft")
+    toSquareMetres = 0.09290304;
+  else if (unit != "u" && unit != "crs")
+    throw UsageError(option + ": unknown area unit '" + unit +
+                     "' (m2, km2, ha, acre, mi2, ft2, or u for CRS units squared)");
+  if (!std::isfinite(value) || !(value > 0))
+    throw UsageError(option + " must be a positive area, got '" + text + "'");
+  return toSquareMetres == 0 ? value : value * toSquareMetres / (unitToMetre * unitToMetre);
+}
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+constexpr float kFloatNoData = -9999.0f;
+
+// The run's progress: passes of equal weight, each advancing by its tiles.
+class PassProgress {
+ public:
+  PassProgress(const HydrologyOptions& o, int passes, std::uint64_t tiles)
+      : o_(o), passes_(passes), tiles_(tiles) {}
+  void begin(const char* name, std::uint64_t steps) {
+    name_ = name;
+    steps_ = std::max<std::uint64_t>(steps, 1);
+    done_ = 0;
+    report();
+  }
+  void tick() {
+    ++done_;
+    report();
+  }
+  void end() { ++pass_; }
+  std::uint64_t tiles() const { return tiles_; }
+
+ private:
+  void report() {
+    if (!o_.progress) return;
+    const double f = (static_cast<double>(pass_) +
+                      std::min(1.0, static_cast<double>(done_.load()) / static_cast<double>(steps_))) /
+                     static_cast<double>(passes_);
+    o_.progress(std::min(f, 1.0), name_, o_.progressData);
+  }
+  const HydrologyOptions& o_;
+  int passes_, pass_ = 0;
+  std::uint64_t tiles_, steps_ = 1;
+  std::atomic<std::uint64_t> done_{0};
+  const char* name_ = "";
+};
+
+// A target that ticks the progress once per tile written.
+template <typename T>
+class Ticking final : public TileTarget<T> {
+ public:
+  Ticking(TileTarget<T>& inner, PassProgress& p) : inner_(inner), p_(p) {}
+  void write(const TileRect& r, const T* v) override {
+    inner_.write(r, v);
+    p_.tick();
+  }
+
+ private:
+  TileTarget<T>& inner_;
+  PassProgress& p_;
+};
+
+// Depth tiles also as the flooded mask (1 where the depth is positive, 0 elsewhere, 255 nodata).
+class DepthAndMask final : public TileTarget<float> {
+ public:
+  DepthAndMask(TileTarget<float>& depth, TileTarget<std::uint8_t>& mask) : depth_(depth), mask_(mask) {}
+  void write(const TileRect& r, const float* v) override {
+    depth_.write(r, v);
+    std::vector<std::uint8_t> m(r.cells());
+    for (std::size_t i = 0; i < m.size(); ++i) m[i] = std::isnan(v[i]) ? 255 : v[i] > 0 ? 1 : 0;
+    mask_.write(r, m.data());
+  }
+
+ private:
+  TileTarget<float>& depth_;
+  TileTarget<std::uint8_t>& mask_;
+};
+
+// The outputs' staging folder inside DIR, and the commit of everything written there.
+class Staging {
+ public:
+  Staging(const std::string& dir, bool overwrite) : dir_(dir), overwrite_(overwrite) {
+    std::error_code ec;
+    const bool existed = fs::exists(dir, ec);
+    fs::create_directories(dir, ec);
+    if (ec || !fs::is_directory(dir))
+      throw DataError(dir, "cannot create the folder" + (ec ? ": " + ec.message() : ""));
+    if (!existed) {
+      if (OutputTransaction* t = OutputTransaction::current()) t->createdDirectory(dir);
+    }
+    std::string tmpl = (fs::path(dir) / ".tinbuild-XXXXXX").string();
+    std::vector<char> buf(tmpl.begin(), tmpl.end());
+    buf.push_back('\0');
+    if (!::mkdtemp(buf.data()))
+      throw DataError(dir, std::string("cannot write in the folder: ") + std::strerror(errno));
+    path_ = buf.data();
+    work_ = (fs::path(path_) / "work").string();
+    fs::create_directories(work_, ec);
+  }
+  ~Staging() {
+    if (!handedOver_) {
+      std::error_code ec;
+      fs::remove_all(path_, ec);
+    }
+  }
+  const std::string& path() const { return path_; }
+  const std::string& work() const { return work_; }
+
+  // A raster written as tiles under the staging folder: its tiles and mosaic go to DIR/NAME/ and
+  // DIR/NAME.vrt.
+  template <typename T>
+  void raster(GeoTiffTiles<T>& tiles, const std::string& name) {
+    const std::string vrt = tiles.finish();
+    const fs::path folder = fs::path(dir_) / name;
+    std::error_code ec;
+    if (!fs::exists(folder, ec)) {
+      fs::create_directories(folder, ec);
+      if (ec) throw DataError(folder.string(), "cannot create the folder: " + ec.message());
+      if (OutputTransaction* t = OutputTransaction::current()) t->createdDirectory(folder.string());
+    }
+    for (const std::string& tile : tiles.tiles()) {
+      const std::string final = (folder / fs::path(tile).filename()).string();
+      commitRename(tile, final);
+      written_.insert(final);
+    }
+    file(vrt, name + ".vrt");
+  }
+  // A file of the staging folder that becomes DIR/NAME.
+  std::string file(const std::string& staged, const std::string& name) {
+    const std::string final = (fs::path(dir_) / name).string();
+    commitRename(staged, final);
+    written_.insert(final);
+    finals_.push_back(final);
+    return final;
+  }
+  const std::vector<std::string>& finals() const { return finals_; }
+
+  // After the renames: the staging folder goes, and with --overwrite the outputs of an earlier run that
+  // this one did not write again.
+  void handOver(const std::vector<std::string>& names) {
+    handedOver_ = true;
+    const std::string staging = path_, dir = dir_;
+    const std::set<std::string> written = written_;
+    const bool replace = overwrite_;
+    auto removeStaging = [staging] {
+      std::error_code ec;
+      fs::remove_all(staging, ec);
+    };
+    auto finish = [removeStaging, replace, dir, written, names] {
+      removeStaging();
+      if (!replace) return;
+      for (const std::string& name : names) {
+        std::error_code ec;
+        const fs::path folder = fs::path(dir) / name;
+        if (fs::is_directory(folder, ec)) {
+          std::vector<fs::path> stale;
+          for (const auto& e : fs::directory_iterator(folder, ec))
+            if (!written.count(e.path().string())) stale.push_back(e.path());
+          for (const fs::path& p : stale) fs::remove(p, ec);
+          fs::remove(folder, ec);  // (only when empty)
+        }
+        for (const char* ext : {".vrt", ".gpkg"}) {
+          const fs::path f = fs::path(dir) / (name + ext);
+          if (!written.count(f.string()) && fs::is_regular_file(f, ec)) fs::remove(f, ec);
+        }
+      }
+    };
+    if (OutputTransaction* t = OutputTransaction::current())
+      t->afterCommit(finish, removeStaging);
+    else
+      finish();
+  }
+
+ private:
+  std::string dir_, path_, work_;
+  bool overwrite_;
+  bool handedOver_ = false;
+  std::set<std::string> written_;
+  std::vector<std::string> finals_;
+};
+
+// A cell's centre in the CRS.
+std::pair<double, double> centre(const RasterGrid& g, std::int64_t cell) {
+  const double c = static_cast<double>(cell % g.width) + 0.5, r = static_cast<double>(cell / g.width) + 0.5;
+  return {g.geoTransform[0] + c * g.geoTransform[1] + r * g.geoTransform[2],
+          g.geoTransform[3] + c * g.geoTransform[4] + r * g.geoTransform[5]};
+}
+
+// Bytes a cell costs in the heaviest pass's tile, per thread (measured: the drainage pass holds the codes,
+// counts, heights, links, its answers and four outputs of a tile, about 100 bytes a cell).
+constexpr double kTileBytesPerCell = 100;
+
+int chooseTileSize(const HydrologyOptions& o, int threads) {
+  if (o.tileSize > 0) return o.tileSize;
+  // Half the budget to the tiles in flight; the rest to the perimeters, GDAL's cache and the lines.
+  const double cells = static_cast<double>(o.memoryBytes) / 2 / (kTileBytesPerCell * threads);
+  const int side = static_cast<int>(std::sqrt(cells)) / 64 * 64;
+  return std::clamp(side, 128, 4096);
+}
+
+}  // namespace
+
+HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
+  const auto t0 = Clock::now();
+  HydrologyReport rep;
+  rep.dem = o.dem;
+  rep.outDir = o.outDir;
+  // --- The checks, before any work.
+  const RasterGrid g = describeRaster(o.dem);
+  if (g.geoTransform[2] != 0 || g.geoTransform[4] != 0)
+    throw DataError(
+        o.dem,
+        "a rotated grid (its geotransform has rotation terms): warp it to a north-up grid first (gdalwarp)");
+  rep.width = g.width;
+  rep.height = g.height;
+  rep.dx = std::fabs(g.geoTransform[1]);
+  rep.dy = std::fabs(g.geoTransform[5]);
+  if (!(rep.dx > 0 && rep.dy > 0) || !std::isfinite(rep.dx) || !std::isfinite(rep.dy))
+    throw DataError(o.dem, "its cells have no size (the geotransform's pixel width or height is 0)");
+  if (g.width < 1 || g.height < 1) throw DataError(o.dem, "the raster has no cell");
+  CrsInfo crs;
+  if (!g.crsWkt.empty()) crs = crsFromWkt(g.crsWkt, o.dem, diag);
+  if (crs.geographic)
+    throw DataError(o.dem,
+                    "a geographic CRS (" + crs.name +
+                        ", cells in degrees): D8 slopes, lengths and upstream areas need a projected "
+                        "CRS; reproject the DEM first, e.g. gdalwarp -t_srs EPSG:<UTM zone> -r bilinear");
+  if (crs.empty())
+    diag.warn("hydrology.no_crs", o.dem,
+              "the DEM has no CRS: cell sizes, lengths and areas are taken in its own units, assumed metres");
+  rep.crsName = crs.name;
+  rep.unit = crs.empty() ? "" : crs.linearUnit;
+  const double unitToMetre = crs.empty() ? 1.0 : crs.linearUnitToMetre;
+  rep.cellArea = rep.dx * rep.dy;
+  rep.streamArea = parseArea(o.streamArea.empty() ? "1km2" : o.streamArea, unitToMetre, "--stream-area");
+  if (o.stage) {
+    rep.staged = true;
+    rep.stage = *o.stage;
+  }
+  ConstraintInput flowLines;
+  if (!o.flows.empty()) {
+    ConstraintFiles files;
+    files.flows = o.flows;
+    files.cancel = o.cancel;
+    flowLines = readConstraints(files, crs, diag);
+    rep.flowLines = flowLines.flows.size();
+  }
+  const int threads =
+      o.threads > 0 ? o.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
+  rep.threads = threads;
+  rep.tileSize = chooseTileSize(o, threads);
+  const TileGrid grid(g.width, g.height, rep.tileSize);
+  rep.tiles = static_cast<std::uint64_t>(grid.tiles());
+  rep.memoryBytes = o.memoryBytes;
+
+  // --- The claim: DIR, before any work.
+  ClaimSet set;
+  set.outputs.push_back(OutputClaim("-o", o.outDir).folder());
+  set.inputs.emplace_back("the DEM", o.dem);
+  for (const std::string& f : o.flows) set.inputs.emplace_back("--flow", f);
+  if (!o.reportPath.empty()) set.others.emplace_back("--report", o.reportPath);
+  set.overwrite = o.overwrite;
+  set.commandLine = o.commandLine;
+  RunLock lock = claimOutputs(set);
+  // GDAL's block cache: a sixteenth of the budget (the passes read and write whole tiles, and read their
+  // own tiles file by file); a DEM given as a VRT keeps few of its files open.
+  limitGdalForTiles(o.memoryBytes / 16, 16);
+
+  Staging staging(o.outDir, o.overwrite);
+  const int passes = 6 + (o.flows.empty() ? 0 : 1) + (o.stage ? 1 : 0);
+  PassProgress progress(o, passes, rep.tiles);
+  auto pass = [&](const char* name, auto&& body) {
+    const auto p0 = Clock::now();
+    progress.begin(name, rep.tiles);
+    body();
+    progress.end();
+    throwIfCancelled(o.cancel);
+    rep.passes.push_back({name, std::chrono::duration<double>(Clock::now() - p0).count(), peakRssBytes()});
+  };
+  auto workPath = [&](const std::string& name) {
+    return (fs::path(staging.work()) / (name + ".vrt")).string();
+  };
+
+  GdalTiles<float> demTiles(o.dem, kNoData);
+  TileSource* dem = &demTiles;
+  std::unique_ptr<BreachedDem> breached;
+  if (!flowLines.flows.empty())
+    pass("breach", [&] {
+      std::vector<GridLine> lines;
+      for (const ConstraintLine& l : flowLines.flows) {
+        GridLine line;
+        for (const ConstraintPoint& p : l.points)
+          line.emplace_back((p.x - g.geoTransform[0]) / g.geoTransform[1],
+                            (p.y - g.geoTransform[3]) / g.geoTransform[5]);
+        lines.push_back(std::move(line));
+      }
+      auto lowered = breachLines(grid, demTiles, lines, rep.breach, o.cancel);
+      breached = std::make_unique<BreachedDem>(grid, demTiles, std::move(lowered));
+      dem = breached.get();
+    });
+
+  // fill
+  GeoTiffTiles<float> filledOut(staging.path(), "filled", g, kFloatNoData);
+  pass("fill", [&] {
+    Ticking<float> t(filledOut, progress);
+    FillOptions fo;
+    fo.threads = threads;
+    fo.cancel = o.cancel;
+    rep.fill = fillDepressions(grid, *dem, t, fo);
+    if (rep.fill.cells == 0) throw DataError(o.dem, "the DEM has no valid cell (every cell is nodata)");
+  });
+  staging.raster(filledOut, "filled");
+  TileFiles<float> filled(staging.path(), "filled", grid, kFloatNoData, kNoData);
+
+  // flow directions
+  GeoTiffTiles<std::uint8_t> flowOut(staging.path(), "flowdir", g, kFlowNoData);
+  pass("flow directions", [&] {
+    Ticking<std::uint8_t> t(flowOut, progress);
+    FlowOptions fo;
+    fo.threads = threads;
+    fo.dx = rep.dx;
+    fo.dy = rep.dy;
+    fo.cancel = o.cancel;
+    rep.flow = flowDirections(grid, filled, t, fo);
+  });
+  staging.raster(flowOut, "flowdir");
+  TileFiles<std::uint8_t> flowdir(staging.path(), "flowdir", grid, kFlowNoData, kFlowNoData);
+
+  // upstream area
+  GeoTiffTiles<std::uint64_t> countsOut(staging.work(), "counts", g, 0, true);
+  GeoTiffTiles<double> accumOut(staging.path(), "accum", g, -9999.0);
+  pass("upstream area", [&] {
+    Ticking<double> t(accumOut, progress);
+    AccumulationOptions ao;
+    ao.threads = threads;
+    ao.cellArea = rep.cellArea;
+    ao.cancel = o.cancel;
+    rep.accum = accumulate(grid, flowdir, &countsOut, &t, ao);
+  });
+  staging.raster(accumOut, "accum");
+  TileFiles<std::uint64_t> counts(staging.work(), "counts", grid, 0, 0);
+
+  // streams
+  GeoTiffTiles<std::uint32_t> streamsOut(staging.path(), "streams", g, 0);
+  std::vector<StreamLink> table;
+  pass("streams", [&] {
+    Ticking<std::uint32_t> t(streamsOut, progress);
+    StreamOptions so;
+    so.threads = threads;
+    so.cellArea = rep.cellArea;
+    so.streamArea = rep.streamArea;
+    so.dx = rep.dx;
+    so.dy = rep.dy;
+    so.cancel = o.cancel;
+    rep.streams = streamLinks(grid, flowdir, counts, t, table, so);
+    rep.links = table.size();
+  });
+  staging.raster(streamsOut, "streams");
+  TileFiles<std::uint32_t> links(staging.path(), "streams", grid, 0, 0);
+
+  // HAND, catchments, depth
+  GeoTiffTiles<float> handOut(staging.path(), "hand", g, kFloatNoData);
+  GeoTiffTiles<std::uint32_t> catchOut(staging.path(), "catchments", g, 0);
+  std::unique_ptr<GeoTiffTiles<float>> depthOut;
+  std::unique_ptr<GeoTiffTiles<std::uint8_t>> maskOut;
+  if (o.stage) {
+    depthOut = std::make_unique<GeoTiffTiles<float>>(staging.path(), "depth", g, kFloatNoData);
+    maskOut = std::make_unique<GeoTiffTiles<std::uint8_t>>(staging.work(), "flooded", g, 255, true);
+  }
+  pass("drainage", [&] {
+    Ticking<float> t(handOut, progress);
+    std::unique_ptr<DepthAndMask> dm;
+    if (o.stage) dm = std::make_unique<DepthAndMask>(*depthOut, *maskOut);
+    DrainageIO io;
+    io.flowdir = &flowdir;
+    io.counts = &counts;
+    io.filled = &filled;
+    io.dem = &demTiles;  // the depth is water over the ground, the lidar's (not the breached cells)
+    io.links = &links;
+    io.hand = &t;
+    io.catchments = &catchOut;
+    io.depth = dm.get();
+    DrainageOptions d;
+    d.threads = threads;
+    d.cellArea = rep.cellArea;
+    d.streamArea = rep.streamArea;
+    d.stage = o.stage.has_value();
+    d.stageHeight = o.stage.value_or(0);
+    d.cancel = o.cancel;
+    rep.drainage = drainage(grid, io, d);
+  });
+  staging.raster(handOut, "hand");
+  staging.raster(catchOut, "catchments");
+  if (o.stage) staging.raster(*depthOut, "depth");
+
+  // The stream lines.
+  pass("stream lines", [&] {
+    const std::string path = staging.path() + "/streams.gpkg";
+    StreamLineWriter writer(path, g.crsWkt);
+    std::uint64_t done = 0;
+    const std::uint64_t step =
+        std::max<std::uint64_t>(table.size() / std::max<std::uint64_t>(rep.tiles, 1), 1);
+    traceStreamLines(grid, flowdir, links, table, threads, o.cancel,
+                     [&](const StreamLink& l, const std::vector<std::int64_t>& cells) {
+                       StreamLineRecord r;
+                       r.link = l.id;
+                       r.downstream = l.downstream;
+                       r.strahler = l.strahler;
+                       r.upstreamArea = static_cast<double>(l.upstreamCells) * rep.cellArea;
+                       r.length = l.length(rep.dx, rep.dy);
+                       r.cells = l.cells;
+                       for (std::int64_t c : cells) r.xy.push_back(centre(g, c));
+                       if (r.xy.size() == 1)
+                         r.xy.push_back(r.xy.front());  // (a link of one cell at the DEM's edge)
+                       writer.add(r);
+                       if (++done % step == 0) progress.tick();
+                     });
+    writer.close();
+    staging.file(path, "streams.gpkg");
+  });
+
+  if (o.stage)
+    pass("flood extent", [&] {
+      const std::string path = staging.path() + "/flood.gpkg";
+      maskOut->finish();
+      rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel);
+      staging.file(path, "flood.gpkg");
+    });
+
+  const std::vector<std::string> names = {"filled",     "flowdir", "accum", "streams",
+                                          "catchments", "hand",    "depth", "flood"};
+  staging.handOver(names);
+  rep.outputs = staging.finals();
+  rep.warnings = diag.entries();
+  rep.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+  rep.peakRssBytes = peakRssBytes();
+  return rep;
+}
+
+std::string formatHydrologyJson(const HydrologyReport& r) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("command").value("hydrology");
+  j.key("dem").value(r.dem);
+  j.key("output").value(r.outDir);
+  j.key("grid").beginObject();
+  j.key("width").value(r.width).key("height").value(r.height);
+  j.key("cells").value(static_cast<std::uint64_t>(r.width) * static_cast<std::uint64_t>(r.height));
+  j.key("dx").value(r.dx).key("dy").value(r.dy).key("cell_area").value(r.cellArea);
+  j.key("crs").value(r.crsName).key("unit").value(r.unit);
+  j.key("tile_size").value(r.tileSize).key("tiles").value(r.tiles);
+  j.endObject();
+  j.key("stream_area").value(r.streamArea);
+  if (r.staged)
+    j.key("stage").value(r.stage);
+  else
+    j.key("stage").null();
+  j.key("threads").value(r.threads);
+  j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBytes));
+  if (r.flowLines) {
+    j.key("breach").beginObject();
+    j.key("flow_lines").value(r.flowLines).key("line_cells").value(r.breach.lineCells);
+    j.key("lowered_cells").value(r.breach.lowered).key("deepest_lowering").value(r.breach.deepest);
+    j.endObject();
+  }
+  j.key("fill").beginObject();
+  j.key("cells").value(r.fill.cells).key("raised_cells").value(r.fill.raised);
+  j.key("perimeter_labels").value(r.fill.labels).key("spill_edges").value(r.fill.edges);
+  j.key("graph_bytes").value(r.fill.graphBytes);
+  j.endObject();
+  j.key("flow").beginObject();
+  j.key("outlets")
+      .value(r.flow.out)
+      .key("flat_cells")
+      .value(r.flow.flatCells)
+      .key("flat_rounds")
+      .value(r.flow.rounds);
+  j.endObject();
+  j.key("accumulation").beginObject();
+  j.key("largest_upstream_cells").value(r.accum.largest);
+  j.key("largest_upstream_area").value(static_cast<double>(r.accum.largest) * r.cellArea);
+  j.endObject();
+  j.key("streams").beginObject();
+  j.key("stream_cells").value(r.streams.streamCells).key("links").value(r.links);
+  j.key("max_strahler").value(r.streams.maxStrahler);
+  j.endObject();
+  j.key("drainage").beginObject();
+  j.key("drained_cells").value(r.drainage.drained);
+  if (r.staged) j.key("flooded_cells").value(r.drainage.flooded).key("flood_polygons").value(r.floodPolygons);
+  j.endObject();
+  j.key("passes").beginArray();
+  for (const HydrologyPass& p : r.passes) {
+    j.beginObject();
+    j.key("name").value(p.name).key("seconds").value(p.seconds).key("peak_rss_bytes").value(p.peakRssBytes);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("outputs").beginArray();
+  for (const std::string& f : r.outputs) j.value(f);
+  j.endArray();
+  j.key("warnings").beginArray();
+  for (const auto& w : r.warnings) {
+    j.beginObject();
+    j.key("kind")
+        .value(w.kind)
+        .key("file")
+        .value(w.file)
+        .key("message")
+        .value(w.firstMessage)
+        .key("count")
+        .value(w.count);
+    j.endObject();
+  }
+  j.endArray();
+  j.key("seconds").value(r.seconds);
+  j.key("peak_rss_bytes").value(r.peakRssBytes);
+  j.endObject();
+  return j.str() + "\n";
+}
+
+std::string formatHydrologySummary(const HydrologyReport& r) {
+  auto num = [](double v) {
+    char b[64];
+    std::snprintf(b, sizeof b, "%.6g", v);
+    return std::string(b);
+  };
+  const double cells = static_cast<double>(r.width) * static_cast<double>(r.height);
+  std::string s;
+  s += "hydrology of " + r.dem + " -> " + r.outDir + "/\n";
+  s += "  grid      " + std::to_string(r.width) + " x " + std::to_string(r.height) + " cells of " +
+       num(r.dx) + " x " + num(r.dy) + (r.unit.empty() ? " (no CRS)" : " " + r.unit) + ", " +
+       std::to_string(r.tiles) + " tiles of " + std::to_string(r.tileSize) + "\n";
+  if (r.flowLines)
+    s += "  breach    " + std::to_string(r.flowLines) + " flow lines over " +
+         std::to_string(r.breach.lineCells) + " cells, " + std::to_string(r.breach.lowered) +
+         " lowered (deepest " + num(r.breach.deepest) + ")\n";
+  s += "  fill      " + std::to_string(r.fill.cells) + " cells, " + std::to_string(r.fill.raised) +
+       " raised\n";
+  s += "  flow      " + std::to_string(r.flow.flatCells) + " flat cells drained, " +
+       std::to_string(r.flow.out) + " outlets\n";
+  s += "  streams   " + std::to_string(r.links) + " links, " + std::to_string(r.streams.streamCells) +
+       " cells, Strahler up to " + std::to_string(r.streams.maxStrahler) + " (stream area " +
+       num(r.streamArea) + ")\n";
+  s += "  largest   upstream area " + num(static_cast<double>(r.accum.largest) * r.cellArea) + "\n";
+  s += "  HAND      " + std::to_string(r.drainage.drained) + " cells drain to a stream\n";
+  if (r.staged)
+    s += "  flood     stage " + num(r.stage) + ": " + std::to_string(r.drainage.flooded) +
+         " cells flooded, " + std::to_string(r.floodPolygons) + " polygons\n";
+  s += "  passes   ";
+  for (const HydrologyPass& p : r.passes) s += " " + p.name + " " + num(p.seconds) + " s;";
+  s += "\n  total     " + num(r.seconds) + " s (" + num(cells / std::max(r.seconds, 1e-9) / 1e6) +
+       " M cells/s), peak memory " + num(static_cast<double>(r.peakRssBytes) / 1048576.0) + " MiB\n";
+  return s;
+}
+
+}  // namespace tinbuild
