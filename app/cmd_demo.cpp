@@ -11,6 +11,7 @@
 #include "app/command_frame.h"
 #include "app/commands.h"
 #include "app/demo_build.h"
+#include "app/jobs/hydrology_job.h"
 #include "app/jobs/output_claim.h"
 #include "app/jobs/pipeline.h"
 #include "app/jobs/survey_info.h"
@@ -397,6 +398,29 @@ int runDemo(const cli::ParsedArgs& args) {
   const std::string png = (dir / "dem.png").string();
   writeQuicklookPng((dir / "dem" / "mosaic.vrt").string(), (dir / "dem" / "hillshade.vrt").string(), png,
                     1024, build.contoursOutput);
+  // Floodplain hydrology on the DEM just written: HAND, the streams and a flood 1.5 m above the drainage,
+  // the river's centreline breached through the road (`tinbuild hydrology`, the same job).
+  HydrologyOptions hydro;
+  hydro.dem = (dir / "dem").string();
+  hydro.outDir = (dir / "hydrology").string();
+  hydro.streamArea = "2ha";
+  hydro.stage = 1.5;
+  hydro.flows = build.constraints.flows;
+  hydro.overwrite = true;  // (the demo's folder is its own)
+  hydro.cancel = cancelFlag();
+  hydro.progress = ProgressDisplay::callback;
+  hydro.progressData = &progress;
+  hydro.commandLine =
+      "tinbuild hydrology " + hydro.dem + " -o " + hydro.outDir + " --stream-area 2ha --stage 1.5";
+  std::cout << "\ntinbuild demo: floodplain hydrology (" << hydro.commandLine << ")" << std::endl;
+  const HydrologyReport hydroRun = runHydrology(hydro, diag);
+  progress.finish();
+  std::cout << formatHydrologySummary(hydroRun);
+  commitStep();
+  writeWholeFile((dir / "hydrology-report.json").string(), formatHydrologyJson(hydroRun));
+  writeHydrologyPng((dir / "hydrology" / "hand.vrt").string(), (dir / "hydrology" / "depth.vrt").string(),
+                    (dir / "hydrology" / "streams.vrt").string(), (dir / "dem" / "hillshade.vrt").string(),
+                    (dir / "hydrology.png").string(), 1024, 5);
   std::cout << "\ntinbuild demo: verifying the TIN (tinbuild verify " << build.meshOutput << " --points "
             << surveyText << ")\n";
   const VerifyReport check = runVerify(build.meshOutput, build, diag);
@@ -418,7 +442,11 @@ int runDemo(const cli::ParsedArgs& args) {
       << "  dem/mosaic.vrt      the 1 m DEM: GeoTIFF tiles dem/dem_*.tif under one mosaic\n"
       << "  dem/hillshade.vrt   its hillshade (tiles dem/hillshade_*.tif)\n"
       << "  dem.png             a quick-look of the DEM: colours by height, shaded, with the contours\n"
-      << "  build-report.json   the run report (counts, width, memory, timings)\n";
+      << "  build-report.json   the run report (counts, width, memory, timings)\n"
+      << "  hydrology/          fill, D8 flow, upstream area, streams (+ streams.gpkg), catchments, HAND,\n"
+      << "                      the depth of a flood 1.5 m above the drainage (+ flood.gpkg): NAME.vrt each\n"
+      << "  hydrology.png       a quick-look: HAND in greens, the flood in blue, the streams dark blue\n"
+      << "  hydrology-report.json  the hydrology's run report\n";
   return 0;
 }
 

@@ -3,6 +3,7 @@
 // PipelineArgs, checks what only it can, calls one entry point of app/jobs/pipeline.h, then prints the
 // summary and writes the `--report` JSON.
 #include <algorithm>
+#include <filesystem>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -11,6 +12,7 @@
 
 #include "app/command_frame.h"
 #include "app/commands.h"
+#include "app/jobs/hydrology_job.h"
 #include "app/jobs/mpi_run.h"
 #include "app/jobs/pipeline.h"
 #include "app/pipeline_options.h"
@@ -110,6 +112,9 @@ int runBuildCommand(const cli::ParsedArgs& args) {
                        " fixed it when it was made); give only --part I and how to run it (--threads, "
                        "--temp-dir, --report, -q): make a new plan to change " +
                        fixed.front());
+    if (!a.run.hydrology.empty())
+      throw UsageError(
+          "build --plan: --hydrology runs on a whole DEM: run `tinbuild hydrology` on it after the merge");
     const Plan plan = readPlan(a.run.plan);
     a.options = planOptions(plan);
     a.options.plan = &plan;
@@ -118,6 +123,33 @@ int runBuildCommand(const cli::ParsedArgs& args) {
   }
   PipelineArgs a = parseBuildArgs(args);
   a.options.commandLine = recordedCommand(args);
+  if (!a.run.hydrology.empty()) {
+    // Refused before the build, not after an hour of it: the hydrology's folder claims the same way later.
+    if (a.run.mpi)
+      throw UsageError("--hydrology with --mpi: run `tinbuild hydrology` on the DEM when the run is done");
+    namespace fs = std::filesystem;
+    std::error_code ec;
+    if (fs::weakly_canonical(a.run.hydrology, ec) == fs::weakly_canonical(a.options.dem.path, ec))
+      throw UsageError("--hydrology " + a.run.hydrology +
+                       " is the DEM's own path (--dem): give it a folder of its own");
+    if (!a.run.overwrite && fs::exists(a.run.hydrology, ec) &&
+        !(fs::is_directory(a.run.hydrology, ec) && fs::is_empty(a.run.hydrology, ec)))
+      throw DataError(a.run.hydrology,
+                      "exists and is not empty; pass --overwrite to replace the hydrology there");
+    runWithReport(a, runBuild);
+    HydrologyOptions h;
+    h.dem = a.options.dem.path;
+    h.outDir = a.run.hydrology;
+    h.streamArea = a.run.streamArea;
+    h.stage = a.run.stage;
+    h.flows = a.options.constraints.flows;
+    h.threads = a.run.threads;
+    h.overwrite = a.run.overwrite;
+    h.commandLine = "tinbuild hydrology " + h.dem + " -o " + h.outDir;
+    RunSettings rs = a.run;
+    rs.report.clear();  // (the build's report; the hydrology's summary follows the build's)
+    return runHydrologyJob(h, rs);
+  }
   if (a.run.mpi) {
     const std::vector<std::string> buildArgs = planBuildArgs(args, a.options, buildTable());
     const std::string command = a.options.commandLine;

@@ -381,6 +381,22 @@ PipelineTable buildRunGroup() {
       .runOnly()
       .needs(cli::needs("--plan", "--plan PLAN.json"))
       .integer(0, 1 << 20, [](A& a, int i) { a.run.part = i; });
+  // The hydrology of the DEM the build writes (app/cmd_hydrology.cpp), after the build has committed.
+  t.option(
+       "--hydrology", "DIR",
+       "then run `tinbuild hydrology` on the DEM into DIR (fill, flow, streams, HAND...; with the build's "
+       "--flow lines breached)")
+      .runOnly()
+      .needs(kDem)
+      .text([](A& a, const std::string& v) { a.run.hydrology = v; });
+  t.option("--stream-area", "A", "hydrology: the upstream area that makes a stream (default 1km2)")
+      .runOnly()
+      .needs(cli::needs("--hydrology", "--hydrology DIR"))
+      .text([](A& a, const std::string& v) { a.run.streamArea = v; });
+  t.option("--stage", "H", "hydrology: flood depth and extent for this stage above the drainage")
+      .runOnly()
+      .needs(cli::needs("--hydrology", "--hydrology DIR"))
+      .real(Range::NonNegative, [](A& a, double v) { a.run.stage = v; });
   return t;
 }
 

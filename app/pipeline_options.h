@@ -31,6 +31,9 @@ struct RunSettings {
   std::vector<std::string> points;              // verify --points INPUT (each)
   bool json = false;                            // verify --json
   std::optional<std::string> tempDir;           // --temp-dir DIR (a part of a plan takes its own)
+  std::string hydrology;                        // build --hydrology DIR
+  std::string streamArea;                       // build --stream-area A
+  std::optional<double> stage;                  // build --stage H
 };
 
 // What a pipeline command's options bind to.

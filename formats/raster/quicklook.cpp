@@ -108,6 +108,35 @@ void ramp(double t, double rgb[3]) {
   for (int c = 0; c < 3; ++c) rgb[c] = stops[k][c] * (1 - f) + stops[k + 1][c] * f;
 }
 
+// Writes the RGBA planes as `png` (via a temporary name, committed like every output).
+void writePlanes(std::vector<std::uint8_t> (&planes)[4], int w, int h, const std::string& png) {
+  GDALDatasetH mem = GDALCreate(GDALGetDriverByName("MEM"), "", w, h, 4, GDT_Byte, nullptr);
+  if (!mem) throw DataError(png, "cannot create the image in memory");
+  for (int c = 0; c < 4; ++c) {
+    if (GDALRasterIO(GDALGetRasterBand(mem, c + 1), GF_Write, 0, 0, w, h, planes[c].data(), w, h, GDT_Byte, 0,
+                     0) != CE_None) {
+      GDALClose(mem);
+      throw DataError(png, "cannot draw the image in memory");
+    }
+  }
+  const std::string tmp = png + ".tmp.png";
+  GDALDatasetH out =
+      GDALCreateCopy(GDALGetDriverByName("PNG"), tmp.c_str(), mem, FALSE, nullptr, nullptr, nullptr);
+  GDALClose(mem);
+  if (!out) {
+    ::unlink(tmp.c_str());
+    throw DataError(png, std::string("cannot write the PNG: ") + CPLGetLastErrorMsg());
+  }
+  GDALClose(out);
+  ::unlink((tmp + ".aux.xml").c_str());
+  try {
+    commitRename(tmp, png);
+  } catch (...) {
+    ::unlink(tmp.c_str());
+    throw;
+  }
+}
+
 }  // namespace
 
 void writeQuicklookPng(const std::string& dem, const std::string& hillshade, const std::string& png,
@@ -161,31 +190,54 @@ void writeQuicklookPng(const std::string& dem, const std::string& hillshade, con
   }
   if (!contours.empty() && fullW > 0 && fullH > 0)
     drawContours(contours, geo, static_cast<double>(fullW) / w, static_cast<double>(fullH) / h, w, h, planes);
-  GDALDatasetH mem = GDALCreate(GDALGetDriverByName("MEM"), "", w, h, 4, GDT_Byte, nullptr);
-  if (!mem) throw DataError(png, "cannot create the image in memory");
-  for (int c = 0; c < 4; ++c) {
-    if (GDALRasterIO(GDALGetRasterBand(mem, c + 1), GF_Write, 0, 0, w, h, planes[c].data(), w, h, GDT_Byte, 0,
-                     0) != CE_None) {
-      GDALClose(mem);
-      throw DataError(png, "cannot draw the image in memory");
+  writePlanes(planes, w, h, png);
+}
+
+void writeHydrologyPng(const std::string& hand, const std::string& depth, const std::string& streams,
+                       const std::string& hillshade, const std::string& png, int maxSize, double handMax) {
+  registerGdalWriters();
+  CPLPushErrorHandler(CPLQuietErrorHandler);
+  struct Pop {
+    ~Pop() { CPLPopErrorHandler(); }
+  } pop;
+  int w = 0, h = 0;
+  const Band a = readReduced(hand, w, h, maxSize);
+  const Band s = hillshade.empty() ? Band{} : readReduced(hillshade, w, h, maxSize);
+  const Band d = depth.empty() ? Band{} : readReduced(depth, w, h, maxSize);
+  const Band st = readReduced(streams, w, h, maxSize);
+  // HAND from deep green (at the drainage) through yellow to light brown (handMax and above); grey where
+  // no stream is reached; the flood's depth over it in blues (deeper: darker); streams dark blue.
+  static const double stops[4][3] = {{40, 120, 70}, {170, 200, 90}, {230, 200, 130}, {200, 170, 140}};
+  std::vector<std::uint8_t> planes[4];
+  for (auto& p : planes) p.assign(static_cast<std::size_t>(w) * h, 0);
+  for (std::size_t k = 0; k < planes[0].size(); ++k) {
+    const float v = a.values[k];
+    const bool nodata = (a.hasNodata && v == a.nodata) || !std::isfinite(v);
+    const double shade = s.values.empty() ? 0.8 : (s.values[k] > 0 ? s.values[k] / 255.0 : 0.7);
+    double rgb[3] = {170, 170, 170};
+    if (!nodata) {
+      const double t = std::clamp(static_cast<double>(v) / handMax, 0.0, 1.0) * 3;
+      const int i = std::min(2, static_cast<int>(t));
+      for (int c = 0; c < 3; ++c) rgb[c] = stops[i][c] * (1 - (t - i)) + stops[i + 1][c] * (t - i);
     }
+    if (!d.values.empty()) {
+      const float dv = d.values[k];
+      if (std::isfinite(dv) && !(d.hasNodata && dv == d.nodata) && dv > 0) {
+        const double f = std::clamp(0.45 + 0.15 * static_cast<double>(dv), 0.45, 0.9);
+        const double blue[3] = {30, 90, 200};
+        for (int c = 0; c < 3; ++c) rgb[c] = rgb[c] * (1 - f) + blue[c] * f;
+      }
+    }
+    if (st.values[k] > 0 && !(st.hasNodata && st.values[k] == st.nodata)) {
+      rgb[0] = 10;
+      rgb[1] = 40;
+      rgb[2] = 140;
+    }
+    for (int c = 0; c < 3; ++c)
+      planes[c][k] = static_cast<std::uint8_t>(std::clamp(rgb[c] * (0.35 + 0.8 * shade), 0.0, 255.0));
+    planes[3][k] = 255;
   }
-  const std::string tmp = png + ".tmp.png";
-  GDALDatasetH out =
-      GDALCreateCopy(GDALGetDriverByName("PNG"), tmp.c_str(), mem, FALSE, nullptr, nullptr, nullptr);
-  GDALClose(mem);
-  if (!out) {
-    ::unlink(tmp.c_str());
-    throw DataError(png, std::string("cannot write the PNG: ") + CPLGetLastErrorMsg());
-  }
-  GDALClose(out);
-  ::unlink((tmp + ".aux.xml").c_str());
-  try {
-    commitRename(tmp, png);
-  } catch (...) {
-    ::unlink(tmp.c_str());
-    throw;
-  }
+  writePlanes(planes, w, h, png);
 }
 
 }  // namespace tinbuild

@@ -15,4 +15,12 @@ namespace tinbuild {
 void writeQuicklookPng(const std::string& dem, const std::string& hillshade, const std::string& png,
                        int maxSize = 1024, const std::string& contours = "");
 
+// A quick-look of a hydrology run (tinbuild hydrology's outputs, any GDAL rasters): HAND coloured from
+// the drainage (deep green, 0) to `handMax` and above (light brown), grey where no stream is reached,
+// shaded by `hillshade` (optional), the flood of `depth` (optional) in blues and the `streams` (cells with
+// a link id) in dark blue.  Written like writeQuicklookPng.
+void writeHydrologyPng(const std::string& hand, const std::string& depth, const std::string& streams,
+                       const std::string& hillshade, const std::string& png, int maxSize = 1024,
+                       double handMax = 10);
+
 }  // namespace tinbuild

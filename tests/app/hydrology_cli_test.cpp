@@ -97,6 +97,7 @@ const char* kRasters[] = {"filled", "flowdir", "accum", "streams", "catchments",
 
 // Every output raster of a run as bytes (through GDAL, so the tiling of the files does not matter).
 std::vector<std::string> rasterBytes(const fs::path& dir) {
+  GDALAllRegister();
   std::vector<std::string> out;
   for (const char* name : kRasters) {
     const std::string vrt = (dir / (std::string(name) + ".vrt")).string();
@@ -340,6 +341,36 @@ TEST(HydrologyCli, ASignalLeavesNothing) {
   }
   // The DEM is untouched, and nothing else appeared beside it.
   EXPECT_EQ(listDir(dir), std::vector<std::string>{"dem.tif"});
+}
+
+}  // namespace
+}  // namespace tinbuild::test
+
+namespace tinbuild::test {
+namespace {
+
+// `build --hydrology`: the hydrology of the DEM the build wrote, the same as `tinbuild hydrology` on it;
+// refused before the build when its folder is taken.
+TEST(HydrologyCli, BuildRunsItOnItsDem) {
+  const std::string las = std::string(TINBUILD_DATA_DIR) + "/las/Topography.las";
+  if (!fs::exists(las)) GTEST_SKIP() << "no " << las;
+  const fs::path dir = scratch();
+  const std::string dem = (dir / "dem").string(), hydro = (dir / "hydro").string();
+  test::Run r = tinbuild("build " + las + " --dem " + dem + " --step 2 --hydrology " + hydro +
+                         " --stream-area 5000m2 --stage 1 -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  r = tinbuild("hydrology " + dem + " -o " + (dir / "alone").string() + " --stream-area 5000m2 --stage 1 -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(rasterBytes(hydro), rasterBytes(dir / "alone"));
+  // Taken: refused before the build writes anything.
+  fs::remove_all(dem);
+  r = tinbuild("build " + las + " --dem " + dem + " --step 2 --hydrology " + hydro + " -q");
+  EXPECT_EQ(r.code, 1);
+  EXPECT_NE(r.err.find("--overwrite"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dem));
+  r = tinbuild("build " + las + " --mesh " + (dir / "t.smb").string() + " --hydrology " + hydro + " -q");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("--dem"), std::string::npos) << r.err;
 }
 
 }  // namespace

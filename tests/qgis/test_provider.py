@@ -185,7 +185,7 @@ def runChecks(exe, surveys, work):
         return failures
     ids = sorted(a.id() for a in provider.algorithms())
     check(ids == ['tinbuild:builddem', 'tinbuild:buildtin', 'tinbuild:contours', 'tinbuild:hydroflatten',
-                  'tinbuild:info'], f'its algorithms: {ids}')
+                  'tinbuild:hydrology', 'tinbuild:info'], f'its algorithms: {ids}')
     check(all(len(a.shortHelpString()) > 200 for a in provider.algorithms()), 'each has help text')
     dem = QgsApplication.processingRegistry().algorithmById('tinbuild:builddem')
     names = [p.name() for p in dem.parameterDefinitions()]
@@ -436,6 +436,41 @@ def runChecks(exe, surveys, work):
         rises = sum(1 for a, b in zip(values, values[1:]) if b > a + 1e-4)
         check(len(values) > 100 and rises == 0,
               f'the river never rises along its centreline ({len(values)} samples, {rises} rises)')
+
+    # -- hydrology on the river DEM: HAND, streams, a flood; loaded and styled --------------------------
+    if os.path.exists(os.path.join(hydro, 'river.tif')):
+        riverDem = QgsRasterLayer(os.path.join(hydro, 'river.tif'), 'river dem', 'gdal')
+        QgsProject.instance().addMapLayer(riverDem)
+        folder = os.path.join(work, 'hydrology')
+        fb = Feedback()
+        r = processing.runAndLoadResults('tinbuild:hydrology', {
+            'DEM': riverDem.id(), 'STREAM_AREA': 2, 'STAGE': 1.5, 'FLOW': [os.path.join(demo, 'flow.geojson')],
+            'OUTPUT_FOLDER': folder}, feedback=fb)
+        rep = report(r['REPORT'])
+        check(rep.get('streams', {}).get('links', 0) > 0 and rep.get('drainage', {}).get('flooded_cells', 0) > 0
+              and rep.get('breach', {}).get('flow_lines') == 1,
+              f"hydrology: links {rep.get('streams', {}).get('links')}, flooded cells "
+              f"{rep.get('drainage', {}).get('flooded_cells')}, the centreline breached")
+        check(fb.progress and max(fb.progress) >= 99, f'hydrology drives the progress bar (up to {max(fb.progress or [0])})')
+        loadedHydro = {l.name(): l for l in QgsProject.instance().mapLayers().values()
+                       if l.source().startswith(folder)}
+        check(sorted(loadedHydro) == ['Flood depth', 'Flood extent', 'HAND', 'Streams']
+              and all(l.isValid() and l.crs().authid() == 'EPSG:32610' for l in loadedHydro.values()),
+              f'HAND, the streams, the depth and the flood are loaded with the DEM\'s CRS ({sorted(loadedHydro)})')
+        hand = loadedHydro.get('HAND')
+        if hand is not None:
+            check(hand.renderer().type() == 'singlebandpseudocolor', 'HAND is styled with a colour ramp')
+            stats = hand.dataProvider().bandStatistics(1, QgsRasterBandStats.Min | QgsRasterBandStats.Max)
+            check(stats.minimumValue == 0 and stats.maximumValue > 1, f'HAND runs from 0 ({stats.minimumValue}, {stats.maximumValue})')
+        streams = loadedHydro.get('Streams')
+        if streams is not None:
+            check(streams.featureCount() == rep['streams']['links'] and
+                  streams.geometryType() == QgsWkbTypes.LineGeometry and 'strahler' in streams.fields().names(),
+                  f'one stream line per link with its Strahler order ({streams.featureCount()})')
+        msg = runFails('tinbuild:hydrology', {'DEM': os.path.join(work, 'nowhere.tif'), 'OUTPUT_FOLDER': folder + '2'})
+        check(msg is not None and not os.path.exists(folder + '2'), f'a missing DEM is refused: {msg!r}')
+        for l in list(loadedHydro.values()) + [riverDem]:
+            QgsProject.instance().removeMapLayer(l.id())
 
     # -- results loaded into the project on completion (what the dialog does) ----------------------------
     project = QgsProject.instance()

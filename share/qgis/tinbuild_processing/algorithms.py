@@ -7,6 +7,7 @@ r"""The provider's algorithms: each one a tinbuild command line built from its p
 | `tinbuild:buildtin` | `tinbuild build INPUT... --gpkg FILE.gpkg --mesh FILE.nc` | GeoPackage layer `tin`; UGRID mesh |
 | `tinbuild:contours` | `tinbuild build INPUT... --contours FILE.gpkg --interval D` | GeoPackage layer `contours` |
 | `tinbuild:info` | `tinbuild info INPUT... --json` | HTML report in the results viewer |
+| `tinbuild:hydrology` | `tinbuild hydrology DEM -o DIR [--stream-area A] [--stage H] [--flow FILE]` | HAND, streams (lines), flood depth and extent; every raster of the run in DIR |
 
 Conventions shared by all of them:
 
@@ -34,6 +35,7 @@ from qgis.PyQt.QtGui import QIcon
 from qgis.core import (QgsCoordinateReferenceSystem, QgsProcessing, QgsProcessingAlgorithm,
                        QgsProcessingContext, QgsProcessingException, QgsProcessingOutputFile,
                        QgsProcessingOutputNumber, QgsProcessingOutputRasterLayer, QgsProcessingOutputString,
+                       QgsProcessingOutputVectorLayer, QgsProcessingParameterRasterLayer,
                        QgsProcessingParameterBoolean, QgsProcessingParameterCrs, QgsProcessingParameterDefinition,
                        QgsProcessingParameterEnum, QgsProcessingParameterFile,
                        QgsProcessingParameterFileDestination, QgsProcessingParameterFolderDestination,
@@ -653,4 +655,143 @@ class Info(TinbuildAlgorithm):
                 self.CRS_AUTHID: authid, self.CRS_NAME: crs.get('name') or ''}
 
 
-ALGORITHMS = [BuildDem, HydroFlatten, BuildTin, Contours, Info]
+class Hydrology(QgsProcessingAlgorithm):
+    DEM = 'DEM'
+    STREAM_AREA = 'STREAM_AREA'
+    STAGE = 'STAGE'
+    FLOW = 'FLOW'
+    THREADS = 'THREADS'
+    EXTRA_OPTIONS = 'EXTRA_OPTIONS'
+    OUTPUT_FOLDER = 'OUTPUT_FOLDER'
+    HAND = 'HAND'
+    STREAMS = 'STREAMS'
+    DEPTH = 'DEPTH'
+    FLOOD = 'FLOOD'
+    REPORT = 'REPORT'
+    LINKS = 'LINKS'
+    FLOODED_CELLS = 'FLOODED_CELLS'
+
+    def createInstance(self):
+        return type(self)()
+
+    def name(self):
+        return 'hydrology'
+
+    def displayName(self):
+        return tr('Floodplain hydrology (fill, streams, HAND, flood depth)')
+
+    def group(self):
+        return tr('Hydrology')
+
+    def groupId(self):
+        return 'hydrology'
+
+    def icon(self):
+        return QIcon(ICON)
+
+    def tags(self):
+        return ['hydrology', 'hand', 'flood', 'fill', 'flow direction', 'd8', 'streams', 'catchments',
+                'upstream area', 'flow accumulation', 'dem', 'tinbuild']
+
+    def shortHelpString(self):
+        return tr(
+            '<p>Floodplain hydrology of a DEM, tile by tile in bounded memory (any size of DEM): depressions '
+            'filled to their spill level, D8 flow directions (flats drained towards lower terrain), upstream '
+            'area, streams where the upstream area reaches the <b>stream area</b>, catchments, and '
+            '<b>HAND</b> (height above the nearest drainage: how far each cell lies above the stream cell its '
+            'water reaches). With a <b>flood stage</b> H, the water depth where HAND is at most H and the '
+            'flood\'s extent as polygons.</p><ul>'
+            '<li><b>DEM</b>: any raster in a projected CRS (a geographic one is refused: reproject it first); a '
+            'tinbuild DEM tiles folder\'s <code>mosaic.vrt</code> works as it is.</li>'
+            '<li><b>Stream centrelines</b> (optional, digitised downstream): breached into the DEM so the '
+            'streams pass under roads (road embankments otherwise dam every stream).</li>'
+            '<li><b>Output folder</b>: every raster as GeoTIFF tiles with its <code>NAME.vrt</code> (filled, '
+            'flowdir, accum, streams, catchments, hand, depth) and <code>streams.gpkg</code>, '
+            '<code>flood.gpkg</code>; HAND, the stream lines, the depth and the flood are loaded.</li></ul>'
+            '<p>The run report (JSON) is written beside the folder (<code>DIR.report.json</code>).</p>')
+
+    def initAlgorithm(self, config=None):
+        self.addParameter(QgsProcessingParameterRasterLayer(self.DEM, tr('DEM')))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.STREAM_AREA, tr('Stream area: upstream area that makes a stream (hectares)'),
+            QgsProcessingParameterNumber.Double, 100.0, minValue=0.0001))
+        self.addParameter(QgsProcessingParameterNumber(
+            self.STAGE, tr('Flood stage above the drainage (height units; empty: no flood)'),
+            QgsProcessingParameterNumber.Double, None, optional=True, minValue=0.0))
+        self.addParameter(QgsProcessingParameterMultipleLayers(
+            self.FLOW, tr('Stream centrelines to breach through embankments (digitised downstream)'),
+            QgsProcessing.TypeVectorLine, optional=True))
+        self.addParameter(advanced(QgsProcessingParameterNumber(
+            self.THREADS, tr('Threads (0: all cores; output is the same for any number)'),
+            QgsProcessingParameterNumber.Integer, 0, minValue=0, maxValue=1024)))
+        self.addParameter(advanced(QgsProcessingParameterString(
+            self.EXTRA_OPTIONS, tr('Additional tinbuild hydrology options (as on the command line)'), optional=True)))
+        self.addParameter(QgsProcessingParameterFolderDestination(self.OUTPUT_FOLDER, tr('Output folder')))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.HAND, tr('HAND')))
+        self.addOutput(QgsProcessingOutputVectorLayer(self.STREAMS, tr('Streams'), QgsProcessing.TypeVectorLine))
+        self.addOutput(QgsProcessingOutputRasterLayer(self.DEPTH, tr('Flood depth')))
+        self.addOutput(QgsProcessingOutputVectorLayer(self.FLOOD, tr('Flood extent'), QgsProcessing.TypeVectorPolygon))
+        self.addOutput(QgsProcessingOutputFile(self.REPORT, tr('Run report (JSON)')))
+        self.addOutput(QgsProcessingOutputNumber(self.LINKS, tr('Stream links')))
+        self.addOutput(QgsProcessingOutputNumber(self.FLOODED_CELLS, tr('Flooded cells')))
+
+    def processAlgorithm(self, parameters, context, feedback):
+        layer = self.parameterAsRasterLayer(parameters, self.DEM, context)
+        if layer is None or not layer.isValid():
+            raise QgsProcessingException(tr('Choose a DEM raster layer'))
+        dem = layer.source()
+        if layer.providerType() != 'gdal' or not (os.path.exists(dem) or dem.lower().startswith('/vsi')):
+            raise QgsProcessingException(tr('The DEM {} is not a raster file tinbuild can read ({})').format(
+                layer.name(), dem))
+        out = os.path.abspath(self.parameterAsString(parameters, self.OUTPUT_FOLDER, context))
+        report = reportPathFor(out)
+        area = self.parameterAsDouble(parameters, self.STREAM_AREA, context)
+        args = ['hydrology', dem, '-o', out, '--stream-area', f'{area:.12g}ha', '--overwrite',
+                '--report', report, '--progress', 'json']
+        stage = parameters.get(self.STAGE)
+        staged = stage is not None and stage != ''
+        if staged:
+            args += ['--stage', f'{self.parameterAsDouble(parameters, self.STAGE, context):.12g}']
+        flows = self.parameterAsLayerList(parameters, self.FLOW, context)
+        if flows:
+            scratch = tempfile.mkdtemp(prefix='tinbuild-', dir=QgsProcessingUtils.tempFolder())
+            for flow in flows:
+                args += ['--flow', layerAsFile(flow, context, feedback, scratch)]
+        threads = self.parameterAsInt(parameters, self.THREADS, context)
+        if threads > 0:
+            args += ['--threads', str(threads)]
+        extra = self.parameterAsString(parameters, self.EXTRA_OPTIONS, context)
+        if extra and extra.strip():
+            try:
+                args += shlex.split(extra)
+            except ValueError as e:
+                raise QgsProcessingException(tr('Additional tinbuild options: {}').format(e))
+        exe, version = runner.executable()
+        feedback.pushInfo(tr('tinbuild {} at {}').format(runner.versionText(version), exe))
+        runner.run(args, feedback, exe)
+        try:
+            with open(report, encoding='utf-8') as f:
+                data = json.load(f)
+        except (OSError, ValueError) as e:
+            raise QgsProcessingException(tr('tinbuild finished but its report {} cannot be read: {}').format(report, e))
+        hand = os.path.join(out, 'hand.vrt')
+        streams = os.path.join(out, 'streams.gpkg') + '|layername=streams'
+        TinbuildAlgorithm.loadOnCompletion(context, hand, tr('HAND'), self.HAND, QgsProcessingUtils.LayerHint.Raster,
+                                           styles.styleHand)
+        TinbuildAlgorithm.loadOnCompletion(context, streams, tr('Streams'), self.STREAMS,
+                                           QgsProcessingUtils.LayerHint.Vector, styles.styleStreams)
+        results = {self.HAND: hand, self.STREAMS: streams, self.DEPTH: None, self.FLOOD: None, self.REPORT: report,
+                   self.LINKS: data.get('streams', {}).get('links'),
+                   self.FLOODED_CELLS: data.get('drainage', {}).get('flooded_cells')}
+        if staged:
+            depth = os.path.join(out, 'depth.vrt')
+            flood = os.path.join(out, 'flood.gpkg') + '|layername=flood'
+            TinbuildAlgorithm.loadOnCompletion(context, depth, tr('Flood depth'), self.DEPTH,
+                                               QgsProcessingUtils.LayerHint.Raster, styles.styleDepth)
+            TinbuildAlgorithm.loadOnCompletion(context, flood, tr('Flood extent'), self.FLOOD,
+                                               QgsProcessingUtils.LayerHint.Vector, styles.styleFlood)
+            results.update({self.DEPTH: depth, self.FLOOD: flood})
+        return results
+
+
+ALGORITHMS = [BuildDem, HydroFlatten, BuildTin, Contours, Info, Hydrology]

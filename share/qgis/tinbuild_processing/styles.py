@@ -49,6 +49,51 @@ def styleHillshade(layer):
     layer.triggerRepaint()
 
 
+def _pseudocolour(layer, stops, lo, hi):
+    """An interpolated ramp of (value, colour) stops between lo and hi on band 1."""
+    shader = QgsColorRampShader(lo, hi)
+    shader.setColorRampType(QgsColorRampShader.Interpolated)
+    shader.setColorRampItemList([QgsColorRampShader.ColorRampItem(v, QColor(c), f'{v:g}') for v, c in stops])
+    rasterShader = QgsRasterShader(lo, hi)
+    rasterShader.setRasterShaderFunction(shader)
+    renderer = QgsSingleBandPseudoColorRenderer(layer.dataProvider(), 1, rasterShader)
+    renderer.setClassificationMin(lo)
+    renderer.setClassificationMax(hi)
+    layer.setRenderer(renderer)
+    layer.triggerRepaint()
+
+
+def styleHand(layer):
+    """HAND: deep green at the drainage through yellow (5) to light brown (20 and above)."""
+    _pseudocolour(layer, [(0, '#1f7a46'), (1, '#5fae5a'), (2.5, '#b8d86b'), (5, '#f1e08a'), (10, '#dcb27c'),
+                          (20, '#c9b8a6')], 0, 20)
+
+
+def styleDepth(layer):
+    """Flood depth: light to dark blue, 0 transparent."""
+    _pseudocolour(layer, [(0, '#00000000'), (0.01, '#c6dbef'), (0.5, '#6baed6'), (1.5, '#2171b5'),
+                          (3, '#08306b')], 0, 3)
+    layer.setOpacity(0.8)
+
+
+def styleStreams(layer):
+    """Stream lines in blue, wider with the Strahler order."""
+    from qgis.core import QgsProperty, QgsSymbolLayer
+    symbol = layer.renderer().symbol()
+    symbol.setColor(QColor('#1f4e9c'))
+    symbol.symbolLayer(0).setDataDefinedProperty(
+        QgsSymbolLayer.PropertyStrokeWidth, QgsProperty.fromExpression('0.2 + 0.35 * "strahler"'))
+    layer.triggerRepaint()
+
+
+def styleFlood(layer):
+    """The flood's extent: a light blue outline, no fill (the depth shows the water)."""
+    symbol = layer.renderer().symbol()
+    symbol.setColor(QColor(0, 0, 0, 0))
+    symbol.symbolLayer(0).setStrokeColor(QColor('#3b7dd8'))
+    layer.triggerRepaint()
+
+
 class Styler(QgsProcessingLayerPostProcessorInterface):
     def __init__(self, style):
         super().__init__()

@@ -69,6 +69,54 @@ TEST(Fill, KnownAnswers) {
   EXPECT_EQ(s.cells, 32u);
 }
 
+// TauDEM's PitRemove conventions, on answers worked by hand: 8-neighbour (a pit drains through a diagonal
+// gap in its rim), a border cell and a cell beside nodata are outlets and never raised, a flat-bottomed
+// depression fills to its rim's lowest cell exactly (no gradient added), and a plateau already at its
+// spill level stays as it is.
+TEST(Fill, PitRemoveConventions) {
+  const float N = kNoData;
+  // Two pits (1, and the 3 beside it) whose only way out is over the 6s to the border's 0: both fill to 6.
+  const reference::Dem diagonal = fromRows({{9, 9, 9, 9, 9},  //
+                                            {9, 6, 6, 3, 9},
+                                            {9, 6, 1, 6, 9},
+                                            {9, 6, 6, 6, 9},
+                                            {9, 9, 9, 0, 9}});
+  const std::vector<float> diagonalFilled = {9, 9, 9, 9, 9,  //
+                                             9, 6, 6, 6, 9,  //
+                                             9, 6, 6, 6, 9,  //
+                                             9, 6, 6, 6, 9,  //
+                                             9, 9, 9, 0, 9};
+  EXPECT_EQ(reference::fill(diagonal), diagonalFilled);
+  const reference::Dem gap = fromRows({{9, 9, 9, 9, 2},  //
+                                       {9, 6, 6, 3, 9},
+                                       {9, 6, 1, 6, 9},
+                                       {9, 6, 6, 6, 9},
+                                       {9, 9, 9, 9, 9}});
+  // Now the 3 touches the border's 2 diagonally: the pit spills at 3 through that diagonal step.
+  const std::vector<float> gapFilled = {9, 9, 9, 9, 2,  //
+                                        9, 6, 6, 3, 9,  //
+                                        9, 6, 3, 6, 9,  //
+                                        9, 6, 6, 6, 9,  //
+                                        9, 9, 9, 9, 9};
+  EXPECT_EQ(reference::fill(gap), gapFilled);
+  // A flat-bottomed depression beside a nodata hole drains into the hole; one without fills level.
+  const reference::Dem flat = fromRows({{8, 8, 8, 8, 8, 8, 8},  //
+                                        {8, 2, 2, 8, 2, 2, 8},
+                                        {8, 2, 2, 8, 2, N, 8},
+                                        {8, 8, 5, 8, 8, 8, 8}});
+  const std::vector<float> flatFilled = {8, 8, 8, 8, 8, 8, 8,  //
+                                         8, 5, 5, 8, 2, 2, 8,  //
+                                         8, 5, 5, 8, 2, N, 8,  //
+                                         8, 8, 5, 8, 8, 8, 8};
+  EXPECT_EQ(reference::firstDifference(reference::fill(flat), flatFilled, 7), "");
+  for (const int t : {1, 2, 3, 4}) {
+    SCOPED_TRACE("tile " + std::to_string(t));
+    EXPECT_EQ(reference::firstDifference(tiled(diagonal, t, 2), diagonalFilled, 5), "");
+    EXPECT_EQ(reference::firstDifference(tiled(gap, t, 2), gapFilled, 5), "");
+    EXPECT_EQ(reference::firstDifference(tiled(flat, t, 2), flatFilled, 7), "");
+  }
+}
+
 // Random DEMs with pits, flats, terraces and nodata holes: every tile size and thread count gives the
 // reference's heights, bit for bit.
 TEST(Fill, AnyTilingAndThreadsGiveTheReference) {
