@@ -119,14 +119,15 @@ class Ticking final : public TileTarget<T> {
   PassProgress& p_;
 };
 
-// Depth tiles also as the flooded mask (1 where the depth is positive, 0 elsewhere, 255 nodata).
+// Depth tiles also as the flooded mask (1 where the depth is positive, else 0: nodata too, so the flood's
+// polygons are those of the 1s alone).
 class DepthAndMask final : public TileTarget<float> {
  public:
   DepthAndMask(TileTarget<float>& depth, TileTarget<std::uint8_t>& mask) : depth_(depth), mask_(mask) {}
   void write(const TileRect& r, const float* v) override {
     depth_.write(r, v);
     std::vector<std::uint8_t> m(r.cells());
-    for (std::size_t i = 0; i < m.size(); ++i) m[i] = std::isnan(v[i]) ? 255 : v[i] > 0 ? 1 : 0;
+    for (std::size_t i = 0; i < m.size(); ++i) m[i] = v[i] > 0 ? 1 : 0;  // (NaN > 0 is false)
     mask_.write(r, m.data());
   }
 
@@ -424,7 +425,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
   std::unique_ptr<GeoTiffTiles<std::uint8_t>> maskOut;
   if (o.stage) {
     depthOut = std::make_unique<GeoTiffTiles<float>>(staging.path(), "depth", g, kFloatNoData);
-    maskOut = std::make_unique<GeoTiffTiles<std::uint8_t>>(staging.work(), "flooded", g, 255, true);
+    maskOut = std::make_unique<GeoTiffTiles<std::uint8_t>>(staging.work(), "flooded", g, 0, true);
   }
   pass("drainage", [&] {
     Ticking<float> t(handOut, progress);

@@ -8,9 +8,9 @@
 
 namespace tinbuild {
 
-// How hard to compress: Deflate (the DEM's tiles: GDAL's default level), Fast (DEFLATE at level 1, which
-// every GeoTIFF reader reads, for outputs written in bulk: the hydrology's), Scratch (ZSTD at level 1: files
-// the run reads back and deletes).
+// How hard to compress: Deflate (the DEM's tiles: GDAL's default level, with a predictor), Fast (DEFLATE at
+// level 1 without a predictor, which every GeoTIFF reader reads, for outputs written in bulk: the
+// hydrology's), Scratch (ZSTD at level 1, no predictor: files the run reads back and deletes).
 enum class TiffCompression { Deflate, Fast, Scratch };
 
 inline CPLStringList tiledGeoTiffOptions(GDALDataType type, TiffCompression c = TiffCompression::Deflate) {
@@ -21,7 +21,9 @@ inline CPLStringList tiledGeoTiffOptions(GDALDataType type, TiffCompression c = 
   opts.SetNameValue("COMPRESS", c == TiffCompression::Scratch ? "ZSTD" : "DEFLATE");
   if (c == TiffCompression::Scratch) opts.SetNameValue("ZSTD_LEVEL", "1");
   if (c == TiffCompression::Fast) opts.SetNameValue("ZLEVEL", "1");
-  opts.SetNameValue("PREDICTOR", GDALDataTypeIsFloating(type) ? "3" : "2");
+  // (libtiff's floating-point predictor costs more than the compression it helps: a fifth of a hydrology
+  // run; the bulk outputs and scratch files go without it.)
+  if (c == TiffCompression::Deflate) opts.SetNameValue("PREDICTOR", GDALDataTypeIsFloating(type) ? "3" : "2");
   opts.SetNameValue("BIGTIFF", "IF_SAFER");
   return opts;
 }

@@ -5,8 +5,12 @@
 #include <cpl_string.h>
 #include <gdal.h>
 #include <gdal_alg.h>
+#include <gdal_utils.h>
 #include <ogr_api.h>
 #include <ogr_srs_api.h>
+
+#include <algorithm>
+#include <string>
 
 #include "libterrain/core/error.h"
 
@@ -30,6 +34,8 @@ void addField(OGRLayerH layer, const char* name, OGRFieldType type, const std::s
   OGR_Fld_Destroy(f);
   if (e != OGRERR_NONE) throw DataError(path, std::string("cannot add the field ") + name);
 }
+
+constexpr int kPolygonBlock = 4096;
 
 int gdalCancel(double, const char*, void* flag) {
   return cancelRequested(static_cast<const CancelFlag*>(flag)) ? 0 : 1;
@@ -118,13 +124,32 @@ std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, c
     throw DataError(path, "cannot create the layer " + layer);
   }
   addField(l, "flooded", OFTInteger, path);
-  GDALRasterBandH band = GDALGetRasterBand(src, 1);
+  // Block by block: GDALPolygonize keeps every polygon open until its last row, so on a whole raster its
+  // memory follows the flood's outline (hundreds of MB at 10^8 cells).  Blocks of kPolygonBlock cells
+  // bound it; their lattice is fixed (not the run's tiles), so the polygons are the same for any tiling.
+  const int w = GDALGetRasterXSize(src), h = GDALGetRasterYSize(src);
   CPLStringList options;
   options.SetNameValue("8CONNECTED", "8");
   GDALDatasetStartTransaction(ds, FALSE);
-  CPLErrorReset();
-  const CPLErr err =
-      GDALPolygonize(band, band, l, 0, options.List(), gdalCancel, const_cast<CancelFlag*>(cancel));
+  CPLErr err = CE_None;
+  for (int y0 = 0; y0 < h && err == CE_None; y0 += kPolygonBlock)
+    for (int x0 = 0; x0 < w && err == CE_None; x0 += kPolygonBlock) {
+      const int bw = std::min(kPolygonBlock, w - x0), bh = std::min(kPolygonBlock, h - y0);
+      CPLStringList args;
+      for (const char* a : {"-of", "VRT", "-srcwin"}) args.AddString(a);
+      for (int v : {x0, y0, bw, bh}) args.AddString(std::to_string(v).c_str());
+      GDALTranslateOptions* to = GDALTranslateOptionsNew(args.List(), nullptr);
+      GDALDatasetH block = GDALTranslate("", src, to, nullptr);
+      GDALTranslateOptionsFree(to);
+      if (!block) {
+        err = CE_Failure;
+        break;
+      }
+      GDALRasterBandH band = GDALGetRasterBand(block, 1);
+      CPLErrorReset();
+      err = GDALPolygonize(band, band, l, 0, options.List(), gdalCancel, const_cast<CancelFlag*>(cancel));
+      GDALClose(block);
+    }
   const std::uint64_t count = static_cast<std::uint64_t>(OGR_L_GetFeatureCount(l, TRUE));
   GDALDatasetCommitTransaction(ds);
   GDALClose(ds);

@@ -39,7 +39,9 @@ class StreamLineWriter {
 };
 
 // Polygons of the cells of value 1 in a byte raster (`mask`, any GDAL raster: the flooded cells), as one
-// layer `layer` of POLYGON features (8-connected regions) in a new GeoPackage `path`.  Returns how many.
+// layer `layer` of POLYGON features (8-connected regions, holes kept) in a new GeoPackage `path`, cut at a
+// fixed lattice of 4096 x 4096 cells (so memory stays bounded at any size, and any tiling gives the same
+// polygons).  Returns how many.
 std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, const std::string& layer,
                              const CancelFlag* cancel);
 

@@ -2,10 +2,13 @@
 #include "libterrain/hydrology/flow_directions.h"
 
 #include <algorithm>
+#include <array>
 #include <atomic>
 #include <chrono>
 #include <cmath>
 #include <limits>
+#include <memory>
+#include <mutex>
 #include <vector>
 
 #include "libterrain/hydrology/tile_runner.h"
@@ -317,58 +320,86 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
   const int threads = std::max(1, options.threads);
   std::vector<TileFlats> work;
   for (int w = 0; w < threads; ++w) work.emplace_back(grid, options);
-  std::vector<Perimeter> prev(static_cast<std::size_t>(tiles)), next(static_cast<std::size_t>(tiles));
+  // The perimeters, one per tile, each behind its own lock: a tile reads its neighbours' as they are now
+  // (Gauss-Seidel, not a copy of the last round's), so what a tile learns reaches the next tiles in the
+  // same round.  Rounds sweep the tiles forwards and backwards in turn: a distance crosses a row of tiles
+  // in one sweep in its direction.  The values only ever fall (distances) or rise (maxima) towards the one
+  // fixed point, whatever the order the threads happen to take, so the result is the same; only the
+  // number of rounds varies.
+  std::vector<Perimeter> cur(static_cast<std::size_t>(tiles));
+  std::unique_ptr<std::mutex[]> locks(new std::mutex[static_cast<std::size_t>(tiles)]);
+  std::vector<std::uint64_t> version(static_cast<std::size_t>(tiles), 0);
+  std::vector<std::array<std::uint64_t, 9>> seen(static_cast<std::size_t>(tiles));
   std::vector<std::uint8_t> active(static_cast<std::size_t>(tiles), 1);
-  // A tile is worked again in a round only when a neighbouring tile's perimeter changed in the last one.
-  std::vector<std::uint8_t> changedTile(static_cast<std::size_t>(tiles), 1),
-      changedNow(changedTile.size(), 0);
-  auto neighbourChanged = [&](std::int64_t t) {
+  std::vector<std::vector<Perimeter>> views(static_cast<std::size_t>(threads),
+                                            std::vector<Perimeter>(static_cast<std::size_t>(tiles)));
+  auto neighbours = [&](std::int64_t t, std::int64_t(&u)[9]) {
     const std::int64_t tx = t % grid.tilesX(), ty = t / grid.tilesX();
-    for (std::int64_t y = std::max<std::int64_t>(ty - 1, 0); y <= std::min(ty + 1, grid.tilesY() - 1); ++y)
-      for (std::int64_t x = std::max<std::int64_t>(tx - 1, 0); x <= std::min(tx + 1, grid.tilesX() - 1); ++x)
-        if (changedTile[static_cast<std::size_t>(y * grid.tilesX() + x)]) return true;
-    return false;
+    int n = 0;
+    for (std::int64_t y = ty - 1; y <= ty + 1; ++y)
+      for (std::int64_t x = tx - 1; x <= tx + 1; ++x)
+        u[n++] = (x < 0 || y < 0 || x >= grid.tilesX() || y >= grid.tilesY() || (x == tx && y == ty))
+                     ? -1
+                     : y * grid.tilesX() + x;
   };
 
   // Rounds: the distances, then the maxima, until no perimeter value changes.  Round 1 visits every tile
-  // (and finds those whose perimeter holds a flat cell); later rounds those only.
+  // (and finds those whose perimeter holds a flat cell); later rounds those only, and of those only the
+  // tiles whose neighbours changed since they were last worked.
   for (int phase = 0; phase < 2; ++phase) {
-    for (;;) {
+    for (std::int64_t round = 0;; ++round) {
       std::atomic<bool> changed{false};
-      forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+      forEachTile(grid, threads, options.cancel, [&](std::int64_t i, int w) {
+        const std::int64_t t = round % 2 ? tiles - 1 - i : i;
         const auto ti = static_cast<std::size_t>(t);
-        changedNow[ti] = 0;
         if (!active[ti]) return;
-        if (!neighbourChanged(t)) {  // (the same inputs: the same perimeter)
-          next[ti] = prev[ti];
+        std::vector<Perimeter>& view = views[static_cast<std::size_t>(w)];
+        std::int64_t u[9];
+        neighbours(t, u);
+        std::array<std::uint64_t, 9> saw{};
+        for (int k = 0; k < 9; ++k) {
+          if (u[k] < 0) continue;
+          const auto uk = static_cast<std::size_t>(u[k]);
+          std::lock_guard<std::mutex> lock(locks[uk]);
+          saw[static_cast<std::size_t>(k)] = version[uk];
+          view[uk] = cur[uk];
+        }
+        auto release = [&] {
+          for (int k = 0; k < 9; ++k)
+            if (u[k] >= 0) view[static_cast<std::size_t>(u[k])] = Perimeter{};
+        };
+        if (round > 0 && saw == seen[ti]) {  // (the same inputs: the same perimeter)
+          release();
           return;
         }
         TileFlats& f = work[static_cast<std::size_t>(w)];
         f.load(t, filled);
         if (!f.perimeterFlat()) {
           active[ti] = 0;
-          next[ti] = Perimeter{};
+          release();
           return;
         }
-        f.distances(prev);
-        if (phase == 1) f.maxima(prev);
-        f.perimeter(next[ti]);
-        if (phase == 0) next[ti].mH = prev[ti].mH;  // (maxima: the next phase)
-        if (next[ti].dL != prev[ti].dL || next[ti].dH != prev[ti].dH || next[ti].mH != prev[ti].mH) {
-          changedNow[ti] = 1;
+        f.distances(view);
+        if (phase == 1) f.maxima(view);
+        Perimeter p;
+        f.perimeter(p);
+        release();
+        seen[ti] = saw;
+        std::lock_guard<std::mutex> lock(locks[ti]);
+        if (p.dL != cur[ti].dL || p.dH != cur[ti].dH || p.mH != cur[ti].mH) {
+          cur[ti] = std::move(p);
+          ++version[ti];
           changed = true;
         }
       });
       ++stats.rounds;
-      prev.swap(next);
-      changedTile.swap(changedNow);
       if (!changed) break;
     }
-    std::fill(changedTile.begin(), changedTile.end(), 1);  // (the next phase starts with every tile)
-    // (phase 0 ended with the converged distances in prev; phase 1 starts its maxima from nothing)
-    if (phase == 0)
-      for (Perimeter& p : prev) p.mH.assign(p.dL.size(), kInf);
+    // (phase 0 ended with the converged distances; phase 1 starts its maxima from nothing, every tile
+    // worked again)
+    for (auto& s : seen) s.fill(std::numeric_limits<std::uint64_t>::max());
   }
+  const std::vector<Perimeter>& prev = cur;
 
   // The last pass: every tile's directions.
   std::vector<FlowStats> per(static_cast<std::size_t>(threads));

@@ -138,6 +138,22 @@ std::string streamLines(const fs::path& gpkg) {
   return s;
 }
 
+// The area of every polygon of flood.gpkg's layer `flood`, and that they all have flooded = 1.
+double floodArea(const fs::path& gpkg) {
+  GDALDatasetH ds = GDALOpenEx(gpkg.string().c_str(), GDAL_OF_VECTOR, nullptr, nullptr, nullptr);
+  EXPECT_NE(ds, nullptr) << gpkg;
+  if (!ds) return -1;
+  OGRLayerH l = GDALDatasetGetLayerByName(ds, "flood");
+  double area = 0;
+  OGR_L_ResetReading(l);
+  for (OGRFeatureH f; (f = OGR_L_GetNextFeature(l)) != nullptr; OGR_F_Destroy(f)) {
+    EXPECT_EQ(OGR_F_GetFieldAsInteger(f, 0), 1);
+    area += OGR_G_Area(OGR_F_GetGeometryRef(f));
+  }
+  GDALClose(ds);
+  return area;
+}
+
 TEST(HydrologyCli, EveryOutputEqualsTheReferenceForAnyTilingAndThreads) {
   const fs::path dir = scratch();
   const int w = 173, h = 151;
@@ -177,7 +193,11 @@ TEST(HydrologyCli, EveryOutputEqualsTheReferenceForAnyTilingAndThreads) {
       // One line per link, each starting at its top cell's centre.
       EXPECT_EQ(static_cast<std::size_t>(std::count(firstLines.begin(), firstLines.end(), '\n')),
                 links.strahler.size());
-      EXPECT_TRUE(fs::exists(out / "flood.gpkg"));
+      // The flood's polygons cover exactly the cells with a positive depth (4 m2 each), nothing else.
+      std::size_t wet = 0;
+      for (float v : hand.depth) wet += v > 0;
+      EXPECT_GT(wet, 0u);
+      EXPECT_DOUBLE_EQ(floodArea(out / "flood.gpkg"), 4.0 * static_cast<double>(wet));
     } else {
       EXPECT_EQ(rasterBytes(out), first) << "tile " << tile << ", threads " << threads;
       EXPECT_EQ(streamLines(out / "streams.gpkg"), firstLines) << "tile " << tile << ", threads " << threads;
