@@ -246,16 +246,41 @@ std::pair<double, double> centre(const RasterGrid& g, std::int64_t cell) {
           g.geoTransform[3] + c * g.geoTransform[4] + r * g.geoTransform[5]};
 }
 
-// Bytes a cell costs in the heaviest pass's tile, per thread (measured: the drainage pass holds the codes,
-// counts, heights, links, its answers and four outputs of a tile, about 100 bytes a cell).
-constexpr double kTileBytesPerCell = 100;
+// The memory model the tile size comes from (measured on the benchmark's DEMs, docs/benchmarks.md):
+//   the process before any tile (the program, GDAL's and PROJ's libraries and their tables, the flood's
+//   polygons of a block): ~72 MB,
+//   and GDAL's block cache (a sixteenth of the budget);
+//   the tiles in flight: ~150 bytes a cell per thread (the drainage pass: codes, counts, heights, links,
+//   its answers, four outputs of a tile, and the heap they leave behind);
+//   the perimeter graphs kept between passes: ~75 bytes a perimeter cell (the fill's labels and edges).
+constexpr double kBaseBytes = 72.0 * 1048576;
+constexpr double kTileBytesPerCell = 150;
+constexpr double kPerimeterBytesPerCell = 75;
 
-int chooseTileSize(const HydrologyOptions& o, int threads) {
-  if (o.tileSize > 0) return o.tileSize;
-  // Half the budget to the tiles in flight; the rest to the perimeters, GDAL's cache and the lines.
-  const double cells = static_cast<double>(o.memoryBytes) / 2 / (kTileBytesPerCell * threads);
-  const int side = static_cast<int>(std::sqrt(cells)) / 64 * 64;
-  return std::clamp(side, 128, 4096);
+double modelBytes(double cells, int threads, double side, double budget) {
+  return kBaseBytes + budget / 16 + threads * side * side * kTileBytesPerCell +
+         cells / (side * side) * 4 * side * kPerimeterBytesPerCell;
+}
+
+// The largest tile side (a multiple of 64, 128 to 4096) whose modelled peak fits the budget; when none
+// does, the side of the least peak, and `fits` false.
+int chooseTileSize(const HydrologyOptions& o, int threads, double cells, double& peak, bool& fits) {
+  const double budget = static_cast<double>(o.memoryBytes);
+  if (o.tileSize > 0) {
+    peak = modelBytes(cells, threads, o.tileSize, budget);
+    fits = peak <= budget;
+    return o.tileSize;
+  }
+  int best = 0, least = 128;
+  for (int side = 128; side <= 4096; side += 64) {
+    const double m = modelBytes(cells, threads, side, budget);
+    if (m <= budget) best = side;
+    if (m < modelBytes(cells, threads, least, budget)) least = side;
+  }
+  fits = best > 0;
+  const int side = fits ? best : least;
+  peak = modelBytes(cells, threads, side, budget);
+  return side;
 }
 
 }  // namespace
@@ -308,7 +333,16 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
   const int threads =
       o.threads > 0 ? o.threads : static_cast<int>(std::max(1u, std::thread::hardware_concurrency()));
   rep.threads = threads;
-  rep.tileSize = chooseTileSize(o, threads);
+  double modelled = 0;
+  bool fits = true;
+  rep.tileSize = chooseTileSize(o, threads, static_cast<double>(g.width) * static_cast<double>(g.height),
+                                modelled, fits);
+  if (!fits)
+    diag.warn("hydrology.memory", "",
+              "--memory " + std::to_string(o.memoryBytes >> 20) + " MB is less than this DEM needs with " +
+                  std::to_string(threads) + " thread(s): about " +
+                  std::to_string(static_cast<long long>(modelled / 1048576) + 1) + " MB (tiles of " +
+                  std::to_string(rep.tileSize) + "); fewer --threads need less");
   const TileGrid grid(g.width, g.height, rep.tileSize);
   rep.tiles = static_cast<std::uint64_t>(grid.tiles());
   rep.memoryBytes = o.memoryBytes;

@@ -35,7 +35,7 @@ void addField(OGRLayerH layer, const char* name, OGRFieldType type, const std::s
   if (e != OGRERR_NONE) throw DataError(path, std::string("cannot add the field ") + name);
 }
 
-constexpr int kPolygonBlock = 4096;
+constexpr int kPolygonBlock = 2048;
 
 int gdalCancel(double, const char*, void* flag) {
   return cancelRequested(static_cast<const CancelFlag*>(flag)) ? 0 : 1;

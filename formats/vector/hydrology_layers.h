@@ -40,7 +40,7 @@ class StreamLineWriter {
 
 // Polygons of the cells of value 1 in a byte raster (`mask`, any GDAL raster: the flooded cells), as one
 // layer `layer` of POLYGON features (8-connected regions, holes kept) in a new GeoPackage `path`, cut at a
-// fixed lattice of 4096 x 4096 cells (so memory stays bounded at any size, and any tiling gives the same
+// fixed lattice of 2048 x 2048 cells (so memory stays bounded at any size, and any tiling gives the same
 // polygons).  Returns how many.
 std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, const std::string& layer,
                              const CancelFlag* cancel);

@@ -504,10 +504,14 @@ TEST(CliRun, DemoWritesEveryProductAndVerifies) {
   auto r = tinbuild("demo " + (out / "demo").string() + " --points 1 --progress=none");
   ASSERT_EQ(r.code, 0) << r.out << r.err;
   EXPECT_NE(r.out.find("verify: OK"), std::string::npos) << r.out;
-  for (const char* f : {"survey.laz", "survey-info.json", "tin.smb", "tin.gpkg", "dem/mosaic.vrt",
-                        "dem/hillshade.vrt", "dem.png", "build-report.json"})
+  for (const char* f :
+       {"survey.laz", "survey-info.json", "tin.smb", "tin.gpkg", "dem/mosaic.vrt", "dem/hillshade.vrt",
+        "dem.png", "build-report.json", "hydrology/hand.vrt", "hydrology/depth.vrt", "hydrology/streams.gpkg",
+        "hydrology/flood.gpkg", "hydrology.png", "hydrology-report.json"})
     EXPECT_TRUE(fs::exists(out / "demo" / f)) << f;
   EXPECT_EQ(slurp(out / "demo" / "dem.png").substr(1, 3), "PNG");
+  EXPECT_EQ(slurp(out / "demo" / "hydrology.png").substr(1, 3), "PNG");
+  EXPECT_NE(slurp(out / "demo" / "hydrology-report.json").find("\"links\""), std::string::npos);
   EXPECT_NE(slurp(out / "demo" / "build-report.json").find("\"tiles_written\""), std::string::npos);
 }
 
