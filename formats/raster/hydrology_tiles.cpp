@@ -73,6 +73,36 @@ RasterGrid gridOf(GDALDatasetH ds) {
   return g;
 }
 
+// The part of a tile's window (the tile and its halo, clipped to the raster) that lies inside the raster;
+// false when none does.  `v` is first filled with `outside`.
+template <typename T>
+bool clipWindow(const hydrology::TileRect& r, int halo, std::int64_t width, std::int64_t height, T* v,
+                T outside, std::int64_t& c0, std::int64_t& r0, std::int64_t& c1, std::int64_t& r1) {
+  const std::int64_t w = r.width + 2 * halo, h = r.height + 2 * halo;
+  std::fill(v, v + w * h, outside);
+  c0 = std::max<std::int64_t>(r.col0 - halo, 0);
+  r0 = std::max<std::int64_t>(r.row0 - halo, 0);
+  c1 = std::min<std::int64_t>(r.col0 + r.width + halo, width);
+  r1 = std::min<std::int64_t>(r.row0 + r.height + halo, height);
+  return c1 > c0 && r1 > r0;
+}
+
+// Cells of a ww x wh block at `at` (rows `stride` apart) equal to `noData` (when there is one) or NaN
+// become `outside`.
+template <typename T>
+void mapNoData(T* at, std::int64_t stride, std::int64_t ww, std::int64_t wh, bool hasNoData, double noData,
+               T outside) {
+  if (!hasNoData && !std::is_floating_point_v<T>) return;
+  for (std::int64_t y = 0; y < wh; ++y) {
+    T* line = at + y * stride;
+    for (std::int64_t x = 0; x < ww; ++x) {
+      bool none = hasNoData && static_cast<double>(line[x]) == noData;
+      if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(line[x]);
+      if (none) line[x] = outside;
+    }
+  }
+}
+
 }  // namespace
 
 RasterGrid describeRaster(const std::string& path) {
@@ -103,14 +133,9 @@ GdalTiles<T>::~GdalTiles() {
 
 template <typename T>
 void GdalTiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
-  const std::int64_t w = r.width + 2 * halo, h = r.height + 2 * halo;
-  std::fill(v, v + w * h, outside_);
-  // The window inside the raster.
-  const std::int64_t c0 = std::max<std::int64_t>(r.col0 - halo, 0),
-                     r0 = std::max<std::int64_t>(r.row0 - halo, 0);
-  const std::int64_t c1 = std::min<std::int64_t>(r.col0 + r.width + halo, grid_.width);
-  const std::int64_t r1 = std::min<std::int64_t>(r.row0 + r.height + halo, grid_.height);
-  if (c1 <= c0 || r1 <= r0) return;
+  const std::int64_t w = r.width + 2 * halo;
+  std::int64_t c0, r0, c1, r1;
+  if (!clipWindow(r, halo, grid_.width, grid_.height, v, outside_, c0, r0, c1, r1)) return;
   const int ww = static_cast<int>(c1 - c0), wh = static_cast<int>(r1 - r0);
   // Straight into the tile's buffer, at the window's place in it (no copy).
   const std::int64_t bx0 = c0 - (r.col0 - halo), by0 = r0 - (r.row0 - halo);
@@ -142,17 +167,7 @@ void GdalTiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
     }
     if (err != CE_None) throw DataError(path_, std::string("cannot read its cells: ") + CPLGetLastErrorMsg());
   }
-  const bool floating = std::is_floating_point_v<T>;
-  if (!grid_.hasNoData && !floating) return;
-  for (int y = 0; y < wh; ++y) {
-    T* line = at + static_cast<std::int64_t>(y) * w;
-    for (int x = 0; x < ww; ++x) {
-      const T value = line[x];
-      bool none = grid_.hasNoData && static_cast<double>(value) == grid_.noData;
-      if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(value);
-      if (none) line[x] = outside_;
-    }
-  }
+  mapNoData(at, w, ww, wh, grid_.hasNoData, grid_.noData, outside_);
 }
 
 template <typename T>
@@ -224,13 +239,9 @@ std::string GeoTiffTiles<T>::finish() {
 
 template <typename T>
 void TileFiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
-  const std::int64_t w = r.width + 2 * halo, h = r.height + 2 * halo;
-  std::fill(v, v + w * h, outside_);
-  const std::int64_t c0 = std::max<std::int64_t>(r.col0 - halo, 0),
-                     r0 = std::max<std::int64_t>(r.row0 - halo, 0);
-  const std::int64_t c1 = std::min<std::int64_t>(r.col0 + r.width + halo, grid_.width());
-  const std::int64_t r1 = std::min<std::int64_t>(r.row0 + r.height + halo, grid_.height());
-  if (c1 <= c0 || r1 <= r0) return;
+  const std::int64_t w = r.width + 2 * halo;
+  std::int64_t c0, r0, c1, r1;
+  if (!clipWindow(r, halo, grid_.width(), grid_.height(), v, outside_, c0, r0, c1, r1)) return;
   const std::int64_t ts = grid_.tileSize();
   for (std::int64_t ty = r0 / ts; ty <= (r1 - 1) / ts; ++ty)
     for (std::int64_t tx = c0 / ts; tx <= (c1 - 1) / ts; ++tx) {
@@ -255,14 +266,7 @@ void TileFiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
                                       static_cast<int>(sizeof(T) * static_cast<std::size_t>(w)));
       GDALClose(ds);
       if (err != CE_None) throw DataError(path, std::string("cannot read: ") + CPLGetLastErrorMsg());
-      for (std::int64_t y = 0; y < y1 - y0; ++y) {
-        T* line = at + y * w;
-        for (std::int64_t x = 0; x < x1 - x0; ++x) {
-          bool none = line[x] == noData_;
-          if constexpr (std::is_floating_point_v<T>) none = none || std::isnan(line[x]);
-          if (none) line[x] = outside_;
-        }
-      }
+      mapNoData(at, w, x1 - x0, y1 - y0, true, static_cast<double>(noData_), outside_);
     }
 }
 

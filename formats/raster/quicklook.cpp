@@ -10,9 +10,10 @@
 #include <cstdio>
 #include <vector>
 
+#include "formats/io/output_transaction.h"
+#include "formats/io/quiet_gdal.h"
 #include "formats/raster/dem_writer.h"
 #include "libterrain/core/error.h"
-#include "formats/io/output_transaction.h"
 
 namespace tinbuild {
 
@@ -142,10 +143,7 @@ void writePlanes(std::vector<std::uint8_t> (&planes)[4], int w, int h, const std
 void writeQuicklookPng(const std::string& dem, const std::string& hillshade, const std::string& png,
                        int maxSize, const std::string& contours) {
   registerGdalWriters();
-  CPLPushErrorHandler(CPLQuietErrorHandler);
-  struct Pop {
-    ~Pop() { CPLPopErrorHandler(); }
-  } pop;
+  QuietGdal quiet;
   int w = 0, h = 0;
   double geo[6] = {0, 1, 0, 0, 0, -1};
   int fullW = 0, fullH = 0;
@@ -196,10 +194,7 @@ void writeQuicklookPng(const std::string& dem, const std::string& hillshade, con
 void writeHydrologyPng(const std::string& hand, const std::string& depth, const std::string& streams,
                        const std::string& hillshade, const std::string& png, int maxSize, double handMax) {
   registerGdalWriters();
-  CPLPushErrorHandler(CPLQuietErrorHandler);
-  struct Pop {
-    ~Pop() { CPLPopErrorHandler(); }
-  } pop;
+  QuietGdal quiet;
   int w = 0, h = 0;
   const Band a = readReduced(hand, w, h, maxSize);
   const Band s = hillshade.empty() ? Band{} : readReduced(hillshade, w, h, maxSize);

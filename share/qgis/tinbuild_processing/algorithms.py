@@ -655,39 +655,27 @@ class Info(TinbuildAlgorithm):
                 self.CRS_AUTHID: authid, self.CRS_NAME: crs.get('name') or ''}
 
 
-class Hydrology(QgsProcessingAlgorithm):
+class Hydrology(TinbuildAlgorithm):
     DEM = 'DEM'
     STREAM_AREA = 'STREAM_AREA'
     STAGE = 'STAGE'
     FLOW = 'FLOW'
-    THREADS = 'THREADS'
-    EXTRA_OPTIONS = 'EXTRA_OPTIONS'
     OUTPUT_FOLDER = 'OUTPUT_FOLDER'
     HAND = 'HAND'
     STREAMS = 'STREAMS'
     DEPTH = 'DEPTH'
     FLOOD = 'FLOOD'
-    REPORT = 'REPORT'
     LINKS = 'LINKS'
     FLOODED_CELLS = 'FLOODED_CELLS'
 
-    def createInstance(self):
-        return type(self)()
+    _name = 'hydrology'
+    _displayName = 'Floodplain hydrology (fill, streams, HAND, flood depth)'
+    _group = 'Hydrology'
+    _groupId = 'hydrology'
 
-    def name(self):
-        return 'hydrology'
-
-    def displayName(self):
-        return tr('Floodplain hydrology (fill, streams, HAND, flood depth)')
-
-    def group(self):
-        return tr('Hydrology')
-
-    def groupId(self):
-        return 'hydrology'
-
-    def icon(self):
-        return QIcon(ICON)
+    def checkParameterValues(self, parameters, context):
+        # (a DEM, not point clouds: the point-cloud algorithms' check of INPUT does not apply)
+        return QgsProcessingAlgorithm.checkParameterValues(self, parameters, context)
 
     def tags(self):
         return ['hydrology', 'hand', 'flood', 'fill', 'flow direction', 'd8', 'streams', 'catchments',
@@ -721,11 +709,7 @@ class Hydrology(QgsProcessingAlgorithm):
         self.addParameter(QgsProcessingParameterMultipleLayers(
             self.FLOW, tr('Stream centrelines to breach through embankments (digitised downstream)'),
             QgsProcessing.TypeVectorLine, optional=True))
-        self.addParameter(advanced(QgsProcessingParameterNumber(
-            self.THREADS, tr('Threads (0: all cores; output is the same for any number)'),
-            QgsProcessingParameterNumber.Integer, 0, minValue=0, maxValue=1024)))
-        self.addParameter(advanced(QgsProcessingParameterString(
-            self.EXTRA_OPTIONS, tr('Additional tinbuild hydrology options (as on the command line)'), optional=True)))
+        self.addAdvancedParameters()
         self.addParameter(QgsProcessingParameterFolderDestination(self.OUTPUT_FOLDER, tr('Output folder')))
         self.addOutput(QgsProcessingOutputRasterLayer(self.HAND, tr('HAND')))
         self.addOutput(QgsProcessingOutputVectorLayer(self.STREAMS, tr('Streams'), QgsProcessing.TypeVectorLine))
@@ -757,15 +741,7 @@ class Hydrology(QgsProcessingAlgorithm):
             scratch = tempfile.mkdtemp(prefix='tinbuild-', dir=QgsProcessingUtils.tempFolder())
             for flow in flows:
                 args += ['--flow', layerAsFile(flow, context, feedback, scratch)]
-        threads = self.parameterAsInt(parameters, self.THREADS, context)
-        if threads > 0:
-            args += ['--threads', str(threads)]
-        extra = self.parameterAsString(parameters, self.EXTRA_OPTIONS, context)
-        if extra and extra.strip():
-            try:
-                args += shlex.split(extra)
-            except ValueError as e:
-                raise QgsProcessingException(tr('Additional tinbuild options: {}').format(e))
+        args += self.advancedArgs(parameters, context)
         exe, version = runner.executable()
         feedback.pushInfo(tr('tinbuild {} at {}').format(runner.versionText(version), exe))
         runner.run(args, feedback, exe)
@@ -776,9 +752,9 @@ class Hydrology(QgsProcessingAlgorithm):
             raise QgsProcessingException(tr('tinbuild finished but its report {} cannot be read: {}').format(report, e))
         hand = os.path.join(out, 'hand.vrt')
         streams = os.path.join(out, 'streams.gpkg') + '|layername=streams'
-        TinbuildAlgorithm.loadOnCompletion(context, hand, tr('HAND'), self.HAND, QgsProcessingUtils.LayerHint.Raster,
+        self.loadOnCompletion(context, hand, tr('HAND'), self.HAND, QgsProcessingUtils.LayerHint.Raster,
                                            styles.styleHand)
-        TinbuildAlgorithm.loadOnCompletion(context, streams, tr('Streams'), self.STREAMS,
+        self.loadOnCompletion(context, streams, tr('Streams'), self.STREAMS,
                                            QgsProcessingUtils.LayerHint.Vector, styles.styleStreams)
         results = {self.HAND: hand, self.STREAMS: streams, self.DEPTH: None, self.FLOOD: None, self.REPORT: report,
                    self.LINKS: data.get('streams', {}).get('links'),
@@ -786,9 +762,9 @@ class Hydrology(QgsProcessingAlgorithm):
         if staged:
             depth = os.path.join(out, 'depth.vrt')
             flood = os.path.join(out, 'flood.gpkg') + '|layername=flood'
-            TinbuildAlgorithm.loadOnCompletion(context, depth, tr('Flood depth'), self.DEPTH,
+            self.loadOnCompletion(context, depth, tr('Flood depth'), self.DEPTH,
                                                QgsProcessingUtils.LayerHint.Raster, styles.styleDepth)
-            TinbuildAlgorithm.loadOnCompletion(context, flood, tr('Flood extent'), self.FLOOD,
+            self.loadOnCompletion(context, flood, tr('Flood extent'), self.FLOOD,
                                                QgsProcessingUtils.LayerHint.Vector, styles.styleFlood)
             results.update({self.DEPTH: depth, self.FLOOD: flood})
         return results
