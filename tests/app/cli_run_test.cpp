@@ -658,7 +658,8 @@ TEST(CliRun, BenchFinalizeReportsEveryPassAgainstTheRawRead) {
 TEST(CliRun, HelpMatchesTheDocs) {
   const std::string usage = slurp(fs::path(TINBUILD_SOURCE_DIR) / "docs" / "usage.md");
   ASSERT_FALSE(usage.empty());
-  for (const std::string cmd : {"info", "build", "finalize", "triangulate", "tetrahedralize", "verify", "plan", "merge", "demo", "bench"}) {
+  for (const std::string cmd : {"info", "build", "finalize", "triangulate", "tetrahedralize", "verify",
+                                "plan", "merge", "demo", "bench", "hydrology"}) {
     auto h = tinbuild("help " + cmd);
     ASSERT_EQ(h.code, 0) << cmd;
     std::set<std::string> helpOptions;

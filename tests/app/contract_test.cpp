@@ -241,8 +241,9 @@ fs::path makeSurvey() {
 }
 
 TEST(Contract, EveryCommandHasItsCase) {
-  const std::set<std::string> covered = {"info",   "build", "finalize", "triangulate", "tetrahedralize",
-                                         "verify", "plan",  "merge",    "demo",        "bench"};
+  const std::set<std::string> covered = {"info",           "build",  "finalize", "triangulate",
+                                         "tetrahedralize", "verify", "plan",     "merge",
+                                         "demo",           "bench",  "hydrology"};
   const std::vector<std::string> listed = listedCommands();
   ASSERT_GE(listed.size(), 8u);
   for (const std::string& c : listed)
@@ -261,6 +262,17 @@ TEST(Contract, Build) {
   checkWriter({"build --gpkg", {}, "build {in} --gpkg {out}" + kCrs, "tin.gpkg"}, makeSurvey());
   // (Into folders the run creates: a stopped run removes them again.)
   checkWriter({"build into new folders", {}, "build {in} --mesh {out}" + kCrs, "new/sub/tin.smb"},
+              makeSurvey());
+}
+
+// The hydrology of a DEM the build made first (its input), into a folder.
+TEST(Contract, Hydrology) {
+  checkWriter({"hydrology",
+               {"build in.smb --dem dem.tif --step 1" + kCrs},
+               "hydrology dem.tif -o {out} --stream-area 100m2 --stage 1 -q",
+               "hydro",
+               true,
+               "dem.tif"},
               makeSurvey());
 }
 
