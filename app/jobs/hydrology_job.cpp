@@ -25,6 +25,7 @@
 #include "formats/vector/hydrology_layers.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/json_writer.h"
+#include "libterrain/core/report_text.h"
 #include "libterrain/hydrology/stream_lines.h"
 
 namespace tinbuild {
@@ -613,11 +614,7 @@ std::string formatHydrologyJson(const HydrologyReport& r) {
 }
 
 std::string formatHydrologySummary(const HydrologyReport& r) {
-  auto num = [](double v) {
-    char b[64];
-    std::snprintf(b, sizeof b, "%.6g", v);
-    return std::string(b);
-  };
+  auto num = [](double v) { return formatDouble("%.6g", v); };
   const double cells = static_cast<double>(r.width) * static_cast<double>(r.height);
   std::string s;
   s += "hydrology of " + r.dem + " -> " + r.outDir + "/\n";

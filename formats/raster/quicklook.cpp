@@ -99,14 +99,19 @@ void drawContours(const std::string& path, const double* geo, double sx, double 
   GDALClose(ds);
 }
 
+// The colour at t (0..1) of a ramp of `n` evenly spaced stops, interpolated linearly.
+void interpolate(const double (*stops)[3], int n, double t, double rgb[3]) {
+  t = std::clamp(t, 0.0, 1.0) * (n - 1);
+  const int k = std::min(n - 2, static_cast<int>(t));
+  const double f = t - k;
+  for (int c = 0; c < 3; ++c) rgb[c] = stops[k][c] * (1 - f) + stops[k + 1][c] * f;
+}
+
 // Low green, olive, tan, brown, light grey: a classic hypsometric ramp.
 void ramp(double t, double rgb[3]) {
   static const double stops[5][3] = {
       {70, 130, 60}, {150, 170, 90}, {210, 190, 130}, {160, 120, 80}, {235, 235, 235}};
-  t = std::clamp(t, 0.0, 1.0) * 4;
-  const int k = std::min(3, static_cast<int>(t));
-  const double f = t - k;
-  for (int c = 0; c < 3; ++c) rgb[c] = stops[k][c] * (1 - f) + stops[k + 1][c] * f;
+  interpolate(stops, 5, t, rgb);
 }
 
 // Writes the RGBA planes as `png` (via a temporary name, committed like every output).
@@ -210,11 +215,7 @@ void writeHydrologyPng(const std::string& hand, const std::string& depth, const 
     const bool nodata = (a.hasNodata && v == a.nodata) || !std::isfinite(v);
     const double shade = s.values.empty() ? 0.8 : (s.values[k] > 0 ? s.values[k] / 255.0 : 0.7);
     double rgb[3] = {170, 170, 170};
-    if (!nodata) {
-      const double t = std::clamp(static_cast<double>(v) / handMax, 0.0, 1.0) * 3;
-      const int i = std::min(2, static_cast<int>(t));
-      for (int c = 0; c < 3; ++c) rgb[c] = stops[i][c] * (1 - (t - i)) + stops[i + 1][c] * (t - i);
-    }
+    if (!nodata) interpolate(stops, 4, static_cast<double>(v) / handMax, rgb);
     if (!d.values.empty()) {
       const float dv = d.values[k];
       if (std::isfinite(dv) && !(d.hasNodata && dv == d.nodata) && dv > 0) {

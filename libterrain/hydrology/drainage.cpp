@@ -149,7 +149,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
     std::vector<float>& dp = depths[wi];
     std::vector<std::uint64_t>& dr = drains[wi];
     h.assign(n, kNoData);
-    dr.assign(n, 0);
+    if (drain) dr.assign(n, 0);  // (only when asked for: 8 bytes a cell)
     std::vector<std::uint32_t>& ca = catchments[wi];
     ca.assign(n, 0);
     if (depth) {
@@ -171,7 +171,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
       ++s.drained;
       const double above = static_cast<double>(td.filledHeights()[i]) - static_cast<double>(a.height);
       h[i] = static_cast<float>(above);
-      dr[i] = static_cast<std::uint64_t>(a.cell) + 1;
+      if (drain) dr[i] = static_cast<std::uint64_t>(a.cell) + 1;
       ca[i] = a.link;
       if (depth && above <= options.stageHeight) {
         const double z = dem ? static_cast<double>(zs[wi][i]) : static_cast<double>(td.filledHeights()[i]);
