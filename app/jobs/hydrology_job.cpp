@@ -338,6 +338,16 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
   bool fits = true;
   rep.tileSize = chooseTileSize(o, threads, static_cast<double>(g.width) * static_cast<double>(g.height),
                                 modelled, fits);
+  // A DEM whose tiles' perimeters alone would not fit in the machine (a VRT declaring 10^18 cells) is
+  // refused now, by name, rather than ending in "out of memory" somewhere in a pass.
+  const double machine =
+      static_cast<double>(::sysconf(_SC_PHYS_PAGES)) * static_cast<double>(::sysconf(_SC_PAGESIZE));
+  if (machine > 0 && modelled > machine)
+    throw DataError(o.dem, std::to_string(g.width) + " x " + std::to_string(g.height) +
+                               " cells: its tiles and their perimeters would need about " +
+                               std::to_string(static_cast<long long>(modelled / 1073741824.0) + 1) +
+                               " GB, more than this machine's " +
+                               std::to_string(static_cast<long long>(machine / 1073741824.0)) + " GB");
   if (!fits)
     diag.warn("hydrology.memory", "",
               "--memory " + std::to_string(o.memoryBytes >> 20) + " MB is less than this DEM needs with " +

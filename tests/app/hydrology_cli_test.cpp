@@ -318,6 +318,14 @@ TEST(HydrologyCli, BadInputsAreNamedBeforeAnyWork) {
   writeDem((dir / "empty.tif").string(), empty);
   refused((dir / "empty.tif").string() + " -o " + out, "no valid cell", 1);
   refused((dir / "dem.tif").string(), "-o DIR", 2);
+  // A raster declaring 10^18 cells: refused at once, by name, with what it would need.
+  {
+    std::ofstream f(dir / "huge.vrt");
+    f << "<VRTDataset rasterXSize=\"1000000000\" rasterYSize=\"1000000000\"><SRS>EPSG:32610</SRS>"
+         "<GeoTransform>500000, 1, 0, 4000000, 0, -1</GeoTransform><VRTRasterBand dataType=\"Float32\" "
+         "band=\"1\"/></VRTDataset>\n";
+  }
+  refused((dir / "huge.vrt").string() + " -o " + out, "huge.vrt: 1000000000 x 1000000000 cells", 1);
   // The output onto the DEM's own folder: an input.
   refused((dir / "dem.tif").string() + " -o " + dir.string(), "", 2);
   // No CRS: the run goes on and says what it assumed.
