@@ -1,5 +1,7 @@
 #include "app/pipeline_options.h"
 
+#include "app/jobs/hydrology_job.h"
+
 #include <unistd.h>
 
 #include <charconv>
@@ -392,7 +394,10 @@ PipelineTable buildRunGroup() {
   t.option("--stream-area", "A", "hydrology: the upstream area that makes a stream (default 1km2)")
       .runOnly()
       .needs(cli::needs("--hydrology", "--hydrology DIR"))
-      .text([](A& a, const std::string& v) { a.run.streamArea = v; });
+      .text([](A& a, const std::string& v) {
+        parseArea(v, 1.0, "--stream-area");  // (checked before the build, not after it)
+        a.run.streamArea = v;
+      });
   t.option("--stage", "H", "hydrology: flood depth and extent for this stage above the drainage")
       .runOnly()
       .needs(cli::needs("--hydrology", "--hydrology DIR"))

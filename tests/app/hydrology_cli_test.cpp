@@ -396,6 +396,11 @@ TEST(HydrologyCli, BuildRunsItOnItsDem) {
   EXPECT_EQ(r.code, 1);
   EXPECT_NE(r.err.find("--overwrite"), std::string::npos) << r.err;
   EXPECT_FALSE(fs::exists(dem));
+  r = tinbuild("build " + las + " --dem " + dem + " --step 2 --hydrology " + (dir / "h2").string() +
+               " --stream-area 0 -q");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("--stream-area"), std::string::npos) << r.err;
+  EXPECT_FALSE(fs::exists(dem));
   r = tinbuild("build " + las + " --mesh " + (dir / "t.smb").string() + " --hydrology " + hydro + " -q");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("--dem"), std::string::npos) << r.err;
