@@ -162,6 +162,9 @@ def runChecks(exe, surveys, work):
 
     # -- the plugin, through QGIS's plugin machinery (as qgis_process loads it) --------------------------
     Processing.initialize()
+    # QGIS names a loaded file after the file by default (a fresh profile); the layers' own names are
+    # checked here, the same on every machine.
+    ProcessingConfig.setSettingValue('PREFER_FILENAME_AS_LAYER_NAME', False)
     qgis.utils.plugin_paths = [PLUGIN_PATH]
     sys.path.insert(0, PLUGIN_PATH)   # as QGIS does for each plugin folder
     qgis.utils.updateAvailablePlugins()
@@ -475,8 +478,6 @@ def runChecks(exe, surveys, work):
     # -- results loaded into the project on completion (what the dialog does) ----------------------------
     project = QgsProject.instance()
     project.removeAllMapLayers()
-    # (QGIS names a loaded file after the file by default; the layers' own names are checked here)
-    ProcessingConfig.setSettingValue('PREFER_FILENAME_AS_LAYER_NAME', False)
     loaded = os.path.join(work, 'loaded')
     processing.runAndLoadResults('tinbuild:builddem', {'INPUT': [topo], 'HILLSHADE': True, 'SLOPE': True,
                                                        'OUTPUT': os.path.join(loaded, 'dem.tif')}, feedback=Feedback())

@@ -241,8 +241,11 @@ class TinbuildAlgorithm(QgsProcessingAlgorithm):
 
     @staticmethod
     def loadOnCompletion(context, path, name, outputName, hint, style=None):
+        """Load an output the user did not name (a hillshade beside the DEM, HAND in the hydrology folder) under
+        its own name: forced, since QGIS's 'prefer the file name' would call it after a fixed file name."""
         if context.project() is not None:
             details = QgsProcessingContext.LayerDetails(name, context.project(), outputName, hint)
+            details.forceName = True
             if style is not None:
                 details.setPostProcessor(styles.postProcessor(path, style))
             context.addLayerToLoadOnCompletion(path, details)
