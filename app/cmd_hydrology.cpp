@@ -9,6 +9,7 @@
 #include "app/command_frame.h"
 #include "app/commands.h"
 #include "app/jobs/hydrology_job.h"
+#include "app/jobs/mpi_run.h"
 #include "app/option_table.h"
 #include "app/pipeline_options.h"
 #include "app/progress_display.h"
@@ -66,6 +67,11 @@ const Table& hydrologyTable() {
         .runOnly()
         .choice({"auto", "lines", "json", "none"},
                 [](HydrologyArgs& a, const std::string& v) { a.run.progress = v; }, {"plain", ""});
+    t.flag("--mpi",
+           "under mpirun: the tiles split across the ranks, the perimeters exchanged; the same pixels as one "
+           "process (rank 0 writes the lines, reports and commits)")
+        .runOnly()
+        .set([](HydrologyArgs& a) { a.run.mpi = true; });
     t.flag("--overwrite", "replace the outputs of an earlier run in DIR").runOnly().set([](HydrologyArgs& a) {
       a.run.overwrite = a.options.overwrite = true;
     });
@@ -84,9 +90,16 @@ int runHydrologyJob(HydrologyOptions o, const RunSettings& rs) {
   // they are reused, rather than mapped and unmapped each time (main's threshold), which cost a fifth of
   // the run in page faults.
   mallopt(M_MMAP_THRESHOLD, 32 << 20);
-  ProgressDisplay progress(parseProgressMode(rs.progress, rs.quiet));
+  if (rs.mpi && !mpiAvailable())
+    throw UsageError(
+        "--mpi: this tinbuild was built without MPI; install Open MPI (Debian: libopenmpi-dev openmpi-bin, "
+        "share/install-deps.sh does) and rebuild, or run the hydrology in one process");
+  // Under --mpi the ranks but the first are quiet: rank 0 draws the progress and reports for the run.
+  const bool secondary = rs.mpi && mpiRankFromEnvironment() > 0;
+  const bool quiet = rs.quiet || secondary;
+  ProgressDisplay progress(parseProgressMode(rs.progress, quiet));
   Diagnostics diag;
-  if (!rs.quiet)
+  if (!quiet)
     diag.setSink([&progress](const std::string& m) {
       progress.finish();
       std::cerr << "tinbuild: warning: " << m << "\n";
@@ -97,11 +110,12 @@ int runHydrologyJob(HydrologyOptions o, const RunSettings& rs) {
   o.reportPath = rs.report;
   std::vector<std::pair<std::string, std::string>> inputs = {{"the DEM", o.dem}};
   for (const std::string& f : o.flows) inputs.emplace_back("--flow", f);
-  CommandFrame frame(rs, inputs);
-  const HydrologyReport report = runHydrology(o, diag);
-  frame.commit(formatHydrologyJson(report), ProgressDisplay::callback, &progress);
+  CommandFrame frame(rs, inputs, !secondary);
+  const HydrologyReport report = rs.mpi ? runMpiHydrology(o, diag) : runHydrology(o, diag);
+  frame.commit(report.secondary ? std::string() : formatHydrologyJson(report), ProgressDisplay::callback,
+               &progress);
   progress.finish();
-  if (!rs.quiet) std::cerr << formatHydrologySummary(report);
+  if (!quiet && !report.secondary) std::cerr << formatHydrologySummary(report);
   return 0;
 }
 
@@ -127,7 +141,7 @@ Command hydrologyCommand() {
       "hydrology",
       "tinbuild hydrology DEM -o DIR [--stream-area A] [--stage H] [--flow FILE] [--tile-size N] [--threads "
       "N]\n"
-      "                   [--memory MB] [--report FILE.json] [--overwrite] [-q]",
+      "                   [--memory MB] [--mpi] [--report FILE.json] [--overwrite] [-q]",
       "floodplain hydrology from a DEM: fill, D8 flow, upstream area, streams, catchments, HAND, flood depth",
       "Reads a DEM (any GDAL raster, a VRT over tiles, or a tinbuild DEM folder) tile by tile and writes in\n"
       "DIR, each as GeoTIFF tiles NAME/NAME_COL_ROW.tif with the mosaic NAME.vrt on the DEM's grid and CRS:\n"

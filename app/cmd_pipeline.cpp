@@ -4,6 +4,7 @@
 // summary and writes the `--report` JSON.
 #include <algorithm>
 #include <filesystem>
+#include <functional>
 #include <iostream>
 #include <memory>
 #include <string>
@@ -95,6 +96,35 @@ int runTriangulateCommand(const cli::ParsedArgs& args) {
       {{"the finalized stream", input}});
 }
 
+// `run` (a build, or a plan's merge), then with --hydrology DIR the hydrology of the DEM it wrote (with its
+// --flow lines), as `tinbuild hydrology` runs it; under --mpi on the same ranks.  DIR is refused before
+// the run, not after an hour of it: the hydrology's folder claims the same way later.
+int withHydrology(const PipelineArgs& a, const std::function<int()>& run) {
+  if (a.run.hydrology.empty()) return run();
+  namespace fs = std::filesystem;
+  std::error_code ec;
+  if (fs::weakly_canonical(a.run.hydrology, ec) == fs::weakly_canonical(a.options.dem.path, ec))
+    throw UsageError("--hydrology " + a.run.hydrology +
+                     " is the DEM's own path (--dem): give it a folder of its own");
+  if (!a.run.overwrite && fs::exists(a.run.hydrology, ec) &&
+      !(fs::is_directory(a.run.hydrology, ec) && fs::is_empty(a.run.hydrology, ec)))
+    throw DataError(a.run.hydrology,
+                    "exists and is not empty; pass --overwrite to replace the hydrology there");
+  run();
+  HydrologyOptions h;
+  h.dem = a.options.dem.path;
+  h.outDir = a.run.hydrology;
+  h.streamArea = a.run.streamArea;
+  h.stage = a.run.stage;
+  h.flows = a.options.constraints.flows;
+  h.threads = a.run.threads;
+  h.overwrite = a.run.overwrite;
+  h.commandLine = "tinbuild hydrology " + h.dem + " -o " + h.outDir;
+  RunSettings rs = a.run;
+  rs.report.clear();  // (the build's report; the hydrology's summary follows the build's)
+  return runHydrologyJob(h, rs);
+}
+
 int runBuildCommand(const cli::ParsedArgs& args) {
   if (args.has("--plan")) {
     // A part of a plan: the plan says what to make; the command line only how to run.
@@ -102,6 +132,10 @@ int runBuildCommand(const cli::ParsedArgs& args) {
       throw UsageError(
           "build --plan: the inputs and outputs are the plan's; give only --part I (and run options)");
     if (!args.has("--part")) throw UsageError("build --plan: say which part: --part I (0-based)");
+    if (args.has("--hydrology"))
+      throw UsageError(
+          "build --plan: --hydrology runs on a whole DEM: give it to the merge (tinbuild merge PLAN.json "
+          "--hydrology DIR), or run `tinbuild hydrology` on the DEM afterwards");
     PipelineArgs a;
     buildTable().bind(args, a, cli::Select::RunOnly);
     // What the outputs are (--step, --keep-class, --water, --mesh, ...) the plan fixed when it was made:
@@ -112,9 +146,6 @@ int runBuildCommand(const cli::ParsedArgs& args) {
                        " fixed it when it was made); give only --part I and how to run it (--threads, "
                        "--temp-dir, --report, -q): make a new plan to change " +
                        fixed.front());
-    if (!a.run.hydrology.empty())
-      throw UsageError(
-          "build --plan: --hydrology runs on a whole DEM: run `tinbuild hydrology` on it after the merge");
     const Plan plan = readPlan(a.run.plan);
     a.options = planOptions(plan);
     a.options.plan = &plan;
@@ -123,41 +154,18 @@ int runBuildCommand(const cli::ParsedArgs& args) {
   }
   PipelineArgs a = parseBuildArgs(args);
   a.options.commandLine = recordedCommand(args);
-  if (!a.run.hydrology.empty()) {
-    // Refused before the build, not after an hour of it: the hydrology's folder claims the same way later.
-    if (a.run.mpi)
-      throw UsageError("--hydrology with --mpi: run `tinbuild hydrology` on the DEM when the run is done");
-    namespace fs = std::filesystem;
-    std::error_code ec;
-    if (fs::weakly_canonical(a.run.hydrology, ec) == fs::weakly_canonical(a.options.dem.path, ec))
-      throw UsageError("--hydrology " + a.run.hydrology +
-                       " is the DEM's own path (--dem): give it a folder of its own");
-    if (!a.run.overwrite && fs::exists(a.run.hydrology, ec) &&
-        !(fs::is_directory(a.run.hydrology, ec) && fs::is_empty(a.run.hydrology, ec)))
-      throw DataError(a.run.hydrology,
-                      "exists and is not empty; pass --overwrite to replace the hydrology there");
-    runWithReport(a, runBuild);
-    HydrologyOptions h;
-    h.dem = a.options.dem.path;
-    h.outDir = a.run.hydrology;
-    h.streamArea = a.run.streamArea;
-    h.stage = a.run.stage;
-    h.flows = a.options.constraints.flows;
-    h.threads = a.run.threads;
-    h.overwrite = a.run.overwrite;
-    h.commandLine = "tinbuild hydrology " + h.dem + " -o " + h.outDir;
-    RunSettings rs = a.run;
-    rs.report.clear();  // (the build's report; the hydrology's summary follows the build's)
-    return runHydrologyJob(h, rs);
-  }
-  if (a.run.mpi) {
-    const std::vector<std::string> buildArgs = planBuildArgs(args, a.options, buildTable());
-    const std::string command = a.options.commandLine;
-    return runWithReport(a, [&](const PipelineOptions& opts, Diagnostics& diag) {
-      return runMpiBuild(opts, buildArgs, command, diag);
-    });
-  }
-  return runWithReport(a, runBuild);
+  // Under --mpi with --hydrology, MPI stays up from the build to the hydrology (the same ranks).
+  const MpiScope scope(a.run.mpi && !a.run.hydrology.empty());
+  return withHydrology(a, [&] {
+    if (a.run.mpi) {
+      const std::vector<std::string> buildArgs = planBuildArgs(args, a.options, buildTable());
+      const std::string command = a.options.commandLine;
+      return runWithReport(a, [&](const PipelineOptions& opts, Diagnostics& diag) {
+        return runMpiBuild(opts, buildArgs, command, diag);
+      });
+    }
+    return runWithReport(a, runBuild);
+  });
 }
 
 int runPlanCommand(const cli::ParsedArgs& args) {
@@ -192,9 +200,13 @@ int runMergeCommand(const cli::ParsedArgs& args) {
   if (args.has("-o")) throw UsageError("merge PLAN.json writes the plan's outputs; -o is for a TIN in parts");
   const Plan plan = readPlan(what);
   a.options = planOptions(plan);
-  return runWithReport(
-      a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runMerge(opts, plan, diag); },
-      {{"the plan", what}});
+  if (!a.run.hydrology.empty() && a.options.dem.path.empty())
+    throw UsageError("merge --hydrology: the plan " + what + " makes no DEM (plan it with --dem DIR)");
+  return withHydrology(a, [&] {
+    return runWithReport(
+        a, [&](const PipelineOptions& opts, Diagnostics& diag) { return runMerge(opts, plan, diag); },
+        {{"the plan", what}});
+  });
 }
 
 int runVerifyCommand(const cli::ParsedArgs& args) {
@@ -316,7 +328,7 @@ Command planCommand() {
 Command mergeCommand() {
   return Command{
       "merge",
-      "tinbuild merge PLAN.json [--report FILE.json] [-q]\n"
+      "tinbuild merge PLAN.json [--hydrology DIR [--stream-area A] [--stage H]] [--report FILE.json] [-q]\n"
       "       tinbuild merge FILE.parts.json -o MESH [--overwrite]",
       "settle the seams of a plan's finished parts and write the index files",
       "Checks that every part of the plan finished (and belongs to it: a part left by another plan, or\n"

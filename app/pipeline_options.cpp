@@ -369,6 +369,8 @@ PipelineTable outputGroup() {
 }
 
 // How `build` runs beside making its outputs: under MPI, or as one part of a plan.  All run-only.
+PipelineTable hydrologyGroup(bool needsDem);
+
 PipelineTable buildRunGroup() {
   PipelineTable t;
   t.flag("--mpi",
@@ -383,14 +385,21 @@ PipelineTable buildRunGroup() {
       .runOnly()
       .needs(cli::needs("--plan", "--plan PLAN.json"))
       .integer(0, 1 << 20, [](A& a, int i) { a.run.part = i; });
-  // The hydrology of the DEM the build writes (app/cmd_hydrology.cpp), after the build has committed.
-  t.option(
-       "--hydrology", "DIR",
-       "then run `tinbuild hydrology` on the DEM into DIR (fill, flow, streams, HAND...; with the build's "
-       "--flow lines breached)")
-      .runOnly()
-      .needs(kDem)
-      .text([](A& a, const std::string& v) { a.run.hydrology = v; });
+  t.add(hydrologyGroup(true));
+  return t;
+}
+
+// The hydrology of the DEM a build or a plan's merge writes (app/cmd_hydrology.cpp), after it has
+// committed.  `needsDem`: the build's --dem must be given (a merge's DEM is the plan's).
+PipelineTable hydrologyGroup(bool needsDem) {
+  PipelineTable t;
+  auto h =
+      t.option("--hydrology", "DIR",
+               "then run `tinbuild hydrology` on the DEM into DIR (fill, flow, streams, HAND...; with the "
+               "build's --flow lines breached; under --mpi on the same ranks)");
+  h.runOnly();
+  if (needsDem) h.needs(kDem);
+  h.text([](A& a, const std::string& v) { a.run.hydrology = v; });
   t.option("--stream-area", "A", "hydrology: the upstream area that makes a stream (default 1km2)")
       .runOnly()
       .needs(cli::needs("--hydrology", "--hydrology DIR"))
@@ -505,8 +514,8 @@ const PipelineTable& triangulateTable() {
 }
 
 const PipelineTable& mergeTable() {
-  static const PipelineTable t =
-      PipelineTable().add(outputFile("MESH", "merge FILE.parts.json: the joined mesh"), reportGroup());
+  static const PipelineTable t = PipelineTable().add(
+      outputFile("MESH", "merge FILE.parts.json: the joined mesh"), reportGroup(), hydrologyGroup(false));
   return t;
 }
 

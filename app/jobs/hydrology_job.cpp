@@ -12,6 +12,7 @@
 #include <cstring>
 #include <filesystem>
 #include <memory>
+#include <optional>
 #include <set>
 #include <thread>
 
@@ -158,8 +159,11 @@ class Staging {
     work_ = (fs::path(path_) / "work").string();
     fs::create_directories(work_, ec);
   }
+  // The staging folder another process made (a run split across processes): written into, never removed.
+  Staging(const std::string& dir, const std::string& path)
+      : dir_(dir), path_(path), work_((fs::path(path) / "work").string()), overwrite_(false), joined_(true) {}
   ~Staging() {
-    if (!handedOver_) {
+    if (!handedOver_ && !joined_) {
       std::error_code ec;
       fs::remove_all(path_, ec);
     }
@@ -235,6 +239,7 @@ class Staging {
  private:
   std::string dir_, path_, work_;
   bool overwrite_;
+  bool joined_ = false;
   bool handedOver_ = false;
   std::set<std::string> written_;
   std::vector<std::string> finals_;
@@ -358,188 +363,232 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
   rep.tiles = static_cast<std::uint64_t>(grid.tiles());
   rep.memoryBytes = o.memoryBytes;
 
-  // --- The claim: DIR, before any work.
-  ClaimSet set;
-  set.outputs.push_back(OutputClaim("-o", o.outDir).folder());
-  set.inputs.emplace_back("the DEM", o.dem);
-  for (const std::string& f : o.flows) set.inputs.emplace_back("--flow", f);
-  if (!o.reportPath.empty()) set.others.emplace_back("--report", o.reportPath);
-  set.overwrite = o.overwrite;
-  set.commandLine = o.commandLine;
-  RunLock lock = claimOutputs(set);
-  // GDAL's block cache: a sixteenth of the budget (the passes read and write whole tiles, and read their
-  // own tiles file by file); a DEM given as a VRT keeps few of its files open.
-  limitGdalForTiles(o.memoryBytes / 16, 16);
+  hydrology::Peers* peers = o.peers;
+  const bool lead = !peers || peers->rank() == 0;
+  rep.processes = peers ? peers->size() : 1;
+  rep.secondary = !lead;
+  // (Declared before the work: a failing process tells the others before its staging folder goes, so
+  // the first removes it only once no process writes there any more.)
+  std::unique_ptr<Staging> staged;
+  try {
+    // --- The claim: DIR, before any work (split across processes: by the first, for all).
+    ClaimSet set;
+    set.outputs.push_back(OutputClaim("-o", o.outDir).folder());
+    set.inputs.emplace_back("the DEM", o.dem);
+    for (const std::string& f : o.flows) set.inputs.emplace_back("--flow", f);
+    if (!o.reportPath.empty()) set.others.emplace_back("--report", o.reportPath);
+    set.overwrite = o.overwrite;
+    set.commandLine = o.commandLine;
+    std::optional<RunLock> lock;
+    if (lead) lock.emplace(claimOutputs(set));
+    // GDAL's block cache: a sixteenth of the budget (the passes read and write whole tiles, and read their
+    // own tiles file by file); a DEM given as a VRT keeps few of its files open.
+    limitGdalForTiles(o.memoryBytes / 16, 16);
 
-  Staging staging(o.outDir, o.overwrite);
-  const int passes = 6 + (o.flows.empty() ? 0 : 1) + (o.stage ? 1 : 0);
-  PassProgress progress(o, passes, rep.tiles);
-  auto pass = [&](const char* name, auto&& body) {
-    const auto p0 = Clock::now();
-    progress.begin(name, rep.tiles);
-    body();
-    progress.end();
-    throwIfCancelled(o.cancel);
-    rep.passes.push_back({name, std::chrono::duration<double>(Clock::now() - p0).count(), peakRssBytes()});
-  };
-  auto workPath = [&](const std::string& name) {
-    return (fs::path(staging.work()) / (name + ".vrt")).string();
-  };
+    if (lead) staged = std::make_unique<Staging>(o.outDir, o.overwrite);
+    if (peers && peers->size() > 1) {  // (the first's staging folder, to the others)
+      hydrology::PeerWriter w;
+      if (lead) w.bytes.assign(staged->path().begin(), staged->path().end());
+      const auto all = peers->allgather(w.bytes);
+      if (!lead) staged = std::make_unique<Staging>(o.outDir, std::string(all[0].begin(), all[0].end()));
+    }
+    Staging& staging = *staged;
+    const std::uint64_t ownedTiles = hydrology::ownedTiles(grid, peers).size();
+    // A raster's tiles and mosaic into the commit: by the first process, once every process wrote its tiles.
+    auto commitRaster = [&](auto& tiles, const std::string& name) {
+      if (!lead) return;
+      if (peers && peers->size() > 1) tiles.adoptEveryTile(grid);
+      staging.raster(tiles, name);
+    };
+    const int passes = 6 + (o.flows.empty() ? 0 : 1) + (o.stage ? 1 : 0);
+    PassProgress progress(o, passes, rep.tiles);
+    auto pass = [&](const char* name, auto&& body) {
+      const auto p0 = Clock::now();
+      progress.begin(name, ownedTiles);
+      body();
+      progress.end();
+      throwIfCancelled(o.cancel);
+      rep.passes.push_back({name, std::chrono::duration<double>(Clock::now() - p0).count(), peakRssBytes()});
+    };
+    auto workPath = [&](const std::string& name) {
+      return (fs::path(staging.work()) / (name + ".vrt")).string();
+    };
 
-  GdalTiles<float> demTiles(o.dem, kNoData);
-  TileSource* dem = &demTiles;
-  std::unique_ptr<BreachedDem> breached;
-  if (!flowLines.flows.empty())
-    pass("breach", [&] {
-      std::vector<GridLine> lines;
-      for (const ConstraintLine& l : flowLines.flows) {
-        GridLine line;
-        for (const ConstraintPoint& p : l.points)
-          line.emplace_back((p.x - g.geoTransform[0]) / g.geoTransform[1],
-                            (p.y - g.geoTransform[3]) / g.geoTransform[5]);
-        lines.push_back(std::move(line));
-      }
-      auto lowered = breachLines(grid, demTiles, lines, rep.breach, o.cancel);
-      breached = std::make_unique<BreachedDem>(grid, demTiles, std::move(lowered));
-      dem = breached.get();
+    GdalTiles<float> demTiles(o.dem, kNoData);
+    TileSource* dem = &demTiles;
+    std::unique_ptr<BreachedDem> breached;
+    if (!flowLines.flows.empty())
+      pass("breach", [&] {
+        std::vector<GridLine> lines;
+        for (const ConstraintLine& l : flowLines.flows) {
+          GridLine line;
+          for (const ConstraintPoint& p : l.points)
+            line.emplace_back((p.x - g.geoTransform[0]) / g.geoTransform[1],
+                              (p.y - g.geoTransform[3]) / g.geoTransform[5]);
+          lines.push_back(std::move(line));
+        }
+        auto lowered = breachLines(grid, demTiles, lines, rep.breach, o.cancel);
+        breached = std::make_unique<BreachedDem>(grid, demTiles, std::move(lowered));
+        dem = breached.get();
+      });
+
+    // fill
+    GeoTiffTiles<float> filledOut(staging.path(), "filled", g, kFloatNoData);
+    pass("fill", [&] {
+      Ticking<float> t(filledOut, progress);
+      FillOptions fo;
+      fo.threads = threads;
+      fo.cancel = o.cancel;
+      fo.peers = peers;
+      rep.fill = fillDepressions(grid, *dem, t, fo);
+      if (rep.fill.cells == 0) throw DataError(o.dem, "the DEM has no valid cell (every cell is nodata)");
+    });
+    commitRaster(filledOut, "filled");
+    TileFiles<float> filled(staging.path(), "filled", grid, kFloatNoData, kNoData);
+
+    // flow directions
+    GeoTiffTiles<std::uint8_t> flowOut(staging.path(), "flowdir", g, kFlowNoData);
+    pass("flow directions", [&] {
+      Ticking<std::uint8_t> t(flowOut, progress);
+      FlowOptions fo;
+      fo.threads = threads;
+      fo.dx = rep.dx;
+      fo.dy = rep.dy;
+      fo.cancel = o.cancel;
+      fo.peers = peers;
+      rep.flow = flowDirections(grid, filled, t, fo);
+    });
+    commitRaster(flowOut, "flowdir");
+    TileFiles<std::uint8_t> flowdir(staging.path(), "flowdir", grid, kFlowNoData, kFlowNoData);
+
+    // upstream area
+    GeoTiffTiles<std::uint64_t> countsOut(staging.work(), "counts", g, 0, true);
+    GeoTiffTiles<double> accumOut(staging.path(), "accum", g, -9999.0);
+    pass("upstream area", [&] {
+      Ticking<double> t(accumOut, progress);
+      AccumulationOptions ao;
+      ao.threads = threads;
+      ao.cellArea = rep.cellArea;
+      ao.cancel = o.cancel;
+      ao.peers = peers;
+      rep.accum = accumulate(grid, flowdir, &countsOut, &t, ao);
+    });
+    commitRaster(accumOut, "accum");
+    TileFiles<std::uint64_t> counts(staging.work(), "counts", grid, 0, 0);
+
+    // streams
+    GeoTiffTiles<std::uint32_t> streamsOut(staging.path(), "streams", g, 0);
+    std::vector<StreamLink> table;
+    pass("streams", [&] {
+      Ticking<std::uint32_t> t(streamsOut, progress);
+      StreamOptions so;
+      so.threads = threads;
+      so.cellArea = rep.cellArea;
+      so.streamArea = rep.streamArea;
+      so.dx = rep.dx;
+      so.dy = rep.dy;
+      so.cancel = o.cancel;
+      so.peers = peers;
+      rep.streams = streamLinks(grid, flowdir, counts, t, table, so);
+      rep.links = table.size();
+    });
+    commitRaster(streamsOut, "streams");
+    TileFiles<std::uint32_t> links(staging.path(), "streams", grid, 0, 0);
+
+    // HAND, catchments, depth
+    GeoTiffTiles<float> handOut(staging.path(), "hand", g, kFloatNoData);
+    GeoTiffTiles<std::uint32_t> catchOut(staging.path(), "catchments", g, 0);
+    std::unique_ptr<GeoTiffTiles<float>> depthOut;
+    std::unique_ptr<GeoTiffTiles<std::uint8_t>> maskOut;
+    if (o.stage) {
+      depthOut = std::make_unique<GeoTiffTiles<float>>(staging.path(), "depth", g, kFloatNoData);
+      maskOut = std::make_unique<GeoTiffTiles<std::uint8_t>>(staging.work(), "flooded", g, 0, true);
+    }
+    pass("drainage", [&] {
+      Ticking<float> t(handOut, progress);
+      std::unique_ptr<DepthAndMask> dm;
+      if (o.stage) dm = std::make_unique<DepthAndMask>(*depthOut, *maskOut);
+      DrainageIO io;
+      io.flowdir = &flowdir;
+      io.counts = &counts;
+      io.filled = &filled;
+      io.dem = &demTiles;  // the depth is water over the ground, the lidar's (not the breached cells)
+      io.links = &links;
+      io.hand = &t;
+      io.catchments = &catchOut;
+      io.depth = dm.get();
+      DrainageOptions d;
+      d.threads = threads;
+      d.cellArea = rep.cellArea;
+      d.streamArea = rep.streamArea;
+      d.stage = o.stage.has_value();
+      d.stageHeight = o.stage.value_or(0);
+      d.cancel = o.cancel;
+      d.peers = peers;
+      rep.drainage = drainage(grid, io, d);
+    });
+    commitRaster(handOut, "hand");
+    commitRaster(catchOut, "catchments");
+    if (o.stage) commitRaster(*depthOut, "depth");
+
+    // The stream lines (and the flood's polygons): one file each, by the first process.
+    pass("stream lines", [&] {
+      if (!lead) return;
+      const std::string path = staging.path() + "/streams.gpkg";
+      StreamLineWriter writer(path, g.crsWkt);
+      std::uint64_t done = 0;
+      const std::uint64_t step =
+          std::max<std::uint64_t>(table.size() / std::max<std::uint64_t>(rep.tiles, 1), 1);
+      traceStreamLines(grid, flowdir, links, table, threads, o.cancel,
+                       [&](const StreamLink& l, const std::vector<std::int64_t>& cells) {
+                         StreamLineRecord r;
+                         r.link = l.id;
+                         r.downstream = l.downstream;
+                         r.strahler = l.strahler;
+                         r.upstreamArea = static_cast<double>(l.upstreamCells) * rep.cellArea;
+                         r.length = l.length(rep.dx, rep.dy);
+                         r.cells = l.cells;
+                         for (std::int64_t c : cells) r.xy.push_back(centre(g, c));
+                         if (r.xy.size() == 1)
+                           r.xy.push_back(r.xy.front());  // (a link of one cell at the DEM's edge)
+                         writer.add(r);
+                         if (++done % step == 0) progress.tick();
+                       });
+      writer.close();
+      staging.file(path, "streams.gpkg");
     });
 
-  // fill
-  GeoTiffTiles<float> filledOut(staging.path(), "filled", g, kFloatNoData);
-  pass("fill", [&] {
-    Ticking<float> t(filledOut, progress);
-    FillOptions fo;
-    fo.threads = threads;
-    fo.cancel = o.cancel;
-    rep.fill = fillDepressions(grid, *dem, t, fo);
-    if (rep.fill.cells == 0) throw DataError(o.dem, "the DEM has no valid cell (every cell is nodata)");
-  });
-  staging.raster(filledOut, "filled");
-  TileFiles<float> filled(staging.path(), "filled", grid, kFloatNoData, kNoData);
+    if (o.stage)
+      pass("flood extent", [&] {
+        if (!lead) return;
+        const std::string path = staging.path() + "/flood.gpkg";
+        if (peers && peers->size() > 1) maskOut->adoptEveryTile(grid);
+        maskOut->finish();
+        rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel);
+        staging.file(path, "flood.gpkg");
+      });
 
-  // flow directions
-  GeoTiffTiles<std::uint8_t> flowOut(staging.path(), "flowdir", g, kFlowNoData);
-  pass("flow directions", [&] {
-    Ticking<std::uint8_t> t(flowOut, progress);
-    FlowOptions fo;
-    fo.threads = threads;
-    fo.dx = rep.dx;
-    fo.dy = rep.dy;
-    fo.cancel = o.cancel;
-    rep.flow = flowDirections(grid, filled, t, fo);
-  });
-  staging.raster(flowOut, "flowdir");
-  TileFiles<std::uint8_t> flowdir(staging.path(), "flowdir", grid, kFlowNoData, kFlowNoData);
-
-  // upstream area
-  GeoTiffTiles<std::uint64_t> countsOut(staging.work(), "counts", g, 0, true);
-  GeoTiffTiles<double> accumOut(staging.path(), "accum", g, -9999.0);
-  pass("upstream area", [&] {
-    Ticking<double> t(accumOut, progress);
-    AccumulationOptions ao;
-    ao.threads = threads;
-    ao.cellArea = rep.cellArea;
-    ao.cancel = o.cancel;
-    rep.accum = accumulate(grid, flowdir, &countsOut, &t, ao);
-  });
-  staging.raster(accumOut, "accum");
-  TileFiles<std::uint64_t> counts(staging.work(), "counts", grid, 0, 0);
-
-  // streams
-  GeoTiffTiles<std::uint32_t> streamsOut(staging.path(), "streams", g, 0);
-  std::vector<StreamLink> table;
-  pass("streams", [&] {
-    Ticking<std::uint32_t> t(streamsOut, progress);
-    StreamOptions so;
-    so.threads = threads;
-    so.cellArea = rep.cellArea;
-    so.streamArea = rep.streamArea;
-    so.dx = rep.dx;
-    so.dy = rep.dy;
-    so.cancel = o.cancel;
-    rep.streams = streamLinks(grid, flowdir, counts, t, table, so);
-    rep.links = table.size();
-  });
-  staging.raster(streamsOut, "streams");
-  TileFiles<std::uint32_t> links(staging.path(), "streams", grid, 0, 0);
-
-  // HAND, catchments, depth
-  GeoTiffTiles<float> handOut(staging.path(), "hand", g, kFloatNoData);
-  GeoTiffTiles<std::uint32_t> catchOut(staging.path(), "catchments", g, 0);
-  std::unique_ptr<GeoTiffTiles<float>> depthOut;
-  std::unique_ptr<GeoTiffTiles<std::uint8_t>> maskOut;
-  if (o.stage) {
-    depthOut = std::make_unique<GeoTiffTiles<float>>(staging.path(), "depth", g, kFloatNoData);
-    maskOut = std::make_unique<GeoTiffTiles<std::uint8_t>>(staging.work(), "flooded", g, 0, true);
+    // Split across processes: the others wait for the first's files (and learn of its failure), and the
+    // report gives the largest peak of any process.
+    std::vector<std::uint64_t> peak{peakRssBytes()};
+    hydrology::sumOverPeers(peers, peak, true);
+    const std::vector<std::string> names = {"filled",     "flowdir", "accum", "streams",
+                                            "catchments", "hand",    "depth", "flood"};
+    if (lead) staging.handOver(names);
+    rep.outputs = staging.finals();
+    rep.warnings = diag.entries();
+    rep.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
+    rep.peakRssBytes = peak[0];
+    return rep;
+  } catch (const hydrology::PeerFailed&) {
+    throw;  // (another process failed: every process knows)
+  } catch (const CancelledError&) {
+    if (peers) peers->fail("cancelled");
+    throw;
+  } catch (const std::exception& e) {
+    if (peers) peers->fail(e.what());
+    throw;
   }
-  pass("drainage", [&] {
-    Ticking<float> t(handOut, progress);
-    std::unique_ptr<DepthAndMask> dm;
-    if (o.stage) dm = std::make_unique<DepthAndMask>(*depthOut, *maskOut);
-    DrainageIO io;
-    io.flowdir = &flowdir;
-    io.counts = &counts;
-    io.filled = &filled;
-    io.dem = &demTiles;  // the depth is water over the ground, the lidar's (not the breached cells)
-    io.links = &links;
-    io.hand = &t;
-    io.catchments = &catchOut;
-    io.depth = dm.get();
-    DrainageOptions d;
-    d.threads = threads;
-    d.cellArea = rep.cellArea;
-    d.streamArea = rep.streamArea;
-    d.stage = o.stage.has_value();
-    d.stageHeight = o.stage.value_or(0);
-    d.cancel = o.cancel;
-    rep.drainage = drainage(grid, io, d);
-  });
-  staging.raster(handOut, "hand");
-  staging.raster(catchOut, "catchments");
-  if (o.stage) staging.raster(*depthOut, "depth");
-
-  // The stream lines.
-  pass("stream lines", [&] {
-    const std::string path = staging.path() + "/streams.gpkg";
-    StreamLineWriter writer(path, g.crsWkt);
-    std::uint64_t done = 0;
-    const std::uint64_t step =
-        std::max<std::uint64_t>(table.size() / std::max<std::uint64_t>(rep.tiles, 1), 1);
-    traceStreamLines(grid, flowdir, links, table, threads, o.cancel,
-                     [&](const StreamLink& l, const std::vector<std::int64_t>& cells) {
-                       StreamLineRecord r;
-                       r.link = l.id;
-                       r.downstream = l.downstream;
-                       r.strahler = l.strahler;
-                       r.upstreamArea = static_cast<double>(l.upstreamCells) * rep.cellArea;
-                       r.length = l.length(rep.dx, rep.dy);
-                       r.cells = l.cells;
-                       for (std::int64_t c : cells) r.xy.push_back(centre(g, c));
-                       if (r.xy.size() == 1)
-                         r.xy.push_back(r.xy.front());  // (a link of one cell at the DEM's edge)
-                       writer.add(r);
-                       if (++done % step == 0) progress.tick();
-                     });
-    writer.close();
-    staging.file(path, "streams.gpkg");
-  });
-
-  if (o.stage)
-    pass("flood extent", [&] {
-      const std::string path = staging.path() + "/flood.gpkg";
-      maskOut->finish();
-      rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel);
-      staging.file(path, "flood.gpkg");
-    });
-
-  const std::vector<std::string> names = {"filled",     "flowdir", "accum", "streams",
-                                          "catchments", "hand",    "depth", "flood"};
-  staging.handOver(names);
-  rep.outputs = staging.finals();
-  rep.warnings = diag.entries();
-  rep.seconds = std::chrono::duration<double>(Clock::now() - t0).count();
-  rep.peakRssBytes = peakRssBytes();
-  return rep;
 }
 
 std::string formatHydrologyJson(const HydrologyReport& r) {
@@ -561,6 +610,7 @@ std::string formatHydrologyJson(const HydrologyReport& r) {
   else
     j.key("stage").null();
   j.key("threads").value(r.threads);
+  j.key("processes").value(r.processes);
   j.key("memory_budget_bytes").value(static_cast<std::uint64_t>(r.memoryBytes));
   if (r.flowLines) {
     j.key("breach").beginObject();

@@ -34,6 +34,7 @@
 #include "libterrain/hydrology/drainage.h"
 #include "libterrain/hydrology/fill.h"
 #include "libterrain/hydrology/flow_directions.h"
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/streams.h"
 
 namespace tinbuild {
@@ -53,6 +54,10 @@ struct HydrologyOptions {
   const CancelFlag* cancel = nullptr;
   int (*progress)(double, const char*, void*) = nullptr;
   void* progressData = nullptr;
+  // Split across processes (`--mpi`: libterrain/hydrology/peers.h): each sweeps its own tiles into the
+  // one staging folder; the first (rank 0) claims DIR, writes the stream lines and the flood polygons,
+  // reports and commits.  None: one process.
+  hydrology::Peers* peers = nullptr;
 };
 
 struct HydrologyPass {
@@ -85,7 +90,9 @@ struct HydrologyReport {
   std::vector<std::string> outputs;  // final paths, rasters as their mosaics
   std::vector<Diagnostics::Entry> warnings;
   double seconds = 0;
-  std::uint64_t peakRssBytes = 0;
+  std::uint64_t peakRssBytes = 0;  // split across processes: the largest of theirs
+  int processes = 1;
+  bool secondary = false;  // a process of a split run but the first: the first reports for the run
 };
 
 // The run (see the header).  UsageError / DataError / CancelledError as every job.

@@ -48,6 +48,15 @@ RunReport runMpiBuild(const PipelineOptions&, const std::vector<std::string>&, c
       "share/install-deps.sh does) and rebuild, or use tinbuild plan / build --plan --part / merge");
 }
 
+MpiScope::MpiScope(bool) {}
+MpiScope::~MpiScope() = default;
+
+HydrologyReport runMpiHydrology(HydrologyOptions, Diagnostics&) {
+  throw UsageError(
+      "--mpi: this tinbuild was built without MPI; install Open MPI (Debian: libopenmpi-dev openmpi-bin, "
+      "share/install-deps.sh does) and rebuild, or run the hydrology in one process");
+}
+
 #else
 
 bool mpiAvailable() {
@@ -495,7 +504,107 @@ struct MpiSession {
   }
 };
 
+// The hydrology's transport (libterrain/hydrology/peers.h) over MPI.  Each exchange is two collectives:
+// every rank's length (negative: the rank failed, its reason follows), then the bytes.
+class MpiPeers final : public hydrology::Peers {
+ public:
+  MpiPeers(int rank, int size) : rank_(rank), size_(size) {}
+  int rank() const override { return rank_; }
+  int size() const override { return size_; }
+  std::vector<std::vector<std::uint8_t> > allgather(const std::vector<std::uint8_t>& mine) override {
+    return exchange(static_cast<std::int64_t>(mine.size()), mine);
+  }
+  void fail(const std::string& reason) override {
+    if (failed_) return;  // (it learned of a failure at an exchange: every rank knows already)
+    try {
+      exchange(-1 - static_cast<std::int64_t>(reason.size()),
+               std::vector<std::uint8_t>(reason.begin(), reason.end()));
+    } catch (const hydrology::PeerFailed&) {
+    }
+  }
+  // After a failure: whether every failed rank was stopped (SIGTERM, SIGINT) rather than in error.
+  bool cancelled() const { return cancelled_; }
+
+ private:
+  std::vector<std::vector<std::uint8_t> > exchange(std::int64_t length,
+                                                   const std::vector<std::uint8_t>& bytes) {
+    std::vector<std::uint64_t> lengths(static_cast<std::size_t>(size_));
+    auto mine = static_cast<std::uint64_t>(length);
+    mpi().allgather(&mine, 1, lengths.data(), kTinbuildMpiUint64);
+    bool failure = false;
+    std::vector<int> counts(static_cast<std::size_t>(size_)), offsets(counts);
+    std::int64_t total = 0;
+    for (int i = 0; i < size_; ++i) {
+      auto n = static_cast<std::int64_t>(lengths[static_cast<std::size_t>(i)]);
+      if (n < 0) {
+        failure = true;
+        n = -1 - n;
+      }
+      counts[static_cast<std::size_t>(i)] = static_cast<int>(n);
+      offsets[static_cast<std::size_t>(i)] = static_cast<int>(total);
+      total += n;
+    }
+    if (total > std::int64_t{2147483647})
+      throw Error("hydrology --mpi: one exchange of perimeters would exceed 2 GiB (" + std::to_string(total) +
+                  " bytes); use smaller tiles (--tile-size) or more ranks");
+    std::vector<std::uint8_t> all(static_cast<std::size_t>(total));
+    mpi().allgatherv(bytes.data(), static_cast<int>(bytes.size()), all.data(), counts.data(), offsets.data(),
+                     kTinbuildMpiChar);
+    if (failure) {
+      failed_ = true;
+      cancelled_ = true;
+      std::string report;
+      for (int i = 0; i < size_; ++i) {
+        if (static_cast<std::int64_t>(lengths[static_cast<std::size_t>(i)]) >= 0) continue;
+        const std::string why(
+            all.begin() + offsets[static_cast<std::size_t>(i)],
+            all.begin() + offsets[static_cast<std::size_t>(i)] + counts[static_cast<std::size_t>(i)]);
+        if (why != "cancelled") cancelled_ = false;
+        if (!report.empty()) report += "; ";
+        report += "rank " + std::to_string(i) + " failed: " + why;
+      }
+      throw hydrology::PeerFailed(report);
+    }
+    std::vector<std::vector<std::uint8_t> > out(static_cast<std::size_t>(size_));
+    for (int i = 0; i < size_; ++i)
+      out[static_cast<std::size_t>(i)].assign(
+          all.begin() + offsets[static_cast<std::size_t>(i)],
+          all.begin() + offsets[static_cast<std::size_t>(i)] + counts[static_cast<std::size_t>(i)]);
+    return out;
+  }
+  int rank_, size_;
+  bool failed_ = false, cancelled_ = false;
+};
+
 }  // namespace
+
+MpiScope::MpiScope(bool wanted) {
+  if (!wanted) return;
+  int rank = 0, size = 1, own = 0;
+  mpi().init(&rank, &size, &own);
+  owned_ = own != 0;
+}
+
+MpiScope::~MpiScope() {
+  if (owned_) mpi().finalize();
+}
+
+HydrologyReport runMpiHydrology(HydrologyOptions options, Diagnostics& diag) {
+  MpiSession session(options.cancel);
+  MpiPeers peers(session.rank, session.size);
+  options.peers = &peers;
+  try {
+    return runHydrology(options, diag);
+  } catch (const hydrology::PeerFailed& e) {
+    // Another rank failed (this one's outputs are already rolled back by the unwinding).
+    if (OutputTransaction* t = OutputTransaction::current()) t->rollback();
+    if (peers.cancelled()) throw CancelledError();
+    throw Error(e.what());
+  } catch (...) {
+    if (OutputTransaction* t = OutputTransaction::current()) t->rollback();
+    throw;
+  }
+}
 
 static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
                       const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag);

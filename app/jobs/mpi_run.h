@@ -15,6 +15,7 @@
 #include <string>
 #include <vector>
 
+#include "app/jobs/hydrology_job.h"
 #include "app/jobs/pipeline.h"
 
 namespace tinbuild {
@@ -31,5 +32,23 @@ int mpiRankFromEnvironment();
 // build as a plan stores it.
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag);
+
+// Keeps MPI initialised over several MPI runs of one command (`build --mpi --hydrology`: the build, then
+// the hydrology on the same ranks); MPI can be initialised only once in a process.  Nothing without MPI.
+class MpiScope {
+ public:
+  explicit MpiScope(bool wanted);
+  ~MpiScope();
+  MpiScope(const MpiScope&) = delete;
+  MpiScope& operator=(const MpiScope&) = delete;
+
+ private:
+  bool owned_ = false;
+};
+
+// `tinbuild hydrology --mpi`: the tiles split across the ranks, the perimeter graphs exchanged
+// (libterrain/hydrology/peers.h); every rank writes its own tiles, rank 0 claims, commits and reports.
+// A failure or a stop on any rank stops every rank (all exit non-zero; nothing is left).
+HydrologyReport runMpiHydrology(HydrologyOptions options, Diagnostics& diag);
 
 }  // namespace tinbuild

@@ -178,10 +178,23 @@ GeoTiffTiles<T>::GeoTiffTiles(const std::string& dir, const std::string& name, c
 }
 
 template <typename T>
+std::string GeoTiffTiles<T>::tilePath(const hydrology::TileRect& r) const {
+  return (std::filesystem::path(dir_) / name_ /
+          (name_ + "_" + std::to_string(r.col0) + "_" + std::to_string(r.row0) + ".tif"))
+      .string();
+}
+
+template <typename T>
+void GeoTiffTiles<T>::adoptEveryTile(const hydrology::TileGrid& grid) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  tiles_.clear();
+  for (std::int64_t t = 0; t < grid.tiles(); ++t) tiles_.push_back(tilePath(grid.tile(t)));
+}
+
+template <typename T>
 void GeoTiffTiles<T>::write(const hydrology::TileRect& r, const T* values) {
   const std::filesystem::path folder = std::filesystem::path(dir_) / name_;
-  const std::string path =
-      (folder / (name_ + "_" + std::to_string(r.col0) + "_" + std::to_string(r.row0) + ".tif")).string();
+  const std::string path = tilePath(r);
   {
     std::lock_guard<std::mutex> lock(mutex_);
     std::error_code ec;

@@ -62,8 +62,11 @@ class GeoTiffTiles final : public hydrology::TileTarget<T> {
   // The mosaic; returns its path.
   std::string finish();
   const std::vector<std::string>& tiles() const { return tiles_; }
+  // Every tile of `grid` as written (a run split across processes: the others wrote the rest).
+  void adoptEveryTile(const hydrology::TileGrid& grid);
 
  private:
+  std::string tilePath(const hydrology::TileRect& r) const;
   std::string dir_, name_;
   RasterGrid grid_;
   T noData_;

@@ -6,6 +6,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
 namespace tinbuild::hydrology {
@@ -142,7 +143,7 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
     std::vector<std::int64_t> targets;                         // of the outflows, in order
   };
   std::vector<TileKeep> keep(static_cast<std::size_t>(tiles));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileCounts& tc = work[static_cast<std::size_t>(w)];
     tc.run(grid, t, flowdir, nullptr);
     TileKeep& k = keep[static_cast<std::size_t>(t)];
@@ -156,6 +157,20 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
     for (std::size_t e = 0; e < tc.entries.size(); ++e)
       k.exits.push_back({tc.global(tc.entries[e]), exits[e]});
   });
+  shareTiles(
+      grid, options.peers,
+      [&](std::int64_t t, PeerWriter& w) {
+        const TileKeep& k = keep[static_cast<std::size_t>(t)];
+        w.put(k.outflows);
+        w.put(k.exits);
+        w.put(k.targets);
+      },
+      [&](std::int64_t t, PeerReader& r) {
+        TileKeep& k = keep[static_cast<std::size_t>(t)];
+        r.get(k.outflows);
+        r.get(k.exits);
+        r.get(k.targets);
+      });
 
   // The forest over the outflow cells, solved from its leaves.
   std::unordered_map<std::int64_t, std::int64_t> exitOf;
@@ -197,7 +212,7 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
   // Pass 2: each tile again, its entries fed by their inflow.
   std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), largest(cells);
   std::vector<std::vector<double>> areas(static_cast<std::size_t>(threads));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileCounts& tc = work[wi];
     tc.run(grid, t, flowdir, &inflowOf);
@@ -214,10 +229,15 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
       area->write(tc.rect(), a.data());
     }
   });
+  std::vector<std::uint64_t> sum{0}, most{0};
   for (int w = 0; w < threads; ++w) {
-    stats.cells += cells[static_cast<std::size_t>(w)];
-    stats.largest = std::max(stats.largest, largest[static_cast<std::size_t>(w)]);
+    sum[0] += cells[static_cast<std::size_t>(w)];
+    most[0] = std::max(most[0], largest[static_cast<std::size_t>(w)]);
   }
+  sumOverPeers(options.peers, sum);  // (also the barrier: every process's tiles are written)
+  sumOverPeers(options.peers, most, true);
+  stats.cells = sum[0];
+  stats.largest = most[0];
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return stats;
 }

@@ -24,10 +24,13 @@
 
 namespace tinbuild::hydrology {
 
+class Peers;
+
 struct AccumulationOptions {
   int threads = 1;
   double cellArea = 1;  // CRS units squared
   const CancelFlag* cancel = nullptr;
+  Peers* peers = nullptr;  // split across processes (peers.h)
 };
 
 struct AccumulationStats {

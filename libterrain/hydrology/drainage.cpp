@@ -5,6 +5,7 @@
 #include <cmath>
 #include <vector>
 
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
 namespace tinbuild::hydrology {
@@ -119,7 +120,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
 
   // Pass 1: every tile's perimeter answers, by perimeter slot.
   std::vector<std::vector<Answer>> perimeter(static_cast<std::size_t>(tiles));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileDrainage& td = work[static_cast<std::size_t>(w)];
     td.run(grid, t, io, options);
     const TileRect& r = td.rect();
@@ -128,6 +129,10 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
     forEachPerimeterCell(r.width, r.height,
                          [&](int c, int row, std::size_t slot) { p[slot] = td.answer[td.cell(c, row)]; });
   });
+  shareTiles(
+      grid, options.peers,
+      [&](std::int64_t t, PeerWriter& w) { w.put(perimeter[static_cast<std::size_t>(t)]); },
+      [&](std::int64_t t, PeerReader& r) { r.get(perimeter[static_cast<std::size_t>(t)]); });
   // The chains between tiles, followed to their ends.
   resolveChains(grid, perimeter,
                 [](const Answer& a) { return a.kind == Answer::kFollow ? a.cell : std::int64_t{-1}; });
@@ -137,7 +142,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
   std::vector<std::vector<float>> hands(static_cast<std::size_t>(threads)), depths(hands), zs(hands);
   std::vector<std::vector<std::uint64_t>> drains(static_cast<std::size_t>(threads));
   std::vector<std::vector<std::uint32_t>> catchments(static_cast<std::size_t>(threads));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileDrainage& td = work[wi];
     td.run(grid, t, io, options);
@@ -185,12 +190,18 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
     if (depth) depth->write(r, dp.data());
     if (drain) drain->write(r, dr.data());
   });
+  std::vector<std::uint64_t> sums{0, 0, 0, 0};
   for (const DrainageStats& s : per) {
-    stats.cells += s.cells;
-    stats.streamCells += s.streamCells;
-    stats.drained += s.drained;
-    stats.flooded += s.flooded;
+    sums[0] += s.cells;
+    sums[1] += s.streamCells;
+    sums[2] += s.drained;
+    sums[3] += s.flooded;
   }
+  sumOverPeers(options.peers, sums);  // (also the barrier: every process's tiles are written)
+  stats.cells = sums[0];
+  stats.streamCells = sums[1];
+  stats.drained = sums[2];
+  stats.flooded = sums[3];
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return stats;
 }

@@ -24,8 +24,11 @@
 
 namespace tinbuild::hydrology {
 
+class Peers;
+
 struct DrainageOptions {
   int threads = 1;
+  Peers* peers = nullptr;  // split across processes (peers.h)
   double cellArea = 1;    // CRS units squared
   double streamArea = 1;  // A, CRS units squared
   bool stage = false;     // compute the depth for `stageHeight`

@@ -7,6 +7,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/spill_graph.h"
 #include "libterrain/hydrology/tile_runner.h"
 
@@ -160,7 +161,7 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
   // Pass 1: each tile's perimeter and edges.
   auto t0 = std::chrono::steady_clock::now();
   std::vector<TileSummary> summaries(static_cast<std::size_t>(tiles));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int worker) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int worker) {
     const TileRect r = grid.tile(t);
     TileFlood& f = flood(t, worker);
     TileSummary& s = summaries[static_cast<std::size_t>(t)];
@@ -173,6 +174,22 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
     });
     s.edges = f.edges();
   });
+  shareTiles(
+      grid, options.peers,
+      [&](std::int64_t t, PeerWriter& w) {
+        const TileSummary& s = summaries[static_cast<std::size_t>(t)];
+        w.put(s.labels);
+        w.put(s.perimeterLabel);
+        w.put(s.perimeterFill);
+        w.put(s.edges);
+      },
+      [&](std::int64_t t, PeerReader& r) {
+        TileSummary& s = summaries[static_cast<std::size_t>(t)];
+        r.get(s.labels);
+        r.get(s.perimeterLabel);
+        r.get(s.perimeterFill);
+        r.get(s.edges);
+      });
   stats.pass1Seconds = since(t0);
 
   // The perimeter graph: every tile's labels (0 is the outside, shared), the edges inside the tiles and
@@ -221,7 +238,7 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
   t0 = std::chrono::steady_clock::now();
   std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), raised(cells);
   std::vector<std::vector<float>> outs(static_cast<std::size_t>(threads));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int worker) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int worker) {
     const TileRect r = grid.tile(t);
     TileFlood& f = flood(t, worker);
     const std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
@@ -241,10 +258,14 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
       }
     filled.write(r, out.data());
   });
+  std::vector<std::uint64_t> sums{0, 0};
   for (int w = 0; w < threads; ++w) {
-    stats.cells += cells[static_cast<std::size_t>(w)];
-    stats.raised += raised[static_cast<std::size_t>(w)];
+    sums[0] += cells[static_cast<std::size_t>(w)];
+    sums[1] += raised[static_cast<std::size_t>(w)];
   }
+  sumOverPeers(options.peers, sums);  // (also the barrier: every process's tiles are written)
+  stats.cells = sums[0];
+  stats.raised = sums[1];
   stats.pass2Seconds = since(t0);
   return stats;
 }

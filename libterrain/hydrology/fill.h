@@ -37,9 +37,12 @@
 
 namespace tinbuild::hydrology {
 
+class Peers;
+
 struct FillOptions {
   int threads = 1;
   const CancelFlag* cancel = nullptr;
+  Peers* peers = nullptr;  // split across processes (peers.h); none: this process does every tile
 };
 
 struct FillStats {

@@ -11,6 +11,7 @@
 #include <mutex>
 #include <vector>
 
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
 namespace tinbuild::hydrology {
@@ -345,12 +346,17 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
 
   // Rounds: the distances, then the maxima, until no perimeter value changes.  Round 1 visits every tile
   // (and finds those whose perimeter holds a flat cell); later rounds those only, and of those only the
-  // tiles whose neighbours changed since they were last worked.
+  // tiles whose neighbours changed since they were last worked.  Split across processes, each sweeps its
+  // own tiles and the round ends with the perimeters that changed sent to every process (Gauss-Seidel
+  // within a process, Jacobi between them: the same fixed point).
+  const std::vector<std::int64_t> mine = ownedTiles(grid, options.peers);
+  const auto owned = static_cast<std::int64_t>(mine.size());
+  std::vector<std::uint8_t> moved(static_cast<std::size_t>(tiles), 0);
   for (int phase = 0; phase < 2; ++phase) {
     for (std::int64_t round = 0;; ++round) {
       std::atomic<bool> changed{false};
-      forEachTile(grid, threads, options.cancel, [&](std::int64_t i, int w) {
-        const std::int64_t t = round % 2 ? tiles - 1 - i : i;
+      forEachIndex(owned, threads, options.cancel, [&](std::int64_t i, int w) {
+        const std::int64_t t = mine[static_cast<std::size_t>(round % 2 ? owned - 1 - i : i)];
         const auto ti = static_cast<std::size_t>(t);
         if (!active[ti]) return;
         std::vector<Perimeter>& view = views[static_cast<std::size_t>(w)];
@@ -389,10 +395,39 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
         if (p.dL != cur[ti].dL || p.dH != cur[ti].dH || p.mH != cur[ti].mH) {
           cur[ti] = std::move(p);
           ++version[ti];
+          moved[ti] = 1;
           changed = true;
         }
       });
       ++stats.rounds;
+      if (options.peers && options.peers->size() > 1) {
+        bool any = false;
+        shareTiles(
+            grid, options.peers,
+            [&](std::int64_t t, PeerWriter& wr) {
+              const auto ti = static_cast<std::size_t>(t);
+              wr.put(moved[ti]);
+              if (!moved[ti]) return;
+              wr.put(cur[ti].dL);
+              wr.put(cur[ti].dH);
+              wr.put(cur[ti].mH);
+              wr.put(cur[ti].flat);
+            },
+            [&](std::int64_t t, PeerReader& rd) {
+              const auto ti = static_cast<std::size_t>(t);
+              std::uint8_t m = 0;
+              rd.get(m);
+              if (!m) return;
+              rd.get(cur[ti].dL);
+              rd.get(cur[ti].dH);
+              rd.get(cur[ti].mH);
+              rd.get(cur[ti].flat);
+              ++version[ti];
+              any = true;
+            });
+        std::fill(moved.begin(), moved.end(), 0);
+        if (any) changed = true;
+      }
       if (!changed) break;
     }
     // (phase 0 ended with the converged distances; phase 1 starts its maxima from nothing, every tile
@@ -404,7 +439,7 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
   // The last pass: every tile's directions.
   std::vector<FlowStats> per(static_cast<std::size_t>(threads));
   std::vector<std::vector<std::uint8_t>> outs(static_cast<std::size_t>(threads));
-  forEachTile(grid, threads, options.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileFlats& f = work[static_cast<std::size_t>(w)];
     f.load(t, filled);
     f.distances(prev);
@@ -413,11 +448,16 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
     f.codes(prev, out, per[static_cast<std::size_t>(w)]);
     flowdir.write(f.rect(), out.data());
   });
+  std::vector<std::uint64_t> sums{0, 0, 0};
   for (const FlowStats& s : per) {
-    stats.cells += s.cells;
-    stats.out += s.out;
-    stats.flatCells += s.flatCells;
+    sums[0] += s.cells;
+    sums[1] += s.out;
+    sums[2] += s.flatCells;
   }
+  sumOverPeers(options.peers, sums);  // (also the barrier: every process's tiles are written)
+  stats.cells = sums[0];
+  stats.out = sums[1];
+  stats.flatCells = sums[2];
   stats.seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   return stats;
 }

@@ -42,10 +42,13 @@ inline std::uint8_t flowCode(int k) {
   return static_cast<std::uint8_t>(1u << k);
 }
 
+class Peers;
+
 struct FlowOptions {
   int threads = 1;
   double dx = 1, dy = 1;  // a cell's width and height (CRS units)
   const CancelFlag* cancel = nullptr;
+  Peers* peers = nullptr;  // split across processes (peers.h): rounds exchange the changed perimeters
 };
 
 struct FlowStats {

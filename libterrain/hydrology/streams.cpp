@@ -6,6 +6,7 @@
 #include <cmath>
 #include <unordered_map>
 
+#include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
 namespace tinbuild::hydrology {
@@ -143,12 +144,22 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
     forEachPerimeterCell(r.width, r.height,
                          [&](int c, int row, std::size_t slot) { p[slot] = ts.status[ts.cell(c, row)]; });
   };
-  forEachTile(grid, threads, o.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, o.peers, threads, o.cancel, [&](std::int64_t t, int w) {
     TileStreams& ts = work[static_cast<std::size_t>(w)];
     ts.run(grid, t, flowdir, counts, o);
     tileTops[static_cast<std::size_t>(t)] = ts.tops;
     keepPerimeter(ts, perimeter[static_cast<std::size_t>(t)]);
   });
+  shareTiles(
+      grid, o.peers,
+      [&](std::int64_t t, PeerWriter& w) {
+        w.put(tileTops[static_cast<std::size_t>(t)]);
+        w.put(perimeter[static_cast<std::size_t>(t)]);
+      },
+      [&](std::int64_t t, PeerReader& r) {
+        r.get(tileTops[static_cast<std::size_t>(t)]);
+        r.get(perimeter[static_cast<std::size_t>(t)]);
+      });
   std::vector<std::int64_t> tops;
   for (auto& v : tileTops) tops.insert(tops.end(), v.begin(), v.end());
   std::vector<std::vector<std::int64_t>>().swap(tileTops);
@@ -164,7 +175,7 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
   std::vector<std::vector<std::pair<std::uint32_t, Partial>>> partials(static_cast<std::size_t>(tiles));
   std::vector<std::uint64_t> streamCells(static_cast<std::size_t>(threads), 0);
   std::vector<std::vector<std::uint32_t>> outs(static_cast<std::size_t>(threads));
-  forEachTile(grid, threads, o.cancel, [&](std::int64_t t, int w) {
+  forEachOwnedTile(grid, o.peers, threads, o.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileStreams& ts = work[wi];
     ts.run(grid, t, flowdir, counts, o);
@@ -197,7 +208,13 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
     links.write(r, out.data());
     partials[static_cast<std::size_t>(t)].assign(mine.begin(), mine.end());
   });
-  for (std::uint64_t v : streamCells) stats.streamCells += v;
+  std::vector<std::uint64_t> sum{0};
+  for (std::uint64_t v : streamCells) sum[0] += v;
+  sumOverPeers(o.peers, sum);
+  stats.streamCells = sum[0];
+  shareTiles(
+      grid, o.peers, [&](std::int64_t t, PeerWriter& w) { w.put(partials[static_cast<std::size_t>(t)]); },
+      [&](std::int64_t t, PeerReader& r) { r.get(partials[static_cast<std::size_t>(t)]); });
 
   // The table, and the Strahler orders from the sources down.
   table.assign(tops.size(), StreamLink{});

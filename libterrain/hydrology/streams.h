@@ -25,11 +25,14 @@
 
 namespace tinbuild::hydrology {
 
+class Peers;
+
 struct StreamOptions {
   int threads = 1;
   double cellArea = 1, streamArea = 1;  // CRS units squared
   double dx = 1, dy = 1;                // a cell's width and height
   const CancelFlag* cancel = nullptr;
+  Peers* peers = nullptr;  // split across processes (peers.h)
 };
 
 struct StreamLink {

@@ -12,6 +12,7 @@
 #include <filesystem>
 #include <fstream>
 #include <string>
+#include <tuple>
 #include <vector>
 
 #include "tests/app/cli_support.h"
@@ -371,6 +372,73 @@ TEST(HydrologyCli, ASignalLeavesNothing) {
   EXPECT_EQ(listDir(dir), std::vector<std::string>{"dem.tif"});
 }
 
+// Under MPI (`--mpi`, the tiles split across the ranks and the perimeters exchanged): the same pixels and
+// lines as one process for 2 and 3 ranks, any tiling and threads; a stop or a failure on one rank stops
+// every rank and leaves nothing.
+TEST(HydrologyCli, MpiRanksGiveTheSamePixels) {
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
+  if (tinbuild("hydrology x.tif -o y --mpi -q").err.find("built without MPI") != std::string::npos)
+    GTEST_SKIP() << "built without MPI";
+  const fs::path dir = scratch();
+  writeDem((dir / "dem.tif").string(), ref::randomDem(173, 151, 49));
+  const std::string args = " hydrology " + (dir / "dem.tif").string() + " --stream-area 400m2 --stage 3 -q";
+  const fs::path one = dir / "one";
+  ASSERT_EQ(tinbuild(args + " -o " + one.string()).code, 0);
+  const std::vector<std::string> pixels = rasterBytes(one);
+  const std::string lines = streamLines(one / "streams.gpkg");
+  const double flood = floodArea(one / "flood.gpkg");
+  auto mpirun = [&](int ranks, const std::string& rest, const std::string& exe) {
+    const fs::path log = dir / "mpi.log";
+    const std::string run = "mpirun --allow-run-as-root --oversubscribe -np " + std::to_string(ranks) + " " +
+                            exe + args + " --mpi " + rest + " > " + log.string() + " 2>&1";
+    const int rc = std::system(run.c_str());
+    return std::make_pair(WIFEXITED(rc) ? WEXITSTATUS(rc) : -1, slurp(log));
+  };
+  for (const auto& [ranks, tile, threads] : std::vector<std::tuple<int, int, int>>{{2, 37, 1}, {3, 16, 2}}) {
+    const fs::path out = dir / ("mpi-" + std::to_string(ranks));
+    const auto [code, log] =
+        mpirun(ranks,
+               "-o " + out.string() + " --tile-size " + std::to_string(tile) + " --threads " +
+                   std::to_string(threads) + " --report " + (out.string() + ".json"),
+               TINBUILD_EXE);
+    ASSERT_EQ(code, 0) << log;
+    EXPECT_EQ(rasterBytes(out), pixels) << ranks << " ranks";
+    EXPECT_EQ(streamLines(out / "streams.gpkg"), lines) << ranks << " ranks";
+    EXPECT_DOUBLE_EQ(floodArea(out / "flood.gpkg"), flood);
+    for (const std::string& f : listDir(out)) EXPECT_EQ(f.find(".tinbuild"), std::string::npos) << f;
+    EXPECT_NE(slurp(out.string() + ".json").find("\"processes\": " + std::to_string(ranks)),
+              std::string::npos);
+  }
+  // SIGTERM to rank 1 alone, at its first tile written: every rank stops (exit 3), nothing is left.
+  const fs::path wrapper = dir / "rank1-stops.sh";
+  std::ofstream(wrapper)
+      << "#!/bin/sh\nif [ \"$OMPI_COMM_WORLD_RANK\" = 1 ]; then export TINBUILD_FAULT_SIGNAL=output; "
+         "fi\nexec "
+      << TINBUILD_EXE << " \"$@\"\n";
+  fs::permissions(wrapper, fs::perms::owner_all);
+  const fs::path stopped = dir / "stopped";
+  const auto [code, log] = mpirun(2, "-o " + stopped.string() + " --tile-size 16", wrapper.string());
+  EXPECT_EQ(code, 3) << log;
+  EXPECT_FALSE(fs::exists(stopped)) << log;
+  // A DEM that rank 1 cannot read (its half of a VRT is gone): every rank fails, naming the file.
+  ASSERT_EQ(std::system(("gdal_translate -q -srcwin 0 0 173 75 " + (dir / "dem.tif").string() + " " +
+                         (dir / "top.tif").string() + " && gdal_translate -q -srcwin 0 75 173 76 " +
+                         (dir / "dem.tif").string() + " " + (dir / "bottom.tif").string() +
+                         " && gdalbuildvrt -q " + (dir / "halves.vrt").string() + " " +
+                         (dir / "top.tif").string() + " " + (dir / "bottom.tif").string())
+                            .c_str()),
+            0);
+  fs::remove(dir / "bottom.tif");
+  const fs::path failed = dir / "failed";
+  const std::string run = "mpirun --allow-run-as-root --oversubscribe -np 2 " + std::string(TINBUILD_EXE) +
+                          " hydrology " + (dir / "halves.vrt").string() + " -o " + failed.string() +
+                          " --mpi -q --tile-size 16 > " + (dir / "failed.log").string() + " 2>&1";
+  const int rc = std::system(run.c_str());
+  EXPECT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 1) << slurp(dir / "failed.log");
+  EXPECT_NE(slurp(dir / "failed.log").find("bottom.tif"), std::string::npos) << slurp(dir / "failed.log");
+  EXPECT_FALSE(fs::exists(failed));
+}
+
 }  // namespace
 }  // namespace tinbuild::test
 
@@ -404,6 +472,35 @@ TEST(HydrologyCli, BuildRunsItOnItsDem) {
   r = tinbuild("build " + las + " --mesh " + (dir / "t.smb").string() + " --hydrology " + hydro + " -q");
   EXPECT_EQ(r.code, 2);
   EXPECT_NE(r.err.find("--dem"), std::string::npos) << r.err;
+
+  // A plan of 3 parts: the merge runs the hydrology on the merged DEM (the same pixels).
+  const std::string plan = (dir / "plan.json").string();
+  r = tinbuild("plan " + las + " --dem " + (dir / "pdem").string() + " --step 2 --parts 3 -o " + plan +
+               " -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  for (int i = 0; i < 3; ++i) {
+    r = tinbuild("build --plan " + plan + " --part " + std::to_string(i) + " -q");
+    ASSERT_EQ(r.code, 0) << r.err;
+  }
+  r = tinbuild("build --plan " + plan + " --part 0 --hydrology " + (dir / "h3").string() + " -q");
+  EXPECT_EQ(r.code, 2);
+  EXPECT_NE(r.err.find("merge"), std::string::npos) << r.err;
+  r = tinbuild("merge " + plan + " --hydrology " + (dir / "parts").string() +
+               " --stream-area 5000m2 --stage 1 -q");
+  ASSERT_EQ(r.code, 0) << r.err;
+  EXPECT_EQ(rasterBytes(dir / "parts"), rasterBytes(dir / "alone"));
+
+  // Two MPI ranks: the build, then the hydrology on the same ranks (the tiles split between them).
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) return;
+  if (tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos)
+    return;
+  const std::string run = "mpirun --allow-run-as-root --oversubscribe -np 2 " + std::string(TINBUILD_EXE) +
+                          " build " + las + " --dem " + (dir / "mdem").string() +
+                          " --step 2 --mpi --hydrology " + (dir / "mpi").string() +
+                          " --stream-area 5000m2 --stage 1 -q > " + (dir / "mpi.log").string() + " 2>&1";
+  const int rc = std::system(run.c_str());
+  ASSERT_TRUE(WIFEXITED(rc) && WEXITSTATUS(rc) == 0) << slurp(dir / "mpi.log");
+  EXPECT_EQ(rasterBytes(dir / "mpi"), rasterBytes(dir / "alone"));
 }
 
 }  // namespace
