@@ -90,10 +90,6 @@ int runHydrologyJob(HydrologyOptions o, const RunSettings& rs) {
   // they are reused, rather than mapped and unmapped each time (main's threshold), which cost a fifth of
   // the run in page faults.
   mallopt(M_MMAP_THRESHOLD, 32 << 20);
-  if (rs.mpi && !mpiAvailable())
-    throw UsageError(
-        "--mpi: this tinbuild was built without MPI; install Open MPI (Debian: libopenmpi-dev openmpi-bin, "
-        "share/install-deps.sh does) and rebuild, or run the hydrology in one process");
   // Under --mpi the ranks but the first are quiet: rank 0 draws the progress and reports for the run.
   const bool secondary = rs.mpi && mpiRankFromEnvironment() > 0;
   const bool quiet = rs.quiet || secondary;
@@ -111,6 +107,7 @@ int runHydrologyJob(HydrologyOptions o, const RunSettings& rs) {
   std::vector<std::pair<std::string, std::string>> inputs = {{"the DEM", o.dem}};
   for (const std::string& f : o.flows) inputs.emplace_back("--flow", f);
   CommandFrame frame(rs, inputs, !secondary);
+  // (Without MPI built in, runMpiHydrology says how to get it, before any work.)
   const HydrologyReport report = rs.mpi ? runMpiHydrology(o, diag) : runHydrology(o, diag);
   frame.commit(report.secondary ? std::string() : formatHydrologyJson(report), ProgressDisplay::callback,
                &progress);
