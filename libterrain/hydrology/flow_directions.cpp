@@ -9,6 +9,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <unordered_map>
 #include <vector>
 
 #include "libterrain/hydrology/peers.h"
@@ -111,6 +112,24 @@ class TileFlats {
     forEachAcross(perims, [&](std::uint32_t f, const Perimeter& p, std::size_t slot) {
       if (p.mH[slot] != kInf) compMax_[comp_[f]] = std::max(compMax_[comp_[f]], p.mH[slot]);
     });
+  }
+
+  // For each perimeter slot of a flat cell, its component within the tile (kInf elsewhere) and that
+  // component's largest dH within the tile (the converged distances: after distances()).
+  void components(std::vector<std::uint32_t>& comp, std::vector<std::uint32_t>& largest) const {
+    std::vector<std::uint32_t> local(comps_, 0);
+    for (std::uint32_t f = 0; f < flats_.size(); ++f)
+      if (dH_[f] != kInf) local[comp_[f]] = std::max(local[comp_[f]], dH_[f]);
+    const std::size_t slots = perimeterCells(r_.width, r_.height);
+    comp.assign(slots, kInf);
+    largest.assign(slots, 0);
+    for (std::uint32_t f = 0; f < flats_.size(); ++f) {
+      const int c = col(flats_[f]), row = rowOf(flats_[f]);
+      if (!onPerimeter(r_.width, r_.height, c, row)) continue;
+      const std::size_t slot = perimeterSlot(r_.width, r_.height, c, row);
+      comp[slot] = comp_[f];
+      largest[slot] = local[comp_[f]];
+    }
   }
 
   // The tile's perimeter values.
@@ -344,96 +363,170 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
                      : y * grid.tilesX() + x;
   };
 
-  // Rounds: the distances, then the maxima, until no perimeter value changes.  Round 1 visits every tile
-  // (and finds those whose perimeter holds a flat cell); later rounds those only, and of those only the
-  // tiles whose neighbours changed since they were last worked.  Split across processes, each sweeps its
-  // own tiles and the round ends with the perimeters that changed sent to every process (Gauss-Seidel
-  // within a process, Jacobi between them: the same fixed point).
+  // Rounds: the distances, until no perimeter value changes.  Round 1 visits every tile (and finds those
+  // whose perimeter holds a flat cell); later rounds those only, and of those only the tiles whose
+  // neighbours changed since they were last worked.  Split across processes, each sweeps its own tiles
+  // and the round ends with the perimeters that changed sent to every process (Gauss-Seidel within a
+  // process, Jacobi between them: the same fixed point).  A tile's last work saw its neighbours' final
+  // perimeters (else it would have been worked again), so what it left of its components (`comps`,
+  // `largest`: by perimeter slot) is final too.
   const std::vector<std::int64_t> mine = ownedTiles(grid, options.peers);
   const auto owned = static_cast<std::int64_t>(mine.size());
   std::vector<std::uint8_t> moved(static_cast<std::size_t>(tiles), 0);
-  for (int phase = 0; phase < 2; ++phase) {
-    for (std::int64_t round = 0;; ++round) {
-      std::atomic<bool> changed{false};
-      forEachIndex(owned, threads, options.cancel, [&](std::int64_t i, int w) {
-        const std::int64_t t = mine[static_cast<std::size_t>(round % 2 ? owned - 1 - i : i)];
-        const auto ti = static_cast<std::size_t>(t);
-        if (!active[ti]) return;
-        std::vector<Perimeter>& view = views[static_cast<std::size_t>(w)];
-        std::int64_t u[9];
-        neighbours(t, u);
-        std::array<std::uint64_t, 9> saw{};
-        for (int k = 0; k < 9; ++k) {
-          if (u[k] < 0) continue;
-          const auto uk = static_cast<std::size_t>(u[k]);
-          std::lock_guard<std::mutex> lock(locks[uk]);
-          saw[static_cast<std::size_t>(k)] = version[uk];
-          view[uk] = cur[uk];
-        }
-        auto release = [&] {
-          for (int k = 0; k < 9; ++k)
-            if (u[k] >= 0) view[static_cast<std::size_t>(u[k])] = Perimeter{};
-        };
-        if (round > 0 && saw == seen[ti]) {  // (the same inputs: the same perimeter)
-          release();
-          return;
-        }
-        TileFlats& f = work[static_cast<std::size_t>(w)];
-        f.load(t, filled);
-        if (!f.perimeterFlat()) {
-          active[ti] = 0;
-          release();
-          return;
-        }
-        f.distances(view);
-        if (phase == 1) f.maxima(view);
-        Perimeter p;
-        f.perimeter(p);
+  std::vector<std::vector<std::uint32_t>> comps(static_cast<std::size_t>(tiles)), largest(comps);
+  for (std::int64_t round = 0;; ++round) {
+    std::atomic<bool> changed{false};
+    forEachIndex(owned, threads, options.cancel, [&](std::int64_t i, int w) {
+      const std::int64_t t = mine[static_cast<std::size_t>(round % 2 ? owned - 1 - i : i)];
+      const auto ti = static_cast<std::size_t>(t);
+      if (!active[ti]) return;
+      std::vector<Perimeter>& view = views[static_cast<std::size_t>(w)];
+      std::int64_t u[9];
+      neighbours(t, u);
+      std::array<std::uint64_t, 9> saw{};
+      for (int k = 0; k < 9; ++k) {
+        if (u[k] < 0) continue;
+        const auto uk = static_cast<std::size_t>(u[k]);
+        std::lock_guard<std::mutex> lock(locks[uk]);
+        saw[static_cast<std::size_t>(k)] = version[uk];
+        view[uk] = cur[uk];
+      }
+      auto release = [&] {
+        for (int k = 0; k < 9; ++k)
+          if (u[k] >= 0) view[static_cast<std::size_t>(u[k])] = Perimeter{};
+      };
+      if (round > 0 && saw == seen[ti]) {  // (the same inputs: the same perimeter)
         release();
-        seen[ti] = saw;
-        std::lock_guard<std::mutex> lock(locks[ti]);
-        if (p.dL != cur[ti].dL || p.dH != cur[ti].dH || p.mH != cur[ti].mH) {
-          cur[ti] = std::move(p);
-          ++version[ti];
-          moved[ti] = 1;
-          changed = true;
+        return;
+      }
+      TileFlats& f = work[static_cast<std::size_t>(w)];
+      f.load(t, filled);
+      if (!f.perimeterFlat()) {
+        active[ti] = 0;
+        release();
+        return;
+      }
+      f.distances(view);
+      Perimeter p;
+      f.perimeter(p);
+      f.components(comps[ti], largest[ti]);
+      release();
+      seen[ti] = saw;
+      std::lock_guard<std::mutex> lock(locks[ti]);
+      if (p.dL != cur[ti].dL || p.dH != cur[ti].dH) {
+        cur[ti] = std::move(p);
+        ++version[ti];
+        moved[ti] = 1;
+        changed = true;
+      }
+    });
+    ++stats.rounds;
+    if (options.peers && options.peers->size() > 1) {
+      bool any = false;
+      shareTiles(
+          grid, options.peers,
+          [&](std::int64_t t, PeerWriter& wr) {
+            const auto ti = static_cast<std::size_t>(t);
+            wr.put(moved[ti]);
+            if (!moved[ti]) return;
+            wr.put(cur[ti].dL);
+            wr.put(cur[ti].dH);
+            wr.put(cur[ti].flat);
+          },
+          [&](std::int64_t t, PeerReader& rd) {
+            const auto ti = static_cast<std::size_t>(t);
+            std::uint8_t m = 0;
+            rd.get(m);
+            if (!m) return;
+            rd.get(cur[ti].dL);
+            rd.get(cur[ti].dH);
+            rd.get(cur[ti].flat);
+            ++version[ti];
+            any = true;
+          });
+      std::fill(moved.begin(), moved.end(), 0);
+      if (any) changed = true;
+    }
+    if (!changed) break;
+  }
+  std::vector<std::vector<Perimeter>>().swap(views);
+
+  // mH: the largest dH of each flat.  A flat is the union of its pieces in the tiles (a tile's component),
+  // joined where flat cells touch across a tile's edge: a union-find over the perimeters' flat slots
+  // settles it, and each flat slot's mH is its flat's largest dH.
+  shareTiles(
+      grid, options.peers,
+      [&](std::int64_t t, PeerWriter& wr) {
+        wr.put(comps[static_cast<std::size_t>(t)]);
+        wr.put(largest[static_cast<std::size_t>(t)]);
+      },
+      [&](std::int64_t t, PeerReader& rd) {
+        rd.get(comps[static_cast<std::size_t>(t)]);
+        rd.get(largest[static_cast<std::size_t>(t)]);
+      });
+  {
+    std::vector<std::uint64_t> base(static_cast<std::size_t>(tiles) + 1, 0);
+    for (std::int64_t t = 0; t < tiles; ++t)
+      base[static_cast<std::size_t>(t) + 1] =
+          base[static_cast<std::size_t>(t)] + comps[static_cast<std::size_t>(t)].size();
+    std::vector<std::uint64_t> parent(base.back());
+    for (std::uint64_t n = 0; n < parent.size(); ++n) parent[n] = n;
+    auto find = [&](std::uint64_t n) {
+      while (parent[n] != n) n = parent[n] = parent[parent[n]];
+      return n;
+    };
+    auto unite = [&](std::uint64_t a, std::uint64_t b) {
+      a = find(a);
+      b = find(b);
+      if (a != b) parent[std::max(a, b)] = std::min(a, b);
+    };
+    std::unordered_map<std::uint32_t, std::uint64_t> first;
+    for (std::int64_t t = 0; t < tiles; ++t) {
+      const std::vector<std::uint32_t>& c = comps[static_cast<std::size_t>(t)];
+      if (c.empty()) continue;
+      const TileRect r = grid.tile(t);
+      first.clear();
+      forEachPerimeterCell(r.width, r.height, [&](int col, int row, std::size_t slot) {
+        if (c[slot] == kInf) return;
+        const std::uint64_t n = base[static_cast<std::size_t>(t)] + slot;
+        auto [it, fresh] = first.try_emplace(c[slot], n);
+        if (!fresh) unite(n, it->second);
+        const std::int64_t gc = r.col0 + col, gr = r.row0 + row;
+        for (int k = 0; k < 8; ++k) {
+          const std::int64_t nc = gc + kDx[k], nr = gr + kDy[k];
+          if (nc < 0 || nr < 0 || nc >= grid.width() || nr >= grid.height()) continue;
+          const std::int64_t u = grid.tileOf(nc, nr);
+          if (u <= t) continue;  // (each pair of tiles once, from the lower)
+          const std::vector<std::uint32_t>& uc = comps[static_cast<std::size_t>(u)];
+          if (uc.empty()) continue;
+          const TileRect ur = grid.tile(u);
+          const std::size_t us = perimeterSlot(ur.width, ur.height, static_cast<int>(nc - ur.col0),
+                                               static_cast<int>(nr - ur.row0));
+          if (uc[us] != kInf)
+            unite(n, base[static_cast<std::size_t>(u)] + us);  // (touching flat cells: one flat)
         }
       });
-      ++stats.rounds;
-      if (options.peers && options.peers->size() > 1) {
-        bool any = false;
-        shareTiles(
-            grid, options.peers,
-            [&](std::int64_t t, PeerWriter& wr) {
-              const auto ti = static_cast<std::size_t>(t);
-              wr.put(moved[ti]);
-              if (!moved[ti]) return;
-              wr.put(cur[ti].dL);
-              wr.put(cur[ti].dH);
-              wr.put(cur[ti].mH);
-              wr.put(cur[ti].flat);
-            },
-            [&](std::int64_t t, PeerReader& rd) {
-              const auto ti = static_cast<std::size_t>(t);
-              std::uint8_t m = 0;
-              rd.get(m);
-              if (!m) return;
-              rd.get(cur[ti].dL);
-              rd.get(cur[ti].dH);
-              rd.get(cur[ti].mH);
-              rd.get(cur[ti].flat);
-              ++version[ti];
-              any = true;
-            });
-        std::fill(moved.begin(), moved.end(), 0);
-        if (any) changed = true;
-      }
-      if (!changed) break;
     }
-    // (phase 0 ended with the converged distances; phase 1 starts its maxima from nothing, every tile
-    // worked again)
-    for (auto& s : seen) s.fill(std::numeric_limits<std::uint64_t>::max());
+    std::vector<std::uint32_t> top(parent.size(), 0);
+    for (std::int64_t t = 0; t < tiles; ++t) {
+      const std::vector<std::uint32_t>& c = comps[static_cast<std::size_t>(t)];
+      for (std::size_t slot = 0; slot < c.size(); ++slot) {
+        if (c[slot] == kInf) continue;
+        const std::uint64_t root = find(base[static_cast<std::size_t>(t)] + slot);
+        top[root] = std::max(top[root], largest[static_cast<std::size_t>(t)][slot]);
+      }
+    }
+    for (std::int64_t t = 0; t < tiles; ++t) {
+      const std::vector<std::uint32_t>& c = comps[static_cast<std::size_t>(t)];
+      Perimeter& p = cur[static_cast<std::size_t>(t)];
+      if (c.empty() || p.dL.empty()) continue;
+      p.mH.assign(c.size(), kInf);
+      for (std::size_t slot = 0; slot < c.size(); ++slot)
+        if (c[slot] != kInf) p.mH[slot] = top[find(base[static_cast<std::size_t>(t)] + slot)];
+    }
   }
+  std::vector<std::vector<std::uint32_t>>().swap(comps);
+  std::vector<std::vector<std::uint32_t>>().swap(largest);
   const std::vector<Perimeter>& prev = cur;
 
   // The last pass: every tile's directions.

@@ -23,8 +23,10 @@
 // them: a tile recomputes its flats' distances seeded by its neighbours' perimeter values (one more step
 // across the edge) until no perimeter value changes (Bellman-Ford over the tiles: the fixed point is the
 // true distance, found in as many rounds as the tiles a shortest path crosses, plus one); then mH, a
-// maximum, by the same rounds; then the last pass writes every tile.  Distances are whole numbers and
-// maxima exact, so any tiling gives the same directions.  A round re-reads only the tiles whose perimeter
+// maximum over the whole flat: each tile's last round leaves its components' largest dH by perimeter
+// slot, and a union-find over those slots (joined within a component, and where flat cells touch across
+// an edge) gives every flat its largest; then the last pass writes every tile.  Distances are whole numbers
+// and maxima exact, so any tiling gives the same directions.  A round re-reads only the tiles whose perimeter
 // holds a flat cell.
 #pragma once
 
@@ -55,7 +57,7 @@ struct FlowStats {
   std::uint64_t cells = 0;      // with a height
   std::uint64_t out = 0;        // code 0
   std::uint64_t flatCells = 0;  // drained by the flats' rule
-  std::uint64_t rounds = 0;     // of the flats' relaxation (distances and maxima)
+  std::uint64_t rounds = 0;     // of the flats' relaxation (the distances)
   double seconds = 0;
 };
 
