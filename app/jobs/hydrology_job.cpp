@@ -27,6 +27,7 @@
 #include "libterrain/core/error.h"
 #include "libterrain/core/json_writer.h"
 #include "libterrain/core/report_text.h"
+#include "libterrain/hydrology/raw_tiles.h"
 #include "libterrain/hydrology/stream_lines.h"
 
 namespace tinbuild {
@@ -110,15 +111,46 @@ class PassProgress {
 template <typename T>
 class Ticking final : public TileTarget<T> {
  public:
-  Ticking(TileTarget<T>& inner, PassProgress& p) : inner_(inner), p_(p) {}
+  // `copy`: a second target every tile also goes to (the raw copy later passes read back), or null.
+  Ticking(TileTarget<T>& inner, PassProgress& p, TileTarget<T>* copy = nullptr)
+      : inner_(inner), p_(p), copy_(copy) {}
   void write(const TileRect& r, const T* v) override {
     inner_.write(r, v);
+    if (copy_) copy_->write(r, v);
     p_.tick();
   }
 
  private:
   TileTarget<T>& inner_;
   PassProgress& p_;
+  TileTarget<T>* copy_;
+};
+
+// A raster the later passes read back: raw in a temporary file when the run is one process
+// (libterrain/hydrology/raw_tiles.h: no inflating, no files opened per tile), else the GeoTIFF tiles that
+// every process wrote to the shared folder.
+template <typename T>
+class ReadBack {
+ public:
+  ReadBack(bool split, const TileGrid& grid, std::string dir, std::string name, T noData, T outside)
+      : grid_(grid), dir_(std::move(dir)), name_(std::move(name)), noData_(noData), outside_(outside) {
+    if (!split) raw_ = std::make_unique<RawTiles<T>>(grid, dir_, "hydrology", noData, outside);
+  }
+  // Where the pass writing it also writes its tiles (null: the GeoTIFF tiles are the copy).
+  TileTarget<T>* copy() { return raw_.get(); }
+  // After the pass: the raster to read.
+  TileSourceOf<T>& source() {
+    if (raw_) return *raw_;
+    if (!files_) files_ = std::make_unique<TileFiles<T>>(dir_, name_, grid_, noData_, outside_);
+    return *files_;
+  }
+
+ private:
+  TileGrid grid_;
+  std::string dir_, name_;
+  T noData_, outside_;
+  std::unique_ptr<RawTiles<T>> raw_;
+  std::unique_ptr<TileFiles<T>> files_;
 };
 
 // Depth tiles also as the flooded mask (1 where the depth is positive, else 0: nodata too, so the flood's
@@ -386,7 +418,8 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
     limitGdalForTiles(o.memoryBytes / 16, 16);
 
     if (lead) staged = std::make_unique<Staging>(o.outDir, o.overwrite);
-    if (peers && peers->size() > 1) {  // (the first's staging folder, to the others)
+    const bool split = peers && peers->size() > 1;  // (across processes)
+    if (split) {                                    // (the first's staging folder, to the others)
       hydrology::PeerWriter w;
       if (lead) w.bytes.assign(staged->path().begin(), staged->path().end());
       const auto all = peers->allgather(w.bytes);
@@ -397,7 +430,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
     // A raster's tiles and mosaic into the commit: by the first process, once every process wrote its tiles.
     auto commitRaster = [&](auto& tiles, const std::string& name) {
       if (!lead) return;
-      if (peers && peers->size() > 1) tiles.adoptEveryTile(grid);
+      if (split) tiles.adoptEveryTile(grid);
       staging.raster(tiles, name);
     };
     const int passes = 6 + (o.flows.empty() ? 0 : 1) + (o.stage ? 1 : 0);
@@ -434,22 +467,25 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
 
     // fill
     GeoTiffTiles<float> filledOut(staging.path(), "filled", g, kFloatNoData);
+    ReadBack<float> filledBack(split, grid, staging.path(), "filled", kFloatNoData, kNoData);
     pass("fill", [&] {
-      Ticking<float> t(filledOut, progress);
+      Ticking<float> t(filledOut, progress, filledBack.copy());
       FillOptions fo;
       fo.threads = threads;
       fo.cancel = o.cancel;
       fo.peers = peers;
+      fo.scratchDir = staging.work();
       rep.fill = fillDepressions(grid, *dem, t, fo);
       if (rep.fill.cells == 0) throw DataError(o.dem, "the DEM has no valid cell (every cell is nodata)");
     });
     commitRaster(filledOut, "filled");
-    TileFiles<float> filled(staging.path(), "filled", grid, kFloatNoData, kNoData);
+    TileSource& filled = filledBack.source();
 
     // flow directions
     GeoTiffTiles<std::uint8_t> flowOut(staging.path(), "flowdir", g, kFlowNoData);
+    ReadBack<std::uint8_t> flowBack(split, grid, staging.path(), "flowdir", kFlowNoData, kFlowNoData);
     pass("flow directions", [&] {
-      Ticking<std::uint8_t> t(flowOut, progress);
+      Ticking<std::uint8_t> t(flowOut, progress, flowBack.copy());
       FlowOptions fo;
       fo.threads = threads;
       fo.dx = rep.dx;
@@ -459,10 +495,16 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       rep.flow = flowDirections(grid, filled, t, fo);
     });
     commitRaster(flowOut, "flowdir");
-    TileFiles<std::uint8_t> flowdir(staging.path(), "flowdir", grid, kFlowNoData, kFlowNoData);
+    TileSourceOf<std::uint8_t>& flowdir = flowBack.source();
 
     // upstream area
-    GeoTiffTiles<std::uint64_t> countsOut(staging.work(), "counts", g, 0, true);
+    // (the counts are read back only: raw in one process, scratch GeoTIFF tiles split across processes)
+    std::unique_ptr<GeoTiffTiles<std::uint64_t>> countsFiles;
+    if (split)
+      countsFiles = std::make_unique<GeoTiffTiles<std::uint64_t>>(staging.work(), "counts", g, 0, true);
+    ReadBack<std::uint64_t> countsBack(split, grid, staging.work(), "counts", 0, 0);
+    TileTarget<std::uint64_t>* countsOut =
+        split ? static_cast<TileTarget<std::uint64_t>*>(countsFiles.get()) : countsBack.copy();
     GeoTiffTiles<double> accumOut(staging.path(), "accum", g, -9999.0);
     pass("upstream area", [&] {
       Ticking<double> t(accumOut, progress);
@@ -471,16 +513,17 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       ao.cellArea = rep.cellArea;
       ao.cancel = o.cancel;
       ao.peers = peers;
-      rep.accum = accumulate(grid, flowdir, &countsOut, &t, ao);
+      rep.accum = accumulate(grid, flowdir, countsOut, &t, ao);
     });
     commitRaster(accumOut, "accum");
-    TileFiles<std::uint64_t> counts(staging.work(), "counts", grid, 0, 0);
+    TileSourceOf<std::uint64_t>& counts = countsBack.source();
 
     // streams
     GeoTiffTiles<std::uint32_t> streamsOut(staging.path(), "streams", g, 0);
+    ReadBack<std::uint32_t> linksBack(split, grid, staging.path(), "streams", 0, 0);
     std::vector<StreamLink> table;
     pass("streams", [&] {
-      Ticking<std::uint32_t> t(streamsOut, progress);
+      Ticking<std::uint32_t> t(streamsOut, progress, linksBack.copy());
       StreamOptions so;
       so.threads = threads;
       so.cellArea = rep.cellArea;
@@ -493,7 +536,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       rep.links = table.size();
     });
     commitRaster(streamsOut, "streams");
-    TileFiles<std::uint32_t> links(staging.path(), "streams", grid, 0, 0);
+    TileSourceOf<std::uint32_t>& links = linksBack.source();
 
     // HAND, catchments, depth
     GeoTiffTiles<float> handOut(staging.path(), "hand", g, kFloatNoData);
@@ -562,7 +605,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       pass("flood extent", [&] {
         if (!lead) return;
         const std::string path = staging.path() + "/flood.gpkg";
-        if (peers && peers->size() > 1) maskOut->adoptEveryTile(grid);
+        if (split) maskOut->adoptEveryTile(grid);
         maskOut->finish();
         rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel);
         staging.file(path, "flood.gpkg");

@@ -7,6 +7,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/core/temp_file.h"
 #include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/spill_graph.h"
 #include "libterrain/hydrology/tile_runner.h"
@@ -16,6 +17,7 @@ namespace tinbuild::hydrology {
 namespace {
 
 constexpr std::uint32_t kNoLabel = ~std::uint32_t{0};
+constexpr std::uint32_t kRaisedBit = std::uint32_t{1} << 31;  // (pass 1's kept labels: fill above the DEM)
 
 // One tile's first flood: its fills and labels, and the edges between its labels.
 class TileFlood {
@@ -160,6 +162,9 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
 
   // Pass 1: each tile's perimeter and edges.
   auto t0 = std::chrono::steady_clock::now();
+  TempFile scratch(options.scratchDir, "fill");
+  const auto tileCells =
+      static_cast<std::uint64_t>(grid.tileSize()) * static_cast<std::uint64_t>(grid.tileSize());
   std::vector<TileSummary> summaries(static_cast<std::size_t>(tiles));
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int worker) {
     const TileRect r = grid.tile(t);
@@ -173,6 +178,22 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
       s.perimeterFill[slot] = f.fill[f.index(c, row)];
     });
     s.edges = f.edges();
+    // The flood for pass 2: the fills, and the labels with the top bit set where the fill is above the
+    // DEM (what pass 2 counts as raised needs no height then).
+    const std::size_t n = r.cells();
+    const std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
+    const int hw = r.width + 2;
+    for (int row = 0; row < r.height; ++row)
+      for (int c = 0; c < r.width; ++c) {
+        const std::size_t i = f.index(c, row);
+        if (f.label[i] == kNoLabel) continue;
+        const float z = halo[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(hw) +
+                             static_cast<std::size_t>(c + 1)];
+        if (f.fill[i] > z) f.label[i] |= kRaisedBit;
+      }
+    const std::uint64_t at = static_cast<std::uint64_t>(t) * tileCells * 8;
+    scratch.writeAt(at, f.fill.data(), n * sizeof(float));
+    scratch.writeAt(at + tileCells * 4, f.label.data(), n * sizeof(std::uint32_t));
   });
   shareTiles(
       grid, options.peers,
@@ -234,28 +255,29 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
   const std::vector<float> level = graph.solve();
   stats.solveSeconds = since(t0);
 
-  // Pass 2: the same flood again, each cell at max(tile fill, its label's level).
+  // Pass 2: each tile's flood of pass 1 back, each cell at max(tile fill, its label's level).
   t0 = std::chrono::steady_clock::now();
   std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), raised(cells);
-  std::vector<std::vector<float>> outs(static_cast<std::size_t>(threads));
+  std::vector<std::vector<std::uint32_t>> labels(static_cast<std::size_t>(threads));
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int worker) {
     const TileRect r = grid.tile(t);
-    TileFlood& f = flood(t, worker);
-    const std::vector<float>& halo = halos[static_cast<std::size_t>(worker)];
-    std::vector<float>& out = outs[static_cast<std::size_t>(worker)];
-    out.assign(r.cells(), kNoData);
-    const int hw = r.width + 2;
-    for (int row = 0; row < r.height; ++row)
-      for (int c = 0; c < r.width; ++c) {
-        const std::size_t i = f.index(c, row);
-        if (f.label[i] == kNoLabel) continue;
-        const float z = halo[static_cast<std::size_t>(row + 1) * static_cast<std::size_t>(hw) +
-                             static_cast<std::size_t>(c + 1)];
-        const float v = std::max(f.fill[i], level[global(t, f.label[i])]);
-        out[i] = v;
-        ++cells[static_cast<std::size_t>(worker)];
-        raised[static_cast<std::size_t>(worker)] += v > z;
-      }
+    const std::size_t n = r.cells();
+    const auto w = static_cast<std::size_t>(worker);
+    std::vector<float>& out = halos[w];  // (the fills, then the answer in place)
+    std::vector<std::uint32_t>& label = labels[w];
+    out.resize(n);
+    label.resize(n);
+    const std::uint64_t at = static_cast<std::uint64_t>(t) * tileCells * 8;
+    scratch.readAt(at, out.data(), n * sizeof(float));
+    scratch.readAt(at + tileCells * 4, label.data(), n * sizeof(std::uint32_t));
+    for (std::size_t i = 0; i < n; ++i) {
+      if (label[i] == kNoLabel) continue;  // (nodata: out[i] is NaN already)
+      const float fill = out[i];
+      const float v = std::max(fill, level[global(t, label[i] & ~kRaisedBit)]);
+      out[i] = v;
+      ++cells[w];
+      raised[w] += (label[i] & kRaisedBit) != 0 || v > fill;
+    }
     filled.write(r, out.data());
   });
   std::vector<std::uint64_t> sums{0, 0};

@@ -31,6 +31,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/hydrology/tile_grid.h"
@@ -43,6 +44,10 @@ struct FillOptions {
   int threads = 1;
   const CancelFlag* cancel = nullptr;
   Peers* peers = nullptr;  // split across processes (peers.h); none: this process does every tile
+  // Where pass 1 keeps each tile's flood (its fills and labels, 8 bytes a cell, in a temporary file that
+  // is unlinked at once: core/temp_file.h) for pass 2, instead of flooding the tile a second time; "" for
+  // $TMPDIR, else /tmp.
+  std::string scratchDir;
 };
 
 struct FillStats {
