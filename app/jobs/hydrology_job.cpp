@@ -492,6 +492,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       fo.dy = rep.dy;
       fo.cancel = o.cancel;
       fo.peers = peers;
+      fo.scratchDir = staging.work();
       rep.flow = flowDirections(grid, filled, t, fo);
     });
     commitRaster(flowOut, "flowdir");

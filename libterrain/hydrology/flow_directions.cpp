@@ -12,6 +12,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "libterrain/core/temp_file.h"
 #include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
@@ -90,6 +91,87 @@ class TileFlats {
       }
       ++comps_;
     }
+    // The flat neighbours across the tile's edges, each as (flat index, its tile, its slot there).
+    across_.clear();
+    for (std::uint32_t g = 0; g < flats_.size(); ++g) {
+      const int c = col(flats_[g]), row = rowOf(flats_[g]);
+      if (!onPerimeter(r_.width, r_.height, c, row)) continue;
+      for (int k = 0; k < 8; ++k) {
+        const int nc = c + kDx[k], nr = row + kDy[k];
+        if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) continue;
+        if (status(nc, nr) != Status::kFlat) continue;
+        const std::int64_t gc = r_.col0 + nc, gr = r_.row0 + nr;
+        const std::int64_t u = grid_.tileOf(gc, gr);
+        const TileRect ur = grid_.tile(u);
+        across_.push_back(
+            {g,
+             static_cast<std::uint32_t>(perimeterSlot(ur.width, ur.height, static_cast<int>(gc - ur.col0),
+                                                      static_cast<int>(gr - ur.row0))),
+             u});
+      }
+    }
+  }
+
+  // The tile's flats as the rounds need them again (flat cells, components, distances, the neighbours
+  // across the edges), kept in `file` between rounds: a round after the first reads them back and only
+  // carries its neighbours' improvements inward, instead of reading the heights and searching afresh.
+  struct Kept {
+    std::uint64_t at = 0;  // offset in the file
+    std::uint32_t flats = 0, comps = 0, across = 0;
+    bool valid = false;
+  };
+  static std::uint64_t keptBytes(std::size_t flats, std::size_t across) {
+    return 16 * static_cast<std::uint64_t>(flats) + sizeof(Across) * static_cast<std::uint64_t>(across);
+  }
+  std::uint64_t keepBytes() const { return keptBytes(flats_.size(), across_.size()); }
+  void keep(TempFile& file, Kept& k) const {
+    k.flats = static_cast<std::uint32_t>(flats_.size());
+    k.comps = comps_;
+    k.across = static_cast<std::uint32_t>(across_.size());
+    const std::uint64_t n = 4 * static_cast<std::uint64_t>(k.flats);
+    file.writeAt(k.at, flats_.data(), n);
+    file.writeAt(k.at + n, comp_.data(), n);
+    file.writeAt(k.at + 4 * n, across_.data(), across_.size() * sizeof(Across));
+    keepDistances(file, k);
+    k.valid = true;
+  }
+  void keepDistances(TempFile& file, const Kept& k) const {
+    const std::uint64_t n = 4 * static_cast<std::uint64_t>(k.flats);
+    file.writeAt(k.at + 2 * n, dL_.data(), n);
+    file.writeAt(k.at + 3 * n, dH_.data(), n);
+  }
+  // Tile t's flats back (no heights: enough for the rounds, not for the directions).
+  void restore(std::int64_t t, TempFile& file, const Kept& k) {
+    r_ = grid_.tile(t);
+    const std::uint64_t n = 4 * static_cast<std::uint64_t>(k.flats);
+    flats_.resize(k.flats);
+    comp_.resize(k.flats);
+    dL_.resize(k.flats);
+    dH_.resize(k.flats);
+    across_.resize(k.across);
+    file.readAt(k.at, flats_.data(), n);
+    file.readAt(k.at + n, comp_.data(), n);
+    file.readAt(k.at + 2 * n, dL_.data(), n);
+    file.readAt(k.at + 3 * n, dH_.data(), n);
+    file.readAt(k.at + 4 * n, across_.data(), across_.size() * sizeof(Across));
+    comps_ = k.comps;
+    compMax_.clear();
+    local_.assign(r_.cells(), kInf);
+    for (std::uint32_t f = 0; f < k.flats; ++f) local_[flats_[f]] = f;
+  }
+  // After load(): the distances a tile's last round kept (the same flat cells, in the same order).
+  void restoreDistances(TempFile& file, const Kept& k) {
+    const std::uint64_t n = 4 * static_cast<std::uint64_t>(k.flats);
+    dL_.resize(k.flats);
+    dH_.resize(k.flats);
+    file.readAt(k.at + 2 * n, dL_.data(), n);
+    file.readAt(k.at + 3 * n, dH_.data(), n);
+  }
+  // The neighbours' newer perimeter values carried inward from the distances kept; whether any changed.
+  bool relax(const std::vector<Perimeter>& perims) {
+    const bool low = improve(dL_, perims, true);
+    const bool high = improve(dH_, perims, false);
+    return low || high;
   }
 
   bool perimeterFlat() const {
@@ -223,28 +305,15 @@ class TileFlats {
   // the tile's edge.
   template <typename F>
   void forEachAcross(const std::vector<Perimeter>& perims, F&& f) const {
-    for (std::uint32_t g = 0; g < flats_.size(); ++g) {
-      const int c = col(flats_[g]), row = rowOf(flats_[g]);
-      if (!onPerimeter(r_.width, r_.height, c, row)) continue;
-      for (int k = 0; k < 8; ++k) {
-        const int nc = c + kDx[k], nr = row + kDy[k];
-        if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) continue;
-        if (status(nc, nr) != Status::kFlat) continue;
-        const std::int64_t gc = r_.col0 + nc, gr = r_.row0 + nr;
-        const std::int64_t u = grid_.tileOf(gc, gr);
-        const TileRect ur = grid_.tile(u);
-        const Perimeter& p = perims[static_cast<std::size_t>(u)];
-        if (p.dL.empty()) continue;  // (not computed yet)
-        f(g, p,
-          perimeterSlot(ur.width, ur.height, static_cast<int>(gc - ur.col0), static_cast<int>(gr - ur.row0)));
-      }
+    for (const Across& a : across_) {
+      const Perimeter& p = perims[static_cast<std::size_t>(a.tile)];
+      if (p.dL.empty()) continue;  // (not computed yet)
+      f(a.flat, p, a.slot);
     }
   }
 
   // Multi-source distances through the tile's flat cells: 1 on the local sources (beside the low edge, or
-  // beside higher ground), and one more than a flat neighbour's across the tile's edge.  A breadth-first
-  // search whose queue is merged with the seeds sorted by distance (every step costs 1, so the queue's
-  // distances never fall): each cell is settled once, in order of distance.
+  // beside higher ground), and one more than a flat neighbour's across the tile's edge.
   void bfs(std::vector<std::uint32_t>& d, const std::vector<Perimeter>& perims, bool low) {
     d.assign(flats_.size(), kInf);
     seeds_.clear();
@@ -262,13 +331,25 @@ class TileFlats {
         seeds_.push_back({1, f});
       }
     }
-    forEachAcross(perims, [&](std::uint32_t f, const Perimeter& p, std::size_t slot) {
-      const std::uint32_t v = low ? p.dL[slot] : p.dH[slot];
-      if (v != kInf && v + 1 < d[f]) {
-        d[f] = v + 1;
-        seeds_.push_back({v + 1, f});
+    improve(d, perims, low);
+  }
+
+  // Seeds the search with the flat neighbours across the tile's edge whose distance, plus one step, is
+  // shorter than what d holds, and carries them inward; whether there was any.  A breadth-first search
+  // whose queue is merged with the seeds sorted by distance (every step costs 1, so the queue's
+  // distances never fall): each cell is settled once, in order of distance; d already holding shorter
+  // paths (the last round's, or the local sources) only prunes it.
+  bool improve(std::vector<std::uint32_t>& d, const std::vector<Perimeter>& perims, bool low) {
+    for (const Across& a : across_) {
+      const Perimeter& p = perims[static_cast<std::size_t>(a.tile)];
+      if (p.dL.empty()) continue;  // (not computed yet)
+      const std::uint32_t v = low ? p.dL[a.slot] : p.dH[a.slot];
+      if (v != kInf && v + 1 < d[a.flat]) {
+        d[a.flat] = v + 1;
+        seeds_.push_back({v + 1, a.flat});
       }
-    });
+    }
+    if (seeds_.empty()) return false;
     std::sort(seeds_.begin(), seeds_.end());
     queue_.clear();
     std::size_t head = 0, next = 0;
@@ -291,6 +372,8 @@ class TileFlats {
         }
       }
     }
+    seeds_.clear();
+    return true;
   }
 
   std::int64_t maskOf(int c, int row, const std::vector<Perimeter>& perims) const {
@@ -326,6 +409,11 @@ class TileFlats {
   std::vector<std::uint32_t> comp_;   // flat index -> component
   std::uint32_t comps_ = 0;
   std::vector<std::uint32_t> dL_, dH_, compMax_;
+  struct Across {
+    std::uint32_t flat, slot;  // the tile's flat cell; its neighbour's slot in the neighbouring tile
+    std::int64_t tile;
+  };
+  std::vector<Across> across_;
   std::vector<std::pair<std::uint32_t, std::uint32_t>> seeds_;  // (distance, flat index)
   std::vector<std::uint32_t> queue_;
 };
@@ -374,6 +462,9 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
   const auto owned = static_cast<std::int64_t>(mine.size());
   std::vector<std::uint8_t> moved(static_cast<std::size_t>(tiles), 0);
   std::vector<std::vector<std::uint32_t>> comps(static_cast<std::size_t>(tiles)), largest(comps);
+  TempFile keptFile(options.scratchDir, "flats");
+  std::vector<TileFlats::Kept> kept(static_cast<std::size_t>(tiles));
+  std::atomic<std::uint64_t> keptEnd{0};
   for (std::int64_t round = 0;; ++round) {
     std::atomic<bool> changed{false};
     forEachIndex(owned, threads, options.cancel, [&](std::int64_t i, int w) {
@@ -400,13 +491,25 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
         return;
       }
       TileFlats& f = work[static_cast<std::size_t>(w)];
-      f.load(t, filled);
-      if (!f.perimeterFlat()) {
-        active[ti] = 0;
-        release();
-        return;
+      if (!kept[ti].valid) {  // (the tile's first round)
+        f.load(t, filled);
+        if (!f.perimeterFlat()) {
+          active[ti] = 0;
+          release();
+          return;
+        }
+        f.distances(view);
+        kept[ti].at = keptEnd.fetch_add(f.keepBytes());
+        f.keep(keptFile, kept[ti]);
+      } else {
+        f.restore(t, keptFile, kept[ti]);
+        if (!f.relax(view)) {  // (nothing shorter came in: the same perimeter and components)
+          release();
+          seen[ti] = saw;
+          return;
+        }
+        f.keepDistances(keptFile, kept[ti]);
       }
-      f.distances(view);
       Perimeter p;
       f.perimeter(p);
       f.components(comps[ti], largest[ti]);
@@ -535,7 +638,11 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileFlats& f = work[static_cast<std::size_t>(w)];
     f.load(t, filled);
-    f.distances(prev);
+    const TileFlats::Kept& k = kept[static_cast<std::size_t>(t)];
+    if (k.valid)
+      f.restoreDistances(keptFile, k);  // (final: the tile's last round saw its neighbours' last values)
+    else
+      f.distances(prev);  // (no flat on its perimeter: its own flats only)
     f.maxima(prev);
     std::vector<std::uint8_t>& out = outs[static_cast<std::size_t>(w)];
     f.codes(prev, out, per[static_cast<std::size_t>(w)]);

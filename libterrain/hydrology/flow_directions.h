@@ -31,6 +31,7 @@
 #pragma once
 
 #include <cstdint>
+#include <string>
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/hydrology/tile_grid.h"
@@ -51,6 +52,9 @@ struct FlowOptions {
   double dx = 1, dy = 1;  // a cell's width and height (CRS units)
   const CancelFlag* cancel = nullptr;
   Peers* peers = nullptr;  // split across processes (peers.h): rounds exchange the changed perimeters
+  // Where the rounds keep each tile's flats between rounds (16 bytes a flat cell, in a temporary file that
+  // is unlinked at once: core/temp_file.h); "" for $TMPDIR, else /tmp.
+  std::string scratchDir;
 };
 
 struct FlowStats {
