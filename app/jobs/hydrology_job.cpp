@@ -569,6 +569,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       d.stageHeight = o.stage.value_or(0);
       d.cancel = o.cancel;
       d.peers = peers;
+      d.scratchDir = staging.work();
       rep.drainage = drainage(grid, io, d);
     });
     commitRaster(handOut, "hand");

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <vector>
 
+#include "libterrain/core/temp_file.h"
 #include "libterrain/hydrology/peers.h"
 #include "libterrain/hydrology/tile_runner.h"
 
@@ -22,64 +23,83 @@ struct Answer {
   std::uint32_t link = 0;  // kStream: its link (with the links raster)
 };
 
+// A tile's cells and their answers, 8 bytes each: a local index >= 0 is the tile's stream cell the path
+// reaches first (its height and link are the tile's own), -1 none, -2 - g "the answer of global cell g".
 class TileDrainage {
  public:
+  // Pass 1: reads the tile and finds every cell's answer.
   void run(const TileGrid& grid, std::int64_t t, const DrainageIO& io, const DrainageOptions& o) {
-    r_ = grid.tile(t);
-    width_ = grid.width();
+    load(grid, t, io, !io.links);
     const std::size_t n = r_.cells();
-    codes_.resize(n);
-    count_.resize(n);
-    filled_.resize(n);
-    io.flowdir->read(r_, 0, codes_.data());
-    io.counts->read(r_, 0, count_.data());
-    io.filled->read(r_, 0, filled_.data());
-    links_.assign(n, 0);
-    if (io.links) io.links->read(r_, 0, links_.data());
     target_.assign(n, -1);
     indeg_.assign(n, 0);
-    answer.assign(n, Answer{});
+    answer_.assign(n, -1);
     order_.clear();
-    streamCells = 0;
     for (int row = 0; row < r_.height; ++row)
       for (int c = 0; c < r_.width; ++c) {
         const std::size_t i = cell(c, row);
-        const std::uint8_t d = codes_[i];
-        const int k = directionOf(d);
+        const int k = directionOf(codes_[i]);
         if (k < 0) continue;
         const int nc = c + kDx[k], nr = row + kDy[k];
         if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) {
-          target_[i] = static_cast<std::int64_t>(cell(nc, nr));
+          target_[i] = static_cast<std::int32_t>(cell(nc, nr));
           ++indeg_[cell(nc, nr)];
         } else {
-          target_[i] = -2 - ((r_.row0 + nr) * width_ + (r_.col0 + nc));  // (outside the tile: encoded)
+          target_[i] = -2 - k;  // (outside the tile, towards k)
         }
       }
     for (std::size_t i = 0; i < n; ++i)
       if (codes_[i] != 255 && indeg_[i] == 0) order_.push_back(static_cast<std::uint32_t>(i));
     for (std::size_t q = 0; q < order_.size(); ++q) {
-      const std::int64_t to = target_[order_[q]];
+      const std::int32_t to = target_[order_[q]];
       if (to < 0) continue;
       if (--indeg_[static_cast<std::size_t>(to)] == 0) order_.push_back(static_cast<std::uint32_t>(to));
     }
     // Downstream first: each cell after the cell it drains to.
     for (std::size_t q = order_.size(); q-- > 0;) {
       const std::uint32_t i = order_[q];
-      Answer& a = answer[i];
-      if (count_[i] > 0 && static_cast<double>(count_[i]) * o.cellArea >= o.streamArea) {
-        a.kind = Answer::kStream;
-        a.cell = global(i);
-        a.height = filled_[i];
-        a.link = links_[i];
-        ++streamCells;
+      std::int64_t& a = answer_[i];
+      if (isStream(i, o)) {
+        a = i;
       } else if (target_[i] >= 0) {
-        a = answer[static_cast<std::size_t>(target_[i])];
+        a = answer_[static_cast<std::size_t>(target_[i])];
       } else if (target_[i] <= -2) {
-        a.kind = Answer::kFollow;
-        a.cell = -2 - target_[i];
+        const int k = -2 - target_[i];
+        const std::int64_t c =
+            r_.col0 + static_cast<std::int64_t>(i % static_cast<std::uint32_t>(r_.width)) + kDx[k];
+        const std::int64_t row =
+            r_.row0 + static_cast<std::int64_t>(i / static_cast<std::uint32_t>(r_.width)) + kDy[k];
+        a = -2 - (row * width_ + c);
       }
     }
   }
+
+  // Pass 2: reads the tile again (no counts) and the answers pass 1 kept.
+  void reload(const TileGrid& grid, std::int64_t t, const DrainageIO& io, TempFile& kept, std::uint64_t at) {
+    load(grid, t, io, false);
+    answer_.resize(r_.cells());
+    kept.readAt(at, answer_.data(), answer_.size() * sizeof(std::int64_t));
+  }
+  void keep(TempFile& kept, std::uint64_t at) const {
+    kept.writeAt(at, answer_.data(), answer_.size() * sizeof(std::int64_t));
+  }
+
+  // Cell i's answer, as the perimeters hold them.
+  Answer answer(std::size_t i) const {
+    Answer a;
+    const std::int64_t v = answer_[i];
+    if (v >= 0) {
+      a.kind = Answer::kStream;
+      a.cell = global(static_cast<std::size_t>(v));
+      a.height = filled_[static_cast<std::size_t>(v)];
+      a.link = links_[static_cast<std::size_t>(v)];
+    } else if (v <= -2) {
+      a.kind = Answer::kFollow;
+      a.cell = -2 - v;
+    }
+    return a;
+  }
+  bool streamCell(std::size_t i) const { return answer_[i] == static_cast<std::int64_t>(i); }
 
   std::int64_t global(std::size_t i) const {
     return (r_.row0 + static_cast<std::int64_t>(i / static_cast<std::size_t>(r_.width))) * width_ + r_.col0 +
@@ -92,18 +112,41 @@ class TileDrainage {
   const std::vector<float>& filledHeights() const { return filled_; }
   const std::vector<std::uint8_t>& codes() const { return codes_; }
 
-  std::vector<Answer> answer;
-  std::uint64_t streamCells = 0;
-
  private:
+  void load(const TileGrid& grid, std::int64_t t, const DrainageIO& io, bool counts) {
+    r_ = grid.tile(t);
+    width_ = grid.width();
+    const std::size_t n = r_.cells();
+    codes_.resize(n);
+    filled_.resize(n);
+    io.flowdir->read(r_, 0, codes_.data());
+    io.filled->read(r_, 0, filled_.data());
+    links_.assign(n, 0);
+    if (io.links) io.links->read(r_, 0, links_.data());
+    if (counts) {
+      count_.resize(n);
+      io.counts->read(r_, 0, count_.data());
+    } else {
+      std::vector<std::uint64_t>().swap(count_);
+    }
+  }
+  // A stream cell: with the links raster, a cell with a link (streams.h gives one to every cell at or
+  // above the stream area, by the same test), else that test on its count.
+  bool isStream(std::size_t i, const DrainageOptions& o) const {
+    if (count_.empty()) return links_[i] != 0;
+    return count_[i] > 0 && static_cast<double>(count_[i]) * o.cellArea >= o.streamArea;
+  }
+
   TileRect r_;
   std::int64_t width_ = 0;
   std::vector<std::uint8_t> codes_;
   std::vector<std::uint64_t> count_;
   std::vector<float> filled_;
   std::vector<std::uint32_t> links_;
-  std::vector<std::int64_t> target_;
-  std::vector<std::uint32_t> indeg_, order_;
+  std::vector<std::int32_t> target_;
+  std::vector<std::uint8_t> indeg_;
+  std::vector<std::uint32_t> order_;
+  std::vector<std::int64_t> answer_;
 };
 
 }  // namespace
@@ -118,16 +161,21 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
   const int threads = std::max(1, options.threads);
   std::vector<TileDrainage> work(static_cast<std::size_t>(threads));
 
-  // Pass 1: every tile's perimeter answers, by perimeter slot.
+  // Pass 1: every tile's perimeter answers, by perimeter slot; every cell's, kept for pass 2 (8 bytes a
+  // cell, in a temporary file unlinked at once).
+  TempFile kept(options.scratchDir, "drainage");
+  const auto tileCells =
+      static_cast<std::uint64_t>(grid.tileSize()) * static_cast<std::uint64_t>(grid.tileSize());
   std::vector<std::vector<Answer>> perimeter(static_cast<std::size_t>(tiles));
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileDrainage& td = work[static_cast<std::size_t>(w)];
     td.run(grid, t, io, options);
+    td.keep(kept, static_cast<std::uint64_t>(t) * tileCells * 8);
     const TileRect& r = td.rect();
     std::vector<Answer>& p = perimeter[static_cast<std::size_t>(t)];
     p.assign(perimeterCells(r.width, r.height), Answer{});
     forEachPerimeterCell(r.width, r.height,
-                         [&](int c, int row, std::size_t slot) { p[slot] = td.answer[td.cell(c, row)]; });
+                         [&](int c, int row, std::size_t slot) { p[slot] = td.answer(td.cell(c, row)); });
   });
   shareTiles(
       grid, options.peers,
@@ -145,11 +193,10 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileDrainage& td = work[wi];
-    td.run(grid, t, io, options);
+    td.reload(grid, t, io, kept, static_cast<std::uint64_t>(t) * tileCells * 8);
     const TileRect& r = td.rect();
     const std::size_t n = r.cells();
     DrainageStats& s = per[wi];
-    s.streamCells += td.streamCells;
     std::vector<float>& h = hands[wi];
     std::vector<float>& dp = depths[wi];
     std::vector<std::uint64_t>& dr = drains[wi];
@@ -165,7 +212,8 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
     for (std::size_t i = 0; i < n; ++i) {
       if (td.codes()[i] == 255) continue;
       ++s.cells;
-      Answer a = td.answer[i];
+      s.streamCells += td.streamCell(i);
+      Answer a = td.answer(i);
       if (a.kind == Answer::kFollow) {  // (the cell its path leaves the tile into: resolved above)
         std::int64_t u = 0;
         const std::size_t slot = perimeterSlotOf(grid, a.cell, u);

@@ -13,11 +13,15 @@
 // a cell after the cell it drains to) or, where the path leaves the tile first, carried to the outflow cell
 // it leaves from.  Pass 1 keeps each outflow cell's answer (a stream cell, none, or "the answer of the
 // cell it drains into") and each entry's; the chains between tiles are followed to their ends (they never
-// circle: flow paths do not); pass 2 writes every cell's answer.  Only whole cell indices and copied
-// heights move, so any tiling gives the same bits.
+// circle: flow paths do not); pass 2 writes every cell's answer, from what pass 1 kept of every cell (8
+// bytes: its stream cell in the tile, none, or the cell its path leaves the tile into) in a temporary
+// file.  With the links raster, a stream cell is a cell with a link (streams.h gives one to every cell at
+// or above the stream area): the counts are not read.  Only whole cell indices and copied heights move,
+// so any tiling gives the same bits.
 #pragma once
 
 #include <cstdint>
+#include <string>
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/hydrology/tile_grid.h"
@@ -34,6 +38,9 @@ struct DrainageOptions {
   bool stage = false;     // compute the depth for `stageHeight`
   double stageHeight = 0;
   const CancelFlag* cancel = nullptr;
+  // Where pass 1 keeps every cell's answer for pass 2 (8 bytes a cell, in a temporary file that is
+  // unlinked at once: core/temp_file.h); "" for $TMPDIR, else /tmp.
+  std::string scratchDir;
 };
 
 struct DrainageStats {
@@ -47,7 +54,7 @@ struct DrainageStats {
 // The rasters a drainage pass reads and writes.
 struct DrainageIO {
   TileSourceOf<std::uint8_t>* flowdir = nullptr;  // codes
-  TileSourceOf<std::uint64_t>* counts = nullptr;  // upstream cells
+  TileSourceOf<std::uint64_t>* counts = nullptr;  // upstream cells (read only without `links`)
   TileSource* filled = nullptr;                   // heights
   TileSource* dem = nullptr;                      // heights, for the depth (null: the filled ones)
   TileSourceOf<std::uint32_t>* links = nullptr;   // stream link ids (streams.h), for the catchments
