@@ -3,7 +3,9 @@
 
 #include <chrono>
 #include <deque>
+#include <mutex>
 #include <queue>
+#include <stdexcept>
 #include <unordered_map>
 #include <vector>
 
@@ -22,10 +24,7 @@ constexpr std::uint32_t kRaisedBit = std::uint32_t{1} << 31;  // (pass 1's kept 
 // One tile's first flood: its fills and labels, and the edges between its labels.
 class TileFlood {
  public:
-  struct Edge {
-    std::uint32_t a, b;
-    float level;
-  };
+  using Edge = SpillGraph::Edge;
 
   // `halo`: the tile's heights with a halo of one cell ((w + 2) x (h + 2)).
   void run(const TileRect& r, const std::vector<float>& halo) {
@@ -160,6 +159,24 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
     return f;
   };
 
+  // The perimeter graph's nodes: label l > 0 of tile t is node slotBase[t] + l (a tile's labels are at
+  // most its perimeter cells), node 0 the outside.  Ids are known before any tile is flooded, so the
+  // tiles' edges go straight into the graph (which keeps them on disk) rather than waiting in memory.
+  std::vector<std::uint64_t> slotBase(static_cast<std::size_t>(tiles) + 1, 0);
+  for (std::int64_t t = 0; t < tiles; ++t) {
+    const TileRect r = grid.tile(t);
+    slotBase[static_cast<std::size_t>(t) + 1] =
+        slotBase[static_cast<std::size_t>(t)] + perimeterCells(r.width, r.height);
+  }
+  if (slotBase.back() + 1 >= kNoLabel)
+    throw std::length_error("fill: more than 2^32 perimeter cells; use larger tiles");
+  auto global = [&](std::int64_t t, std::uint32_t l) {
+    return l == 0 ? 0u : static_cast<std::uint32_t>(slotBase[static_cast<std::size_t>(t)] + l);
+  };
+  SpillGraph graph(static_cast<std::uint32_t>(slotBase.back() + 1), options.scratchDir);
+  std::mutex graphLock;
+  const bool split = options.peers && options.peers->size() > 1;  // (then every process needs every edge)
+
   // Pass 1: each tile's perimeter and edges.
   auto t0 = std::chrono::steady_clock::now();
   TempFile scratch(options.scratchDir, "fill");
@@ -177,7 +194,14 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
       s.perimeterLabel[slot] = f.label[f.index(c, row)];
       s.perimeterFill[slot] = f.fill[f.index(c, row)];
     });
-    s.edges = f.edges();
+    std::vector<TileFlood::Edge> edges = f.edges();
+    SpillGraph::spanningForest(edges, f.labels);  // (a tile's cycles never carry a minimax path)
+    if (split) {
+      s.edges = std::move(edges);
+    } else {
+      std::lock_guard<std::mutex> lock(graphLock);
+      for (const TileFlood::Edge& e : edges) graph.addEdge(global(t, e.a), global(t, e.b), e.level);
+    }
     // The flood for pass 2: the fills, and the labels with the top bit set where the fill is above the
     // DEM (what pass 2 counts as raised needs no height then).
     const std::size_t n = r.cells();
@@ -216,17 +240,9 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
   // The perimeter graph: every tile's labels (0 is the outside, shared), the edges inside the tiles and
   // between touching perimeter cells of neighbouring tiles.
   t0 = std::chrono::steady_clock::now();
-  std::vector<std::uint32_t> offset(static_cast<std::size_t>(tiles) + 1, 1);
-  for (std::int64_t t = 0; t < tiles; ++t)
-    offset[static_cast<std::size_t>(t) + 1] =
-        offset[static_cast<std::size_t>(t)] + summaries[static_cast<std::size_t>(t)].labels - 1;
-  auto global = [&](std::int64_t t, std::uint32_t l) {
-    return l == 0 ? 0 : offset[static_cast<std::size_t>(t)] + l - 1;
-  };
-  SpillGraph graph(offset.back());
-  for (std::int64_t t = 0; t < tiles; ++t) {
+  // The edges between touching perimeter cells of tile t and the tiles after it (each pair of tiles once).
+  auto acrossEdges = [&](std::int64_t t) {
     const TileSummary& s = summaries[static_cast<std::size_t>(t)];
-    for (const TileFlood::Edge& e : s.edges) graph.addEdge(global(t, e.a), global(t, e.b), e.level);
     const TileRect r = grid.tile(t);
     forEachPerimeterCell(r.width, r.height, [&](int c, int row, std::size_t slot) {
       if (s.perimeterLabel[slot] == kNoLabel) return;
@@ -235,7 +251,7 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
         const std::int64_t nc = gc + kDx[k], nr = gr + kDy[k];
         if (nc < 0 || nr < 0 || nc >= grid.width() || nr >= grid.height()) continue;
         const std::int64_t u = grid.tileOf(nc, nr);
-        if (u <= t) continue;  // (each pair of tiles once, from the lower)
+        if (u <= t) continue;
         const TileRect ur = grid.tile(u);
         const TileSummary& us = summaries[static_cast<std::size_t>(u)];
         const std::size_t uslot = perimeterSlot(ur.width, ur.height, static_cast<int>(nc - ur.col0),
@@ -245,11 +261,21 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
                       std::max(s.perimeterFill[slot], us.perimeterFill[uslot]));
       }
     });
-  }
-  for (const TileSummary& s : summaries)
+  };
+  stats.labels = 1;
+  for (std::int64_t t = 0; t < tiles; ++t) {
+    const TileSummary& s = summaries[static_cast<std::size_t>(t)];
+    stats.labels += s.labels - 1;
     stats.graphBytes += s.perimeterLabel.capacity() * 8 + s.edges.capacity() * sizeof(TileFlood::Edge);
-  stats.graphBytes += graph.bytes();
-  stats.labels = graph.nodes();
+  }
+  // Tile by tile; a tile's summary is released once its edges are in (the tiles after it never look back).
+  for (std::int64_t t = 0; t < tiles; ++t) {
+    TileSummary& s = summaries[static_cast<std::size_t>(t)];
+    for (const TileFlood::Edge& e : s.edges) graph.addEdge(global(t, e.a), global(t, e.b), e.level);
+    acrossEdges(t);
+    s = TileSummary{};
+  }
+  stats.graphBytes += graph.bytes() + 9 * static_cast<std::uint64_t>(graph.nodes());  // (the solve's)
   stats.edges = graph.edges();
   std::vector<TileSummary>().swap(summaries);
   const std::vector<float> level = graph.solve();

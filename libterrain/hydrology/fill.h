@@ -11,11 +11,12 @@
 // outside (label 0), every other perimeter cell a seed with a label of its own, and each cell gets the
 // level of the first flood (its tile fill) and the label of the seed that reached it.  Where two labels
 // touch, the tile keeps an edge weighted by the higher of the two cells' tile fills (the lowest such
-// edge per pair), and it keeps its perimeter's labels and fills; nothing else.  The perimeter graph
-// (spill_graph.h) joins the tiles' labels by the edges inside them and across their edges (two touching
-// perimeter cells of neighbouring tiles: the higher of their heights) and solves every label's level: the
-// minimax path to the outside.  Pass 2 floods each tile again (the same flood: the same labels) and writes
-// filled = max(tile fill, level of its label).
+// edge per pair, cut to their minimum spanning forest: fewer edges than labels), and it
+// keeps its perimeter's labels and fills; the flood itself (fills and labels, 8 bytes a cell) goes to a
+// temporary file.  The perimeter graph (spill_graph.h) joins the tiles' labels by the edges inside them
+// and across their edges (two touching perimeter cells of neighbouring tiles: the higher of their
+// heights) and solves every label's level: the minimax path to the outside.  Pass 2 reads each tile's
+// flood back and writes filled = max(tile fill, level of its label).
 //
 // Why that is the fill, for any tiling.  A path from a cell c to an outlet either stays in c's watershed
 // of the first flood and leaves through its seed, or crosses from one watershed into another where two
