@@ -3,7 +3,8 @@
 
 #include <chrono>
 #include <cmath>
-#include <unordered_map>
+#include <stdexcept>
+#include <type_traits>
 #include <vector>
 
 #include "libterrain/hydrology/peers.h"
@@ -14,13 +15,15 @@ namespace tinbuild::hydrology {
 namespace {
 
 constexpr std::int64_t kNone = -1;
+constexpr std::uint32_t kNoSlot = ~std::uint32_t{0};
 
 // One tile's counts: codes with a halo of one cell, the in-tile flow graph in Kahn's order.
 class TileCounts {
  public:
-  // `inflow` (pass 2; null in pass 1): by global cell, the count flowing into an entry from outside.
+  // `inflow` (pass 2; null in pass 1): by perimeter slot (the tile's from `slot0` on), the count flowing
+  // into an entry from outside.
   void run(const TileGrid& grid, std::int64_t t, TileSourceOf<std::uint8_t>& source,
-           const std::unordered_map<std::int64_t, std::uint64_t>* inflow) {
+           const std::vector<std::uint64_t>* inflow, std::uint64_t slot0 = 0) {
     r_ = grid.tile(t);
     width_ = grid.width();
     const int hw = r_.width + 2;
@@ -57,8 +60,7 @@ class TileCounts {
         }
         if (entry) {
           entries.push_back(i);
-          if (inflow)
-            if (const auto it = inflow->find(global(c, row)); it != inflow->end()) count[i] += it->second;
+          if (inflow) count[i] += (*inflow)[slot0 + perimeterSlot(r_.width, r_.height, c, row)];
         }
       }
     // Kahn's order: a cell once every in-tile cell draining into it is counted.
@@ -136,78 +138,105 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
   const int threads = std::max(1, options.threads);
   std::vector<TileCounts> work(static_cast<std::size_t>(threads));
 
-  // Pass 1: each tile's outflow cells (local count, target) and entries (the exit they reach).
-  struct TileKeep {
-    std::vector<std::pair<std::int64_t, Outflow>> outflows;    // (global cell, ...)
-    std::vector<std::pair<std::int64_t, std::int64_t>> exits;  // (entry cell, its exit or kNone)
-    std::vector<std::int64_t> targets;                         // of the outflows, in order
+  // The perimeter cells of every tile, numbered tile after tile (slots): the solve's arrays are dense over
+  // them, a few bytes a slot.
+  std::vector<std::uint64_t> base(static_cast<std::size_t>(tiles) + 1, 0);
+  for (std::int64_t t = 0; t < tiles; ++t) {
+    const TileRect r = grid.tile(t);
+    base[static_cast<std::size_t>(t) + 1] =
+        base[static_cast<std::size_t>(t)] + perimeterCells(r.width, r.height);
+  }
+  const std::uint64_t slots = base.back();
+  if (slots >= kNoSlot)
+    throw std::length_error("upstream area: more than 2^32 perimeter cells; use larger tiles");
+  auto slotOf = [&](std::int64_t cell) {
+    std::int64_t t = 0;
+    const std::size_t slot = perimeterSlotOf(grid, cell, t);
+    return static_cast<std::uint32_t>(base[static_cast<std::size_t>(t)] + slot);
   };
-  std::vector<TileKeep> keep(static_cast<std::size_t>(tiles));
+
+  // Pass 1: each tile's outflow cells (local count, the entry they drain into) and entries (the outflow
+  // cell their path reaches in the tile, or none).
+  std::vector<std::uint64_t> total(slots, 0);         // outflow slots: the local count, then the total
+  std::vector<std::uint32_t> target(slots, kNoSlot);  // outflow slots: the entry drained into (else none)
+  std::vector<std::uint32_t> exitOf(slots, kNoSlot);  // entry slots: the outflow slot reached (or none)
+  std::vector<std::uint8_t> entry(slots, 0);
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     TileCounts& tc = work[static_cast<std::size_t>(w)];
     tc.run(grid, t, flowdir, nullptr);
-    TileKeep& k = keep[static_cast<std::size_t>(t)];
     for (std::size_t i : tc.outflow) {
-      Outflow o;
-      o.local = tc.count[i];
-      k.outflows.push_back({tc.global(i), o});
-      k.targets.push_back(tc.outflowTarget(grid, i));
+      const std::uint32_t s = slotOf(tc.global(i));
+      total[s] = tc.count[i];
+      target[s] = slotOf(tc.outflowTarget(grid, i));
     }
     const std::vector<std::int64_t> exits = tc.entryExits();
-    for (std::size_t e = 0; e < tc.entries.size(); ++e)
-      k.exits.push_back({tc.global(tc.entries[e]), exits[e]});
+    for (std::size_t e = 0; e < tc.entries.size(); ++e) {
+      const std::uint32_t s = slotOf(tc.global(tc.entries[e]));
+      entry[s] = 1;
+      exitOf[s] = exits[e] == kNone ? kNoSlot : slotOf(exits[e]);
+    }
   });
+  auto range = [&](auto& v, std::int64_t t) {
+    using T = typename std::decay_t<decltype(v)>::value_type;
+    return std::vector<T>(v.begin() + static_cast<std::ptrdiff_t>(base[static_cast<std::size_t>(t)]),
+                          v.begin() + static_cast<std::ptrdiff_t>(base[static_cast<std::size_t>(t) + 1]));
+  };
+  auto place = [&](auto& v, std::int64_t t, const auto& part) {
+    std::copy(part.begin(), part.end(),
+              v.begin() + static_cast<std::ptrdiff_t>(base[static_cast<std::size_t>(t)]));
+  };
   shareTiles(
       grid, options.peers,
       [&](std::int64_t t, PeerWriter& w) {
-        const TileKeep& k = keep[static_cast<std::size_t>(t)];
-        w.put(k.outflows);
-        w.put(k.exits);
-        w.put(k.targets);
+        w.put(range(total, t));
+        w.put(range(target, t));
+        w.put(range(exitOf, t));
+        w.put(range(entry, t));
       },
       [&](std::int64_t t, PeerReader& r) {
-        TileKeep& k = keep[static_cast<std::size_t>(t)];
-        r.get(k.outflows);
-        r.get(k.exits);
-        r.get(k.targets);
+        std::vector<std::uint64_t> a;
+        std::vector<std::uint32_t> b, c;
+        std::vector<std::uint8_t> d;
+        r.get(a);
+        r.get(b);
+        r.get(c);
+        r.get(d);
+        place(total, t, a);
+        place(target, t, b);
+        place(exitOf, t, c);
+        place(entry, t, d);
       });
 
-  // The forest over the outflow cells, solved from its leaves.
-  std::unordered_map<std::int64_t, std::int64_t> exitOf;
-  std::unordered_map<std::int64_t, Outflow> nodes;
-  for (const TileKeep& k : keep) {
-    for (const auto& [cell, exit] : k.exits) exitOf.emplace(cell, exit);
-    for (const auto& [cell, o] : k.outflows) nodes.emplace(cell, o);
-  }
-  for (const TileKeep& k : keep)
-    for (std::size_t i = 0; i < k.outflows.size(); ++i) {
-      const auto it = exitOf.find(k.targets[i]);
-      const std::int64_t into = it == exitOf.end() ? kNone : it->second;
-      nodes[k.outflows[i].first].into = into;
-      if (into != kNone) ++nodes[into].upstream;
+  // The forest over the outflow cells (each drains, through the entry it drains into, to the outflow
+  // cell that entry reaches), solved from its leaves.
+  {
+    std::vector<std::uint32_t> upstream(slots, 0), ready;
+    auto into = [&](std::uint32_t s) { return exitOf[target[s]]; };
+    for (std::uint32_t s = 0; s < slots; ++s) {
+      if (target[s] == kNoSlot) continue;
+      ++stats.outflows;
+      if (into(s) != kNoSlot) ++upstream[into(s)];
     }
-  stats.outflows = nodes.size();
-  stats.entries = exitOf.size();
-  std::vector<std::int64_t> ready;
-  for (auto& [cell, o] : nodes) {
-    o.total = o.local;
-    if (o.upstream == 0) ready.push_back(cell);
+    for (std::uint32_t s = 0; s < slots; ++s) {
+      stats.entries += entry[s];
+      if (target[s] != kNoSlot && upstream[s] == 0) ready.push_back(s);
+    }
+    for (std::size_t q = 0; q < ready.size(); ++q) {
+      const std::uint32_t s = ready[q];
+      const std::uint32_t down = into(s);
+      if (down == kNoSlot) continue;
+      total[down] += total[s];
+      if (--upstream[down] == 0) ready.push_back(down);
+    }
   }
-  for (std::size_t q = 0; q < ready.size(); ++q) {
-    const Outflow& o = nodes[ready[q]];
-    if (o.into == kNone) continue;
-    Outflow& down = nodes[o.into];
-    down.total += o.total;
-    if (--down.upstream == 0) ready.push_back(o.into);
-  }
+  std::vector<std::uint8_t>().swap(entry);
+  std::vector<std::uint32_t>().swap(exitOf);
   // Each entry's inflow: the totals of the outflow cells draining into it.
-  std::unordered_map<std::int64_t, std::uint64_t> inflowOf;
-  for (const TileKeep& k : keep)
-    for (std::size_t i = 0; i < k.outflows.size(); ++i)
-      if (exitOf.count(k.targets[i])) inflowOf[k.targets[i]] += nodes[k.outflows[i].first].total;
-  std::vector<TileKeep>().swap(keep);
-  std::unordered_map<std::int64_t, Outflow>().swap(nodes);
-  std::unordered_map<std::int64_t, std::int64_t>().swap(exitOf);
+  std::vector<std::uint64_t> inflowOf(slots, 0);
+  for (std::uint32_t s = 0; s < slots; ++s)
+    if (target[s] != kNoSlot) inflowOf[target[s]] += total[s];
+  std::vector<std::uint64_t>().swap(total);
+  std::vector<std::uint32_t>().swap(target);
 
   // Pass 2: each tile again, its entries fed by their inflow.
   std::vector<std::uint64_t> cells(static_cast<std::size_t>(threads), 0), largest(cells);
@@ -215,7 +244,7 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
   forEachOwnedTile(grid, options.peers, threads, options.cancel, [&](std::int64_t t, int w) {
     const auto wi = static_cast<std::size_t>(w);
     TileCounts& tc = work[wi];
-    tc.run(grid, t, flowdir, &inflowOf);
+    tc.run(grid, t, flowdir, &inflowOf, base[static_cast<std::size_t>(t)]);
     for (std::uint64_t v : tc.count) {
       cells[wi] += v != 0;
       largest[wi] = std::max(largest[wi], v);

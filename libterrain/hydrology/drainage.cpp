@@ -15,13 +15,17 @@ namespace {
 
 // A cell's drainage as far as its tile knows it: a stream cell (its global index and filled height), none
 // (the path leaves the DEM first), or "the answer of global cell `follow`" (the path leaves the tile there).
+// 16 bytes (the perimeters keep one a perimeter cell): v >= 0 the stream cell, -1 none, v <= -2 the cell
+// -2 - v to follow.
 struct Answer {
-  enum Kind : std::uint8_t { kNone, kStream, kFollow };
-  Kind kind = kNone;
-  std::int64_t cell = 0;   // kStream: the stream cell; kFollow: the cell to follow
-  float height = 0;        // kStream: its filled height
-  std::uint32_t link = 0;  // kStream: its link (with the links raster)
+  std::int64_t v = -1;
+  float height = 0;        // a stream cell's filled height
+  std::uint32_t link = 0;  // a stream cell's link (with the links raster)
+  bool stream() const { return v >= 0; }
+  bool follow() const { return v <= -2; }
+  std::int64_t cell() const { return follow() ? -2 - v : v; }
 };
+static_assert(sizeof(Answer) == 16);
 
 // A tile's cells and their answers, 8 bytes each: a local index >= 0 is the tile's stream cell the path
 // reaches first (its height and link are the tile's own), -1 none, -2 - g "the answer of global cell g".
@@ -89,13 +93,11 @@ class TileDrainage {
     Answer a;
     const std::int64_t v = answer_[i];
     if (v >= 0) {
-      a.kind = Answer::kStream;
-      a.cell = global(static_cast<std::size_t>(v));
+      a.v = global(static_cast<std::size_t>(v));
       a.height = filled_[static_cast<std::size_t>(v)];
       a.link = links_[static_cast<std::size_t>(v)];
     } else if (v <= -2) {
-      a.kind = Answer::kFollow;
-      a.cell = -2 - v;
+      a.v = v;
     }
     return a;
   }
@@ -182,8 +184,7 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
       [&](std::int64_t t, PeerWriter& w) { w.put(perimeter[static_cast<std::size_t>(t)]); },
       [&](std::int64_t t, PeerReader& r) { r.get(perimeter[static_cast<std::size_t>(t)]); });
   // The chains between tiles, followed to their ends.
-  resolveChains(grid, perimeter,
-                [](const Answer& a) { return a.kind == Answer::kFollow ? a.cell : std::int64_t{-1}; });
+  resolveChains(grid, perimeter, [](const Answer& a) { return a.follow() ? a.cell() : std::int64_t{-1}; });
 
   // Pass 2: every cell's answer, HAND and the depth.
   std::vector<DrainageStats> per(static_cast<std::size_t>(threads));
@@ -214,17 +215,17 @@ DrainageStats drainage(const TileGrid& grid, const DrainageIO& io, const Drainag
       ++s.cells;
       s.streamCells += td.streamCell(i);
       Answer a = td.answer(i);
-      if (a.kind == Answer::kFollow) {  // (the cell its path leaves the tile into: resolved above)
+      if (a.follow()) {  // (the cell its path leaves the tile into: resolved above)
         std::int64_t u = 0;
-        const std::size_t slot = perimeterSlotOf(grid, a.cell, u);
+        const std::size_t slot = perimeterSlotOf(grid, a.cell(), u);
         a = perimeter[static_cast<std::size_t>(u)][slot];
       }
       if (depth) dp[i] = 0;
-      if (a.kind != Answer::kStream) continue;
+      if (!a.stream()) continue;
       ++s.drained;
       const double above = static_cast<double>(td.filledHeights()[i]) - static_cast<double>(a.height);
       h[i] = static_cast<float>(above);
-      if (drain) dr[i] = static_cast<std::uint64_t>(a.cell) + 1;
+      if (drain) dr[i] = static_cast<std::uint64_t>(a.cell()) + 1;
       ca[i] = a.link;
       if (depth && above <= options.stageHeight) {
         const double z = dem ? static_cast<double>(zs[wi][i]) : static_cast<double>(td.filledHeights()[i]);

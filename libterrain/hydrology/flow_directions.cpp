@@ -9,6 +9,7 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <stdexcept>
 #include <unordered_map>
 #include <vector>
 
@@ -572,8 +573,10 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
     for (std::int64_t t = 0; t < tiles; ++t)
       base[static_cast<std::size_t>(t) + 1] =
           base[static_cast<std::size_t>(t)] + comps[static_cast<std::size_t>(t)].size();
-    std::vector<std::uint64_t> parent(base.back());
-    for (std::uint64_t n = 0; n < parent.size(); ++n) parent[n] = n;
+    if (base.back() >= std::numeric_limits<std::uint32_t>::max())
+      throw std::length_error("flow directions: more than 2^32 perimeter cells; use larger tiles");
+    std::vector<std::uint32_t> parent(base.back());
+    for (std::uint32_t n = 0; n < parent.size(); ++n) parent[n] = n;
     auto find = [&](std::uint64_t n) {
       while (parent[n] != n) n = parent[n] = parent[parent[n]];
       return n;
@@ -581,7 +584,7 @@ FlowStats flowDirections(const TileGrid& grid, TileSource& filled, TileTarget<st
     auto unite = [&](std::uint64_t a, std::uint64_t b) {
       a = find(a);
       b = find(b);
-      if (a != b) parent[std::max(a, b)] = std::min(a, b);
+      if (a != b) parent[std::max(a, b)] = static_cast<std::uint32_t>(std::min(a, b));
     };
     std::unordered_map<std::uint32_t, std::uint64_t> first;
     for (std::int64_t t = 0; t < tiles; ++t) {

@@ -20,9 +20,14 @@ namespace {
 
 // A stream cell's link as far as its tile knows: the top cell above it (global index), or "the link of
 // stream cell `cell`" in another tile.
+// A stream cell's link as far as its tile knows it, in 8 bytes (the perimeters keep one a perimeter cell):
+// v >= 0 the top cell of its link, v <= -2 "the link of global cell -2 - v, upstream in another tile",
+// -1 not a stream cell (or not known yet).
 struct Status {
-  bool follow = false;
-  std::int64_t cell = -1;  // -1: not a stream cell
+  std::int64_t v = -1;
+  bool none() const { return v == -1; }
+  bool follow() const { return v <= -2; }
+  std::int64_t cell() const { return follow() ? -2 - v : v; }
 };
 
 struct Partial {
@@ -62,7 +67,7 @@ class TileStreams {
           if (inside(nc, nr)) ++indeg_[i];
         }
         if (ups != 1) {
-          status[i].cell = global(c, row);
+          status[i].v = global(c, row);
           tops.push_back(global(c, row));
         } else {
           up_[i] = upCell;
@@ -76,11 +81,11 @@ class TileStreams {
     for (std::size_t q = 0; q < order_.size(); ++q) {
       const std::uint32_t i = order_[q];
       const std::int64_t u = up_[i];
-      if (status[i].cell < 0) {  // (not a top)
+      if (status[i].none()) {  // (not a top)
         if (u >= 0)
           status[i] = status[static_cast<std::size_t>(u)];
         else
-          status[i] = Status{true, -2 - u};
+          status[i].v = u;  // (u = -2 - the cell upstream: "follow" it)
       }
       const int c = static_cast<int>(i % static_cast<std::uint32_t>(r_.width)),
                 row = static_cast<int>(i / static_cast<std::uint32_t>(r_.width));
@@ -169,7 +174,7 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
   };
   auto isTop = [&tops](std::int64_t g) { return std::binary_search(tops.begin(), tops.end(), g); };
   // The chains between tiles, to their top cells.
-  resolveChains(grid, perimeter, [](const Status& st) { return st.follow ? st.cell : std::int64_t{-1}; });
+  resolveChains(grid, perimeter, [](const Status& st) { return st.follow() ? st.cell() : std::int64_t{-1}; });
 
   // Pass 2: every stream cell's link id, and each link's steps, cells and count.
   std::vector<std::vector<std::pair<std::uint32_t, Partial>>> partials(static_cast<std::size_t>(tiles));
@@ -187,13 +192,13 @@ StreamStats streamLinks(const TileGrid& grid, TileSourceOf<std::uint8_t>& flowdi
       for (int c = 0; c < r.width; ++c) {
         const std::size_t i = ts.cell(c, row);
         Status s = ts.status[i];
-        if (s.cell < 0) continue;
-        if (s.follow) {
+        if (s.none()) continue;
+        if (s.follow()) {
           std::int64_t u;
-          const std::size_t slot = perimeterSlotOf(grid, s.cell, u);
+          const std::size_t slot = perimeterSlotOf(grid, s.cell(), u);
           s = perimeter[static_cast<std::size_t>(u)][slot];
         }
-        const std::uint32_t id = idOf(s.cell);
+        const std::uint32_t id = idOf(s.cell());
         out[i] = id;
         ++streamCells[wi];
         Partial& p = mine[id];
