@@ -10,7 +10,11 @@
 #include <ogr_srs_api.h>
 
 #include <algorithm>
+#include <condition_variable>
+#include <mutex>
 #include <string>
+#include <thread>
+#include <vector>
 
 #include "libterrain/core/error.h"
 
@@ -105,7 +109,7 @@ void StreamLineWriter::close() {
 }
 
 std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, const std::string& layer,
-                             const CancelFlag* cancel) {
+                             const CancelFlag* cancel, int threads) {
   GDALAllRegister();
   GDALDatasetH src = GDALOpen(mask.c_str(), GA_ReadOnly);
   if (!src) throw DataError(mask, std::string("cannot open: ") + CPLGetLastErrorMsg());
@@ -127,36 +131,112 @@ std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, c
   // Block by block: GDALPolygonize keeps every polygon open until its last row, so on a whole raster its
   // memory follows the flood's outline (hundreds of MB at 10^8 cells).  Blocks of kPolygonBlock cells
   // bound it; their lattice is fixed (not the run's tiles), so the polygons are the same for any tiling.
+  // The blocks are independent: `threads` workers polygonize them side by side, each into a layer in
+  // memory, and this thread writes them to the GeoPackage in block order (the same features in the same
+  // order for any thread count).  Workers run at most two blocks a worker ahead of the writer.
   const int w = GDALGetRasterXSize(src), h = GDALGetRasterYSize(src);
-  CPLStringList options;
-  options.SetNameValue("8CONNECTED", "8");
-  GDALDatasetStartTransaction(ds, FALSE);
-  CPLErr err = CE_None;
-  for (int y0 = 0; y0 < h && err == CE_None; y0 += kPolygonBlock)
-    for (int x0 = 0; x0 < w && err == CE_None; x0 += kPolygonBlock) {
-      const int bw = std::min(kPolygonBlock, w - x0), bh = std::min(kPolygonBlock, h - y0);
-      CPLStringList args;
-      for (const char* a : {"-of", "VRT", "-srcwin"}) args.AddString(a);
-      for (int v : {x0, y0, bw, bh}) args.AddString(std::to_string(v).c_str());
-      GDALTranslateOptions* to = GDALTranslateOptionsNew(args.List(), nullptr);
-      GDALDatasetH block = GDALTranslate("", src, to, nullptr);
-      GDALTranslateOptionsFree(to);
-      if (!block) {
-        err = CE_Failure;
-        break;
+  GDALClose(src);
+  const int bx = (w + kPolygonBlock - 1) / kPolygonBlock, by = (h + kPolygonBlock - 1) / kPolygonBlock;
+  const int blocks = bx * by;
+  struct Block {
+    GDALDatasetH polygons = nullptr;  // (a dataset of the Memory driver)
+    bool ready = false;
+    std::string error;
+  };
+  std::vector<Block> done(static_cast<std::size_t>(blocks));
+  std::mutex m;
+  std::condition_variable cv;
+  int next = 0, written = 0;
+  bool stop = false;
+  const int workers = std::max(1, threads);
+  auto work = [&] {
+    GDALDatasetH own = GDALOpen(mask.c_str(), GA_ReadOnly);
+    GDALDriverH memory = GDALGetDriverByName("Memory");
+    CPLStringList options;
+    options.SetNameValue("8CONNECTED", "8");
+    for (;;) {
+      int k;
+      {
+        std::unique_lock<std::mutex> lock(m);
+        cv.wait(lock, [&] { return stop || next >= blocks || next < written + 2 * workers; });
+        if (stop || next >= blocks) break;
+        k = next++;
       }
-      GDALRasterBandH band = GDALGetRasterBand(block, 1);
+      Block b;
+      const int x0 = (k % bx) * kPolygonBlock, y0 = (k / bx) * kPolygonBlock;
+      const int bw = std::min(kPolygonBlock, w - x0), bh = std::min(kPolygonBlock, h - y0);
       CPLErrorReset();
-      err = GDALPolygonize(band, band, l, 0, options.List(), gdalCancel, const_cast<CancelFlag*>(cancel));
-      GDALClose(block);
+      GDALDatasetH block = nullptr;
+      if (own && memory) {
+        CPLStringList args;
+        for (const char* a : {"-of", "VRT", "-srcwin"}) args.AddString(a);
+        for (int v : {x0, y0, bw, bh}) args.AddString(std::to_string(v).c_str());
+        GDALTranslateOptions* to = GDALTranslateOptionsNew(args.List(), nullptr);
+        block = GDALTranslate("", own, to, nullptr);
+        GDALTranslateOptionsFree(to);
+        b.polygons = GDALCreate(memory, "", 0, 0, 0, GDT_Unknown, nullptr);
+      }
+      OGRLayerH bl =
+          b.polygons ? GDALDatasetCreateLayer(b.polygons, "p", nullptr, wkbPolygon, nullptr) : nullptr;
+      if (bl) {
+        OGRFieldDefnH f = OGR_Fld_Create("flooded", OFTInteger);
+        OGR_L_CreateField(bl, f, TRUE);
+        OGR_Fld_Destroy(f);
+      }
+      if (!block || !bl ||
+          GDALPolygonize(GDALGetRasterBand(block, 1), GDALGetRasterBand(block, 1), bl, 0, options.List(),
+                         gdalCancel, const_cast<CancelFlag*>(cancel)) != CE_None)
+        b.error = CPLGetLastErrorMsg()[0] ? CPLGetLastErrorMsg() : "a block failed";
+      if (block) GDALClose(block);
+      std::lock_guard<std::mutex> lock(m);
+      done[static_cast<std::size_t>(k)] = b;
+      done[static_cast<std::size_t>(k)].ready = true;
+      cv.notify_all();
     }
+    if (own) GDALClose(own);
+  };
+  std::vector<std::thread> pool;
+  for (int i = 0; i < workers; ++i) pool.emplace_back(work);
+  GDALDatasetStartTransaction(ds, FALSE);
+  std::string error;
+  OGRFeatureDefnH defn = OGR_L_GetLayerDefn(l);
+  for (int k = 0; k < blocks && error.empty(); ++k) {
+    Block b;
+    {
+      std::unique_lock<std::mutex> lock(m);
+      cv.wait(lock, [&] { return done[static_cast<std::size_t>(k)].ready; });
+      b = done[static_cast<std::size_t>(k)];
+      done[static_cast<std::size_t>(k)] = Block{};
+    }
+    if (b.error.empty()) {
+      OGRLayerH bl = GDALDatasetGetLayer(b.polygons, 0);
+      OGR_L_ResetReading(bl);
+      for (OGRFeatureH f; (f = OGR_L_GetNextFeature(bl)) != nullptr;) {
+        OGRFeatureH g = OGR_F_Create(defn);
+        OGR_F_SetFrom(g, f, TRUE);
+        OGR_F_SetFID(g, OGRNullFID);
+        if (OGR_L_CreateFeature(l, g) != OGRERR_NONE) error = CPLGetLastErrorMsg();
+        OGR_F_Destroy(g);
+        OGR_F_Destroy(f);
+        if (!error.empty()) break;
+      }
+    } else {
+      error = b.error;
+    }
+    if (b.polygons) GDALClose(b.polygons);
+    std::lock_guard<std::mutex> lock(m);
+    written = k + 1;
+    if (!error.empty()) stop = true;
+    cv.notify_all();
+  }
+  for (std::thread& t : pool) t.join();
+  for (Block& b : done)
+    if (b.polygons) GDALClose(b.polygons);
   const std::uint64_t count = static_cast<std::uint64_t>(OGR_L_GetFeatureCount(l, TRUE));
   GDALDatasetCommitTransaction(ds);
   GDALClose(ds);
-  GDALClose(src);
   throwIfCancelled(cancel);
-  if (err != CE_None)
-    throw DataError(path, std::string("cannot polygonize the flood: ") + CPLGetLastErrorMsg());
+  if (!error.empty()) throw DataError(path, "cannot polygonize the flood: " + error);
   return count;
 }
 

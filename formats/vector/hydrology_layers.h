@@ -41,8 +41,8 @@ class StreamLineWriter {
 // Polygons of the cells of value 1 in a byte raster (`mask`, any GDAL raster: the flooded cells), as one
 // layer `layer` of POLYGON features (8-connected regions, holes kept) in a new GeoPackage `path`, cut at a
 // fixed lattice of 2048 x 2048 cells (so memory stays bounded at any size, and any tiling gives the same
-// polygons).  Returns how many.
+// polygons).  The blocks are polygonized on `threads` threads, written in block order.  Returns how many.
 std::uint64_t polygonizeMask(const std::string& mask, const std::string& path, const std::string& layer,
-                             const CancelFlag* cancel);
+                             const CancelFlag* cancel, int threads = 1);
 
 }  // namespace tinbuild
