@@ -88,8 +88,10 @@ const Table& hydrologyTable() {
 int runHydrologyJob(HydrologyOptions o, const RunSettings& rs) {
   // The passes take and give back tile-sized buffers (a few MiB) at every tile: from the heap, where
   // they are reused, rather than mapped and unmapped each time (main's threshold), which cost a fifth of
-  // the run in page faults.
-  mallopt(M_MMAP_THRESHOLD, 32 << 20);
+  // the run in page faults.  Larger blocks (the perimeter arrays of a large DEM, tens of MB) are mapped,
+  // so they go back to the system when a pass ends instead of leaving holes in the heap (at 10^9 cells a
+  // 32 MB threshold left the heap ~200 MB above what the passes held).
+  mallopt(M_MMAP_THRESHOLD, 12 << 20);
   // Under --mpi the ranks but the first are quiet: rank 0 draws the progress and reports for the run.
   const bool secondary = rs.mpi && mpiRankFromEnvironment() > 0;
   const bool quiet = rs.quiet || secondary;

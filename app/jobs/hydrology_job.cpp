@@ -288,20 +288,27 @@ std::pair<double, double> centre(const RasterGrid& g, std::int64_t cell) {
 //   the process before any tile (the program, GDAL's and PROJ's libraries and their tables, the flood's
 //   polygons of a block): ~72 MB,
 //   and GDAL's block cache (a sixteenth of the budget);
-//   the tiles in flight: ~150 bytes a cell per thread (the drainage pass: codes, counts, heights, links,
-//   its answers, four outputs of a tile, and the heap they leave behind);
-//   the perimeter graphs kept between passes: ~75 bytes a perimeter cell (the fill's labels and edges).
+//   the tiles in flight: ~75 bytes a cell per thread (the drainage pass: codes, heights, links, its
+//   answers, four outputs of a tile, and the heap they leave behind);
+//   the perimeters kept between a pass's tiles: ~30 bytes a perimeter cell (the flats' distances, their
+//   components and union-find; the fill's labels and fills and 9 bytes a node of its graph, whose edges
+//   are on disk).
 constexpr double kBaseBytes = 72.0 * 1048576;
-constexpr double kTileBytesPerCell = 150;
-constexpr double kPerimeterBytesPerCell = 75;
+constexpr double kTileBytesPerCell = 75;
+constexpr double kPerimeterBytesPerCell = 30;
 
 double modelBytes(double cells, int threads, double side, double budget) {
   return kBaseBytes + budget / 16 + threads * side * side * kTileBytesPerCell +
          cells / (side * side) * 4 * side * kPerimeterBytesPerCell;
 }
 
-// The largest tile side (a multiple of 64, 128 to 4096) whose modelled peak fits the budget; when none
-// does, the side of the least peak, and `fits` false.
+// Tiles of about 768 cells run fastest (docs/benchmarks.md: 1024 took 30% longer at 4000², its tiles
+// no longer in the processor's caches; 320 took 60% longer, in per-tile costs).  So: the largest side (a
+// multiple of 64) up to 768 whose modelled peak fits the budget; else the smallest larger side, up to 4096,
+// that fits (large DEMs, where the perimeters outweigh the tiles); when none does, the side of the least
+// peak, and `fits` false.
+constexpr int kFastestSide = 768;
+
 int chooseTileSize(const HydrologyOptions& o, int threads, double cells, double& peak, bool& fits) {
   const double budget = static_cast<double>(o.memoryBytes);
   if (o.tileSize > 0) {
@@ -312,7 +319,7 @@ int chooseTileSize(const HydrologyOptions& o, int threads, double cells, double&
   int best = 0, least = 128;
   for (int side = 128; side <= 4096; side += 64) {
     const double m = modelBytes(cells, threads, side, budget);
-    if (m <= budget) best = side;
+    if (m <= budget && (side <= kFastestSide || best == 0)) best = side;
     if (m < modelBytes(cells, threads, least, budget)) least = side;
   }
   fits = best > 0;
@@ -609,7 +616,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
         const std::string path = staging.path() + "/flood.gpkg";
         if (split) maskOut->adoptEveryTile(grid);
         maskOut->finish();
-        rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel);
+        rep.floodPolygons = polygonizeMask(workPath("flooded"), path, "flood", o.cancel, threads);
         staging.file(path, "flood.gpkg");
       });
 
