@@ -3,7 +3,6 @@
 
 #include <chrono>
 #include <cmath>
-#include <stdexcept>
 #include <type_traits>
 #include <vector>
 
@@ -134,21 +133,13 @@ AccumulationStats accumulate(const TileGrid& grid, TileSourceOf<std::uint8_t>& f
                              const AccumulationOptions& options) {
   const auto t0 = std::chrono::steady_clock::now();
   AccumulationStats stats;
-  const std::int64_t tiles = grid.tiles();
   const int threads = std::max(1, options.threads);
   std::vector<TileCounts> work(static_cast<std::size_t>(threads));
 
   // The perimeter cells of every tile, numbered tile after tile (slots): the solve's arrays are dense over
   // them, a few bytes a slot.
-  std::vector<std::uint64_t> base(static_cast<std::size_t>(tiles) + 1, 0);
-  for (std::int64_t t = 0; t < tiles; ++t) {
-    const TileRect r = grid.tile(t);
-    base[static_cast<std::size_t>(t) + 1] =
-        base[static_cast<std::size_t>(t)] + perimeterCells(r.width, r.height);
-  }
+  const std::vector<std::uint64_t> base = perimeterSlotBases(grid, "upstream area");
   const std::uint64_t slots = base.back();
-  if (slots >= kNoSlot)
-    throw std::length_error("upstream area: more than 2^32 perimeter cells; use larger tiles");
   auto slotOf = [&](std::int64_t cell) {
     std::int64_t t = 0;
     const std::size_t slot = perimeterSlotOf(grid, cell, t);

@@ -5,7 +5,6 @@
 #include <deque>
 #include <mutex>
 #include <queue>
-#include <stdexcept>
 #include <unordered_map>
 #include <vector>
 
@@ -162,14 +161,7 @@ FillStats fillDepressions(const TileGrid& grid, TileSource& dem, TileTarget<floa
   // The perimeter graph's nodes: label l > 0 of tile t is node slotBase[t] + l (a tile's labels are at
   // most its perimeter cells), node 0 the outside.  Ids are known before any tile is flooded, so the
   // tiles' edges go straight into the graph (which keeps them on disk) rather than waiting in memory.
-  std::vector<std::uint64_t> slotBase(static_cast<std::size_t>(tiles) + 1, 0);
-  for (std::int64_t t = 0; t < tiles; ++t) {
-    const TileRect r = grid.tile(t);
-    slotBase[static_cast<std::size_t>(t) + 1] =
-        slotBase[static_cast<std::size_t>(t)] + perimeterCells(r.width, r.height);
-  }
-  if (slotBase.back() + 1 >= kNoLabel)
-    throw std::length_error("fill: more than 2^32 perimeter cells; use larger tiles");
+  const std::vector<std::uint64_t> slotBase = perimeterSlotBases(grid, "fill");
   auto global = [&](std::int64_t t, std::uint32_t l) {
     return l == 0 ? 0u : static_cast<std::uint32_t>(slotBase[static_cast<std::size_t>(t)] + l);
   };

@@ -16,6 +16,8 @@
 #include <cstddef>
 #include <cstdint>
 #include <limits>
+#include <stdexcept>
+#include <string>
 #include <vector>
 
 namespace tinbuild::hydrology {
@@ -91,6 +93,21 @@ void forEachPerimeterCell(int w, int h, F&& f) {
       }
       f(c, row, perimeterSlot(w, h, c, row));
     }
+}
+
+// Every tile's perimeter cells numbered tile after tile ("slots", for the passes' dense perimeter arrays
+// and graph nodes): tile t's are [bases[t], bases[t + 1]).  They, and one id more, must fit 32 bits below
+// the all-ones "none" value; else std::length_error naming `pass`.
+inline std::vector<std::uint64_t> perimeterSlotBases(const TileGrid& grid, const char* pass) {
+  std::vector<std::uint64_t> bases(static_cast<std::size_t>(grid.tiles()) + 1, 0);
+  for (std::int64_t t = 0; t < grid.tiles(); ++t) {
+    const TileRect r = grid.tile(t);
+    bases[static_cast<std::size_t>(t) + 1] =
+        bases[static_cast<std::size_t>(t)] + perimeterCells(r.width, r.height);
+  }
+  if (bases.back() + 1 >= std::numeric_limits<std::uint32_t>::max())
+    throw std::length_error(std::string(pass) + ": more than 2^32 perimeter cells; use larger tiles");
+  return bases;
 }
 
 // The tile holding global cell `cell` (row x width + col) and the cell's slot on that tile's perimeter
