@@ -1,6 +1,7 @@
 // `tinbuild hydrology` (header).
 #include "app/jobs/hydrology_job.h"
 
+#include <malloc.h>
 #include <stdlib.h>
 #include <unistd.h>
 
@@ -286,14 +287,15 @@ std::pair<double, double> centre(const RasterGrid& g, std::int64_t cell) {
 
 // The memory model the tile size comes from (measured on the benchmark's DEMs, docs/benchmarks.md):
 //   the process before any tile (the program, GDAL's and PROJ's libraries and their tables, the flood's
-//   polygons of a block): ~72 MB,
+//   polygons of a block, the DEM's open files): 64 MiB (a 300 x 300 DEM's run peaks there, now that the
+//   heaps are trimmed after every pass and the DEM's files are closed after the fill),
 //   and GDAL's block cache (a sixteenth of the budget);
 //   the tiles in flight: ~75 bytes a cell per thread (the drainage pass: codes, heights, links, its
 //   answers, four outputs of a tile, and the heap they leave behind);
 //   the perimeters kept between a pass's tiles: ~30 bytes a perimeter cell (the flats' distances, their
 //   components and union-find; the fill's labels and fills and 9 bytes a node of its graph, whose edges
 //   are on disk).
-constexpr double kBaseBytes = 72.0 * 1048576;
+constexpr double kBaseBytes = 64.0 * 1048576;
 constexpr double kTileBytesPerCell = 75;
 constexpr double kPerimeterBytesPerCell = 30;
 
@@ -399,22 +401,19 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
                   std::to_string(static_cast<long long>(modelled / 1048576) + 1) + " MB (tiles of " +
                   std::to_string(rep.tileSize) + "); fewer --threads need less");
   // Disk: the outputs (about 8 bytes a cell compressed: 5.7 measured at 10^9 cells) and, in one process,
-  // the temporary files in DIR's file system: the raw read-backs (17 bytes a cell) and the largest of the
+  // the temporary files in DIR's file system: the raw read-backs (17 bytes a cell; 21 with a stage, the
+  // DEM's heights for the depth) and the largest of the
   // passes' kept work (the flats' 16 bytes a flat cell, the fill's and the drainage's 8 a cell).  Said
   // now, before any work; running out later fails cleanly, naming the file, and leaves nothing behind.
   {
     const double cells = static_cast<double>(g.width) * static_cast<double>(g.height);
     const bool oneProcess = !o.peers || o.peers->size() <= 1;
-    const double need = cells * (8.0 + (oneProcess ? 17.0 + 16.0 : 0.0));
+    const double need = cells * (8.0 + (oneProcess ? 17.0 + (o.stage ? 4.0 : 0.0) + 16.0 : 0.0));
     fs::path at = fs::absolute(o.outDir);
     std::error_code ec;
     while (!at.empty() && !fs::exists(at, ec) && at != at.parent_path()) at = at.parent_path();
     const fs::space_info space = fs::space(at, ec);
-    auto size = [](double bytes) {
-      return bytes >= 10.0 * 1073741824.0
-                 ? std::to_string(static_cast<long long>(bytes / 1073741824.0)) + " GB"
-                 : std::to_string(static_cast<long long>(bytes / 1048576.0)) + " MB";
-    };
+    auto size = [](double bytes) { return bytesText(static_cast<std::uint64_t>(bytes)); };
     if (!ec && static_cast<double>(space.available) < need)
       diag.warn("hydrology.disk", o.outDir,
                 "about " + size(need) + " of disk may be needed for the outputs and temporary files, and " +
@@ -471,6 +470,13 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       body();
       progress.end();
       throwIfCancelled(o.cancel);
+#if defined(__GLIBC__)
+      // The free pages inside the heaps back to the system: a pass's buffers, freed, leave holes in every
+      // thread's heap that the next pass's differently sized ones do not fill, and the run's memory
+      // crept up pass by pass (at 10^8 cells: 58 MB of the process's own at the first pass, 160 at the
+      // last, with far less held).
+      malloc_trim(0);
+#endif
       rep.passes.push_back({name, std::chrono::duration<double>(Clock::now() - p0).count(), peakRssBytes()});
     };
     auto workPath = [&](const std::string& name) {
@@ -478,7 +484,17 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
     };
 
     GdalTiles<float> demTiles(o.dem, kNoData);
-    TileSource* dem = &demTiles;
+    // With a stage, the drainage needs the ground's heights again (the depth is water over the lidar's
+    // ground): in one process the fill's reads keep a raw copy, and the DEM's files are closed after the
+    // fill (a ZSTD-compressed DEM held 4.6 MB a file open, 16 files, through every later pass).
+    std::unique_ptr<RawTiles<float>> demRaw;
+    std::unique_ptr<CopyingSource<float>> demCopying;
+    if (o.stage && !split) {
+      demRaw = std::make_unique<RawTiles<float>>(grid, staging.work(), "dem", kNoData, kNoData);
+      demCopying = std::make_unique<CopyingSource<float>>(grid, demTiles, *demRaw);
+    }
+    TileSource& ground = demRaw ? static_cast<TileSource&>(*demRaw) : demTiles;
+    TileSource* dem = demCopying ? static_cast<TileSource*>(demCopying.get()) : &demTiles;
     std::unique_ptr<BreachedDem> breached;
     if (!flowLines.flows.empty())
       pass("breach", [&] {
@@ -491,7 +507,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
           lines.push_back(std::move(line));
         }
         auto lowered = breachLines(grid, demTiles, lines, rep.breach, o.cancel);
-        breached = std::make_unique<BreachedDem>(grid, demTiles, std::move(lowered));
+        breached = std::make_unique<BreachedDem>(grid, *dem, std::move(lowered));
         dem = breached.get();
       });
 
@@ -510,6 +526,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
     });
     commitRaster(filledOut, "filled");
     TileSource& filled = filledBack.source();
+    demTiles.release();  // (reopened by the drainage only when split across processes)
 
     // flow directions
     GeoTiffTiles<std::uint8_t> flowOut(staging.path(), "flowdir", g, kFlowNoData);
@@ -586,7 +603,7 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
       io.flowdir = &flowdir;
       io.counts = &counts;
       io.filled = &filled;
-      io.dem = &demTiles;  // the depth is water over the ground, the lidar's (not the breached cells)
+      io.dem = &ground;  // the depth is water over the ground, the lidar's (not the breached cells)
       io.links = &links;
       io.hand = &t;
       io.catchments = &catchOut;

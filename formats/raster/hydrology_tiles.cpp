@@ -132,6 +132,14 @@ GdalTiles<T>::~GdalTiles() {
 }
 
 template <typename T>
+void GdalTiles<T>::release() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  for (void* ds : handles_) GDALClose(static_cast<GDALDatasetH>(ds));
+  handles_.clear();
+  spare_.clear();
+}
+
+template <typename T>
 void GdalTiles<T>::read(const hydrology::TileRect& r, int halo, T* v) {
   const std::int64_t w = r.width + 2 * halo;
   std::int64_t c0, r0, c1, r1;

@@ -42,6 +42,9 @@ class GdalTiles final : public hydrology::TileSourceOf<T> {
   ~GdalTiles() override;
   void read(const hydrology::TileRect& r, int halo, T* v) override;
   const RasterGrid& grid() const { return grid_; }
+  // Closes every handle (and with them the files a VRT keeps open, each with its decoder's buffers: a
+  // ZSTD-compressed GeoTIFF holds megabytes) until the next read opens one again.  Not while reading.
+  void release();
 
  private:
   std::string path_;

@@ -17,10 +17,12 @@
 // read back the shared GeoTIFF tiles instead.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
 #include <cstdint>
 #include <string>
 #include <type_traits>
+#include <vector>
 
 #include "libterrain/core/temp_file.h"
 #include "libterrain/hydrology/tile_grid.h"
@@ -79,6 +81,37 @@ class RawTiles final : public TileSourceOf<T>, public TileTarget<T> {
   TileGrid grid_;
   TempFile file_;
   T noData_, outside_;
+};
+
+// A source that also keeps what it reads: every read of a whole tile of `grid` (with any halo) writes the
+// tile's own cells to `copy`.  The job reads the DEM once through it in the fill, so the drainage reads
+// the ground's heights back raw instead of decoding the DEM's files again and keeping them open.
+template <typename T>
+class CopyingSource final : public TileSourceOf<T> {
+ public:
+  CopyingSource(const TileGrid& grid, TileSourceOf<T>& source, TileTarget<T>& copy)
+      : grid_(grid), source_(source), copy_(copy) {}
+
+  void read(const TileRect& r, int halo, T* v) override {
+    source_.read(r, halo, v);
+    const TileRect tile = grid_.tile(grid_.tileOf(r.col0, r.row0));
+    if (tile.col0 != r.col0 || tile.row0 != r.row0 || tile.width != r.width || tile.height != r.height)
+      return;
+    if (halo == 0) {
+      copy_.write(r, v);
+      return;
+    }
+    std::vector<T> own(r.cells());
+    const std::int64_t w = r.width + 2 * halo;
+    for (std::int64_t y = 0; y < r.height; ++y)
+      std::copy_n(v + (y + halo) * w + halo, r.width, own.begin() + y * r.width);
+    copy_.write(r, own.data());
+  }
+
+ private:
+  TileGrid grid_;
+  TileSourceOf<T>& source_;
+  TileTarget<T>& copy_;
 };
 
 }  // namespace tinbuild::hydrology

@@ -83,6 +83,7 @@ TEST(HydrologyTiles, TilesReadBackWithTheirHalo) {
         ASSERT_EQ(hydrology::reference::firstDifference(a, b, r.width + 2 * halo), "")
             << "tile " << tile << ", halo " << halo << ", tile index " << t;
       }
+      in.release();  // (closes every file; the next read opens them again)
     }
 }
 

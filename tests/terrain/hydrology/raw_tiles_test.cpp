@@ -75,5 +75,47 @@ TEST(RawTiles, FloatNoDataAndNaNReadAsOutside) {
   EXPECT_TRUE(std::isnan(got[13]));  // (0,2): tile 2's first cell, NaN
 }
 
+// CopyingSource: reads pass through unchanged; every whole tile read (with any halo) lands in the copy,
+// reads of other windows do not; the copy then reads back as the source does.
+TEST(RawTiles, ACopyingSourceKeepsTheWholeTilesItReads) {
+  const std::int64_t w = 19, h = 13;
+  std::vector<float> all(static_cast<std::size_t>(w * h));
+  for (std::size_t i = 0; i < all.size(); ++i) all[i] = i % 7 == 3 ? std::nanf("") : static_cast<float>(i);
+  MemoryTiles<float> source(w, h, all, std::nanf(""));
+  const TileGrid grid(w, h, 6);
+  RawTiles<float> copy(grid, "", "test", -9999.f, std::nanf(""));
+  CopyingSource<float> copying(grid, source, copy);
+  auto same = [](const std::vector<float>& a, const std::vector<float>& b) {
+    if (a.size() != b.size()) return false;
+    for (std::size_t i = 0; i < a.size(); ++i)
+      if (!(a[i] == b[i] || (std::isnan(a[i]) && std::isnan(b[i])))) return false;
+    return true;
+  };
+  // A window that is not a tile: read through, not copied (the copy's file stays a hole there).
+  const TileRect odd{1, 1, 4, 4};
+  std::vector<float> a(16), b(16);
+  copying.read(odd, 0, a.data());
+  source.read(odd, 0, b.data());
+  EXPECT_TRUE(same(a, b));
+  for (std::int64_t t = 0; t < grid.tiles(); ++t) {
+    const TileRect r = grid.tile(t);
+    const int halo = static_cast<int>(t % 3);
+    const auto n = static_cast<std::size_t>((r.width + 2 * halo) * (r.height + 2 * halo));
+    std::vector<float> got(n), want(n);
+    copying.read(r, halo, got.data());
+    source.read(r, halo, want.data());
+    ASSERT_TRUE(same(got, want)) << "tile " << t;
+  }
+  for (std::int64_t t = 0; t < grid.tiles(); ++t)
+    for (int halo : {0, 2}) {
+      const TileRect r = grid.tile(t);
+      const auto n = static_cast<std::size_t>((r.width + 2 * halo) * (r.height + 2 * halo));
+      std::vector<float> got(n), want(n);
+      copy.read(r, halo, got.data());
+      source.read(r, halo, want.data());
+      ASSERT_TRUE(same(got, want)) << "tile " << t << ", halo " << halo;
+    }
+}
+
 }  // namespace
 }  // namespace tinbuild::hydrology
