@@ -14,6 +14,7 @@ namespace tinbuild::hydrology {
 namespace {
 
 constexpr std::int64_t kNone = -1;
+constexpr std::int32_t kNoCell = -1;  // (a tile's local cell index: none)
 constexpr std::uint32_t kNoSlot = ~std::uint32_t{0};
 
 // One tile's counts: codes with a halo of one cell, the in-tile flow graph in Kahn's order.
@@ -29,7 +30,7 @@ class TileCounts {
     codes_.resize(static_cast<std::size_t>(hw) * static_cast<std::size_t>(r_.height + 2));
     source.read(r_, 1, codes_.data());
     const std::size_t n = r_.cells();
-    target_.assign(n, kNone);
+    target_.assign(n, kNoCell);
     indeg_.assign(n, 0);
     count.assign(n, 0);
     outflow.clear();
@@ -43,7 +44,7 @@ class TileCounts {
         if (const int k = directionOf(d); k >= 0) {
           const int nc = c + kDx[k], nr = row + kDy[k];
           if (nc >= 0 && nr >= 0 && nc < r_.width && nr < r_.height) {
-            target_[i] = static_cast<std::int64_t>(cell(nc, nr));
+            target_[i] = static_cast<std::int32_t>(cell(nc, nr));
             ++indeg_[cell(nc, nr)];
           } else {
             outflow.push_back(i);
@@ -67,8 +68,8 @@ class TileCounts {
     for (std::size_t i = 0; i < n; ++i)
       if (count[i] && indeg_[i] == 0) order_.push_back(static_cast<std::uint32_t>(i));
     for (std::size_t q = 0; q < order_.size(); ++q) {
-      const std::int64_t to = target_[order_[q]];
-      if (to == kNone) continue;
+      const std::int32_t to = target_[order_[q]];
+      if (to == kNoCell) continue;
       const auto j = static_cast<std::size_t>(to);
       count[j] += count[order_[q]];
       if (--indeg_[j] == 0) order_.push_back(static_cast<std::uint32_t>(j));
@@ -77,14 +78,15 @@ class TileCounts {
 
   // For each entry, the outflow cell its path reaches in the tile (global index; kNone: it ends inside).
   std::vector<std::int64_t> entryExits() {
-    exit_.assign(r_.cells(), kNone);
-    for (std::size_t i : outflow) exit_[i] = global(i);
+    exit_.assign(r_.cells(), kNoCell);  // (the outflow cell reached, as a local index)
+    for (std::size_t i : outflow) exit_[i] = static_cast<std::int32_t>(i);
     for (std::size_t q = order_.size(); q-- > 0;) {
       const std::uint32_t i = order_[q];
-      if (target_[i] != kNone) exit_[i] = exit_[static_cast<std::size_t>(target_[i])];
+      if (target_[i] != kNoCell) exit_[i] = exit_[static_cast<std::size_t>(target_[i])];
     }
     std::vector<std::int64_t> out;
-    for (std::size_t e : entries) out.push_back(exit_[e]);
+    for (std::size_t e : entries)
+      out.push_back(exit_[e] == kNoCell ? kNone : global(static_cast<std::size_t>(exit_[e])));
     return out;
   }
 
@@ -116,14 +118,10 @@ class TileCounts {
   TileRect r_;
   std::int64_t width_ = 0;
   std::vector<std::uint8_t> codes_;
-  std::vector<std::int64_t> target_, exit_;
-  std::vector<std::uint32_t> indeg_, order_;
-};
-
-struct Outflow {
-  std::uint64_t local = 0, total = 0;
-  std::int64_t into = kNone;   // the outflow cell downstream (kNone: the path ends in that tile)
-  std::uint32_t upstream = 0;  // outflow cells draining into this one (Kahn)
+  // Local indices, 4 bytes a cell (a tile is at most 16384 a side: 2.7e8 cells), in-degrees 1 (at most 8).
+  std::vector<std::int32_t> target_, exit_;
+  std::vector<std::uint8_t> indeg_;
+  std::vector<std::uint32_t> order_;
 };
 
 }  // namespace

@@ -13,7 +13,8 @@
 // a forest over the outflow cells: an outflow cell's total is its local count plus the totals of the
 // outflow cells draining into the entries that reach it, solved in topological order.  Pass 2 counts
 // each tile again with every entry's inflow (the totals of the cells draining into it) added.
-// Memory: one tile per thread (the codes and counts: 9 bytes a cell) and, for the forest, arrays over
+// Memory: one tile per thread (codes, counts, the in-tile graph and its order: 22 bytes a cell; 8 more for
+// the areas written in pass 2) and, for the forest, arrays over
 // every tile's perimeter cells (slots): 21 bytes a slot while it is solved, the entries' inflow (8 bytes
 // a slot) in pass 2.
 #pragma once
