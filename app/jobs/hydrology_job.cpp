@@ -443,8 +443,9 @@ HydrologyReport runHydrology(const HydrologyOptions& o, Diagnostics& diag) {
     std::optional<RunLock> lock;
     if (lead) lock.emplace(claimOutputs(set));
     // GDAL's block cache: a sixteenth of the budget (the passes read and write whole tiles, and read their
-    // own tiles file by file); a DEM given as a VRT keeps few of its files open.
-    limitGdalForTiles(o.memoryBytes / 16, 16);
+    // own tiles file by file); a DEM given as a VRT keeps few of its files open (but 4 a reading thread at
+    // least: with fewer than the threads' reads hold at once, GDAL's pool spins inside a read).
+    limitGdalForTiles(o.memoryBytes / 16, std::max(16, 4 * threads));
 
     if (lead) staged = std::make_unique<Staging>(o.outDir, o.overwrite);
     const bool split = peers && peers->size() > 1;  // (across processes)
