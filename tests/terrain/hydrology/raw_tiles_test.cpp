@@ -2,6 +2,8 @@
 // raster held whole; nodata and the outside read as `outside`.
 #include "libterrain/hydrology/raw_tiles.h"
 
+#include "hydrology_reference.h"
+
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -85,18 +87,13 @@ TEST(RawTiles, ACopyingSourceKeepsTheWholeTilesItReads) {
   const TileGrid grid(w, h, 6);
   RawTiles<float> copy(grid, "", "test", -9999.f, std::nanf(""));
   CopyingSource<float> copying(grid, source, copy);
-  auto same = [](const std::vector<float>& a, const std::vector<float>& b) {
-    if (a.size() != b.size()) return false;
-    for (std::size_t i = 0; i < a.size(); ++i)
-      if (!(a[i] == b[i] || (std::isnan(a[i]) && std::isnan(b[i])))) return false;
-    return true;
-  };
+  using reference::firstDifference;
   // A window that is not a tile: read through, not copied (the copy's file stays a hole there).
   const TileRect odd{1, 1, 4, 4};
   std::vector<float> a(16), b(16);
   copying.read(odd, 0, a.data());
   source.read(odd, 0, b.data());
-  EXPECT_TRUE(same(a, b));
+  EXPECT_EQ(firstDifference(a, b, 4), "");
   for (std::int64_t t = 0; t < grid.tiles(); ++t) {
     const TileRect r = grid.tile(t);
     const int halo = static_cast<int>(t % 3);
@@ -104,7 +101,7 @@ TEST(RawTiles, ACopyingSourceKeepsTheWholeTilesItReads) {
     std::vector<float> got(n), want(n);
     copying.read(r, halo, got.data());
     source.read(r, halo, want.data());
-    ASSERT_TRUE(same(got, want)) << "tile " << t;
+    ASSERT_EQ(firstDifference(got, want, r.width + 2 * halo), "") << "tile " << t;
   }
   for (std::int64_t t = 0; t < grid.tiles(); ++t)
     for (int halo : {0, 2}) {
@@ -113,7 +110,7 @@ TEST(RawTiles, ACopyingSourceKeepsTheWholeTilesItReads) {
       std::vector<float> got(n), want(n);
       copy.read(r, halo, got.data());
       source.read(r, halo, want.data());
-      ASSERT_TRUE(same(got, want)) << "tile " << t << ", halo " << halo;
+      ASSERT_EQ(firstDifference(got, want, r.width + 2 * halo), "") << "tile " << t << ", halo " << halo;
     }
 }
 
