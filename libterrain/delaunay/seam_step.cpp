@@ -84,7 +84,7 @@ class PagedArray {
 //   waiting   an open-addressing table (linear probing, backward-shift deletion) of the records handed
 //             over and not yet met by the triangulator, by xy;
 //   bySlot    the seam triangulator's vertex slot -> record.
-struct SeamStep::Impl : MeshSink {
+struct SeamStep::Impl : MeshSink, SeamSink {
   static constexpr std::uint32_t kNone = 0xffffffffu;
   static constexpr unsigned kWedgeShift = 11;
   static constexpr std::uint32_t kBig = kNone;  // Stored::wedge of a vertex whose wedges are in `big`
@@ -94,6 +94,7 @@ struct SeamStep::Impl : MeshSink {
   };
 
   SeamOutput& out;
+  SeamSink* up = nullptr;  // a block's step: where what it leaves goes
   DelaunayOptions options;
   SeamStats stats;
   std::unique_ptr<StreamingDelaunay> tri;
@@ -106,12 +107,13 @@ struct SeamStep::Impl : MeshSink {
   std::size_t waitingCount = 0;
   std::vector<std::uint32_t> bySlot;
   std::vector<PointRecord> pending;
-  std::vector<SeamSink::Wedge> joined;  // store()'s scratch
+  std::vector<SeamSink::Wedge> joined, level;  // store()'s scratch
+  std::vector<SeamSink::Wedge> onward;         // seamVertex()'s scratch
 
-  Impl(SeamOutput& o, const DelaunayOptions& d) : out(o), options(d) {
+  Impl(SeamOutput& o, const DelaunayOptions& d) : out(o), up(d.region.seam), options(d) {
     options.diagnostics = nullptr;  // the regions report duplicates
     options.slotIds = true;
-    options.region = RegionSpec{};
+    options.region = up ? RegionSpec{d.region.cell, this} : RegionSpec{};
     reset();
   }
 
@@ -159,22 +161,36 @@ struct SeamStep::Impl : MeshSink {
   // that closes on itself becomes the whole turn (from == to, inWedge's full turn).  The same rays pass
   // the test as before; at 10^9 points the wedge blocks had taken 5.2 MB beside 2.9 MB of records.
   static bool samePoint(const Point2& a, const Point2& b) { return a.x == b.x && a.y == b.y; }
-  std::size_t joinWedges(const SeamSink::Wedge* w, std::size_t n) {
-    joined.assign(w, w + n);
-    if (n > 64) return n;  // rare: kept as they are
+  // One level's wedges, joined in place.
+  static void joinLevel(std::vector<SeamSink::Wedge>& w) {
+    if (w.size() > 64) return;  // rare: kept as they are
     for (bool again = true; again;) {
       again = false;
-      for (std::size_t i = 0; i < joined.size() && !again; ++i) {
-        if (samePoint(joined[i].from, joined[i].to)) continue;  // the whole turn already
-        for (std::size_t j = 0; j < joined.size(); ++j) {
-          if (j == i || !samePoint(joined[i].to, joined[j].from) || samePoint(joined[j].from, joined[j].to))
-            continue;
-          joined[i].to = joined[j].to;
-          joined.erase(joined.begin() + static_cast<std::ptrdiff_t>(j));
+      for (std::size_t i = 0; i < w.size() && !again; ++i) {
+        if (samePoint(w[i].from, w[i].to)) continue;  // the whole turn already
+        for (std::size_t j = 0; j < w.size(); ++j) {
+          if (j == i || !samePoint(w[i].to, w[j].from) || samePoint(w[j].from, w[j].to)) continue;
+          w[i].to = w[j].to;
+          w.erase(w.begin() + static_cast<std::ptrdiff_t>(j));
           again = true;
           break;
         }
       }
+    }
+  }
+  // Each level's wedges joined, the levels' marks kept; into `joined`.
+  std::size_t joinWedges(const SeamSink::Wedge* w, std::size_t n) {
+    joined.clear();
+    level.clear();
+    for (std::size_t k = 0; k <= n; ++k) {
+      if (k < n && !isSeamLevelMark(w[k])) {
+        level.push_back(w[k]);
+        continue;
+      }
+      joinLevel(level);
+      if (!joined.empty()) joined.push_back(seamLevelMark());
+      joined.insert(joined.end(), level.begin(), level.end());
+      level.clear();
     }
     return joined.size();
   }
@@ -268,23 +284,27 @@ struct SeamStep::Impl : MeshSink {
     Stored& A = recs[ia];
     Stored& B = recs[bySlot[b]];
     Stored& C = recs[bySlot[c]];
-    bool missing = A.r.all;
-    if (!missing) {
-      const Point2 q{A.r.x, A.r.y}, p{B.r.x, B.r.y};
-      for (std::uint32_t k = 0; k < A.count; ++k) {
-        const SeamSink::Wedge& w = wedgeOf(ia, A, k);
-        if (inWedge(q, w.from, w.to, p)) {
-          missing = true;
-          break;
-        }
-      }
-    }
-    if (!missing) {
+    if (!A.r.all && !inEveryLevel(ia, A, Point2{B.r.x, B.r.y})) {
       ++stats.dropped;
       return;
     }
     ++stats.written;
     out.triangle(A.r, B.r, C.r);
+  }
+  // Does the ray from the record's vertex to p lie in one of its wedges of every level?
+  bool inEveryLevel(std::uint32_t i, const Stored& s, const Point2& p) const {
+    const Point2 q{s.r.x, s.r.y};
+    bool inLevel = false;
+    for (std::uint32_t k = 0; k < s.count; ++k) {
+      const SeamSink::Wedge& w = wedgeOf(i, s, k);
+      if (isSeamLevelMark(w)) {
+        if (!inLevel) return false;
+        inLevel = false;
+      } else if (!inLevel && inWedge(q, w.from, w.to, p)) {
+        inLevel = true;
+      }
+    }
+    return inLevel;
   }
   void finalizeVertex(std::uint64_t slot) override {
     const std::uint32_t i = bySlot[slot];
@@ -293,6 +313,35 @@ struct SeamStep::Impl : MeshSink {
     bySlot[slot] = kNone;
   }
   void end() override {}
+
+  // SeamSink of the block's triangulator: a vertex it leaves open (slot: written here first, else kNoSeamId)
+  // goes on with its old wedges and, as a level of their own, the new ones; a tag goes on as it is.
+  void seamVertex(std::uint64_t slot, double x, double y, double, bool all, const Wedge* w,
+                  std::size_t n) override {
+    std::uint32_t i;
+    if (slot != kNoSeamId) {
+      i = bySlot[slot];
+      bySlot[slot] = kNone;
+    } else {
+      const std::size_t at = probe(x, y);
+      if (waiting[at] == kNone) throw Error("seam step: a seam vertex without a record");
+      i = waiting[at];
+      eraseWaiting(at);
+    }
+    const Stored& s = recs[i];
+    onward.clear();
+    if (!s.r.all)
+      for (std::uint32_t k = 0; k < s.count; ++k) onward.push_back(wedgeOf(i, s, k));
+    if (!all) {
+      if (!onward.empty()) onward.push_back(seamLevelMark());
+      onward.insert(onward.end(), w, w + n);
+    }
+    const std::uint64_t id = s.r.id != kNoSeamId ? s.r.id : s.r.out;
+    ++stats.handedOn;
+    up->seamVertex(id, s.r.x, s.r.y, s.r.z, s.r.all && all, onward.data(), onward.size());
+    release(i);
+  }
+  void seamTag(const CellTag& cell) override { up->seamTag(cell); }
 };
 
 SeamStep::SeamStep(SeamOutput& out, const DelaunayOptions& delaunay)

@@ -1522,6 +1522,176 @@ TEST(ParallelDelaunay, PartsOnDegenerateInput) {
   expectPartsMatch(corner, 5, 2, "empty parts");
 }
 
+// ---- The seam settled block by block (the MPI merge's scheme): the parts' seam records go to the blocks of
+// the level above the regions, each block's step writes what it can certify and hands the rest on, level
+// by level up to one step over the whole grid.  No block step but the top sees the whole seam.
+
+struct BlockResult : Result {
+  std::uint64_t seamVertices = 0;              // |S|, the parts' seam
+  std::vector<std::uint64_t> settledPerLevel;  // by level, the vertices settled there (top last)
+  std::uint64_t largestSettled = 0;            // the most any one block step settled
+};
+
+// Parts of `level`'s regions as in triangulateInParts; the seam then goes through the blocks of levels
+// level - 1 .. topLevel (none when topLevel == level), and a plain step over the whole grid settles the
+// rest.  (A block step over the whole grid, level 0, would still hand on the vertices of its hull.)
+BlockResult triangulateInBlocks(const Points& pts, int depth, int level, int parts, int topLevel,
+                                const Feed& feed = {}, const DelaunayOptions& opt = {}) {
+  const std::size_t regions = std::size_t{1} << (2 * level);
+  const GridSpec grid = makeGrid(boundsOf(pts), depth);
+  std::vector<SeamRecorder> seams(static_cast<std::size_t>(parts));
+  BlockResult all;
+  for (int k = 0; k < parts; ++k) {
+    CheckingSink sink;
+    ParallelDelaunayOptions popt;
+    popt.delaunay = opt;
+    popt.threads = 1;
+    popt.regionLevel = level;
+    popt.partSeam = &seams[static_cast<std::size_t>(k)];
+    popt.partFirst = regions * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
+    popt.partEnd = regions * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
+    ParallelDelaunay dt(sink, popt);
+    TestFinalizer fin(dt, grid, feed);
+    fin.run(pts);
+    EXPECT_EQ(sink.errors, 0u) << "part " << k << ": " << sink.firstError;
+    all.triangles.insert(all.triangles.end(), sink.triangles.begin(), sink.triangles.end());
+    all.vertices.insert(all.vertices.end(), sink.vertices.begin(), sink.vertices.end());
+    all.stats.pointsIn += dt.stats().pointsIn;
+  }
+  StreamInfo info;
+  info.grid = grid;
+  info.bounds = boundsOf(pts);
+  SeamCollector collector;  // every step's triangles, and each vertex no part and no step wrote before
+  // The items below: the parts' records, each part's stream split by the block of `from` it belongs to
+  // (each region's own order kept).
+  auto route = [&](const std::vector<SeamRecorder>& below, int to) {
+    std::vector<SeamRecorder> blocks(std::size_t{1} << (2 * to));
+    for (const SeamRecorder& r : below)
+      for (const SeamRecorder::Item& item : r.items) {
+        const std::uint64_t b = item.isTag ? seamBlockOfTag(to, item.tag)
+                                           : seamBlockOfVertex(grid, to, item.record.x, item.record.y);
+        blocks[b].items.push_back(item);
+      }
+    return blocks;
+  };
+  auto feedStep = [](SeamStep& step, const SeamRecorder& r) {
+    for (const SeamRecorder::Item& item : r.items) {
+      if (item.isTag)
+        step.tag(item.tag);
+      else
+        step.vertex(item.record, item.wedges.data(), item.wedges.size());
+    }
+  };
+  for (const SeamRecorder& r : seams)
+    for (const auto& item : r.items) all.seamVertices += !item.isTag;
+  std::vector<SeamRecorder> below = std::move(seams);
+  for (int k = level - 1; k >= topLevel; --k) {
+    std::vector<SeamRecorder> in = route(below, k), out(in.size());
+    std::uint64_t settled = 0;
+    for (std::size_t b = 0; b < in.size(); ++b) {
+      DelaunayOptions block = opt;
+      block.region = RegionSpec{RegionGrid{grid, k}.cell(b), &out[b]};
+      SeamStep step(collector, block);
+      step.begin(info);
+      feedStep(step, in[b]);
+      step.end();
+      const std::uint64_t here = step.stats().vertices - step.stats().handedOn;
+      settled += here;
+      all.largestSettled = std::max(all.largestSettled, here);
+      // What a block hands on lies in it, and ends with the block's own tag.
+      for (const SeamRecorder::Item& item : out[b].items) {
+        if (!item.isTag) {
+          EXPECT_EQ(seamBlockOfVertex(grid, k, item.record.x, item.record.y), b);
+        }
+      }
+      EXPECT_TRUE(!out[b].items.empty() && out[b].items.back().isTag && out[b].items.back().tag.level == k);
+    }
+    all.settledPerLevel.push_back(settled);
+    below = std::move(out);
+  }
+  {
+    SeamStep step(collector, opt);
+    step.begin(info);
+    for (const SeamRecorder& r : below) feedStep(step, r);
+    step.end();
+    all.settledPerLevel.push_back(step.stats().vertices);
+    all.largestSettled = std::max(all.largestSettled, step.stats().vertices);
+  }
+  all.triangles.insert(all.triangles.end(), collector.triangles.begin(), collector.triangles.end());
+  for (const auto& v : collector.newVertices) all.vertices.push_back(CheckingSink::V{v[0], v[1], v[2], true});
+  std::sort(all.triangles.begin(), all.triangles.end());
+  EXPECT_EQ(all.stats.pointsIn, pts.size());
+  return all;
+}
+
+void expectBlocksMatch(const Points& pts, int depth, int level, const char* what, const Feed& feed = {},
+                       const DelaunayOptions& opt = {}) {
+  const Result plain = triangulate(pts, depth, feed, opt);
+  std::vector<std::array<double, 3>> b;
+  for (const auto& v : plain.vertices) b.push_back({v.x, v.y, v.z});
+  std::sort(b.begin(), b.end());
+  for (const int parts : {1, 3, 16}) {
+    for (const int top : {level, level - 1, 1}) {
+      if (top == level - 1 && top == 1) continue;
+      const std::string label =
+          std::string(what) + ", " + std::to_string(parts) + " parts, top level " + std::to_string(top);
+      const BlockResult r = triangulateInBlocks(pts, depth, level, parts, top, feed, opt);
+      expectSameTriangles(r.triangles, plain.triangles, label.c_str());
+      std::vector<std::array<double, 3>> a;
+      for (const auto& v : r.vertices) a.push_back({v.x, v.y, v.z});
+      std::sort(a.begin(), a.end());
+      EXPECT_EQ(a, b) << label;
+      std::uint64_t settled = 0;
+      for (const std::uint64_t s : r.settledPerLevel) settled += s;
+      EXPECT_EQ(settled, r.seamVertices) << label << ": every seam vertex is settled once";
+    }
+  }
+}
+
+TEST(SeamBlocks, BlockByBlockGivesTheWholeTriangulation) {
+  expectBlocksMatch(randomPoints(12000, 5), 5, 2, "random");
+  expectBlocksMatch(randomPoints(30000, 8), 6, 3, "random, 64 regions");
+  expectBlocksMatch(survey(SurveySpec::Kind::FlightStrips, 20000, 9), 5, 3, "strips");
+  Feed empty;
+  empty.mode = Feed::Mode::EmptyTagsFirst;
+  expectBlocksMatch(survey(SurveySpec::Kind::UniformRandom, 10000, 2), 4, 2, "uniform, empty tags first",
+                    empty);
+}
+
+TEST(SeamBlocks, DegenerateInput) {
+  Points lattice;
+  for (int i = 0; i <= 48; ++i)
+    for (int j = 0; j <= 48; ++j)
+      lattice.push_back(rec(1000.0 + i * 0.25, 2000.0 + j * 0.25, (i * 7 + j * 3) % 11));
+  expectBlocksMatch(lattice, 4, 2, "lattice on region and block edges");
+  Points dup = lattice;
+  for (int i = 0; i <= 48; i += 4) dup.push_back(rec(1000.0 + i * 0.25, 2000.0 + 6.0, 50.0 + i));
+  DelaunayOptions highest;
+  highest.duplicates = DelaunayOptions::DuplicateRule::Highest;
+  expectBlocksMatch(dup, 4, 2, "duplicates, highest", {}, highest);
+  Points corner = randomPoints(3000, 3, 500000.0, 100.0);
+  corner.push_back(rec(501000.0, 501000.0, 1.0));
+  expectBlocksMatch(corner, 5, 2, "empty blocks");
+  Points line;  // collinear: no region leaves its 1-D phase
+  for (int i = 0; i < 500; ++i) line.push_back(rec(100.0 + i, 100.0 + i, i));
+  expectBlocksMatch(line, 4, 2, "collinear");
+}
+
+// The top step settles a small share of the seam: on 4^4 regions of uniform points, the largest block step
+// settles at most an eighth of S (the top's share is about 1 / (2^L - 1) of S).
+TEST(SeamBlocks, NoStepSettlesTheWholeSeam) {
+  const Points pts = randomPoints(60000, 11);
+  const BlockResult r = triangulateInBlocks(pts, 7, 4, 16, 1);
+  ASSERT_GT(r.seamVertices, 1000u);
+  std::cout << "seam " << r.seamVertices << ", settled per level (3, 2, 1, top):";
+  for (const std::uint64_t s : r.settledPerLevel) std::cout << " " << s;
+  std::cout << ", largest step " << r.largestSettled << "\n";
+  EXPECT_LE(r.largestSettled * 8, r.seamVertices)
+      << r.largestSettled << " of " << r.seamVertices << " seam vertices in one step";
+  const Result plain = triangulate(pts, 7);
+  expectSameTriangles(r.triangles, plain.triangles, "uniform, 256 regions");
+}
+
 // The seam step's wedge store: vertices with more wedges than a page of the pool (kept aside), and blocks
 // of many sizes.  Six small triangles far apart, each in its own cell, every vertex with n narrow wedges
 // that hold no direction towards another point (from (-1,-1) to (-1,-2) counter-clockwise: south-west,
