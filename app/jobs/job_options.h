@@ -76,6 +76,9 @@ struct PipelineOptions {
   // and the rest of its rank's slice, which its window drops) instead of its window of the inputs.
   // Empty: the part reads the inputs.
   std::vector<PointStream*> partRecords;
+  // An MPI run's plan: its region level also keeps the seam's top step at about one part's share of the
+  // seam (plan_job.cpp, planLevel; merge_job.h, SeamBlockRunner).
+  bool seamBlocks = false;
   // tinbuild plan --segment-records: a LAS/LAZ input is recorded in runs of this many records, each with
   // the box of its points, so that a part reads only the runs that meet its window.
   std::uint64_t planSegmentRecords = std::uint64_t{1} << 20;

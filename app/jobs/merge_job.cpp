@@ -1,5 +1,6 @@
 #include "app/jobs/merge_job.h"
 
+#include <algorithm>
 #include <filesystem>
 #include <functional>
 #include <memory>
@@ -20,10 +21,14 @@ namespace {
 
 // The merge's seam output: the seam's own streaming mesh file (every vertex it uses declared again, so
 // the file stands alone) and the DEM rasterizer (a vertex counted only where it was first written).
+// Several block steps of one rank share one file: `next` numbers them all, and `streams` says whether
+// this output begins and ends the mesh and the DEM (else its owner does).
 class MergeSeamOutput : public SeamOutput {
  public:
-  MergeSeamOutput(MeshSink* mesh, TriangleSink* dem) : mesh_(mesh), dem_(dem) {}
+  MergeSeamOutput(MeshSink* mesh, TriangleSink* dem, std::uint64_t& next, bool streams = true)
+      : mesh_(mesh), dem_(dem), next_(next), streams_(streams) {}
   void begin(const MeshInfo& info) override {
+    if (!streams_) return;
     if (mesh_) mesh_->begin(info);
     if (dem_) dem_->begin(info);
   }
@@ -39,7 +44,13 @@ class MergeSeamOutput : public SeamOutput {
     declare(r);
     if (mesh_) mesh_->finalizeVertex(r.out);
   }
+  // (A vertex a block hands on is finalized in this file if written here; the level above declares it
+  // again in its own, and counts it nowhere as new: its id then says it was written.)
+  void handedOn(SeamRecord& r) override {
+    if (r.out != kNoSeamId && mesh_) mesh_->finalizeVertex(r.out);
+  }
   void end() override {
+    if (!streams_) return;
     if (mesh_) mesh_->end();
     if (dem_) dem_->end();
   }
@@ -59,12 +70,15 @@ class MergeSeamOutput : public SeamOutput {
   }
   MeshSink* mesh_;
   TriangleSink* dem_;
-  std::uint64_t next_ = 0, triangles_ = 0, newVertices_ = 0;
+  std::uint64_t& next_;
+  bool streams_;
+  std::uint64_t triangles_ = 0, newVertices_ = 0;
 };
 
 }  // namespace
 
-RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag) {
+RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag,
+                   const MergedBlocks* blocks) {
   const auto t0 = JobClock::now();
   RunReport r;
   r.command = "merge";
@@ -94,7 +108,15 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   checkPlanInputs(plan);
   // Every file the parts left, as they left it: missing, cut short or altered is an error naming the part
   // and the file, before any output is touched.
-  for (const PartDone& d : done) checkPartFiles(d, plan);
+  // (Under MPI with blocks each rank read its own part's seam file; only the rest came here.)
+  for (const PartDone& d : done) {
+    PartDone here = d;
+    if (blocks)
+      here.files.erase(std::remove_if(here.files.begin(), here.files.end(),
+                                      [](const PartFile& f) { return f.role == "seam"; }),
+                       here.files.end());
+    checkPartFiles(here, plan);
+  }
   RunOutputs outputs = resolveOutputs(o);
   checkPlannedOutputs(outputs);
   RunLock lock;
@@ -162,7 +184,8 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     }
   }
   if (outputs.dem) dem = outputs.dem.row->open(outputs.dem.path, context);
-  MergeSeamOutput seamOut(mesh ? mesh->meshSink() : nullptr, dem ? dem->triangleSink() : nullptr);
+  std::uint64_t nextId = 0;
+  MergeSeamOutput seamOut(mesh ? mesh->meshSink() : nullptr, dem ? dem->triangleSink() : nullptr, nextId);
   SeamStep step(seamOut, o.delaunay);
   StreamInfo info;
   info.grid = plan.grid;
@@ -174,19 +197,37 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   auto stillWanted = [&o](double fraction, const char* what) {
     if (o.finalizer.progress && !o.finalizer.progress(fraction, what, o.finalizer.progressData)) throw CancelledError();
   };
-  for (int i = 0; i < r.parts; ++i) {
-    stillWanted(0.5 * i / r.parts, "merging the seams");
-    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i), step,
-                                                o.finalizer.cancel);
+  if (blocks) {
+    // The blocks' triangles into the DEM (their ids only need to differ from the step's below).
+    if (dem) {
+      std::uint64_t replayId = std::uint64_t{1} << 62;
+      for (const std::string& f : blocks->demTriangles) {
+        stillWanted(0.1, "merging the seams");
+        readSeamTriangleFile(f, *dem->triangleSink(), replayId, o.finalizer.cancel);
+        r.seamBytes += fileSizeOrZero(f);
+      }
+    }
+    const SeamFileCounts c = readSeamFile(blocks->top, plan.id, kTopSeamFile, step, o.finalizer.cancel);
     r.seamBytes += c.bytes;
+  } else {
+    for (int i = 0; i < r.parts; ++i) {
+      stillWanted(0.5 * i / r.parts, "merging the seams");
+      const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i),
+                                            step, o.finalizer.cancel);
+      r.seamBytes += c.bytes;
+    }
   }
   stillWanted(0.5, "merging the seams");
   step.end();
   const SeamStats& ss = step.stats();
-  r.seamVertices = ss.vertices;
-  r.seamTriangles = ss.written;
+  r.seamVertices = ss.vertices + (blocks ? blocks->seamVertices : 0);
+  r.seamTriangles = ss.written + (blocks ? blocks->triangles : 0);
   r.demPieces = pieces.pieces();
   std::uint64_t triangles = seamOut.triangles(), vertices = seamOut.newVertices();
+  if (blocks) {
+    triangles += blocks->triangles;
+    vertices += blocks->newVertices;
+  }
   for (const PartDone& d : done) {
     triangles += d.triangles;
     vertices += d.vertices;
@@ -198,6 +239,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     m.planId = plan.id;
     for (const PartDone& d : done) m.parts.push_back(d.mesh);
     m.seam = seamMesh;
+    if (blocks) m.seamBlocks = blocks->meshes;
     m.triangles = triangles;
     m.vertices = vertices;
     m.crsWkt = crs.wkt;
@@ -251,8 +293,8 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   r.delaunay.peakBytes = ss.triangulator.peakBytes;
   r.parallel.regionLevel = plan.regionLevel;
   r.parallel.seam = ss.triangulator;
-  r.parallel.seamVertices = ss.vertices;
-  r.parallel.seamWritten = ss.written;
+  r.parallel.seamVertices = r.seamVertices;
+  r.parallel.seamWritten = r.seamTriangles;
   r.parallel.seamDropped = ss.dropped;
   r.duplicateRule = duplicateRuleName(o.delaunay.duplicates);
   if (context.bankCheck) {
@@ -270,6 +312,96 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   }
   finishReport(r, diag, t0);
   return r;
+}
+
+}  // namespace tinbuild
+
+namespace tinbuild {
+
+int seamBlockOwner(const Plan& plan, int level, std::uint64_t index) {
+  const auto parts = static_cast<std::uint64_t>(plan.parts.size());
+  const std::uint64_t blocks = std::uint64_t{1} << (2 * level);
+  if (blocks <= parts) return static_cast<int>(((2 * index + 1) * parts) / (2 * blocks));  // spread evenly
+  const int shift = 2 * (plan.regionLevel - level);
+  const std::uint64_t middle = (index << shift) + ((std::uint64_t{1} << shift) >> 1);
+  for (std::size_t p = 0; p < plan.parts.size(); ++p)
+    if (middle < plan.parts[p].end) return static_cast<int>(p);
+  return static_cast<int>(plan.parts.size()) - 1;
+}
+
+struct SeamBlockRunner::Impl {
+  const PipelineOptions& o;
+  const Plan& plan;
+  RunOutputs outputs;
+  std::unique_ptr<OpenedOutput> mesh;
+  std::unique_ptr<SeamTriangleFileWriter> dem;
+  StreamInfo info;
+  std::uint64_t nextId = 0;
+  bool begun = false;
+  Impl(const PipelineOptions& options, const Plan& p) : o(options), plan(p) {}
+};
+
+SeamBlockRunner::SeamBlockRunner(const PipelineOptions& o, const Plan& plan, const CrsInfo& crs,
+                                 const std::string& meshPath, const std::string& demTrianglePath)
+    : impl_(std::make_unique<Impl>(o, plan)) {
+  Impl& m = *impl_;
+  m.info.grid = plan.grid;
+  m.info.bounds = plan.bounds;
+  m.info.crsWkt = crs.wkt;
+  if (!meshPath.empty()) {
+    m.outputs.mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
+    m.outputs.context = writerContext(o);
+    m.outputs.context.crs = crs;
+    m.outputs.context.overwrite = true;                              // (claimed at the run's start)
+    m.mesh = m.outputs.mesh.row->open(meshPath, m.outputs.context);  // (the mesh's own format)
+  }
+  if (!demTrianglePath.empty()) m.dem = std::make_unique<SeamTriangleFileWriter>(demTrianglePath);
+}
+
+SeamBlockRunner::~SeamBlockRunner() = default;
+
+void SeamBlockRunner::run(int level, std::uint64_t index, const std::string& input,
+                          const std::string& output) {
+  Impl& m = *impl_;
+  MeshSink* mesh = m.mesh ? m.mesh->meshSink() : nullptr;
+  if (m.mesh && !mesh) throw Error("the seam blocks need a streaming mesh output");
+  if (!m.begun) {
+    MeshInfo mi;
+    mi.bounds = m.info.bounds;
+    mi.crsWkt = m.info.crsWkt;
+    if (mesh) mesh->begin(mi);
+    if (m.dem) m.dem->begin(mi);
+    m.begun = true;
+  }
+  MergeSeamOutput out(mesh, m.dem.get(), m.nextId, /*streams=*/false);
+  SeamFileWriter up(output, m.plan.id, static_cast<std::uint32_t>(index));
+  DelaunayOptions d = m.o.delaunay;
+  d.region = RegionSpec{RegionGrid{m.plan.grid, level}.cell(index), &up};
+  SeamStep step(out, d);
+  step.begin(m.info);
+  readSeamFile(input, m.plan.id, static_cast<std::uint32_t>(index), step, m.o.finalizer.cancel);
+  step.end();
+  up.commit();
+  const SeamStats& s = step.stats();
+  ++blocks;
+  seamVertices += s.vertices;
+  settled += s.vertices - s.handedOn;
+  triangles += out.triangles();
+  newVertices += out.newVertices();
+  peakBytes = std::max<std::uint64_t>(peakBytes, s.triangulator.peakBytes);
+}
+
+void SeamBlockRunner::finish() {
+  Impl& m = *impl_;
+  if (!m.begun) {  // (no block: the files are still made, empty)
+    MeshInfo mi;
+    mi.bounds = m.info.bounds;
+    mi.crsWkt = m.info.crsWkt;
+    if (m.mesh && m.mesh->meshSink()) m.mesh->meshSink()->begin(mi);
+    if (m.dem) m.dem->begin(mi);
+  }
+  if (m.mesh && m.mesh->meshSink()) m.mesh->meshSink()->end();
+  if (m.dem) m.dem->end();
 }
 
 }  // namespace tinbuild

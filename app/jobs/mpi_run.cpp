@@ -8,12 +8,16 @@
 #include <cstdlib>
 #include <filesystem>
 #include <fstream>
+#include <functional>
+#include <map>
 #include <sstream>
 #include <thread>
 
+#include "app/jobs/merge_job.h"
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
+#include "formats/mesh/seam_file.h"
 #include "libterrain/core/error.h"
 #include "libterrain/finalizer/record_file_stream.h"
 #include "libterrain/finalizer/regions.h"
@@ -336,6 +340,7 @@ struct ExchangedRecords {
   std::vector<std::unique_ptr<RecordFileStream>> pieces;
   std::vector<PointStream*> streams;  // what the part reads, in order
   std::uint64_t sentRecords = 0;              // to other ranks
+  std::uint64_t receivedBytes = 0;            // from other ranks
 };
 
 // Do all ranks hold their slice's records, and can each take what the others send it?  (A vote: all or
@@ -432,6 +437,9 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
     mpi().alltoallv(sendBuffer.data(), sendCounts.data(), sendOffsets.data(), receiveBuffer.data(),
                     receiveCounts.data(), receiveOffsets.data(), kTinbuildMpiChar);
     for (std::size_t d = 0; d < n; ++d) out.sentRecords += static_cast<std::uint64_t>(sendCounts[d] / kRecord);
+    for (std::size_t s = 0; s < n; ++s)
+      if (s != static_cast<std::size_t>(rank))
+        out.receivedBytes += static_cast<std::uint64_t>(receiveCounts[s]);
     try {
       for (std::size_t s = 0; s < n; ++s) {
         const std::uint64_t k = static_cast<std::uint64_t>(receiveCounts[s] / kRecord);
@@ -468,6 +476,218 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
     out.streams.push_back(out.pieces.back().get());
   }
   return out;
+}
+
+// ---- The seam across ranks (docs/design.md, "The seam across ranks").  Level by level, every rank sends
+// each seam record it holds (its part's, then what its blocks left) to the rank owning the record's
+// block one level up, which appends it to that block's input file; then each rank runs its blocks.
+
+// One level's exchange.  `sources`: the seam files this rank holds (path, part or block index); `level`:
+// the blocks' (-1: the top step, rank 0's); `inputs`: this rank's blocks of that level, their input files.
+// In rounds: a rank sends at most 32 MiB a round, at most 256 MiB / ranks (1 MiB at least) to one rank,
+// so no rank receives much more than 256 MiB at once.  Each round ends in a vote (more to send, a failure,
+// a cancellation), so a failure or a stop anywhere ends every rank's loop at the same round; the
+// collective step after it then stops them all.  Returns the bytes this rank received.
+std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
+                           const std::vector<std::pair<std::string, std::uint32_t> >& sources,
+                           std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> >& inputs,
+                           const CancelFlag* cancel) {
+  struct Abort {};
+  const std::size_t n = static_cast<std::size_t>(size);
+  const std::size_t perPeer = std::max<std::size_t>(std::size_t{1} << 20, (std::size_t{256} << 20) / n);
+  const std::size_t perRound = std::size_t{32} << 20;
+  std::vector<std::string> out(n);
+  std::size_t pending = 0;
+  std::string error;
+  bool stopped = false;
+  std::uint64_t received = 0;
+  std::vector<int> sendCounts(n), receiveCounts(n), sendOffsets(n), receiveOffsets(n);
+  std::string sendBuffer, receiveBuffer;
+  auto sinkOf = [&](std::uint32_t block) -> SeamSink& {
+    const auto it = inputs.find(block);
+    if (it == inputs.end())
+      throw Error("the seam exchange: rank " + std::to_string(rank) + " got a record of block " +
+                  std::to_string(block) + " of level " + std::to_string(level) + ", which it does not own");
+    return *it->second;
+  };
+  // One round; true when every rank is done (or one failed: then `error` or `stopped` may be another's).
+  auto round = [&](bool done) {
+    int total = 0;
+    for (std::size_t d = 0; d < n; ++d) {
+      sendCounts[d] = static_cast<int>(out[d].size());
+      sendOffsets[d] = total;
+      total += sendCounts[d];
+    }
+    sendBuffer.clear();
+    for (const std::string& b : out) sendBuffer += b;
+    mpi().alltoall(sendCounts.data(), 1, receiveCounts.data(), kTinbuildMpiInt);
+    std::int64_t all = 0;
+    for (std::size_t d = 0; d < n; ++d) {
+      receiveOffsets[d] = static_cast<int>(all);
+      all += receiveCounts[d];
+    }
+    receiveBuffer.resize(static_cast<std::size_t>(all));
+    mpi().alltoallv(sendBuffer.data(), sendCounts.data(), sendOffsets.data(), receiveBuffer.data(),
+                    receiveCounts.data(), receiveOffsets.data(), kTinbuildMpiChar);
+    for (std::string& b : out) b.clear();
+    pending = 0;
+    received += static_cast<std::uint64_t>(all - receiveCounts[static_cast<std::size_t>(rank)]);
+    if (error.empty() && !stopped) {
+      try {
+        for (std::size_t d = 0; d < n; ++d)  // (senders in rank order: each region's own order is kept)
+          replaySeamRecords(receiveBuffer.data() + receiveOffsets[d],
+                            static_cast<std::size_t>(receiveCounts[d]), sinkOf);
+      } catch (const std::exception& e) {
+        error = e.what();
+      }
+    }
+    if (cancelRequested(cancel)) stopped = true;
+    int vote[2] = {done && error.empty() && !stopped ? 0 : 1, error.empty() && !stopped ? 0 : 1};
+    mpi().allreduceInPlace(vote, 2, kTinbuildMpiInt, kTinbuildMpiMax);
+    return vote[0] == 0 || vote[1] != 0;
+  };
+  struct Router : SeamSink {
+    std::function<void(std::uint64_t, const std::function<void(std::string&, std::uint32_t)>&)> put;
+    const GridSpec* grid = nullptr;
+    int level = 0;
+    void seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w,
+                    std::size_t count) override {
+      const std::uint64_t b = level < 0 ? 0 : seamBlockOfVertex(*grid, level, x, y);
+      put(b, [&](std::string& o, std::uint32_t block) {
+        appendSeamVertex(o, block, id, x, y, z, all, w, count);
+      });
+    }
+    void seamTag(const CellTag& c) override {
+      if (level >= 0 && c.level < level) throw Error("the seam exchange: a seam tag above its block");
+      const std::uint64_t b = level < 0 ? 0 : seamBlockOfTag(level, c);
+      put(b, [&](std::string& o, std::uint32_t block) { appendSeamTag(o, block, c); });
+    }
+  } router;
+  router.grid = &plan.grid;
+  router.level = level;
+  router.put = [&](std::uint64_t block, const std::function<void(std::string&, std::uint32_t)>& encode) {
+    const int owner = level < 0 ? 0 : seamBlockOwner(plan, level, block);
+    std::string& o = out[static_cast<std::size_t>(owner)];
+    const std::size_t before = o.size();
+    encode(o, static_cast<std::uint32_t>(block));
+    pending += o.size() - before;
+    if (pending >= perRound || o.size() >= perPeer)
+      if (round(false)) throw Abort{};
+  };
+  bool finished = false;
+  try {
+    for (const auto& [path, index] : sources) readSeamFile(path, plan.id, index, router, cancel);
+  } catch (const Abort&) {
+    finished = true;  // (another rank failed or was stopped: the collective after this says so)
+  } catch (const CancelledError&) {
+    stopped = true;
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  while (!finished) finished = round(true);
+  collective(rank, size, "seam exchange on rank", [&] {
+    if (!error.empty()) throw Error(error);
+    if (stopped) throw CancelledError();
+  });
+  return received;
+}
+
+// The seam step of an MPI run across its ranks: every level of blocks between the regions and the top,
+// each block on its owner (seamBlockOwner), then what the level-1 blocks leave to rank 0, whose merge runs
+// the top step.  Returns rank 0's MergedBlocks (sums over the ranks; the files by rank).
+struct SeamAcrossRanks {
+  MergedBlocks merged;          // (rank 0)
+  std::uint64_t settled = 0;    // by this rank's blocks
+  std::uint64_t blocks = 0;     // run by this rank
+  std::uint64_t received = 0;   // bytes of seam records this rank received
+  std::uint64_t peakBytes = 0;  // this rank's largest block step
+  std::string demTriangles;     // this rank's seam triangle file ("" without a DEM)
+};
+
+SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, const PipelineOptions& options,
+                                      const RunOutputs& planned, const std::string& privateDir) {
+  SeamAcrossRanks r;
+  const std::string localDir =
+      privateDir.empty() ? plan.stateDir() : privateDir;  // (rank 0: the plan's state)
+  const CancelFlag* cancel = options.finalizer.cancel;
+  std::vector<std::pair<std::string, std::uint32_t> > sources = {
+      {plan.partFile(rank, "seam"), static_cast<std::uint32_t>(rank)}};
+  std::vector<std::string> ownFiles;  // (the block files this rank made, removed as soon as read)
+  std::unique_ptr<SeamBlockRunner> runner;
+  collective(rank, size, "seam blocks on rank", [&] {
+    const PartDone done = readPartDone(plan.partFile(rank, "json"));
+    if (planned.dem) r.demTriangles = localDir + "/seam-triangles.bin";
+    runner = std::make_unique<SeamBlockRunner>(
+        options, plan, done.crs, planned.mesh ? seamBlockMeshPath(options.meshOutput, rank) : std::string(),
+        r.demTriangles);
+  });
+  auto removeFiles = [](std::vector<std::string>& files) {
+    std::error_code ec;
+    for (const std::string& f : files) fs::remove(f, ec);
+    files.clear();
+  };
+  for (int level = plan.regionLevel - 1; level >= 1; --level) {
+    std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> > inputs;
+    std::vector<std::string> inputPaths;
+    const std::uint64_t count = std::uint64_t{1} << (2 * level);
+    collective(rank, size, "seam blocks on rank", [&] {
+      for (std::uint64_t b = 0; b < count; ++b) {
+        if (seamBlockOwner(plan, level, b) != rank) continue;
+        const std::string path =
+            localDir + "/in-" + std::to_string(level) + "-" + std::to_string(b) + ".seam";
+        inputs[b] = std::make_unique<SeamFileWriter>(path, plan.id, static_cast<std::uint32_t>(b));
+        inputPaths.push_back(path);
+      }
+    });
+    r.received += exchangeSeam(rank, size, plan, level, sources, inputs, cancel);
+    std::vector<std::pair<std::string, std::uint32_t> > next;
+    collective(rank, size, "seam blocks on rank", [&] {
+      for (auto& [b, writer] : inputs) writer->commit();
+      inputs.clear();
+      commitStep();           // (each file under its name, to be read)
+      removeFiles(ownFiles);  // (the sources just sent; never the part's seam file)
+      std::size_t i = 0;
+      for (std::uint64_t b = 0; b < count; ++b) {
+        if (seamBlockOwner(plan, level, b) != rank) continue;
+        const std::string output =
+            localDir + "/out-" + std::to_string(level) + "-" + std::to_string(b) + ".seam";
+        runner->run(level, b, inputPaths[i++], output);
+        next.emplace_back(output, static_cast<std::uint32_t>(b));
+        ownFiles.push_back(output);
+      }
+      removeFiles(inputPaths);
+      commitStep();
+    });
+    sources = std::move(next);
+  }
+  // The top: what is left, to rank 0.
+  std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> > top;
+  const std::string topPath = plan.stateDir() + "/seam-top.seam";
+  collective(rank, size, "seam blocks on rank", [&] {
+    runner->finish();
+    commitStep();  // (the rank's block mesh, for rank 0's manifest)
+    if (rank == 0) top[0] = std::make_unique<SeamFileWriter>(topPath, plan.id, kTopSeamFile);
+  });
+  r.received += exchangeSeam(rank, size, plan, -1, sources, top, cancel);
+  collective(rank, size, "seam blocks on rank", [&] {
+    if (rank == 0) top[0]->commit();
+    removeFiles(ownFiles);
+    commitStep();
+  });
+  r.settled = runner->settled;
+  r.blocks = runner->blocks;
+  r.peakBytes = runner->peakBytes;
+  std::uint64_t sums[3] = {runner->settled, runner->triangles, runner->newVertices}, all[3] = {0, 0, 0};
+  mpi().reduce(sums, all, 3, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
+  if (rank == 0) {
+    r.merged.top = topPath;
+    r.merged.seamVertices = all[0];
+    r.merged.triangles = all[1];
+    r.merged.newVertices = all[2];
+    if (planned.mesh)
+      for (int i = 0; i < size; ++i) r.merged.meshes.push_back(seamBlockMeshPath(options.meshOutput, i));
+  }
+  return r;
 }
 
 // The run's MPI: initialised once and finalized on the way out, whatever happens, and a watcher thread on
@@ -692,6 +912,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     MpiReducer reducer(rank, size);
     PipelineOptions po = options;
     po.overwrite = true;
+    po.seamBlocks = true;
     plan.path = rank == 0 ? rootPlanPath : localDir + "/plan.json";
     planReport = runPlanInSlices(po, survey, size, plan, diag, reducer, &sliceRecords);  // (errors reach every rank)
     exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
@@ -704,6 +925,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
       if (rank != 0) return;
       PipelineOptions po = options;
       po.overwrite = true;
+      po.seamBlocks = true;
       plan.path = rootPlanPath;
       planReport = runPlan(po, survey, size, plan, diag);
       commitStep();
@@ -763,19 +985,43 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   });
 
   double partSeconds = since(tPart);
-  // 3. Seam files, DEM pieces and part records to rank 0.
-  const char* kinds[] = {"seam", "dem", "json"};
+  // 3. The seam, block by block across the ranks; then the DEM pieces, the seam triangles for the DEM and
+  // the part records to rank 0.
+  const auto tSeam = Clock::now();
+  SeamAcrossRanks seam = settleSeamAcrossRanks(rank, size, plan, options, planned, localDir);
+  exchanged += seam.received * 2;  // (halved with the rest below)
+  std::uint64_t receivedBytes = seam.received + records.receivedBytes;
+  const double seamSeconds = since(tSeam);
   const CancelFlag* cancel = options.finalizer.cancel;
+  auto triangleFile = [&plan](int from) {
+    char name[40];
+    std::snprintf(name, sizeof name, "/seam-triangles-%04d.bin", from);
+    return plan.stateDir() + name;
+  };
   collective(rank, size, "exchange from rank", [&] {
-    for (int from = 1; from < size; ++from)
-      for (int k = 0; k < 3; ++k) {
-        const int tag = 100 + k;
+    for (int from = 0; from < size; ++from) {
+      if (!seam.demTriangles.empty()) {
+        if (from == 0 && rank == 0) {
+          fs::rename(seam.demTriangles, triangleFile(0));
+        } else if (from != 0) {
+          if (rank == from)
+            exchanged += sendFile(seam.demTriangles, 103, cancel);
+          else if (rank == 0)
+            receivedBytes += receiveFile(triangleFile(from), from, 103, cancel);  // (added below)
+        }
+      }
+      if (from == 0) continue;
+      const char* kinds[] = {"dem", "json"};
+      for (int k = 0; k < 2; ++k) {
+        const int tag = 101 + k;
         if (rank == from)
           exchanged += sendFile(plan.partFile(rank, kinds[k]), tag, cancel);
         else if (rank == 0)
-          exchanged += receiveFile(plan.partFile(from, kinds[k]), from, tag, cancel);
+          receivedBytes += receiveFile(plan.partFile(from, kinds[k]), from, tag, cancel);
       }
+    }
   });
+  exchanged += receivedBytes - seam.received - records.receivedBytes;  // (the files, counted as received)
   collective(rank, size, "commit on rank", [&] { commitStep(); });  // rank 0: the files it received
   if (!localDir.empty()) {
     std::error_code ec;
@@ -783,14 +1029,16 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     localDir.clear();
   }
 
-  // 4. The merge on rank 0.
+  // 4. The merge on rank 0: the top of the seam, the DEM tiles left in pieces, the mosaics.
   const auto tMerge = Clock::now();
   RunReport merged;
   collective(rank, size, "merge on rank", [&] {
     if (rank != 0) return;
     PipelineOptions mo = options;
     mo.commandLine = plan.command;  // the parts' tiles record the plan's command: so do the merge's
-    merged = runMerge(mo, plan, diag);
+    if (planned.dem)
+      for (int i = 0; i < size; ++i) seam.merged.demTriangles.push_back(triangleFile(i));
+    merged = runMerge(mo, plan, diag, &seam.merged);
   });
   const double mergeSeconds = since(tMerge);
   std::vector<double> partTimes(static_cast<std::size_t>(size));
@@ -800,6 +1048,11 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   mpi().gather(&peak, 1, peaks.data(), kTinbuildMpiUint64, 0);
   std::uint64_t exchangedAll = 0;
   mpi().reduce(&exchanged, &exchangedAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
+  // Every rank's figures (mpi.ranks): seam vertices settled, block steps, DEM pieces joined, bytes received.
+  std::uint64_t mine[4] = {seam.settled + (rank == 0 ? merged.seamVertices - seam.merged.seamVertices : 0),
+                           seam.blocks, rank == 0 ? merged.demPieces : 0, receivedBytes};
+  std::vector<std::uint64_t> figures(4 * static_cast<std::size_t>(size));
+  mpi().gather(mine, 4, figures.data(), kTinbuildMpiUint64, 0);
   std::uint64_t recordsSent = records.sentRecords, recordsAll = 0;
   mpi().reduce(&recordsSent, &recordsAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   // 5. The decision: one last vote.  A cancellation that has reached any rank by now stops all of them
@@ -828,6 +1081,11 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   merged.planSeconds = planSeconds;
   merged.exchangeSeconds = exchangeSeconds;
   merged.mergeSeconds = mergeSeconds;
+  merged.seamSeconds = seamSeconds;
+  for (int i = 0; i < size; ++i) {
+    const std::uint64_t* f = &figures[4 * static_cast<std::size_t>(i)];
+    merged.ranks.push_back(RunReport::RankFigures{f[0], f[1], f[2], f[3]});
+  }
   merged.exchangedBytes = exchangedAll / 2;  // each byte was counted by its sender and its receiver
   merged.exchangedRecords = recordsAll;
   merged.planPath.clear();

@@ -19,10 +19,17 @@ namespace tinbuild {
 namespace {
 
 // The plan's region level: at least 4 regions a part (for balance), at least the regions one process
-// would use, at most 4^7, at most the grid's depth.
-int planLevel(std::uint64_t points, int depth, int parts) {
+// would use, at most 4^7 -- unless an MPI run's seam blocks need more (`seamBlocks`): the seam is then
+// settled block by block up the quadtree (merge_job.h, SeamBlockRunner), and the top step, over what the
+// level-1 blocks leave, settles about 1 / (2^level - 1) of it, so 2^level > parts keeps that share under
+// one part's (up to level 11, 4^11 regions, for 2,047 parts).  At most the grid's depth.  (A plan for
+// `tinbuild merge` does not: one process settles the whole seam there, and more regions only make it
+// longer.)
+int planLevel(std::uint64_t points, int depth, int parts, bool seamBlocks) {
   int level = 1;
   while (level < 7 && (std::uint64_t{1} << (2 * level)) < 4 * static_cast<std::uint64_t>(parts)) ++level;
+  while (seamBlocks && level < 11 && (std::uint64_t{1} << level) <= static_cast<std::uint64_t>(parts))
+    ++level;
   level = std::max(level, ParallelDelaunay::chooseRegionLevel(points, depth));
   return std::min(level, depth);
 }
@@ -69,14 +76,14 @@ std::vector<PlanPart> splitRegions(const std::vector<std::uint64_t>& counts, int
 class PlanCounter : public PointSink {
  public:
   struct Stop {};  // thrown from begin() to stop the finalizer there (stopAtBegin)
-  explicit PlanCounter(int parts) : parts_(parts) {}
+  PlanCounter(int parts, bool seamBlocks) : parts_(parts), seamBlocks_(seamBlocks) {}
   void stopAtBegin(bool stop) { stop_ = stop; }
   void begin(const StreamInfo& info) override {
     info_ = info;
     if (info.grid.depth < 1)
       throw DataError("", "the survey is too small to split into parts (" + std::to_string(info.points) +
                               " points, one grid cell): run `tinbuild build` on it");
-    level_ = planLevel(info.points, info.grid.depth, parts_);
+    level_ = planLevel(info.points, info.grid.depth, parts_, seamBlocks_);
     regions_ = RegionGrid{info.grid, level_};
     counts_.assign(std::size_t{1} << (2 * level_), 0);
     if (stop_) throw Stop{};
@@ -110,6 +117,7 @@ class PlanCounter : public PointSink {
   bool stop_ = false;
   StreamInfo info_;
   int level_ = 1;
+  bool seamBlocks_ = false;
   RegionGrid regions_;
   std::vector<std::uint64_t> counts_;
 };
@@ -201,7 +209,7 @@ RunReport runPlan(const PipelineOptions& o, Survey& in, int parts, Plan& plan, D
     finishReport(sliced, diag, t0);
     return sliced;
   }
-  PlanCounter counter(parts);
+  PlanCounter counter(parts, o.seamBlocks);
   counter.stopAtBegin(fromHierarchy);  // (with constraints: every point streamed and counted)
   try {
     r.finalizer = finalizePoints(in.streams, fo, counter, diag);
@@ -480,7 +488,7 @@ RunReport runPlanInSlices(const PipelineOptions& o, Survey& in, int parts, Plan&
     throw DataError("", "the survey is too small to split into parts (" + std::to_string(bounds.points) +
                             " points, one grid cell): run `tinbuild build` on it");
   const GridSpec grid = makeGrid(bounds.bounds, depth);
-  const int level = planLevel(bounds.points, depth, parts);
+  const int level = planLevel(bounds.points, depth, parts, o.seamBlocks);
   // Pass 2: points per region.
   PlanCounts counts;
   counts.regions.assign(std::size_t{1} << (2 * level), 0);

@@ -67,6 +67,7 @@ std::vector<OutputClaim> plannedClaims(const RunOutputs& outputs, int parts) {
     if (c.option == optionName(OutputOption::Mesh)) {
       c.files = {meshManifestPath(c.path), seamMeshPath(c.path)};
       for (int i = 0; i < parts; ++i) c.files.push_back(partMeshPath(c.path, i));
+      for (int i = 0; i < parts; ++i) c.files.push_back(seamBlockMeshPath(c.path, i));  // (an MPI run's)
       c.path = c.files.front();
     }
     claims.push_back(std::move(c));

@@ -495,6 +495,25 @@ std::string formatRunJson(const RunReport& r) {
     j.key("merge_seconds").value(r.mergeSeconds);
     j.endObject();
   }
+  if (!r.ranks.empty()) {
+    j.key("mpi").beginObject();
+    j.key("seam_seconds").value(r.seamSeconds);
+    j.key("ranks").beginArray();
+    for (std::size_t i = 0; i < r.ranks.size(); ++i) {
+      const RunReport::RankFigures& f = r.ranks[i];
+      j.beginObject();
+      j.key("rank").value(static_cast<std::uint64_t>(i));
+      j.key("seam_vertices").value(f.seamVertices);
+      j.key("seam_blocks").value(f.seamBlocks);
+      j.key("dem_pieces").value(f.demPieces);
+      j.key("bytes_received").value(f.bytesReceived);
+      if (i < r.rankPartSeconds.size()) j.key("part_seconds").value(r.rankPartSeconds[i]);
+      if (i < r.rankPeakRss.size()) j.key("peak_rss_bytes").value(r.rankPeakRss[i]);
+      j.endObject();
+    }
+    j.endArray();
+    j.endObject();
+  }
   if (!r.gpkgOutput.empty()) {
     j.key("gpkg").beginObject();
     j.key("path").value(r.gpkgOutput);

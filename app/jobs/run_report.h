@@ -92,6 +92,15 @@ struct RunReport {
   double planSeconds = 0, mergeSeconds = 0;  // --mpi: rank 0's plan and merge
   double exchangeSeconds = 0;                // --mpi: rank 0's exchange of the decoded points
   std::vector<double> rankPartSeconds;       // --mpi: each rank's part (its build)
+  // --mpi: what each rank did besides its part (the report's mpi.ranks), and the seam step's time.
+  struct RankFigures {
+    std::uint64_t seamVertices = 0;   // settled by its seam steps (rank 0: with the top step's)
+    std::uint64_t seamBlocks = 0;     // block steps it ran
+    std::uint64_t demPieces = 0;      // DEM tile pieces it received and joined
+    std::uint64_t bytesReceived = 0;  // from other ranks: points, seam records, state files
+  };
+  std::vector<RankFigures> ranks;
+  double seamSeconds = 0;
   bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
   // --mpi: every rank voted to go on after the merge (mpi_run.cpp); a signal arriving later no longer
   // stops the commit, on any rank, so the exit codes agree with what rank 0 commits.

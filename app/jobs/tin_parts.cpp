@@ -19,14 +19,22 @@ namespace tinbuild {
 
 namespace {
 
-// readMeshParts' adapter for one file: local ids to the TIN's ids.  A seam vertex (its xy in `seam`) gets
-// one id for all files and is finalized only by the seam file.
+// A vertex of the seam files: its id in the TIN (kNoSeamId: not yet declared), and how many times the
+// seam files declare it (an MPI run's block steps may each declare it again, and only the last of them
+// to finalize it ends it).
+struct SeamVertex {
+  std::uint64_t id = kNoSeamId;
+  std::uint32_t open = 0;
+};
+
+// readMeshParts' adapter for one file: local ids to the TIN's ids.  A seam vertex (its xy in a seam file)
+// gets one id for all files and is finalized only by the last seam file's finalization of it.
 class PartRenumber : public MeshSink {
  public:
   struct Shared {
     MeshSink& out;
     std::uint64_t next = 0;
-    std::map<std::pair<double, double>, std::uint64_t> seamIds;  // seam xy -> TIN id (kNoSeamId: not yet)
+    std::map<std::pair<double, double>, SeamVertex> seamIds;  // seam xy
   };
   PartRenumber(Shared& s, bool seamFile) : s_(s), seamFile_(seamFile) {}
   void begin(const MeshInfo& info) override { s_.out.begin(info); }
@@ -36,16 +44,16 @@ class PartRenumber : public MeshSink {
     const auto it = s_.seamIds.find({x, y});
     if (it != s_.seamIds.end()) {
       shared = true;
-      if (it->second == kNoSeamId) {
-        it->second = s_.next++;
-        s_.out.vertex(it->second, x, y, z);
+      if (it->second.id == kNoSeamId) {
+        it->second.id = s_.next++;
+        s_.out.vertex(it->second.id, x, y, z);
       }
-      global = it->second;
+      global = it->second.id;
     } else {
       global = s_.next++;
       s_.out.vertex(global, x, y, z);
     }
-    local_[id] = {global, shared};
+    local_[id] = {global, shared ? &it->second : nullptr};
   }
   void triangle(std::uint64_t a, std::uint64_t b, std::uint64_t c) override {
     s_.out.triangle(at(a).first, at(b).first, at(c).first);
@@ -53,29 +61,33 @@ class PartRenumber : public MeshSink {
   void finalizeVertex(std::uint64_t id) override {
     const auto it = local_.find(id);
     if (it == local_.end()) throw Error("mesh parts: a vertex finalized twice");
-    if (!it->second.second || seamFile_) s_.out.finalizeVertex(it->second.first);
+    SeamVertex* seam = it->second.second;
+    if (!seam)
+      s_.out.finalizeVertex(it->second.first);
+    else if (seamFile_ && --seam->open == 0)
+      s_.out.finalizeVertex(it->second.first);
     local_.erase(it);
   }
   void end() override {}
 
  private:
-  const std::pair<std::uint64_t, bool>& at(std::uint64_t id) const {
+  const std::pair<std::uint64_t, SeamVertex*>& at(std::uint64_t id) const {
     const auto it = local_.find(id);
     if (it == local_.end()) throw Error("mesh parts: a triangle uses an unknown vertex");
     return it->second;
   }
   Shared& s_;
   bool seamFile_;
-  std::unordered_map<std::uint64_t, std::pair<std::uint64_t, bool>> local_;
+  std::unordered_map<std::uint64_t, std::pair<std::uint64_t, SeamVertex*>> local_;
 };
 
-// Collects the xy of the seam file's vertices.
+// Collects the xy of the seam files' vertices, and counts their declarations.
 class SeamVertices : public MeshSink {
  public:
-  std::map<std::pair<double, double>, std::uint64_t>& ids;
-  explicit SeamVertices(std::map<std::pair<double, double>, std::uint64_t>& m) : ids(m) {}
+  std::map<std::pair<double, double>, SeamVertex>& ids;
+  explicit SeamVertices(std::map<std::pair<double, double>, SeamVertex>& m) : ids(m) {}
   void begin(const MeshInfo&) override {}
-  void vertex(std::uint64_t, double x, double y, double) override { ids.emplace(std::make_pair(x, y), kNoSeamId); }
+  void vertex(std::uint64_t, double x, double y, double) override { ++ids[std::make_pair(x, y)].open; }
   void triangle(std::uint64_t, std::uint64_t, std::uint64_t) override {}
   void finalizeVertex(std::uint64_t) override {}
   void end() override {}
@@ -104,19 +116,23 @@ class Inner : public MeshSink {
 void readMeshParts(const std::string& manifestPath, MeshSink& out) {
   // (Inside a merge's transaction the manifest and the seam mesh are still staged: read them there.)
   MeshManifest m = readMeshManifest(readablePath(manifestPath));
-  m.seam = readablePath(m.seam);
+  std::vector<std::string> seams = m.seamBlocks;
+  seams.push_back(m.seam);
+  for (std::string& seam : seams) seam = readablePath(seam);
   for (std::string& part : m.parts) part = readablePath(part);
   Inner inner(out);
   PartRenumber::Shared shared{inner, 0, {}};
   SeamVertices collect(shared.seamIds);
-  readStreamingMesh(m.seam, collect);
+  for (const std::string& seam : seams) readStreamingMesh(seam, collect);
   // The first file's header starts the TIN; later begin() calls are swallowed by Inner.
   for (const std::string& part : m.parts) {
     PartRenumber renumber(shared, false);
     readStreamingMesh(part, renumber);
   }
-  PartRenumber seam(shared, true);
-  readStreamingMesh(m.seam, seam);
+  for (const std::string& file : seams) {
+    PartRenumber seam(shared, true);
+    readStreamingMesh(file, seam);
+  }
   out.end();
 }
 
@@ -135,6 +151,8 @@ RunReport runJoin(const std::string& manifestPath, const PipelineOptions& o, Dia
   ClaimSet manifest;  // the manifest and every file it lists are this run's inputs
   for (const std::string& part : m.parts) manifest.inputs.emplace_back("a part of " + manifestPath, part);
   manifest.inputs.emplace_back("the seam of " + manifestPath, m.seam);
+  for (const std::string& block : m.seamBlocks)
+    manifest.inputs.emplace_back("the seam of " + manifestPath, block);
   manifest.inputs.emplace_back("the manifest", manifestPath);
   const RunLock lock = claimRun(o, outputClaims(owned), manifest);
   if (!m.crsWkt.empty()) context.crs = crsFromRecordedWkt(m.crsWkt);
@@ -180,6 +198,7 @@ std::string formatMeshManifestInfo(const std::string& manifestPath, bool json) {
   const MeshManifest m = readMeshManifest(manifestPath);
   std::vector<std::string> files = m.parts;
   files.push_back(m.seam);
+  files.insert(files.end(), m.seamBlocks.begin(), m.seamBlocks.end());
   std::uint64_t bytes = 0;
   for (const auto& f : files) {
     std::error_code ec;
@@ -209,7 +228,10 @@ std::string formatMeshManifestInfo(const std::string& manifestPath, bool json) {
     return j.str() + "\n";
   }
   std::string o = manifestPath + ": a TIN in " + std::to_string(files.size()) + " streaming mesh files (" +
-                  std::to_string(m.parts.size()) + " parts and the seam), " + bytesText(bytes) + "\n";
+                  std::to_string(m.parts.size()) + " parts and " +
+                  (m.seamBlocks.empty() ? std::string("the seam")
+                                        : std::to_string(m.seamBlocks.size() + 1) + " seam files") +
+                  "), " + bytesText(bytes) + "\n";
   o += "  TIN       " + withCommas(m.vertices) + " vertices, " + withCommas(m.triangles) + " triangles\n";
   o += "  bounds    x " + formatDouble("%.3f", m.bounds.minX) + " .. " + formatDouble("%.3f", m.bounds.maxX) + ", y " +
        formatDouble("%.3f", m.bounds.minY) + " .. " + formatDouble("%.3f", m.bounds.maxY) + ", z " +

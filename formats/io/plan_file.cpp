@@ -462,6 +462,11 @@ void writeMeshManifest(const MeshManifest& m, const std::string& path) {
   for (const auto& p : m.parts) j.value(fs::path(p).filename().string());
   j.endArray();
   j.key("seam").value(fs::path(m.seam).filename().string());
+  if (!m.seamBlocks.empty()) {
+    j.key("seam_blocks").beginArray();
+    for (const auto& p : m.seamBlocks) j.value(fs::path(p).filename().string());
+    j.endArray();
+  }
   j.key("bounds");
   writeBounds(j, m.bounds);
   j.key("crs_wkt").value(m.crsWkt);
@@ -479,6 +484,7 @@ MeshManifest readMeshManifest(const std::string& path) {
   m.vertices = getU64(root, "vertices");
   for (const auto& p : root.GetArray("parts")) m.parts.push_back((dir / p.ToString()).string());
   m.seam = (dir / root.GetString("seam")).string();
+  for (const auto& p : root.GetArray("seam_blocks")) m.seamBlocks.push_back((dir / p.ToString()).string());
   m.crsWkt = root.GetString("crs_wkt");
   m.bounds = readBounds(root.GetArray("bounds"), path);
   if (m.parts.empty() || root.GetString("seam").empty()) throw DataError(path, "the mesh manifest lists no parts");
@@ -508,6 +514,12 @@ std::string partMeshPath(const std::string& mesh, int part) {
 std::string seamMeshPath(const std::string& mesh) {
   const auto [stem, ext] = splitExtension(mesh);
   return stem + ".seam" + ext;
+}
+std::string seamBlockMeshPath(const std::string& mesh, int rank) {
+  const auto [stem, ext] = splitExtension(mesh);
+  char buf[32];
+  std::snprintf(buf, sizeof buf, ".seam-%04d", rank);
+  return stem + buf + ext;
 }
 std::string meshManifestPath(const std::string& mesh) {
   return splitExtension(mesh).first + ".parts.json";

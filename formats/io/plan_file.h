@@ -131,7 +131,8 @@ PartDone readPartDone(const std::string& path);
 struct MeshManifest {
   std::string planId;
   std::vector<std::string> parts;  // paths as written (relative to the manifest's directory when relative)
-  std::string seam;
+  std::string seam;                // the top seam step's triangles
+  std::vector<std::string> seamBlocks;  // an MPI run's: each rank's block steps' triangles (may be none)
   std::uint64_t triangles = 0, vertices = 0;  // distinct vertices of the whole TIN
   std::string crsWkt;                         // the TIN's CRS ("" = none)
   Bounds3 bounds;                             // of the survey
@@ -144,6 +145,8 @@ bool isMeshManifest(const std::string& path);
 // tin.smb -> tin.part-0003.smb, tin.seam.smb, tin.parts.json.
 std::string partMeshPath(const std::string& mesh, int part);
 std::string seamMeshPath(const std::string& mesh);
+// tin.smb -> tin.seam-0003.smb: the triangles rank 3's seam blocks wrote (an MPI run).
+std::string seamBlockMeshPath(const std::string& mesh, int rank);
 std::string meshManifestPath(const std::string& mesh);
 
 }  // namespace tinbuild

@@ -62,6 +62,26 @@ std::uint64_t SeamFileWriter::bytes() const {
 
 SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
                             SeamStep& step, const CancelFlag* cancel) {
+  struct Feed : SeamSink {
+    SeamStep& step;
+    explicit Feed(SeamStep& s) : step(s) {}
+    void seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w,
+                    std::size_t n) override {
+      SeamRecord r;
+      r.id = id;
+      r.x = x;
+      r.y = y;
+      r.z = z;
+      r.all = all;
+      step.vertex(r, w, n);
+    }
+    void seamTag(const CellTag& c) override { step.tag(c); }
+  } feed(step);
+  return readSeamFile(path, planId, part, feed, cancel);
+}
+
+SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
+                            SeamSink& step, const CancelFlag* cancel) {
   RecordReader in(path, "seam file");
   char magic[8];
   in.bytes(magic, 8);
@@ -95,14 +115,14 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
         w.to.x = in.get<double>();
         w.to.y = in.get<double>();
       }
-      step.vertex(r, wedges.data(), n);
+      step.seamVertex(r.id, r.x, r.y, r.z, r.all, wedges.data(), n);
       ++counts.vertices;
     } else if (kind == 'T') {
       CellTag c;
       c.level = in.get<std::uint8_t>();
       c.col = in.get<std::uint32_t>();
       c.row = in.get<std::uint32_t>();
-      step.tag(c);
+      step.seamTag(c);
       ++counts.tags;
     } else if (kind == 'E') {
       const std::uint64_t v = in.get<std::uint64_t>(), t = in.get<std::uint64_t>();
@@ -111,6 +131,165 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
       return counts;
     } else {
       throw DataError(path, "corrupt seam file (unknown record)");
+    }
+  }
+}
+
+namespace {
+
+template <class T>
+void append(std::string& out, const T& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+
+// Reads records from a byte range; Error when one runs past the end.
+class ByteReader {
+ public:
+  ByteReader(const char* p, std::size_t n) : p_(p), end_(p + n) {}
+  bool done() const { return p_ == end_; }
+  template <class T>
+  T get() {
+    if (static_cast<std::size_t>(end_ - p_) < sizeof(T)) throw Error("seam exchange: a record cut short");
+    T v;
+    std::memcpy(&v, p_, sizeof v);
+    p_ += sizeof v;
+    return v;
+  }
+
+ private:
+  const char* p_;
+  const char* end_;
+};
+
+constexpr char kTriangleMagic[8] = {'T', 'B', 'S', 'E', 'A', 'M', 'T', '1'};
+
+}  // namespace
+
+void appendSeamVertex(std::string& out, std::uint32_t block, std::uint64_t id, double x, double y, double z,
+                      bool all, const SeamSink::Wedge* w, std::size_t n) {
+  append(out, block);
+  append(out, 'V');
+  append(out, id);
+  append(out, x);
+  append(out, y);
+  append(out, z);
+  append(out, static_cast<std::uint8_t>(all));
+  append(out, static_cast<std::uint32_t>(n));
+  for (std::size_t i = 0; i < n; ++i) {
+    append(out, w[i].from.x);
+    append(out, w[i].from.y);
+    append(out, w[i].to.x);
+    append(out, w[i].to.y);
+  }
+}
+
+void appendSeamTag(std::string& out, std::uint32_t block, const CellTag& c) {
+  append(out, block);
+  append(out, 'T');
+  append(out, c.level);
+  append(out, c.col);
+  append(out, c.row);
+}
+
+void replaySeamRecords(const char* bytes, std::size_t n,
+                       const std::function<SeamSink&(std::uint32_t)>& sinkOf) {
+  ByteReader in(bytes, n);
+  std::vector<SeamSink::Wedge> wedges;
+  while (!in.done()) {
+    const auto block = in.get<std::uint32_t>();
+    const char kind = in.get<char>();
+    if (kind == 'V') {
+      const auto id = in.get<std::uint64_t>();
+      const auto x = in.get<double>(), y = in.get<double>(), z = in.get<double>();
+      const bool all = in.get<std::uint8_t>() != 0;
+      const auto count = in.get<std::uint32_t>();
+      if (count > 1u << 20) throw Error("seam exchange: a vertex with " + std::to_string(count) + " wedges");
+      wedges.resize(count);
+      for (auto& w : wedges) {
+        w.from.x = in.get<double>();
+        w.from.y = in.get<double>();
+        w.to.x = in.get<double>();
+        w.to.y = in.get<double>();
+      }
+      sinkOf(block).seamVertex(id, x, y, z, all, wedges.data(), count);
+    } else if (kind == 'T') {
+      CellTag c;
+      c.level = in.get<std::uint8_t>();
+      c.col = in.get<std::uint32_t>();
+      c.row = in.get<std::uint32_t>();
+      sinkOf(block).seamTag(c);
+    } else {
+      throw Error("seam exchange: an unknown record");
+    }
+  }
+}
+
+SeamTriangleFileWriter::SeamTriangleFileWriter(const std::string& path)
+    : file_(std::make_unique<OutputFile>(path)) {
+  file_->write(kTriangleMagic, sizeof kTriangleMagic);
+}
+SeamTriangleFileWriter::~SeamTriangleFileWriter() = default;
+
+void SeamTriangleFileWriter::vertex(const MeshVertex& v) {
+  putRecord(*file_, 'V');
+  putRecord(*file_, v.x);
+  putRecord(*file_, v.y);
+  putRecord(*file_, v.z);
+  ++vertices_;
+}
+
+void SeamTriangleFileWriter::triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) {
+  putRecord(*file_, 'T');
+  for (const MeshVertex* v : {&a, &b, &c}) {
+    putRecord(*file_, v->x);
+    putRecord(*file_, v->y);
+    putRecord(*file_, v->z);
+  }
+  ++triangles_;
+}
+
+void SeamTriangleFileWriter::end() {
+  putRecord(*file_, 'E');
+  putRecord(*file_, vertices_);
+  putRecord(*file_, triangles_);
+  file_->commit();
+}
+
+void readSeamTriangleFile(const std::string& path, TriangleSink& sink, std::uint64_t& nextId,
+                          const CancelFlag* cancel) {
+  RecordReader in(path, "seam triangle file");
+  char magic[8];
+  in.bytes(magic, 8);
+  if (std::memcmp(magic, kTriangleMagic, 8) != 0) throw DataError(path, "not a tinbuild seam triangle file");
+  std::uint64_t vertices = 0, triangles = 0;
+  for (std::uint64_t record = 0;; ++record) {
+    if ((record & 4095) == 0) throwIfCancelled(cancel);
+    const char kind = in.get<char>();
+    if (kind == 'V') {
+      MeshVertex v;
+      v.id = nextId++;
+      v.x = in.get<double>();
+      v.y = in.get<double>();
+      v.z = in.get<double>();
+      sink.vertex(v);
+      ++vertices;
+    } else if (kind == 'T') {
+      MeshVertex c[3];
+      for (MeshVertex& v : c) {
+        v.id = nextId++;
+        v.x = in.get<double>();
+        v.y = in.get<double>();
+        v.z = in.get<double>();
+      }
+      sink.triangle(c[0], c[1], c[2]);
+      ++triangles;
+    } else if (kind == 'E') {
+      const std::uint64_t v = in.get<std::uint64_t>(), t = in.get<std::uint64_t>();
+      if (v != vertices || t != triangles)
+        throw DataError(path, "corrupt seam triangle file (counts differ)");
+      return;
+    } else {
+      throw DataError(path, "corrupt seam triangle file (unknown record)");
     }
   }
 }

@@ -13,12 +13,14 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <memory>
 #include <string>
 
 #include "libterrain/core/cancel.h"
 #include "libterrain/delaunay/seam_step.h"
 #include "libterrain/delaunay/streaming_delaunay.h"
+#include "libterrain/mesh/mesh_tee.h"
 
 namespace tinbuild {
 
@@ -45,10 +47,43 @@ struct SeamFileCounts {
   std::uint64_t vertices = 0, tags = 0, bytes = 0;
 };
 
-// Feeds a seam file's records to `step`.  Throws DataError naming the file when it is not a seam file of
-// this plan and part, or is truncated or corrupt.  `cancel` (may be null) is polled every few thousand
-// records: CancelledError.
+// Feeds a seam file's records to `step` (or to any SeamSink).  Throws DataError naming the file when it is
+// not a seam file of this plan and part, or is truncated or corrupt.  `cancel` (may be null) is polled
+// every few thousand records: CancelledError.  (An MPI run's block steps write their seam files too, with
+// the block's index in place of the part's.)
 SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
                             SeamStep& step, const CancelFlag* cancel = nullptr);
+SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, std::uint32_t part,
+                            SeamSink& sink, const CancelFlag* cancel = nullptr);
+
+// Seam records in memory, on their way between ranks: each the record of a seam file preceded by the
+// u32 index of the block it goes to.
+void appendSeamVertex(std::string& out, std::uint32_t block, std::uint64_t id, double x, double y, double z,
+                      bool all, const SeamSink::Wedge* wedges, std::size_t n);
+void appendSeamTag(std::string& out, std::uint32_t block, const CellTag& cell);
+// Replays such records, each to sinkOf(block).  Throws Error when the bytes are not whole records.
+void replaySeamRecords(const char* bytes, std::size_t n,
+                       const std::function<SeamSink&(std::uint32_t)>& sinkOf);
+
+// The seam triangles a rank's block steps computed, for the DEM that another rank writes: the vertices
+// no part and no step below wrote (counted in the DEM where first written), and the triangles by their
+// corners.  Layout: the magic "TBSEAMT1", then 'V' f64 x, y, z | 'T' 9 x f64 | 'E' u64 vertices, u64
+// triangles.  Written to a temporary name and renamed by end().
+class SeamTriangleFileWriter : public TriangleSink {
+ public:
+  explicit SeamTriangleFileWriter(const std::string& path);
+  ~SeamTriangleFileWriter() override;
+  void begin(const MeshInfo&) override {}
+  void vertex(const MeshVertex& v) override;
+  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override;
+  void end() override;
+
+ private:
+  std::unique_ptr<OutputFile> file_;
+  std::uint64_t vertices_ = 0, triangles_ = 0;
+};
+// Replays such a file into `sink` (vertex ids from *nextId on, one for each vertex and each corner).
+void readSeamTriangleFile(const std::string& path, TriangleSink& sink, std::uint64_t& nextId,
+                          const CancelFlag* cancel = nullptr);
 
 }  // namespace tinbuild

@@ -328,7 +328,8 @@ struct SeamStep::Impl : MeshSink, SeamSink {
       i = waiting[at];
       eraseWaiting(at);
     }
-    const Stored& s = recs[i];
+    Stored& s = recs[i];
+    out.handedOn(s.r);
     onward.clear();
     if (!s.r.all)
       for (std::uint32_t k = 0; k < s.count; ++k) onward.push_back(wedgeOf(i, s, k));

@@ -82,6 +82,8 @@ class SeamOutput {
   virtual void triangle(SeamRecord& a, SeamRecord& b, SeamRecord& c) = 0;
   // The step is done with the vertex.
   virtual void finalize(SeamRecord& r) = 0;
+  // A block's step hands the vertex on to the level above (it may have written triangles with it here).
+  virtual void handedOn(SeamRecord& r) { (void)r; }
   virtual void end() = 0;
 };
 

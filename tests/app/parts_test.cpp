@@ -1,6 +1,7 @@
 // One survey split into parts (tinbuild plan / build --plan --part / merge, and build --mpi under
 // mpirun): the TIN, the DEM tiles and their mosaic must be what one process makes, whatever the number
 // of parts; a missing, stale or failed part is named, and re-running it completes the job.
+#include <cpl_json.h>
 #include <gdal.h>
 #include <gtest/gtest.h>
 #include <ogr_api.h>
@@ -317,6 +318,62 @@ TEST(Parts, MpiRanksEqualOneProcess) {
 
 // --temp-dir is a run option: the plan does not record it, and a part run on its own takes its own (a
 // node's scratch space), which its finalizer then uses for its spool.
+// The seam across ranks (docs/design.md, "The seam across ranks"): 2, 4, 8 and 16 ranks on a hydro-flattened
+// survey give one process's TIN, DEM and contours, and no rank settles more than 2/P of the seam.
+TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
+  const fs::path out = test::scratchDir();
+  auto probe = tinbuild("build x.las --mesh x.smb --mpi -q", "cd " + out.string() + " && ");
+  if (probe.err.find("built without MPI") != std::string::npos) GTEST_SKIP() << "tinbuild built without MPI";
+  auto d = tinbuild("demo " + (out / "s").string() + " --points 1 --survey-only --las --progress none");
+  ASSERT_EQ(d.code, 0) << d.err;
+  const fs::path s = out / "s";
+  const std::string build =
+      " " + (s / "survey.las").string() + " --keep-class 2,9 --water " + (s / "water.geojson").string() +
+      " --flow " + (s / "flow.geojson").string() + " --breaklines " + (s / "roads.geojson").string() +
+      " --mesh tin.smb --dem dem --step 1 --tile-size 128 --contours c.gpkg --interval 1";
+  fs::create_directories(out / "one");
+  ASSERT_EQ(tinbuild("build" + build + " -q", "cd " + (out / "one").string() + " && ").code, 0);
+  const auto oneContours = contourLines(out / "one" / "c.gpkg");
+  ASSERT_FALSE(oneContours.empty());
+  for (const int ranks : {2, 4, 8, 16}) {
+    const std::string what = "mpirun -np " + std::to_string(ranks);
+    const fs::path dir = out / ("np" + std::to_string(ranks));
+    fs::create_directories(dir);
+    const std::string mpirun =
+        "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 "
+        "mpirun --oversubscribe --bind-to none -np " +
+        std::to_string(ranks) + " ";
+    auto m = tinbuild("build" + build + " --mpi -q --threads 1 --report r.json",
+                      "cd " + dir.string() + " && " + mpirun);
+    ASSERT_EQ(m.code, 0) << what << ": " << m.out << m.err;
+    expectSameAsOneProcess(dir, out / "one", what);
+    EXPECT_TRUE(contourLines(dir / "c.gpkg") == oneContours) << what << ": the contours differ";
+    // Every rank in the report; every seam vertex settled once; the largest share at most 2/P.
+    CPLJSONDocument doc;
+    ASSERT_TRUE(doc.Load((dir / "r.json").string())) << what;
+    const CPLJSONObject root = doc.GetRoot();
+    const CPLJSONArray list = root.GetArray("mpi/ranks");
+    ASSERT_EQ(list.Size(), ranks) << what;
+    std::uint64_t sum = 0, largest = 0, received = 0;
+    for (int i = 0; i < list.Size(); ++i) {
+      const auto v = static_cast<std::uint64_t>(list[i].GetLong("seam_vertices"));
+      sum += v;
+      largest = std::max(largest, v);
+      received += static_cast<std::uint64_t>(list[i].GetLong("bytes_received"));
+    }
+    EXPECT_GT(received, 0u) << what;  // (a rank whose blocks are all its own part's may receive nothing)
+    const auto seam = static_cast<std::uint64_t>(root.GetLong("plan/seam_vertices"));
+    EXPECT_EQ(sum, seam) << what;
+    if (ranks >= 4)
+      EXPECT_LE(largest * static_cast<std::uint64_t>(ranks), 2 * seam)
+          << what << ": " << largest << " of " << seam;
+    // The ranks' block meshes are listed in the manifest, and nothing of the run's state is left.
+    EXPECT_NE(slurp(dir / "tin.parts.json").find("seam_blocks"), std::string::npos) << what;
+    for (const auto& f : listDir(dir)) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << what << ": " << f;
+  }
+}
+
 TEST(Parts, PartTakesItsOwnTempDir) {
   TINBUILD_REQUIRE_DATA();
   const fs::path out = test::scratchDir();
