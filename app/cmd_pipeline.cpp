@@ -150,7 +150,7 @@ int runBuildCommand(const cli::ParsedArgs& args) {
     a.options = planOptions(plan);
     a.options.plan = &plan;
     a.options.part = a.run.part;
-    return runWithReport(a, runBuild, {{"--plan", a.run.plan}});
+    return runWithReport(a, runPart, {{"--plan", a.run.plan}});
   }
   PipelineArgs a = parseBuildArgs(args);
   a.options.commandLine = recordedCommand(args);

@@ -3,7 +3,6 @@
 #include <algorithm>
 #include <thread>
 
-#include "app/jobs/part_job.h"
 #include "formats/pointcloud/finalized_stream.h"
 #include "libterrain/core/error.h"
 #include "libterrain/core/report_text.h"
@@ -167,7 +166,7 @@ RunReport runTriangulate(const std::string& finalizedInput, const PipelineOption
 }
 
 RunReport runBuild(const PipelineOptions& o, Diagnostics& diag) {
-  if (o.plan) return runPart(o, diag);
+  if (o.plan) throw Error("internal error: a part of a plan runs through runPart (part_job.h), not runBuild");
   const auto t0 = JobClock::now();
   if (o.meshOutput.empty() && o.dem.path.empty() && o.gpkgOutput.empty() && o.contoursOutput.empty())
     throw UsageError(

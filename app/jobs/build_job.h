@@ -1,6 +1,7 @@
 // The one-process jobs: finalize, triangulate, build.
 //
-//   survey (app/jobs/survey.h) -> finalizer -> [queue] -> streaming Delaunay -> outputs (app/jobs/run_outputs.h)
+//   survey (app/jobs/survey.h) -> finalizer -> [queue] -> streaming Delaunay -> outputs
+//   (app/jobs/run_outputs.h)
 //
 // runFinalize writes the finalized point stream; runTriangulate turns one into a streaming mesh;
 // runBuild does both in one process (the finalized stream never touches the disk).  With
@@ -11,8 +12,9 @@
 // during the passes and before the outputs are committed; returning 0 cancels (CancelledError, no
 // output left behind).  Outputs are written to temporary names and renamed only on success.
 //
-// A part of a plan (options.plan, options.part) is this build wrapped (app/jobs/part_job.cpp): runBuild
-// hands it to runPart, which runs runBuildWith() with its BuildHooks.
+// A part of a plan (options.plan, options.part) is this build wrapped (app/jobs/part_job.cpp): runPart
+// runs runBuildWith() with its BuildHooks.  The build knows nothing of parts: the callers that run a
+// part (`build --plan --part`, an MPI rank) call runPart.
 #pragma once
 
 #include <memory>

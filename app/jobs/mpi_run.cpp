@@ -14,6 +14,7 @@
 #include <thread>
 
 #include "app/jobs/merge_job.h"
+#include "app/jobs/part_job.h"
 #include "app/jobs/run_outputs.h"
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
@@ -980,7 +981,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     po.part = rank;
     po.commandLine = plan.command;
     po.partRecords = records.streams;
-    partReport = runBuild(po, diag);
+    partReport = runPart(po, diag);
     commitStep();  // the part's files, which the exchange and the merge read
   });
 
