@@ -11,6 +11,63 @@ namespace {
 
 constexpr char kMagic[8] = {'T', 'B', 'S', 'E', 'A', 'M', '1', '\n'};
 
+template <class T>
+void append(std::string& out, const T& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+
+// A 'V' and a 'T' record, as the seam file holds them (and the exchange between ranks, after a block index).
+void appendVertexRecord(std::string& out, std::uint64_t id, double x, double y, double z, bool all,
+                        const SeamSink::Wedge* w, std::size_t n) {
+  append(out, 'V');
+  append(out, id);
+  append(out, x);
+  append(out, y);
+  append(out, z);
+  append(out, static_cast<std::uint8_t>(all));
+  append(out, static_cast<std::uint32_t>(n));
+  for (std::size_t i = 0; i < n; ++i) {
+    append(out, w[i].from.x);
+    append(out, w[i].from.y);
+    append(out, w[i].to.x);
+    append(out, w[i].to.y);
+  }
+}
+void appendTagRecord(std::string& out, const CellTag& c) {
+  append(out, 'T');
+  append(out, c.level);
+  append(out, c.col);
+  append(out, c.row);
+}
+
+// The body of a 'V' or 'T' record (its kind read already) from `in` (a RecordReader or a ByteReader: get<T>()
+// and need(bytes)) to `sink`; `fail` throws the reader's error.
+template <class In, class Fail>
+void readVertexRecord(In& in, SeamSink& sink, std::vector<SeamSink::Wedge>& wedges, const Fail& fail) {
+  const auto id = in.template get<std::uint64_t>();
+  const auto x = in.template get<double>(), y = in.template get<double>(), z = in.template get<double>();
+  const bool all = in.template get<std::uint8_t>() != 0;
+  const auto n = in.template get<std::uint32_t>();
+  if (n > 1u << 20) fail("a vertex with " + std::to_string(n) + " wedges");
+  in.need(std::uint64_t{n} * 32);
+  wedges.resize(n);
+  for (auto& w : wedges) {
+    w.from.x = in.template get<double>();
+    w.from.y = in.template get<double>();
+    w.to.x = in.template get<double>();
+    w.to.y = in.template get<double>();
+  }
+  sink.seamVertex(id, x, y, z, all, wedges.data(), n);
+}
+template <class In>
+void readTagRecord(In& in, SeamSink& sink) {
+  CellTag c;
+  c.level = in.template get<std::uint8_t>();
+  c.col = in.template get<std::uint32_t>();
+  c.row = in.template get<std::uint32_t>();
+  sink.seamTag(c);
+}
+
 }  // namespace
 
 SeamFileWriter::SeamFileWriter(const std::string& path, const std::string& planId, std::uint32_t part)
@@ -24,28 +81,16 @@ SeamFileWriter::~SeamFileWriter() = default;
 
 void SeamFileWriter::seamVertex(std::uint64_t id, double x, double y, double z, bool all, const Wedge* w,
                                 std::size_t n) {
-  OutputFile& f = *file_;
-  putRecord(f, 'V');
-  putRecord(f, id);
-  putRecord(f, x);
-  putRecord(f, y);
-  putRecord(f, z);
-  putRecord(f, static_cast<std::uint8_t>(all));
-  putRecord(f, static_cast<std::uint32_t>(n));
-  for (std::size_t i = 0; i < n; ++i) {
-    putRecord(f, w[i].from.x);
-    putRecord(f, w[i].from.y);
-    putRecord(f, w[i].to.x);
-    putRecord(f, w[i].to.y);
-  }
+  record_.clear();
+  appendVertexRecord(record_, id, x, y, z, all, w, n);
+  file_->write(record_);
   ++vertices_;
 }
 
 void SeamFileWriter::seamTag(const CellTag& c) {
-  putRecord(*file_, 'T');
-  putRecord(*file_, c.level);
-  putRecord(*file_, c.col);
-  putRecord(*file_, c.row);
+  record_.clear();
+  appendTagRecord(record_, c);
+  file_->write(record_);
   ++tags_;
 }
 
@@ -99,30 +144,11 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
     if ((record & 4095) == 0) throwIfCancelled(cancel);
     const char kind = in.get<char>();
     if (kind == 'V') {
-      SeamRecord r;
-      r.id = in.get<std::uint64_t>();
-      r.x = in.get<double>();
-      r.y = in.get<double>();
-      r.z = in.get<double>();
-      r.all = in.get<std::uint8_t>() != 0;
-      const std::uint32_t n = in.get<std::uint32_t>();
-      if (n > 1u << 20) throw DataError(path, "corrupt seam file (a vertex with " + std::to_string(n) + " wedges)");
-      in.need(std::uint64_t{n} * 32);
-      wedges.resize(n);
-      for (auto& w : wedges) {
-        w.from.x = in.get<double>();
-        w.from.y = in.get<double>();
-        w.to.x = in.get<double>();
-        w.to.y = in.get<double>();
-      }
-      step.seamVertex(r.id, r.x, r.y, r.z, r.all, wedges.data(), n);
+      readVertexRecord(in, step, wedges,
+                       [&](const std::string& m) { throw DataError(path, "corrupt seam file (" + m + ")"); });
       ++counts.vertices;
     } else if (kind == 'T') {
-      CellTag c;
-      c.level = in.get<std::uint8_t>();
-      c.col = in.get<std::uint32_t>();
-      c.row = in.get<std::uint32_t>();
-      step.seamTag(c);
+      readTagRecord(in, step);
       ++counts.tags;
     } else if (kind == 'E') {
       const std::uint64_t v = in.get<std::uint64_t>(), t = in.get<std::uint64_t>();
@@ -137,16 +163,14 @@ SeamFileCounts readSeamFile(const std::string& path, const std::string& planId, 
 
 namespace {
 
-template <class T>
-void append(std::string& out, const T& v) {
-  out.append(reinterpret_cast<const char*>(&v), sizeof v);
-}
-
 // Reads records from a byte range; Error when one runs past the end.
 class ByteReader {
  public:
   ByteReader(const char* p, std::size_t n) : p_(p), end_(p + n) {}
   bool done() const { return p_ == end_; }
+  void need(std::uint64_t n) const {
+    if (n > static_cast<std::uint64_t>(end_ - p_)) throw Error("seam exchange: a record cut short");
+  }
   template <class T>
   T get() {
     if (static_cast<std::size_t>(end_ - p_) < sizeof(T)) throw Error("seam exchange: a record cut short");
@@ -168,27 +192,12 @@ constexpr char kTriangleMagic[8] = {'T', 'B', 'S', 'E', 'A', 'M', 'T', '1'};
 void appendSeamVertex(std::string& out, std::uint32_t block, std::uint64_t id, double x, double y, double z,
                       bool all, const SeamSink::Wedge* w, std::size_t n) {
   append(out, block);
-  append(out, 'V');
-  append(out, id);
-  append(out, x);
-  append(out, y);
-  append(out, z);
-  append(out, static_cast<std::uint8_t>(all));
-  append(out, static_cast<std::uint32_t>(n));
-  for (std::size_t i = 0; i < n; ++i) {
-    append(out, w[i].from.x);
-    append(out, w[i].from.y);
-    append(out, w[i].to.x);
-    append(out, w[i].to.y);
-  }
+  appendVertexRecord(out, id, x, y, z, all, w, n);
 }
 
 void appendSeamTag(std::string& out, std::uint32_t block, const CellTag& c) {
   append(out, block);
-  append(out, 'T');
-  append(out, c.level);
-  append(out, c.col);
-  append(out, c.row);
+  appendTagRecord(out, c);
 }
 
 void replaySeamRecords(const char* bytes, std::size_t n,
@@ -198,29 +207,13 @@ void replaySeamRecords(const char* bytes, std::size_t n,
   while (!in.done()) {
     const auto block = in.get<std::uint32_t>();
     const char kind = in.get<char>();
-    if (kind == 'V') {
-      const auto id = in.get<std::uint64_t>();
-      const auto x = in.get<double>(), y = in.get<double>(), z = in.get<double>();
-      const bool all = in.get<std::uint8_t>() != 0;
-      const auto count = in.get<std::uint32_t>();
-      if (count > 1u << 20) throw Error("seam exchange: a vertex with " + std::to_string(count) + " wedges");
-      wedges.resize(count);
-      for (auto& w : wedges) {
-        w.from.x = in.get<double>();
-        w.from.y = in.get<double>();
-        w.to.x = in.get<double>();
-        w.to.y = in.get<double>();
-      }
-      sinkOf(block).seamVertex(id, x, y, z, all, wedges.data(), count);
-    } else if (kind == 'T') {
-      CellTag c;
-      c.level = in.get<std::uint8_t>();
-      c.col = in.get<std::uint32_t>();
-      c.row = in.get<std::uint32_t>();
-      sinkOf(block).seamTag(c);
-    } else {
+    if (kind == 'V')
+      readVertexRecord(in, sinkOf(block), wedges,
+                       [](const std::string& m) { throw Error("seam exchange: " + m); });
+    else if (kind == 'T')
+      readTagRecord(in, sinkOf(block));
+    else
       throw Error("seam exchange: an unknown record");
-    }
   }
 }
 

@@ -41,6 +41,7 @@ class SeamFileWriter : public SeamSink {
  private:
   std::unique_ptr<OutputFile> file_;
   std::uint64_t vertices_ = 0, tags_ = 0;
+  std::string record_;  // (one record, encoded)
 };
 
 struct SeamFileCounts {

@@ -365,9 +365,10 @@ TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
     EXPECT_GT(received, 0u) << what;  // (a rank whose blocks are all its own part's may receive nothing)
     const auto seam = static_cast<std::uint64_t>(root.GetLong("plan/seam_vertices"));
     EXPECT_EQ(sum, seam) << what;
-    if (ranks >= 4)
+    if (ranks >= 4) {
       EXPECT_LE(largest * static_cast<std::uint64_t>(ranks), 2 * seam)
           << what << ": " << largest << " of " << seam;
+    }
     // The ranks' block meshes are listed in the manifest, and nothing of the run's state is left.
     EXPECT_NE(slurp(dir / "tin.parts.json").find("seam_blocks"), std::string::npos) << what;
     for (const auto& f : listDir(dir)) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << what << ": " << f;

@@ -1425,14 +1425,11 @@ struct SeamCollector : SeamOutput {
   }
 };
 
-// Splits the regions of `level` into `parts` Morton ranges, triangulates each part alone (every part sees
-// the whole stream, as a part process does) and merges; returns the union of the triangles.
-Result triangulateInParts(const Points& pts, int depth, int level, int parts, int threads, const Feed& feed = {},
-                          const DelaunayOptions& opt = {}) {
+// Triangulates each of `parts` Morton ranges of `level`'s regions alone (every part sees the whole stream,
+// as a part process does): its triangles and vertices into `all`, its seam records into seams[k].
+void runParts(const Points& pts, const GridSpec& grid, int level, int parts, int threads, const Feed& feed,
+              const DelaunayOptions& opt, std::vector<SeamRecorder>& seams, Result& all) {
   const std::size_t regions = std::size_t{1} << (2 * level);
-  const GridSpec grid = makeGrid(boundsOf(pts), depth);
-  std::vector<SeamRecorder> seams(static_cast<std::size_t>(parts));
-  Result all;
   for (int k = 0; k < parts; ++k) {
     CheckingSink sink;
     ParallelDelaunayOptions popt;
@@ -1453,6 +1450,16 @@ Result triangulateInParts(const Points& pts, int depth, int level, int parts, in
     all.stats.duplicatesDropped += dt.stats().duplicatesDropped;
     EXPECT_EQ(dt.stats().pointsIn + dt.parallelStats().otherPartPoints, pts.size());
   }
+}
+
+// Splits the regions of `level` into `parts` Morton ranges, triangulates each part alone (every part sees
+// the whole stream, as a part process does) and merges; returns the union of the triangles.
+Result triangulateInParts(const Points& pts, int depth, int level, int parts, int threads,
+                          const Feed& feed = {}, const DelaunayOptions& opt = {}) {
+  const GridSpec grid = makeGrid(boundsOf(pts), depth);
+  std::vector<SeamRecorder> seams(static_cast<std::size_t>(parts));
+  Result all;
+  runParts(pts, grid, level, parts, threads, feed, opt, seams, all);
   SeamCollector collector;
   SeamStep step(collector, opt);
   StreamInfo info;
@@ -1537,27 +1544,10 @@ struct BlockResult : Result {
 // rest.  (A block step over the whole grid, level 0, would still hand on the vertices of its hull.)
 BlockResult triangulateInBlocks(const Points& pts, int depth, int level, int parts, int topLevel,
                                 const Feed& feed = {}, const DelaunayOptions& opt = {}) {
-  const std::size_t regions = std::size_t{1} << (2 * level);
   const GridSpec grid = makeGrid(boundsOf(pts), depth);
   std::vector<SeamRecorder> seams(static_cast<std::size_t>(parts));
   BlockResult all;
-  for (int k = 0; k < parts; ++k) {
-    CheckingSink sink;
-    ParallelDelaunayOptions popt;
-    popt.delaunay = opt;
-    popt.threads = 1;
-    popt.regionLevel = level;
-    popt.partSeam = &seams[static_cast<std::size_t>(k)];
-    popt.partFirst = regions * static_cast<std::size_t>(k) / static_cast<std::size_t>(parts);
-    popt.partEnd = regions * static_cast<std::size_t>(k + 1) / static_cast<std::size_t>(parts);
-    ParallelDelaunay dt(sink, popt);
-    TestFinalizer fin(dt, grid, feed);
-    fin.run(pts);
-    EXPECT_EQ(sink.errors, 0u) << "part " << k << ": " << sink.firstError;
-    all.triangles.insert(all.triangles.end(), sink.triangles.begin(), sink.triangles.end());
-    all.vertices.insert(all.vertices.end(), sink.vertices.begin(), sink.vertices.end());
-    all.stats.pointsIn += dt.stats().pointsIn;
-  }
+  runParts(pts, grid, level, parts, 1, feed, opt, seams, all);
   StreamInfo info;
   info.grid = grid;
   info.bounds = boundsOf(pts);
