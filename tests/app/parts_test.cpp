@@ -318,8 +318,9 @@ TEST(Parts, MpiRanksEqualOneProcess) {
 
 // --temp-dir is a run option: the plan does not record it, and a part run on its own takes its own (a
 // node's scratch space), which its finalizer then uses for its spool.
-// The seam across ranks (docs/design.md, "The seam across ranks"): 2, 4, 8 and 16 ranks on a hydro-flattened
-// survey give one process's TIN, DEM and contours, and no rank settles more than 2/P of the seam.
+// The seam across ranks (docs/design.md, "The seam across ranks"): 16 planned parts and 2, 4, 8 and 16 ranks
+// on a hydro-flattened survey give one process's TIN, DEM and contours, and no rank settles more than 2/P of
+// the seam.
 TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
   if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
   const fs::path out = test::scratchDir();
@@ -336,6 +337,22 @@ TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
   ASSERT_EQ(tinbuild("build" + build + " -q", "cd " + (out / "one").string() + " && ").code, 0);
   const auto oneContours = contourLines(out / "one" / "c.gpkg");
   ASSERT_FALSE(oneContours.empty());
+  {
+    // 16 planned parts (the batch-scheduler path, merged on one process) give the same.
+    const fs::path dir = out / "p16";
+    fs::create_directories(dir);
+    const std::string cd = "cd " + dir.string() + " && ";
+    auto p = tinbuild("plan" + build + " --parts 16 -o plan.json -q", cd);
+    ASSERT_EQ(p.code, 0) << p.err;
+    for (int part = 15; part >= 0; --part)
+      ASSERT_EQ(
+          tinbuild("build --plan plan.json --part " + std::to_string(part) + " -q --threads 1", cd).code, 0)
+          << "part " << part;
+    auto m = tinbuild("merge plan.json -q", cd);
+    ASSERT_EQ(m.code, 0) << m.err;
+    expectSameAsOneProcess(dir, out / "one", "16 planned parts");
+    EXPECT_TRUE(contourLines(dir / "c.gpkg") == oneContours) << "16 planned parts: the contours differ";
+  }
   for (const int ranks : {2, 4, 8, 16}) {
     const std::string what = "mpirun -np " + std::to_string(ranks);
     const fs::path dir = out / ("np" + std::to_string(ranks));
