@@ -593,6 +593,13 @@ std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
   return received;
 }
 
+// Where rank 0 keeps rank `from`'s seam triangles for the DEM.
+std::string seamTriangleFile(const Plan& plan, int from) {
+  char name[40];
+  std::snprintf(name, sizeof name, "/seam-triangles-%04d.bin", from);
+  return plan.stateDir() + name;
+}
+
 // The seam step of an MPI run across its ranks: every level of blocks between the regions and the top,
 // each block on its owner (seamBlockOwner), then what the level-1 blocks leave to rank 0, whose merge runs
 // the top step.  Returns rank 0's MergedBlocks (sums over the ranks; the files by rank).
@@ -617,7 +624,9 @@ SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, cons
   std::unique_ptr<SeamBlockRunner> runner;
   collective(rank, size, "seam blocks on rank", [&] {
     const PartDone done = readPartDone(plan.partFile(rank, "json"));
-    if (planned.dem) r.demTriangles = localDir + "/seam-triangles.bin";
+    // (Rank 0's file is where the merge reads them all; the others' are sent there.)
+    if (planned.dem)
+      r.demTriangles = rank == 0 ? seamTriangleFile(plan, 0) : localDir + "/seam-triangles.bin";
     runner = std::make_unique<SeamBlockRunner>(
         options, plan, done.crs, planned.mesh ? seamBlockMeshPath(options.meshOutput, rank) : std::string(),
         r.demTriangles);
@@ -827,21 +836,54 @@ HydrologyReport runMpiHydrology(HydrologyOptions options, Diagnostics& diag) {
   }
 }
 
+// Rank 0's plan: beside the first output (the mesh, else the DEM), FIRST.mpi-plan.json.
+static std::string mpiPlanPath(const PipelineOptions& options) {
+  const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;
+  fs::path sharedBase = fs::path(anchor);
+  if (!sharedBase.has_filename() || sharedBase.filename() == ".") sharedBase = sharedBase.parent_path();
+  std::string base = sharedBase.string();
+  while (base.size() > 1 && base.back() == '/') base.pop_back();
+  return base + ".mpi-plan.json";
+}
+
 static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
                       const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag);
 
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag) {
-  MpiSession session(options.finalizer.cancel);
-  try {
-    return runMpiSteps(session, options, buildArgs, command, diag);
-  } catch (...) {
-    // A stopped or failed run cleans up on every rank before MPI_Finalize (~MpiSession), whose fence keeps
-    // the ranks together until all are done: mpirun stops the job at the first rank that exits non-zero,
-    // which would kill a rank still removing its files.
-    if (OutputTransaction* t = OutputTransaction::current()) t->rollback();
-    throw;
+  std::exception_ptr failure;
+  std::vector<std::string> leftover;
+  // The folders a failed run must not leave behind, if it makes them: the plan's state, the DEM's folder.
+  // Each rank removes its own files; a folder still holding another rank's files then stays, so they are
+  // tried again once every rank is done (below).  (Checked before MPI starts, so before any rank makes them.)
+  std::vector<std::string> runFolders;
+  {
+    Plan root;
+    root.path = mpiPlanPath(options);
+    std::error_code ec;
+    for (const std::string& dir : {root.stateDir(), options.dem.path})
+      if (!dir.empty() && !fs::exists(dir, ec)) runFolders.push_back(dir);
   }
+  {
+    MpiSession session(options.finalizer.cancel);
+    try {
+      return runMpiSteps(session, options, buildArgs, command, diag);
+    } catch (...) {
+      // A stopped or failed run cleans up on every rank before MPI_Finalize (~MpiSession), whose fence
+      // keeps the ranks together until all are done: mpirun stops the job at the first rank that exits
+      // non-zero, which would kill a rank still removing its files.
+      if (OutputTransaction* t = OutputTransaction::current()) {
+        t->rollback();
+        leftover = t->takeLeftoverDirectories();
+      }
+      failure = std::current_exception();
+    }
+  }
+  // Past the fence every rank has removed its files: the folders this rank made that still held another
+  // rank's files then are empty now.
+  for (const std::string& dir : leftover) ::rmdir(dir.c_str());
+  for (const std::string& dir : runFolders) ::rmdir(dir.c_str());  // (only when empty)
+  std::rethrow_exception(failure);
 }
 
 static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
@@ -852,15 +894,7 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   checkPlannedOutputs(planned);
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
-  const std::string anchor = !options.meshOutput.empty() ? options.meshOutput : options.dem.path;
-  fs::path sharedBase = fs::path(anchor);
-  if (sharedBase.has_filename() && sharedBase.filename() != ".") {
-  } else {
-    sharedBase = sharedBase.parent_path();
-  }
-  std::string base = sharedBase.string();
-  while (base.size() > 1 && base.back() == '/') base.pop_back();
-  const std::string rootPlanPath = base + ".mpi-plan.json";
+  const std::string rootPlanPath = mpiPlanPath(options);
   {
     // Every rank sees the same files, so all refuse alike.  Rank 0's plan and its state folder are the
     // run's too (removed at its end).
@@ -994,33 +1028,41 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   std::uint64_t receivedBytes = seam.received + records.receivedBytes;
   const double seamSeconds = since(tSeam);
   const CancelFlag* cancel = options.finalizer.cancel;
-  auto triangleFile = [&plan](int from) {
-    char name[40];
-    std::snprintf(name, sizeof name, "/seam-triangles-%04d.bin", from);
-    return plan.stateDir() + name;
-  };
-  collective(rank, size, "exchange from rank", [&] {
-    for (int from = 0; from < size; ++from) {
+  auto triangleFile = [&plan](int from) { return seamTriangleFile(plan, from); };
+  // One sender at a time, rank 1 first.  Before each sender all ranks vote, so that a failure or a stop
+  // (which ends a transfer on both of its sides at the same chunk: sendFile) ends the loop on every rank
+  // at the same sender; a rank that left it early would leave the next sender waiting for rank 0.
+  std::string sendError;
+  bool sendStopped = false;
+  for (int from = 1; from < size; ++from) {
+    int state = sendError.empty() && !sendStopped && !cancelRequested(cancel) ? 0 : 1;
+    mpi().allreduceInPlace(&state, 1, kTinbuildMpiInt, kTinbuildMpiMax);
+    if (state != 0) break;
+    if (rank != from && rank != 0) continue;
+    try {
       if (!seam.demTriangles.empty()) {
-        if (from == 0 && rank == 0) {
-          fs::rename(seam.demTriangles, triangleFile(0));
-        } else if (from != 0) {
-          if (rank == from)
-            exchanged += sendFile(seam.demTriangles, 103, cancel);
-          else if (rank == 0)
-            receivedBytes += receiveFile(triangleFile(from), from, 103, cancel);  // (added below)
-        }
+        if (rank == from)
+          exchanged += sendFile(seam.demTriangles, 103, cancel);
+        else
+          receivedBytes += receiveFile(triangleFile(from), from, 103, cancel);  // (added below)
       }
-      if (from == 0) continue;
       const char* kinds[] = {"dem", "json"};
       for (int k = 0; k < 2; ++k) {
         const int tag = 101 + k;
         if (rank == from)
           exchanged += sendFile(plan.partFile(rank, kinds[k]), tag, cancel);
-        else if (rank == 0)
+        else
           receivedBytes += receiveFile(plan.partFile(from, kinds[k]), from, tag, cancel);
       }
+    } catch (const CancelledError&) {
+      sendStopped = true;
+    } catch (const std::exception& e) {
+      sendError = e.what();
     }
+  }
+  collective(rank, size, "exchange from rank", [&] {
+    if (!sendError.empty()) throw Error(sendError);
+    if (sendStopped || cancelRequested(cancel)) throw CancelledError();
   });
   exchanged += receivedBytes - seam.received - records.receivedBytes;  // (the files, counted as received)
   collective(rank, size, "commit on rank", [&] { commitStep(); });  // rank 0: the files it received

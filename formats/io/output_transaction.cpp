@@ -90,6 +90,13 @@ OutputTransaction::~OutputTransaction() {
   rollback();
 }
 
+std::vector<std::string> OutputTransaction::takeLeftoverDirectories() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  std::vector<std::string> out;
+  out.swap(leftoverDirs_);
+  return out;
+}
+
 void OutputTransaction::rollback() {
   std::lock_guard<std::mutex> lock(mutex_);
   // Rolled back (what no commit took): every staged temporary goes, so do the files committed only
@@ -115,7 +122,8 @@ void OutputTransaction::rollback() {
   locks_.clear();  // (their lock files go)
   lockedPaths_.clear();
   // The folders made for the outputs, deepest first, when nothing else is in them (rmdir refuses then).
-  for (auto it = createdDirs_.rbegin(); it != createdDirs_.rend(); ++it) ::rmdir(it->c_str());
+  for (auto it = createdDirs_.rbegin(); it != createdDirs_.rend(); ++it)
+    if (::rmdir(it->c_str()) != 0 && errno == ENOTEMPTY) leftoverDirs_.push_back(*it);
   createdDirs_.clear();
   claimedFiles_.clear();
   claimedDirs_.clear();

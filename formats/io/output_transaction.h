@@ -56,6 +56,10 @@ class OutputTransaction {
   bool claims(const std::string& final) const;
   // A folder createParentDirectories made for this run's outputs (removed on roll-back when empty).
   void createdDirectory(const std::string& dir);
+  // The folders of this run a roll-back could not remove because something was still in them (another
+  // process's files of the same run, under MPI), deepest first; the caller tries again once every process
+  // has rolled back.  Taken: the list is then empty.
+  std::vector<std::string> takeLeftoverDirectories();
 
   // A step to run after the renames (and never when the transaction is rolled back); `undo` (optional) runs
   // instead when it is rolled back.
@@ -91,6 +95,7 @@ class OutputTransaction {
   std::vector<std::string> lockedPaths_;
   std::vector<std::string> claimedFiles_, claimedDirs_;  // absolute, normalized
   std::vector<std::string> createdDirs_;                 // in creation order (parents first)
+  std::vector<std::string> leftoverDirs_;                // roll-back: not empty then (deepest first)
   OutputTransaction* previous_ = nullptr;
 };
 

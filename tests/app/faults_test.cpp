@@ -692,6 +692,56 @@ pid_t rankPid(const std::string& prefix, int rank) {
   return 0;
 }
 
+// Under MPI, SIGTERM to one rank at any step of the run (the plan, the parts, the seam across the ranks, the
+// state files to rank 0, the merge) stops every rank with exit 3 and leaves nothing: no file and no folder
+// the run made, although the ranks remove their own files at different moments.  Never a hang.
+TEST(Faults, SigtermToOneMpiRankAtAnyStepLeavesNothing) {
+  if (std::system("command -v mpirun > /dev/null 2>&1") != 0) GTEST_SKIP() << "no mpirun";
+  const Survey s = prepare();
+  if (test::tinbuild("build x.las --mesh x.smb --mpi -q").err.find("built without MPI") != std::string::npos)
+    GTEST_SKIP() << "tinbuild built without MPI";
+  const std::string prefix = std::string(TINBUILD_EXE) + " build s/survey.las --mesh run/tin.smb";
+  const std::string run = "cd " + s.dir.string() +
+                          " && timeout 120 mpirun --allow-run-as-root --oversubscribe -np 4 " + prefix +
+                          " --dem run/dem --step 1 --mpi --threads 1 -q > /dev/null 2>&1";
+  // A whole run first, for its length.
+  fs::create_directories(s.dir / "run");
+  const auto t0 = Clock::now();
+  ASSERT_EQ(std::system(run.c_str()), 0);
+  const double whole = std::chrono::duration<double>(Clock::now() - t0).count();
+  fs::remove_all(s.dir / "run");
+  int stopped = 0;
+  for (const double at : {0.35, 0.55, 0.7, 0.8, 0.9}) {
+    fs::create_directories(s.dir / "run");  // (the folder is the user's: only what the run makes must go)
+    const pid_t child = ::fork();
+    if (child == 0) {
+      const int rc = std::system(run.c_str());
+      ::_exit(WIFEXITED(rc) ? WEXITSTATUS(rc) : 99);
+    }
+    std::this_thread::sleep_for(std::chrono::duration<double>(at * whole));
+    const pid_t pid = rankPid(prefix, 2);
+    if (pid > 0) ::kill(pid, SIGTERM);
+    int status = 0;
+    ::waitpid(child, &status, 0);
+    const int code = WEXITSTATUS(status);
+    const std::string when = "at " + std::to_string(at) + " of the run";
+    EXPECT_NE(code, 124) << when << ": the ranks hung";
+    if (pid > 0 && code != 0) {
+      ++stopped;
+      EXPECT_EQ(code, 3) << when;
+      std::vector<std::string> left;
+      for (const auto& e : fs::directory_iterator(s.dir / "run"))
+        left.push_back(e.path().filename().string());
+      for (const auto& e : fs::directory_iterator(s.dir))
+        if (e.path().filename().string().find("mpi-plan") != std::string::npos)
+          left.push_back(e.path().string());
+      EXPECT_TRUE(left.empty()) << when << ": " << left.size() << " left, the first " << left.front();
+    }
+    fs::remove_all(s.dir / "run");
+  }
+  EXPECT_GT(stopped, 0);
+}
+
 // Under MPI, SIGTERM to one rank alone (a node's task stopped, Ctrl-C in one terminal) stops every rank
 // within a second: the rank's watcher sends a stop over the stop channel to all others, wherever their
 // work is.  Exit 3, nothing final-named; a rerun succeeds.
