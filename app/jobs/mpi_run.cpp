@@ -485,17 +485,18 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
 
 // One level's exchange.  `sources`: the seam files this rank holds (path, part or block index); `level`:
 // the blocks' (-1: the top step, rank 0's); `inputs`: this rank's blocks of that level, their input files.
-// In rounds: a rank sends at most 32 MiB a round, at most 256 MiB / ranks (1 MiB at least) to one rank,
-// so no rank receives much more than 256 MiB at once.  Each round ends in a vote (more to send, a failure,
-// a cancellation), so a failure or a stop anywhere ends every rank's loop at the same round; the
-// collective step after it then stops them all.  Returns the bytes this rank received.
+// In rounds: a rank sends at most 32 MiB a round, at most 256 MiB / ranks (64 KiB at least) to one rank,
+// so no rank receives much more than 256 MiB at once (up to 4096 ranks; MPI's counts are ints).  Each round
+// ends in a vote (more to send, a failure, a cancellation), so a failure or a stop anywhere ends every rank's
+// loop at the same round; the collective step after it then stops them all.  Returns the bytes this rank
+// received.
 std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
                            const std::vector<std::pair<std::string, std::uint32_t> >& sources,
                            std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> >& inputs,
                            const CancelFlag* cancel) {
   struct Abort {};
   const std::size_t n = static_cast<std::size_t>(size);
-  const std::size_t perPeer = std::max<std::size_t>(std::size_t{1} << 20, (std::size_t{256} << 20) / n);
+  const std::size_t perPeer = std::max<std::size_t>(std::size_t{1} << 16, (std::size_t{256} << 20) / n);
   const std::size_t perRound = std::size_t{32} << 20;
   std::vector<std::string> out(n);
   std::size_t pending = 0;
