@@ -77,6 +77,16 @@ class MergeSeamOutput : public SeamOutput {
 
 }  // namespace
 
+std::shared_ptr<BankCheck> planBankCheck(const Plan& plan, PreparedConstraints& constraints) {
+  if (plan.constraints.empty()) return nullptr;
+  constraints = readConstraintsFile(plan.constraintsFile());
+  if (constraints.bodies.empty()) return nullptr;
+  auto check = std::make_shared<BankCheck>(constraints.water, constraints.bodies, constraints.band,
+                                           constraints.spacing);
+  if (check->empty()) return nullptr;
+  return check;
+}
+
 RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag,
                    const MergedBlocks* blocks) {
   const auto t0 = JobClock::now();
@@ -108,13 +118,15 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   checkPlanInputs(plan);
   // Every file the parts left, as they left it: missing, cut short or altered is an error naming the part
   // and the file, before any output is touched.
-  // (Under MPI with blocks each rank read its own part's seam file; only the rest came here.)
+  // (Under MPI with blocks each rank checked and read its own part's seam and DEM pieces: the mesh is
+  // what is left to check here.)
   for (const PartDone& d : done) {
     PartDone here = d;
     if (blocks)
-      here.files.erase(std::remove_if(here.files.begin(), here.files.end(),
-                                      [](const PartFile& f) { return f.role == "seam"; }),
-                       here.files.end());
+      here.files.erase(
+          std::remove_if(here.files.begin(), here.files.end(),
+                         [](const PartFile& f) { return f.role == "seam" || f.role == "dem-pieces"; }),
+          here.files.end());
     checkPartFiles(here, plan);
   }
   RunOutputs outputs = resolveOutputs(o);
@@ -155,7 +167,8 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   DemPieceIndex pieces;
   std::vector<std::string> partTiles;
   if (outputs.dem) {
-    for (int i = 0; i < r.parts; ++i) {
+    // (Under MPI with blocks the tiles' owners merged every piece: this writes the mosaics only.)
+    for (int i = 0; i < r.parts && !blocks; ++i) {
       const std::string path = plan.partFile(i, "dem");
       std::error_code ec;
       if (std::filesystem::exists(path, ec)) pieces.add(path);
@@ -163,6 +176,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     }
     for (const PartDone& d : done) partTiles.insert(partTiles.end(), d.demTiles.begin(), d.demTiles.end());
     r.demPartTiles = partTiles.size();
+    if (blocks) partTiles.insert(partTiles.end(), blocks->demTiles.begin(), blocks->demTiles.end());
     context.demMerge = &pieces;
     context.demOtherTiles = partTiles;
   }
@@ -173,15 +187,14 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
     mesh = outputs.mesh.row->open(seamMesh, context);  // (the seam file has the mesh's format)
   }
   // Hydro-flattening's product check: the parts checked the pixels they computed; the merge checks the
-  // pixels of the seam's triangles (each pixel is computed once), and adds them up.
+  // pixels of the seam's triangles (each pixel is computed once), and adds them up.  (Under MPI with
+  // blocks, each block's rank checked its own.)
   PreparedConstraints constraints;
-  if (outputs.dem && !plan.constraints.empty()) {
-    constraints = readConstraintsFile(plan.constraintsFile());
-    if (!constraints.bodies.empty()) {
-      context.bankCheck = std::make_shared<BankCheck>(constraints.water, constraints.bodies, constraints.band,
-                                                      constraints.spacing);
-      if (context.bankCheck->empty()) context.bankCheck.reset();
-    }
+  if (outputs.dem) {
+    if (!blocks)
+      context.bankCheck = planBankCheck(plan, constraints);
+    else if (blocks->bankChecked)
+      constraints = readConstraintsFile(plan.constraintsFile());
   }
   if (outputs.dem) dem = outputs.dem.row->open(outputs.dem.path, context);
   std::uint64_t nextId = 0;
@@ -197,32 +210,24 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   auto stillWanted = [&o](double fraction, const char* what) {
     if (o.finalizer.progress && !o.finalizer.progress(fraction, what, o.finalizer.progressData)) throw CancelledError();
   };
-  if (blocks) {
-    // The blocks' triangles into the DEM (their ids only need to differ from the step's below).
-    if (dem) {
-      std::uint64_t replayId = std::uint64_t{1} << 62;
-      for (const std::string& f : blocks->demTriangles) {
-        stillWanted(0.1, "merging the seams");
-        readSeamTriangleFile(f, *dem->triangleSink(), replayId, o.finalizer.cancel);
-        r.seamBytes += fileSizeOrZero(f);
-      }
-    }
-    const SeamFileCounts c = readSeamFile(blocks->top, plan.id, kTopSeamFile, step, o.finalizer.cancel);
+  // (Under MPI with blocks the whole seam was settled across the ranks, the top step on rank 0's: the
+  // merge's own seam file stays empty.)
+  for (int i = 0; i < r.parts && !blocks; ++i) {
+    stillWanted(0.5 * i / r.parts, "merging the seams");
+    const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i),
+                                          step, o.finalizer.cancel);
     r.seamBytes += c.bytes;
-  } else {
-    for (int i = 0; i < r.parts; ++i) {
-      stillWanted(0.5 * i / r.parts, "merging the seams");
-      const SeamFileCounts c = readSeamFile(plan.partFile(i, "seam"), plan.id, static_cast<std::uint32_t>(i),
-                                            step, o.finalizer.cancel);
-      r.seamBytes += c.bytes;
-    }
   }
   stillWanted(0.5, "merging the seams");
   step.end();
   const SeamStats& ss = step.stats();
   r.seamVertices = ss.vertices + (blocks ? blocks->seamVertices : 0);
   r.seamTriangles = ss.written + (blocks ? blocks->triangles : 0);
-  r.demPieces = pieces.pieces();
+  r.demPieces = blocks ? blocks->demPieces : pieces.pieces();
+  if (blocks) {
+    r.pieceBytes = blocks->pieceBytes;
+    r.seamBytes = blocks->seamBytes;
+  }
   std::uint64_t triangles = seamOut.triangles(), vertices = seamOut.newVertices();
   if (blocks) {
     triangles += blocks->triangles;
@@ -285,7 +290,7 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   if (dem) {
     const OutputResults res = dem->results();
     addOutputResults(r, o, outputs.dem, res);
-    r.demMergedTiles = res.demTiles.size();
+    r.demMergedTiles = res.demTiles.size() + (blocks ? blocks->demTiles.size() : 0);
   }
   r.haveDelaunay = true;
   r.delaunay.trianglesEmitted = triangles;
@@ -297,10 +302,10 @@ RunReport runMerge(const PipelineOptions& o, const Plan& plan, Diagnostics& diag
   r.parallel.seamWritten = r.seamTriangles;
   r.parallel.seamDropped = ss.dropped;
   r.duplicateRule = duplicateRuleName(o.delaunay.duplicates);
-  if (context.bankCheck) {
+  if (context.bankCheck || (blocks && blocks->bankChecked)) {
     reportConstraints(constraints, r);
     r.constraints.bankChecked = true;
-    r.constraints.bank = context.bankCheck->figures();
+    r.constraints.bank = blocks ? blocks->bank : context.bankCheck->figures();
     for (const PartDone& d : done)
       if (d.bankChecked) r.constraints.bank.add(d.bank);
     if (r.constraints.bank.violations)
@@ -329,33 +334,69 @@ int seamBlockOwner(const Plan& plan, int level, std::uint64_t index) {
   return static_cast<int>(plan.parts.size()) - 1;
 }
 
+std::vector<int> demTileOwners(const std::vector<std::uint64_t>& pieces, int ranks) {
+  std::uint64_t total = 0;
+  for (std::uint64_t c : pieces) total += c;
+  std::vector<int> owners;
+  owners.reserve(pieces.size());
+  // (2C + c <= 2N, and N P stays far below 2^63: a tile has a few pieces, a run has at most millions of
+  // tiles.)
+  const auto p = static_cast<std::uint64_t>(ranks);
+  std::uint64_t before = 0;
+  for (std::uint64_t c : pieces) {
+    const std::uint64_t owner = total == 0 ? 0 : (2 * before + c) * p / (2 * total);
+    owners.push_back(static_cast<int>(std::min<std::uint64_t>(owner, p - 1)));
+    before += c;
+  }
+  return owners;
+}
+
 struct SeamBlockRunner::Impl {
   const PipelineOptions& o;
   const Plan& plan;
   RunOutputs outputs;
-  std::unique_ptr<OpenedOutput> mesh;
-  std::unique_ptr<SeamTriangleFileWriter> dem;
+  std::unique_ptr<OpenedOutput> mesh, dem;
   StreamInfo info;
+  MeshInfo meshInfo;
   std::uint64_t nextId = 0;
   bool begun = false;
   Impl(const PipelineOptions& options, const Plan& p) : o(options), plan(p) {}
+  void begin() {
+    if (begun) return;
+    if (mesh) mesh->meshSink()->begin(meshInfo);
+    if (dem) dem->triangleSink()->begin(meshInfo);
+    begun = true;
+  }
 };
 
-SeamBlockRunner::SeamBlockRunner(const PipelineOptions& o, const Plan& plan, const CrsInfo& crs,
-                                 const std::string& meshPath, const std::string& demTrianglePath)
+SeamBlockRunner::SeamBlockRunner(const PipelineOptions& o, const Plan& plan, const PartDone& part,
+                                 const std::string& meshPath, const std::string& demPiecePath)
     : impl_(std::make_unique<Impl>(o, plan)) {
   Impl& m = *impl_;
   m.info.grid = plan.grid;
   m.info.bounds = plan.bounds;
-  m.info.crsWkt = crs.wkt;
+  m.info.crsWkt = part.crs.wkt;
+  m.meshInfo.bounds = plan.bounds;
+  m.meshInfo.crsWkt = part.crs.wkt;
+  m.outputs = resolveOutputs(o);
+  Diagnostics quiet;  // (the part said its warnings about the outputs already)
+  DemReport unused;
+  completeOutputs(m.outputs, o, part.crs, part.zUnitToMetre, unused, quiet);
+  WriterContext& context = m.outputs.context;
+  context.overwrite = true;  // (claimed at the run's start)
   if (!meshPath.empty()) {
-    m.outputs.mesh = resolveOutput(OutputOption::Mesh, o.meshOutput);
-    m.outputs.context = writerContext(o);
-    m.outputs.context.crs = crs;
-    m.outputs.context.overwrite = true;                              // (claimed at the run's start)
-    m.mesh = m.outputs.mesh.row->open(meshPath, m.outputs.context);  // (the mesh's own format)
+    m.mesh = m.outputs.mesh.row->open(meshPath, context);  // (the mesh's own format)
+    if (!m.mesh->meshSink()) throw Error("the seam blocks need a streaming mesh output");
   }
-  if (!demTrianglePath.empty()) m.dem = std::make_unique<SeamTriangleFileWriter>(demTrianglePath);
+  if (!demPiecePath.empty()) {
+    // The seam's triangles rasterized as a part's are: a tile they fill alone is written whole here, the
+    // rest are pieces for the tiles' owners.  Their pixels are sampled by the hydro-flattening check.
+    PreparedConstraints constraints;
+    context.bankCheck = planBankCheck(plan, constraints);
+    bankChecked = context.bankCheck != nullptr;
+    context.demPieces = demPiecePath;
+    m.dem = m.outputs.dem.row->open(m.outputs.dem.path, context);
+  }
 }
 
 SeamBlockRunner::~SeamBlockRunner() = default;
@@ -363,45 +404,45 @@ SeamBlockRunner::~SeamBlockRunner() = default;
 void SeamBlockRunner::run(int level, std::uint64_t index, const std::string& input,
                           const std::string& output) {
   Impl& m = *impl_;
-  MeshSink* mesh = m.mesh ? m.mesh->meshSink() : nullptr;
-  if (m.mesh && !mesh) throw Error("the seam blocks need a streaming mesh output");
-  if (!m.begun) {
-    MeshInfo mi;
-    mi.bounds = m.info.bounds;
-    mi.crsWkt = m.info.crsWkt;
-    if (mesh) mesh->begin(mi);
-    if (m.dem) m.dem->begin(mi);
-    m.begun = true;
-  }
-  MergeSeamOutput out(mesh, m.dem.get(), m.nextId, /*streams=*/false);
-  SeamFileWriter up(output, m.plan.id, static_cast<std::uint32_t>(index));
+  m.begin();
+  MergeSeamOutput out(m.mesh ? m.mesh->meshSink() : nullptr, m.dem ? m.dem->triangleSink() : nullptr,
+                      m.nextId,
+                      /*streams=*/false);
+  std::unique_ptr<SeamFileWriter> up;
   DelaunayOptions d = m.o.delaunay;
-  d.region = RegionSpec{RegionGrid{m.plan.grid, level}.cell(index), &up};
+  std::uint32_t part = kTopSeamFile;
+  if (level > 0) {
+    up = std::make_unique<SeamFileWriter>(output, m.plan.id, static_cast<std::uint32_t>(index));
+    d.region = RegionSpec{RegionGrid{m.plan.grid, level}.cell(index), up.get()};
+    part = static_cast<std::uint32_t>(index);
+  }
   SeamStep step(out, d);
   step.begin(m.info);
-  readSeamFile(input, m.plan.id, static_cast<std::uint32_t>(index), step, m.o.finalizer.cancel);
+  readSeamFile(input, m.plan.id, part, step, m.o.finalizer.cancel);
   step.end();
-  up.commit();
+  if (up) up->commit();
   const SeamStats& s = step.stats();
   ++blocks;
-  seamVertices += s.vertices;
   settled += s.vertices - s.handedOn;
   triangles += out.triangles();
   newVertices += out.newVertices();
   peakBytes = std::max<std::uint64_t>(peakBytes, s.triangulator.peakBytes);
 }
 
+void SeamBlockRunner::runTop(const std::string& input) {
+  run(0, 0, input, std::string());
+}
+
 void SeamBlockRunner::finish() {
   Impl& m = *impl_;
-  if (!m.begun) {  // (no block: the files are still made, empty)
-    MeshInfo mi;
-    mi.bounds = m.info.bounds;
-    mi.crsWkt = m.info.crsWkt;
-    if (m.mesh && m.mesh->meshSink()) m.mesh->meshSink()->begin(mi);
-    if (m.dem) m.dem->begin(mi);
+  m.begin();  // (no block: the files are still made, empty)
+  if (m.mesh) m.mesh->meshSink()->end();
+  if (m.dem) {
+    m.dem->triangleSink()->end();
+    m.dem->commitPartState();
+    demTiles = m.dem->results().demTiles;
+    if (m.outputs.context.bankCheck) bank = m.outputs.context.bankCheck->figures();
   }
-  if (m.mesh && m.mesh->meshSink()) m.mesh->meshSink()->end();
-  if (m.dem) m.dem->end();
 }
 
 }  // namespace tinbuild

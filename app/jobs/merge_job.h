@@ -10,6 +10,7 @@
 #include "app/jobs/job_options.h"
 #include "app/jobs/run_report.h"
 #include "formats/io/plan_file.h"
+#include "libterrain/hydro/bank_check.h"
 
 namespace tinbuild {
 
@@ -18,19 +19,29 @@ namespace tinbuild {
 // files) and the DEM tiles the parts left as pieces, then the mosaics.  options: the plan's build.  It opens
 // no input: the working CRS is the one the parts recorded.
 //
-// `blocks` (an MPI run): the seam was settled block by block across the ranks (SeamBlockRunner, below);
-// the merge's own step then reads only what the top blocks left (`blocks->top`), the DEM adds the blocks'
-// triangles (`blocks->demTriangles`), and the manifest lists the ranks' block meshes.
+// `blocks` (an MPI run): the seam was settled block by block across the ranks, the top step on rank 0
+// (SeamBlockRunner, below), and each DEM tile left in pieces was merged by its owner rank: the merge then
+// runs no seam step (its seam file stays empty), lists the ranks' block meshes in the manifest, and writes
+// the DEM's mosaics over every tile (`blocks->demTiles`: those the seam's triangles filled alone and the
+// owners'), with the figures the ranks gathered.
 struct MergedBlocks {
-  std::string top;                               // a seam file (kTopSeamFile as its part) of what is left
   std::vector<std::string> meshes;               // the ranks' block seam meshes, for the manifest
-  std::vector<std::string> demTriangles;         // the ranks' seam triangle files, for the DEM
+  std::vector<std::string> demTiles;             // the tiles written by the ranks past their parts
   std::uint64_t seamVertices = 0;                // settled by the block steps (all ranks)
   std::uint64_t triangles = 0, newVertices = 0;  // written by them
+  std::uint64_t demPieces = 0, pieceBytes = 0;   // DEM pieces merged by the tiles' owners, and their bytes
+  std::uint64_t seamBytes = 0;                   // seam records the block steps read
+  bool bankChecked = false;                      // the block steps' hydro-flattening check ...
+  BankCheckFigures bank;                         // ... and its figures (the parts' are added by the merge)
 };
 inline constexpr std::uint32_t kTopSeamFile = 0xffffffffu;
 RunReport runMerge(const PipelineOptions& options, const Plan& plan, Diagnostics& diag,
                    const MergedBlocks* blocks = nullptr);
+
+// The plan's hydro-flattening product check for the DEM pixels a merge step computes (null when the plan
+// has no water bodies); `constraints` receives the plan's prepared constraints.
+struct PreparedConstraints;
+std::shared_ptr<BankCheck> planBankCheck(const Plan& plan, PreparedConstraints& constraints);
 
 // The rank (the part) that settles block `index` of quadtree level `level` (0 < level < the plan's region
 // level).  A level of no more blocks than parts spreads them evenly over the ranks (block b of B to rank
@@ -40,26 +51,41 @@ RunReport runMerge(const PipelineOptions& options, const Plan& plan, Diagnostics
 // what the level-1 blocks leave, is rank 0's.)
 int seamBlockOwner(const Plan& plan, int level, std::uint64_t index);
 
+// The owner ranks of an MPI run's DEM tiles left in pieces (docs/parts.md, "Who writes what").  `pieces`:
+// each such tile's piece count, every rank's pieces of it summed, the tiles in (ty, tx) order.  The tiles
+// are dealt in that order to the ranks in consecutive runs of about equal pieces: a tile whose pieces lie
+// at C .. C + c of the N in all goes to rank floor((C + c/2) P / N).  A rank so merges at most N/P pieces
+// plus one tile's (a tile has at most a few: its parts' and its seam blocks'), and neighbouring tiles
+// (a row's) share an owner.
+std::vector<int> demTileOwners(const std::vector<std::uint64_t>& pieces, int ranks);
+
 // What one rank of an MPI run writes for the seam blocks it owns (docs/design.md, "The seam across ranks"):
-// one seam mesh file for all of them (seamBlockMeshPath; none without a mesh output), one file of seam
-// triangles for the DEM (sent to the rank that writes the DEM; none without a DEM), and for each block a
-// seam file of what it leaves for the level above.
+// one seam mesh file for all of them (seamBlockMeshPath; none without a mesh output), the DEM of their
+// triangles (rasterized as a part's: the tiles they fill alone written whole, the rest to a piece file for
+// the tiles' owners; none without a DEM), and for each block a seam file of what it leaves for the level
+// above.  Rank 0's runner also runs the top step.
 class SeamBlockRunner {
  public:
-  // crs: the survey's (the parts recorded it).  meshPath, demTrianglePath: "" for none.
-  SeamBlockRunner(const PipelineOptions& options, const Plan& plan, const CrsInfo& crs,
-                  const std::string& meshPath, const std::string& demTrianglePath);
+  // part: this rank's (the CRS and z unit it recorded).  meshPath, demPiecePath: "" for none.
+  SeamBlockRunner(const PipelineOptions& options, const Plan& plan, const PartDone& part,
+                  const std::string& meshPath, const std::string& demPiecePath);
   ~SeamBlockRunner();
   SeamBlockRunner(const SeamBlockRunner&) = delete;
   SeamBlockRunner& operator=(const SeamBlockRunner&) = delete;
   // Block `index` of quadtree level `level` over the seam file `input` (part index: the block's), what it
   // leaves written to the seam file `output`.
   void run(int level, std::uint64_t index, const std::string& input, const std::string& output);
-  // Ends the files (committed provisionally, as every step's under MPI).
+  // The top step over what the level-1 blocks left (`input`, a seam file with part kTopSeamFile): it
+  // settles the rest.
+  void runTop(const std::string& input);
+  // Ends the files (committed provisionally, as every step's under MPI), then fills demTiles and bank.
   void finish();
 
-  std::uint64_t blocks = 0, seamVertices = 0, settled = 0, triangles = 0, newVertices = 0;
-  std::uint64_t peakBytes = 0;  // the largest block step's triangulator
+  std::uint64_t blocks = 0, settled = 0, triangles = 0, newVertices = 0;
+  std::uint64_t peakBytes = 0;        // the largest block step's triangulator
+  std::vector<std::string> demTiles;  // DEM tiles written whole (final names)
+  bool bankChecked = false;           // the hydro-flattening check of the pixels rasterized here
+  BankCheckFigures bank;
 
  private:
   struct Impl;

@@ -4,12 +4,15 @@
 #include <algorithm>
 #include <atomic>
 #include <chrono>
+#include <csignal>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <functional>
 #include <map>
+#include <optional>
 #include <sstream>
 #include <thread>
 
@@ -19,6 +22,7 @@
 #include "formats/io/output_file.h"
 #include "formats/io/output_transaction.h"
 #include "formats/mesh/seam_file.h"
+#include "formats/raster/dem_pieces.h"
 #include "libterrain/core/error.h"
 #include "libterrain/finalizer/record_file_stream.h"
 #include "libterrain/finalizer/regions.h"
@@ -169,87 +173,13 @@ void commitStep() {
   if (OutputTransaction* t = OutputTransaction::current()) t->commitProvisionally();
 }
 
-// A state file goes from a rank to rank 0 in chunks of 16 MiB (a few milliseconds each), so neither side
-// holds a whole file in memory.  Before each chunk, and once after the last, the two ranks vote: a
-// cancellation or a failure (a read, a write, a full disk) on either side stops both at the same point,
-// so neither is left waiting on the other, and the collective step around the exchange then stops every
-// rank.  A cancellation is thus honoured within a chunk.
+// Broadcasts go in chunks of 16 MiB (MPI's counts are ints).  A vote's outcomes: go on, or stop (a
+// cancellation, a failure) on every rank at the same point.
 constexpr std::uint64_t kChunk = std::uint64_t{1} << 24;
 constexpr int kGoOn = 0, kStopCancelled = 1, kStopFailed = 2;
 
-// Both ranks' states -> the worse one.
-int pairVote(int peer, int tag, int mine) {
-  int theirs = kGoOn;
-  mpi().sendrecv(&mine, &theirs, 1, kTinbuildMpiInt, peer, tag);
-  return std::max(mine, theirs);
-}
-
-void stopOnVote(int outcome, const std::string& error, int peer) {
-  if (outcome == kStopFailed)
-    throw Error(!error.empty() ? error : "the transfer failed on rank " + std::to_string(peer));
-  if (outcome == kStopCancelled) throw CancelledError();
-}
-
 int stateOf(const std::string& error, const CancelFlag* cancel) {
   return !error.empty() ? kStopFailed : cancelRequested(cancel) ? kStopCancelled : kGoOn;
-}
-
-// Sends `path` (when it exists) to rank 0; returns the bytes sent.
-std::uint64_t sendFile(const std::string& path, int tag, const CancelFlag* cancel) {
-  std::ifstream in(path, std::ios::binary);
-  std::error_code ec;
-  const std::uint64_t size = in ? fs::file_size(path, ec) : 0;
-  const std::uint64_t header[2] = {in && !ec ? 1u : 0u, size};
-  mpi().send(header, 2, kTinbuildMpiUint64, 0, tag);
-  if (!header[0]) return 0;
-  std::vector<char> buffer(static_cast<std::size_t>(std::min(kChunk, size)));
-  std::string error;
-  for (std::uint64_t at = 0;;) {
-    const std::uint64_t n = std::min(kChunk, size - at);
-    if (n > 0 && error.empty() && !in.read(buffer.data(), static_cast<std::streamsize>(n)))
-      error = path + ": cannot read the file to send it to rank 0";
-    stopOnVote(pairVote(0, tag, stateOf(error, cancel)), error, 0);
-    if (n == 0) return size;
-    mpi().send(buffer.data(), static_cast<int>(n), kTinbuildMpiChar, 0, tag);
-    at += n;
-  }
-}
-
-// Rank 0: receives what `from` sends (sendFile) into `path`; returns the bytes received.
-std::uint64_t receiveFile(const std::string& path, int from, int tag, const CancelFlag* cancel) {
-  std::uint64_t header[2] = {0, 0};
-  mpi().recv(header, 2, kTinbuildMpiUint64, from, tag);
-  if (!header[0]) return 0;
-  const std::uint64_t size = header[1];
-  std::string error;
-  std::unique_ptr<OutputFile> out;
-  try {
-    out = std::make_unique<OutputFile>(path, static_cast<std::size_t>(std::max<std::uint64_t>(16, std::min(kChunk, size))));
-  } catch (const std::exception& e) {
-    error = e.what();
-  }
-  std::vector<char> buffer(static_cast<std::size_t>(std::min(kChunk, size)));
-  for (std::uint64_t at = 0;;) {
-    const std::uint64_t n = std::min(kChunk, size - at);
-    if (n == 0 && error.empty()) {  // the whole file: committed before the last vote, which reports it
-      try {
-        out->commit();
-      } catch (const std::exception& e) {
-        error = e.what();
-      }
-    }
-    stopOnVote(pairVote(from, tag, stateOf(error, cancel)), error, from);
-    if (n == 0) return size;
-    mpi().recv(buffer.data(), static_cast<int>(n), kTinbuildMpiChar, from, tag);
-    if (error.empty()) {
-      try {
-        out->write(buffer.data(), static_cast<std::size_t>(n));
-      } catch (const std::exception& e) {
-        error = e.what();
-      }
-    }
-    at += n;
-  }
 }
 
 // Rank 0's file at `path` (read there) to every rank, in chunks: its bytes, on every rank.
@@ -483,17 +413,18 @@ ExchangedRecords exchangeRecords(int rank, int size, const Plan& plan, SliceReco
 // each seam record it holds (its part's, then what its blocks left) to the rank owning the record's
 // block one level up, which appends it to that block's input file; then each rank runs its blocks.
 
-// One level's exchange.  `sources`: the seam files this rank holds (path, part or block index); `level`:
-// the blocks' (-1: the top step, rank 0's); `inputs`: this rank's blocks of that level, their input files.
-// In rounds: a rank sends at most 32 MiB a round, at most 256 MiB / ranks (64 KiB at least) to one rank,
-// so no rank receives much more than 256 MiB at once (up to 4096 ranks; MPI's counts are ints).  Each round
-// ends in a vote (more to send, a failure, a cancellation), so a failure or a stop anywhere ends every rank's
-// loop at the same round; the collective step after it then stops them all.  Returns the bytes this rank
-// received.
-std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
-                           const std::vector<std::pair<std::string, std::uint32_t> >& sources,
-                           std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> >& inputs,
-                           const CancelFlag* cancel) {
+// An exchange of records between every pair of ranks, in rounds of MPI_Alltoallv: `produce` hands each
+// record to send(rank, encode), which appends it to that rank's buffer; `deliver` gets, each round, every
+// sender's bytes in rank order (whole records: a record is never split between rounds).  A rank sends at
+// most 32 MiB a round, at most 256 MiB / ranks (64 KiB at least) to one rank, so no rank receives much
+// more than 256 MiB at once (up to 4096 ranks; MPI's counts are ints).  Each round ends in a vote (more
+// to send, a failure, a cancellation), so a failure or a stop anywhere ends every rank's loop at the same
+// round; the collective step after it then stops them all.  Returns the bytes this rank received from
+// the others.
+using SendRecord = std::function<void(int, const std::function<void(std::string&)>&)>;
+std::uint64_t exchangeInRounds(int rank, int size, const std::string& what, const CancelFlag* cancel,
+                               const std::function<void(const SendRecord&)>& produce,
+                               const std::function<void(const char*, std::size_t)>& deliver) {
   struct Abort {};
   const std::size_t n = static_cast<std::size_t>(size);
   const std::size_t perPeer = std::max<std::size_t>(std::size_t{1} << 16, (std::size_t{256} << 20) / n);
@@ -505,13 +436,6 @@ std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
   std::uint64_t received = 0;
   std::vector<int> sendCounts(n), receiveCounts(n), sendOffsets(n), receiveOffsets(n);
   std::string sendBuffer, receiveBuffer;
-  auto sinkOf = [&](std::uint32_t block) -> SeamSink& {
-    const auto it = inputs.find(block);
-    if (it == inputs.end())
-      throw Error("the seam exchange: rank " + std::to_string(rank) + " got a record of block " +
-                  std::to_string(block) + " of level " + std::to_string(level) + ", which it does not own");
-    return *it->second;
-  };
   // One round; true when every rank is done (or one failed: then `error` or `stopped` may be another's).
   auto round = [&](bool done) {
     int total = 0;
@@ -536,9 +460,8 @@ std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
     received += static_cast<std::uint64_t>(all - receiveCounts[static_cast<std::size_t>(rank)]);
     if (error.empty() && !stopped) {
       try {
-        for (std::size_t d = 0; d < n; ++d)  // (senders in rank order: each region's own order is kept)
-          replaySeamRecords(receiveBuffer.data() + receiveOffsets[d],
-                            static_cast<std::size_t>(receiveCounts[d]), sinkOf);
+        for (std::size_t d = 0; d < n; ++d)  // (senders in rank order)
+          deliver(receiveBuffer.data() + receiveOffsets[d], static_cast<std::size_t>(receiveCounts[d]));
       } catch (const std::exception& e) {
         error = e.what();
       }
@@ -547,6 +470,46 @@ std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
     int vote[2] = {done && error.empty() && !stopped ? 0 : 1, error.empty() && !stopped ? 0 : 1};
     mpi().allreduceInPlace(vote, 2, kTinbuildMpiInt, kTinbuildMpiMax);
     return vote[0] == 0 || vote[1] != 0;
+  };
+  const SendRecord send = [&](int to, const std::function<void(std::string&)>& encode) {
+    std::string& o = out[static_cast<std::size_t>(to)];
+    const std::size_t before = o.size();
+    encode(o);
+    pending += o.size() - before;
+    if (pending >= perRound || o.size() >= perPeer)
+      if (round(false)) throw Abort{};
+  };
+  bool finished = false;
+  try {
+    produce(send);
+  } catch (const Abort&) {
+    finished = true;  // (another rank failed or was stopped: the collective after this says so)
+  } catch (const CancelledError&) {
+    stopped = true;
+  } catch (const std::exception& e) {
+    error = e.what();
+  }
+  while (!finished) finished = round(true);
+  collective(rank, size, what, [&] {
+    if (!error.empty()) throw Error(error);
+    if (stopped) throw CancelledError();
+  });
+  return received;
+}
+
+// One level's exchange of the seam.  `sources`: the seam files this rank holds (path, part or block
+// index); `level`: the blocks' (-1: the top step, rank 0's); `inputs`: this rank's blocks of that level,
+// their input files.  Returns the bytes this rank received.
+std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
+                           const std::vector<std::pair<std::string, std::uint32_t> >& sources,
+                           std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> >& inputs,
+                           const CancelFlag* cancel) {
+  auto sinkOf = [&](std::uint32_t block) -> SeamSink& {
+    const auto it = inputs.find(block);
+    if (it == inputs.end())
+      throw Error("the seam exchange: rank " + std::to_string(rank) + " got a record of block " +
+                  std::to_string(block) + " of level " + std::to_string(level) + ", which it does not own");
+    return *it->second;
   };
   struct Router : SeamSink {
     std::function<void(std::uint64_t, const std::function<void(std::string&, std::uint32_t)>&)> put;
@@ -567,50 +530,32 @@ std::uint64_t exchangeSeam(int rank, int size, const Plan& plan, int level,
   } router;
   router.grid = &plan.grid;
   router.level = level;
-  router.put = [&](std::uint64_t block, const std::function<void(std::string&, std::uint32_t)>& encode) {
-    const int owner = level < 0 ? 0 : seamBlockOwner(plan, level, block);
-    std::string& o = out[static_cast<std::size_t>(owner)];
-    const std::size_t before = o.size();
-    encode(o, static_cast<std::uint32_t>(block));
-    pending += o.size() - before;
-    if (pending >= perRound || o.size() >= perPeer)
-      if (round(false)) throw Abort{};
-  };
-  bool finished = false;
-  try {
-    for (const auto& [path, index] : sources) readSeamFile(path, plan.id, index, router, cancel);
-  } catch (const Abort&) {
-    finished = true;  // (another rank failed or was stopped: the collective after this says so)
-  } catch (const CancelledError&) {
-    stopped = true;
-  } catch (const std::exception& e) {
-    error = e.what();
-  }
-  while (!finished) finished = round(true);
-  collective(rank, size, "seam exchange on rank", [&] {
-    if (!error.empty()) throw Error(error);
-    if (stopped) throw CancelledError();
-  });
-  return received;
-}
-
-// Where rank 0 keeps rank `from`'s seam triangles for the DEM.
-std::string seamTriangleFile(const Plan& plan, int from) {
-  char name[40];
-  std::snprintf(name, sizeof name, "/seam-triangles-%04d.bin", from);
-  return plan.stateDir() + name;
+  return exchangeInRounds(
+      rank, size, "seam exchange on rank", cancel,
+      [&](const SendRecord& send) {
+        router.put = [&](std::uint64_t block,
+                         const std::function<void(std::string&, std::uint32_t)>& encode) {
+          send(level < 0 ? 0 : seamBlockOwner(plan, level, block),
+               [&](std::string& o) { encode(o, static_cast<std::uint32_t>(block)); });
+        };
+        for (const auto& [path, index] : sources) readSeamFile(path, plan.id, index, router, cancel);
+      },
+      [&](const char* data, std::size_t bytes) { replaySeamRecords(data, bytes, sinkOf); });
 }
 
 // The seam step of an MPI run across its ranks: every level of blocks between the regions and the top,
-// each block on its owner (seamBlockOwner), then what the level-1 blocks leave to rank 0, whose merge runs
-// the top step.  Returns rank 0's MergedBlocks (sums over the ranks; the files by rank).
+// each block on its owner (seamBlockOwner), then what the level-1 blocks leave to rank 0, which runs the
+// top step.  Returns this rank's figures and files, and on rank 0 the MergedBlocks' seam sums.
 struct SeamAcrossRanks {
   MergedBlocks merged;          // (rank 0)
   std::uint64_t settled = 0;    // by this rank's blocks
   std::uint64_t blocks = 0;     // run by this rank
   std::uint64_t received = 0;   // bytes of seam records this rank received
   std::uint64_t peakBytes = 0;  // this rank's largest block step
-  std::string demTriangles;     // this rank's seam triangle file ("" without a DEM)
+  std::string demPieces;        // this rank's seam DEM pieces ("" without a DEM)
+  std::vector<std::string> demTiles;  // the tiles its seam triangles filled alone
+  bool bankChecked = false;
+  BankCheckFigures bank;  // the hydro-flattening check of its seam pixels
 };
 
 SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, const PipelineOptions& options,
@@ -624,13 +569,19 @@ SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, cons
   std::vector<std::string> ownFiles;  // (the block files this rank made, removed as soon as read)
   std::unique_ptr<SeamBlockRunner> runner;
   collective(rank, size, "seam blocks on rank", [&] {
+    // Each rank checks the files its own part left (the merge on rank 0 checks the rest of every part).
     const PartDone done = readPartDone(plan.partFile(rank, "json"));
-    // (Rank 0's file is where the merge reads them all; the others' are sent there.)
-    if (planned.dem)
-      r.demTriangles = rank == 0 ? seamTriangleFile(plan, 0) : localDir + "/seam-triangles.bin";
+    checkPartFiles(done, plan);
+    if (planned.dem) r.demPieces = localDir + "/seam-pieces.demp";
+    if (planned.mesh) {  // (its block mesh locked for the run, as a part's mesh: what a killed run left goes)
+      ClaimSet own;
+      own.outputs = {OutputClaim(optionName(OutputOption::Mesh), seamBlockMeshPath(options.meshOutput, rank))
+                         .rewritten()};
+      claimOutputs(own);
+    }
     runner = std::make_unique<SeamBlockRunner>(
-        options, plan, done.crs, planned.mesh ? seamBlockMeshPath(options.meshOutput, rank) : std::string(),
-        r.demTriangles);
+        options, plan, done, planned.mesh ? seamBlockMeshPath(options.meshOutput, rank) : std::string(),
+        r.demPieces);
   });
   auto removeFiles = [](std::vector<std::string>& files) {
     std::error_code ec;
@@ -671,33 +622,212 @@ SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, cons
     });
     sources = std::move(next);
   }
-  // The top: what is left, to rank 0.
+  // The top: what is left, to rank 0, which settles it.
   std::map<std::uint64_t, std::unique_ptr<SeamFileWriter> > top;
   const std::string topPath = plan.stateDir() + "/seam-top.seam";
   collective(rank, size, "seam blocks on rank", [&] {
-    runner->finish();
-    commitStep();  // (the rank's block mesh, for rank 0's manifest)
     if (rank == 0) top[0] = std::make_unique<SeamFileWriter>(topPath, plan.id, kTopSeamFile);
   });
   r.received += exchangeSeam(rank, size, plan, -1, sources, top, cancel);
   collective(rank, size, "seam blocks on rank", [&] {
-    if (rank == 0) top[0]->commit();
     removeFiles(ownFiles);
-    commitStep();
+    if (rank == 0) {
+      top[0]->commit();
+      commitStep();
+      runner->runTop(topPath);
+      ownFiles.push_back(topPath);
+    }
+    runner->finish();
+    removeFiles(ownFiles);
+    commitStep();  // (the rank's block mesh, for rank 0's manifest; its DEM tiles and pieces)
   });
   r.settled = runner->settled;
   r.blocks = runner->blocks;
   r.peakBytes = runner->peakBytes;
+  r.demTiles = runner->demTiles;
+  r.bankChecked = runner->bankChecked;
+  r.bank = runner->bank;
   std::uint64_t sums[3] = {runner->settled, runner->triangles, runner->newVertices}, all[3] = {0, 0, 0};
   mpi().reduce(sums, all, 3, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   if (rank == 0) {
-    r.merged.top = topPath;
     r.merged.seamVertices = all[0];
     r.merged.triangles = all[1];
     r.merged.newVertices = all[2];
     if (planned.mesh)
       for (int i = 0; i < size; ++i) r.merged.meshes.push_back(seamBlockMeshPath(options.meshOutput, i));
   }
+  return r;
+}
+
+// Every rank's string, on every rank (a few bytes to a few kilobytes each: tile names, figures).
+std::vector<std::string> allgatherStrings(int size, const std::string& mine) {
+  int length = static_cast<int>(mine.size());
+  std::vector<int> lengths(static_cast<std::size_t>(size)), offsets(lengths);
+  mpi().allgather(&length, 1, lengths.data(), kTinbuildMpiInt);
+  std::int64_t total = 0;
+  for (std::size_t i = 0; i < lengths.size(); ++i) {
+    offsets[i] = static_cast<int>(total);
+    total += lengths[i];
+  }
+  if (total > std::int64_t{2147483647}) throw Error("MPI: more than 2 GiB of names to gather");
+  std::string all(static_cast<std::size_t>(total), '\0');
+  mpi().allgatherv(mine.data(), length, all.data(), lengths.data(), offsets.data(), kTinbuildMpiChar);
+  std::vector<std::string> out;
+  for (std::size_t i = 0; i < lengths.size(); ++i)
+    out.push_back(all.substr(static_cast<std::size_t>(offsets[i]), static_cast<std::size_t>(lengths[i])));
+  return out;
+}
+
+// The hydro-flattening check's figures as bytes (to gather them) and back.
+template <class T>
+void putBytes(std::string& out, const T& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+template <class T>
+T getBytes(const std::string& in, std::size_t& at) {
+  T v{};
+  if (at + sizeof v > in.size()) throw Error("MPI: the gathered check figures are cut short");
+  std::memcpy(&v, in.data() + at, sizeof v);
+  at += sizeof v;
+  return v;
+}
+std::string encodeBank(const BankCheckFigures& f) {
+  std::string out;
+  putBytes(out, f.samples);
+  putBytes(out, f.violations);
+  putBytes(out, f.worst);
+  putBytes(out, f.worstDerived);
+  for (const std::string* s : {&f.worstAt, &f.worstDerivedAt}) {
+    putBytes(out, static_cast<std::uint64_t>(s->size()));
+    out += *s;
+  }
+  for (const std::vector<std::uint64_t>* v : {&f.bodySamples, &f.bodyViolations}) {
+    putBytes(out, static_cast<std::uint64_t>(v->size()));
+    for (std::uint64_t x : *v) putBytes(out, x);
+  }
+  return out;
+}
+BankCheckFigures decodeBank(const std::string& in) {
+  BankCheckFigures f;
+  std::size_t at = 0;
+  f.samples = getBytes<std::uint64_t>(in, at);
+  f.violations = getBytes<std::uint64_t>(in, at);
+  f.worst = getBytes<double>(in, at);
+  f.worstDerived = getBytes<double>(in, at);
+  for (std::string* s : {&f.worstAt, &f.worstDerivedAt}) {
+    const auto n = getBytes<std::uint64_t>(in, at);
+    if (at + n > in.size()) throw Error("MPI: the gathered check figures are cut short");
+    s->assign(in, at, n);
+    at += n;
+  }
+  for (std::vector<std::uint64_t>* v : {&f.bodySamples, &f.bodyViolations}) {
+    const auto n = getBytes<std::uint64_t>(in, at);
+    for (std::uint64_t k = 0; k < n; ++k) v->push_back(getBytes<std::uint64_t>(in, at));
+  }
+  return f;
+}
+
+// The DEM tiles left in pieces (by the parts and by the seam's block steps), each merged and written by
+// its owner rank (demTileOwner's rule): every rank indexes its piece files, the ranks learn every tile's
+// piece count, each piece goes to its tile's owner (exchangeInRounds), and each owner writes its tiles
+// (no mosaic: rank 0 writes the mosaics last, over every tile).
+struct DemOwned {
+  std::uint64_t pieces = 0;        // pieces this rank merged
+  std::uint64_t pieceBytes = 0;    // bytes of the pieces it held (its part's and its seam's)
+  std::uint64_t received = 0;      // bytes of pieces it received from the others
+  std::vector<std::string> tiles;  // the tiles it wrote
+};
+
+DemOwned mergeDemTilesAcrossRanks(int rank, int size, const Plan& plan, const PipelineOptions& options,
+                                  const std::vector<std::string>& pieceFiles, const std::string& privateDir) {
+  DemOwned r;
+  const CancelFlag* cancel = options.finalizer.cancel;
+  const std::string localDir = privateDir.empty() ? plan.stateDir() : privateDir;
+  DemPieceIndex mine;
+  std::vector<std::int64_t> keys;  // (ty, tx, pieces) of the tiles this rank holds pieces of
+  collective(rank, size, "DEM pieces on rank", [&] {
+    for (const std::string& f : pieceFiles) {
+      std::error_code ec;
+      if (f.empty() || !fs::exists(f, ec)) continue;
+      mine.add(f);
+      r.pieceBytes += fs::file_size(f, ec);
+    }
+    for (const auto& [tx, ty] : mine.keys())
+      keys.insert(keys.end(), {ty, tx, static_cast<std::int64_t>(mine.piecesOf(tx, ty))});
+  });
+  std::map<std::pair<std::int64_t, std::int64_t>, std::int64_t> count;  // (ty, tx) -> pieces, every rank's
+  {
+    const std::string bytes(reinterpret_cast<const char*>(keys.data()), keys.size() * sizeof(std::int64_t));
+    for (const std::string& from : allgatherStrings(size, bytes))
+      for (std::size_t at = 0; at + 3 * sizeof(std::int64_t) <= from.size(); at += 3 * sizeof(std::int64_t)) {
+        std::int64_t k[3];
+        std::memcpy(k, from.data() + at, sizeof k);
+        count[{k[0], k[1]}] += k[2];
+      }
+  }
+  std::vector<std::uint64_t> pieces;
+  for (const auto& [key, n] : count) pieces.push_back(static_cast<std::uint64_t>(n));
+  const std::vector<int> owners = demTileOwners(pieces, size);
+  std::map<std::pair<std::int64_t, std::int64_t>, int> ownerOf;
+  {
+    std::size_t k = 0;
+    for (const auto& [key, n] : count) ownerOf[key] = owners[k++];
+  }
+  const std::string ownedPath = localDir + "/owned-pieces.demp";
+  std::unique_ptr<DemPieceWriter> owned;
+  collective(rank, size, "DEM pieces on rank", [&] { owned = std::make_unique<DemPieceWriter>(ownedPath); });
+  r.received = exchangeInRounds(
+      rank, size, "DEM piece exchange on rank", cancel,
+      [&](const SendRecord& send) {
+        std::string piece;
+        mine.forEachPiece(
+            [&](const DemTile& t) {
+              piece.clear();
+              appendDemPiece(piece, t);
+              send(ownerOf.at({t.ty, t.tx}), [&](std::string& o) {
+                putBytes(o, static_cast<std::uint64_t>(piece.size()));
+                o += piece;
+              });
+            },
+            cancel);
+      },
+      [&](const char* data, std::size_t bytes) {
+        for (std::size_t at = 0; at < bytes;) {
+          std::uint64_t n = 0;
+          if (at + sizeof n > bytes) throw Error("the DEM piece exchange: a record cut short");
+          std::memcpy(&n, data + at, sizeof n);
+          at += sizeof n;
+          if (at + n > bytes) throw Error("the DEM piece exchange: a record cut short");
+          owned->writeEncoded(data + at, static_cast<std::size_t>(n));
+          at += static_cast<std::size_t>(n);
+        }
+      });
+  collective(rank, size, "DEM tiles on rank", [&] {
+    owned->commit();
+    owned.reset();
+    commitStep();  // (the file under its name, to be read)
+    DemPieceIndex index;
+    index.add(ownedPath);
+    r.pieces = index.pieces();
+    RunOutputs outputs = resolveOutputs(options);
+    const PartDone part = readPartDone(plan.partFile(rank, "json"));
+    Diagnostics quiet;  // (the part said its warnings about the DEM already)
+    DemReport unused;
+    completeOutputs(outputs, options, part.crs, part.zUnitToMetre, unused, quiet);
+    outputs.context.overwrite = true;  // (claimed at the run's start)
+    outputs.context.demMerge = &index;
+    outputs.context.demMosaic = false;
+    std::unique_ptr<OpenedOutput> dem = outputs.dem.row->open(outputs.dem.path, outputs.context);
+    MeshInfo info;
+    info.bounds = plan.bounds;
+    info.crsWkt = part.crs.wkt;
+    dem->triangleSink()->begin(info);  // (no triangle: every tile from its pieces)
+    dem->triangleSink()->end();
+    r.tiles = dem->results().demTiles;
+    std::error_code ec;
+    fs::remove(ownedPath, ec);
+    commitStep();
+  });
   return r;
 }
 
@@ -847,8 +977,49 @@ static std::string mpiPlanPath(const PipelineOptions& options) {
   return base + ".mpi-plan.json";
 }
 
+// Test hooks (tests/app/parts_test.cpp): TINBUILD_FAULT_MPI_RANK=R and TINBUILD_FAULT_MPI_STEP=part make rank
+// R's part fail (an error, before it reads a point); =seam kill rank R (SIGKILL) as the seam step begins,
+// as a lost node would, after every part finished.
+static void faultHook(int rank, const char* step) {
+  const char* r = std::getenv("TINBUILD_FAULT_MPI_RANK");
+  const char* s = std::getenv("TINBUILD_FAULT_MPI_STEP");
+  if (!r || !s || std::atoi(r) != rank || std::string(s) != step) return;
+  if (std::string(step) == "seam") ::raise(SIGKILL);
+  throw Error(std::string("a fault the tests injected (TINBUILD_FAULT_MPI_STEP=") + step + ")");
+}
+
+// An earlier run that failed or was stopped after some of its parts finished left its plan and their
+// state (keepPartOnFailure, app/jobs/part_job.h): the same command run again -- the same arguments, the
+// inputs unchanged, as many ranks -- resumes it.  Another run's state is refused, naming it, unless
+// --overwrite (then this run starts afresh and replaces it).  Every rank reads the same files, so all
+// decide alike.
+static bool resumable(const std::string& rootPlanPath, const std::vector<std::string>& buildArgs, int size,
+                      bool overwrite) {
+  std::error_code ec;
+  if (!fs::exists(rootPlanPath, ec)) return false;
+  std::string why;
+  try {
+    const Plan p = readPlan(rootPlanPath);
+    if (p.buildArgs != buildArgs)
+      why = "it was made by other build options";
+    else if (p.parts.size() != static_cast<std::size_t>(size))
+      why = "it was made by a run of " + std::to_string(p.parts.size()) + " ranks";
+    else {
+      checkPlanInputs(p);  // (DataError when an input changed since)
+      return true;
+    }
+  } catch (const std::exception& e) {
+    why = e.what();
+  }
+  if (overwrite) return false;
+  throw DataError(rootPlanPath,
+                  "an earlier --mpi run's state, which this run cannot resume (" + why +
+                      "): run that command again to finish it, or pass --overwrite to start afresh");
+}
+
 static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
-                      const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag);
+                             const std::vector<std::string>& buildArgs, const std::string& command,
+                             Diagnostics& diag, bool& ownsState);
 
 RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::string>& buildArgs,
                       const std::string& command, Diagnostics& diag) {
@@ -865,10 +1036,13 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
     for (const std::string& dir : {root.stateDir(), options.dem.path})
       if (!dir.empty() && !fs::exists(dir, ec)) runFolders.push_back(dir);
   }
+  int rank = -1;
+  bool ownsState = false;  // (past its claims: the plan's state is this run's)
   {
     MpiSession session(options.finalizer.cancel);
+    rank = session.rank;
     try {
-      return runMpiSteps(session, options, buildArgs, command, diag);
+      return runMpiSteps(session, options, buildArgs, command, diag, ownsState);
     } catch (...) {
       // A stopped or failed run cleans up on every rank before MPI_Finalize (~MpiSession), whose fence
       // keeps the ranks together until all are done: mpirun stops the job at the first rank that exits
@@ -880,15 +1054,37 @@ RunReport runMpiBuild(const PipelineOptions& options, const std::vector<std::str
       failure = std::current_exception();
     }
   }
-  // Past the fence every rank has removed its files: the folders this rank made that still held another
-  // rank's files then are empty now.
+  // Past the fence every rank has removed its files (and moved its finished part's aside): the folders this
+  // rank made that still held another rank's files then are empty now.  The plan stays only with a
+  // finished part to resume.
+  if (rank == 0 && ownsState) {
+    Plan root;
+    root.path = mpiPlanPath(options);
+    std::error_code ec;
+    int kept = 0;
+    for (const auto& e : fs::directory_iterator(root.stateDir(), ec)) {
+      const std::string name = e.path().filename().string();
+      kept += name.rfind("part-", 0) == 0 && e.path().extension() == ".json";
+    }
+    if (kept == 0) {
+      fs::remove_all(root.stateDir(), ec);
+      fs::remove(root.path, ec);
+    } else {
+      std::fprintf(
+          stderr,
+          "tinbuild: %d finished part%s kept in %s: run the same command again to resume, redoing only "
+          "the rest\n",
+          kept, kept == 1 ? " is" : "s are", root.stateDir().c_str());
+    }
+  }
   for (const std::string& dir : leftover) ::rmdir(dir.c_str());
   for (const std::string& dir : runFolders) ::rmdir(dir.c_str());  // (only when empty)
   std::rethrow_exception(failure);
 }
 
 static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& options,
-                      const std::vector<std::string>& buildArgs, const std::string& command, Diagnostics& diag) {
+                             const std::vector<std::string>& buildArgs, const std::string& command,
+                             Diagnostics& diag, bool& ownsState) {
   const auto t0 = std::chrono::steady_clock::now();
   const int rank = session.rank, size = session.size;
   const RunOutputs planned = resolveOutputs(options);
@@ -896,16 +1092,24 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   // Rank 0's plan and state sit beside the first output (the file system all ranks share); the other
   // ranks keep their state in a temporary directory of their own until they send it.
   const std::string rootPlanPath = mpiPlanPath(options);
+  bool resume = false;
+  Plan root;  // (its path only: the state folder's)
+  root.path = rootPlanPath;
   {
     // Every rank sees the same files, so all refuse alike.  Rank 0's plan and its state folder are the
     // run's too (removed at its end).
     ClaimSet state;
-    Plan root;
-    root.path = rootPlanPath;
     if (rank == 0)
       state.outputs = {OutputClaim("(the MPI run's plan)", rootPlanPath).unlocked().rewritten(),
                        OutputClaim("(the MPI run's state)", root.stateDir()).folder().unlocked().rewritten()};
-    claimRun(options, plannedClaims(planned, size), state);
+    // The same command run again after a failure resumes the earlier run: what it left (its finished parts'
+    // files, and what a run killed outright left under final names) is this run's to reuse or rewrite.
+    resume = resumable(rootPlanPath, buildArgs, size, options.overwrite);
+    std::vector<OutputClaim> claims = plannedClaims(planned, size);
+    if (resume)
+      for (OutputClaim& c : claims) c.rewritten();
+    claimRun(options, claims, state);
+    ownsState = true;
   }
   std::string localDir;
   // A rank's private directory goes on every way out: a failed or stopped run's too (before, each failed
@@ -935,16 +1139,31 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   Survey survey;
   collective(rank, size, "plan on rank", [&] {
     localDir = makeLocalDir(rank);
-    // (A rank's private folder: its copy of the plan, its part's state until sent.)
+    // (A rank's private folder: its copy of the plan while it plans, its files of the seam and the DEM.)
     ClaimSet own;
     own.outputs = {
         OutputClaim("(rank " + std::to_string(rank) + "'s state)", localDir).folder().unlocked().rewritten()};
     claimOutputs(own);
+    if (resume) {
+      // The staging folders a run killed outright left in the DEM directory (no rank of this run has
+      // begun to write in it yet).
+      std::error_code ec;
+      if (rank == 0 && planned.dem)
+        for (const auto& e : fs::directory_iterator(options.dem.path, ec))
+          if (e.path().filename().string().rfind(".tinbuild-", 0) == 0) fs::remove_all(e.path(), ec);
+      return;
+    }
+    if (rank == 0) {  // (another run's state, which --overwrite replaces)
+      std::error_code ec;
+      fs::remove_all(root.stateDir(), ec);
+    }
     survey = openSurvey(options, diag, /*needIntensity=*/false);
     sliced = planInSlices(survey) && !options.constraints.any();  // (constraints: rank 0 plans, as for COPC)
   });
   SliceRecords sliceRecords;
-  if (sliced) {
+  if (resume) {
+    collective(rank, size, "plan on rank", [&] { plan = readPlan(rootPlanPath); });
+  } else if (sliced) {
     MpiReducer reducer(rank, size);
     PipelineOptions po = options;
     po.overwrite = true;
@@ -953,8 +1172,12 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
     planReport = runPlanInSlices(po, survey, size, plan, diag, reducer, &sliceRecords);  // (errors reach every rank)
     exchanged += 2 * reducer.bytes();  // (halved with the rest below: counted as sent, not also received)
     collective(rank, size, "plan on rank", [&] {
-      writePlan(plan, plan.path);
+      if (rank == 0) writePlan(plan, plan.path);
       commitStep();
+    });
+    // (Rank 0's, as written: its id is the one every part records.)
+    collective(rank, size, "plan copy on rank", [&] {
+      if (rank != 0) plan = readPlan(rootPlanPath);
     });
   } else {
     collective(rank, size, "plan on rank", [&] {
@@ -978,19 +1201,11 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
       commitStep();
       plan = readPlan(path);
     });
-    // The constraints the plan prepared (constraints.bin beside it) go to every rank too.
-    if (options.constraints.any()) {
-      const std::string bytes = broadcastFile(rank, plan.constraintsFile());
-      exchanged += bytes.size() * static_cast<std::uint64_t>(size - 1) * (rank == 0 ? 1 : 0) * 2;
-      collective(rank, size, "plan copy on rank", [&] {
-        if (rank == 0) return;
-        std::filesystem::create_directories(plan.stateDir());
-        writeWhole(plan.constraintsFile(), bytes);
-        commitStep();
-      });
-    }
   }
-
+  // Every rank's part keeps its state in the plan's state folder, on the file system the ranks share (the
+  // constraints the plan prepared are there too): a part finished by a run that then fails stays there
+  // for the same command run again (keepPartOnFailure).
+  plan.path = rootPlanPath;
   commitStep();  // (the plan's files, for the next step to read)
   survey = Survey();  // (its readers are done with)
   const double planSeconds = since(tPlan);
@@ -1010,78 +1225,94 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   // 2. Every rank its part.
   const auto tPart = Clock::now();
   RunReport partReport;
+  std::uint64_t reused = 0;
   collective(rank, size, "part", [&] {
-    PipelineOptions po = options;
-    po.plan = &plan;
-    po.part = rank;
-    po.commandLine = plan.command;
-    po.partRecords = records.streams;
-    partReport = runPart(po, diag);
-    commitStep();  // the part's files, which the exchange and the merge read
+    // A run resumed: the part an earlier run finished, whole, is not run again.
+    if (resume) {
+      if (const std::optional<PartDone> done = finishedPart(plan, rank)) {
+        reused = 1;
+        partReport.part = rank;
+        partReport.inputs = options.inputs;
+        if (!done->mesh.empty()) {
+          partReport.outputs.push_back(done->mesh);
+          // Its mesh file is locked for the run, as the part locks it (a run killed outright left its lock).
+          ClaimSet own;
+          own.outputs = {OutputClaim(optionName(OutputOption::Mesh), done->mesh).rewritten()};
+          claimOutputs(own);
+        }
+      }
+    }
+    if (!reused) {
+      faultHook(rank, "part");
+      PipelineOptions po = options;
+      po.plan = &plan;
+      po.part = rank;
+      po.commandLine = plan.command;
+      po.partRecords = records.streams;
+      partReport = runPart(po, diag);
+    }
+    commitStep();  // the part's files, which the seam, the DEM and the merge read
+    keepPartOnFailure(plan, rank);
   });
 
   double partSeconds = since(tPart);
-  // 3. The seam, block by block across the ranks; then the DEM pieces, the seam triangles for the DEM and
-  // the part records to rank 0.
+  // 3. The seam, block by block across the ranks (the top on rank 0); then each DEM tile left in pieces
+  // merged by its owner rank; then the parts' records to rank 0.
   const auto tSeam = Clock::now();
+  faultHook(rank, "seam");
   SeamAcrossRanks seam = settleSeamAcrossRanks(rank, size, plan, options, planned, localDir);
   exchanged += seam.received * 2;  // (halved with the rest below)
   std::uint64_t receivedBytes = seam.received + records.receivedBytes;
   const double seamSeconds = since(tSeam);
-  const CancelFlag* cancel = options.finalizer.cancel;
-  auto triangleFile = [&plan](int from) { return seamTriangleFile(plan, from); };
-  // One sender at a time, rank 1 first.  Before each sender all ranks vote, so that a failure or a stop
-  // (which ends a transfer on both of its sides at the same chunk: sendFile) ends the loop on every rank
-  // at the same sender; a rank that left it early would leave the next sender waiting for rank 0.
-  std::string sendError;
-  bool sendStopped = false;
-  for (int from = 1; from < size; ++from) {
-    int state = sendError.empty() && !sendStopped && !cancelRequested(cancel) ? 0 : 1;
-    mpi().allreduceInPlace(&state, 1, kTinbuildMpiInt, kTinbuildMpiMax);
-    if (state != 0) break;
-    if (rank != from && rank != 0) continue;
-    try {
-      if (!seam.demTriangles.empty()) {
-        if (rank == from)
-          exchanged += sendFile(seam.demTriangles, 103, cancel);
-        else
-          receivedBytes += receiveFile(triangleFile(from), from, 103, cancel);  // (added below)
+  const auto tDem = Clock::now();
+  DemOwned dem;
+  if (planned.dem) {
+    dem = mergeDemTilesAcrossRanks(rank, size, plan, options, {plan.partFile(rank, "dem"), seam.demPieces},
+                                   localDir);
+    exchanged += dem.received * 2;
+    receivedBytes += dem.received;
+    // Rank 0's mosaics name every tile; its report adds every rank's hydro-flattening check.
+    std::string names;
+    for (const auto* list : {&seam.demTiles, &dem.tiles})
+      for (const std::string& t : *list) names += t + '\n';
+    const std::vector<std::string> tiles = allgatherStrings(size, names);
+    const std::vector<std::string> banks =
+        allgatherStrings(size, seam.bankChecked ? encodeBank(seam.bank) : "");
+    std::uint64_t sums[2] = {dem.pieces, dem.pieceBytes}, all[2] = {0, 0};
+    mpi().reduce(sums, all, 2, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
+    if (rank == 0) {
+      for (const std::string& list : tiles) {
+        std::istringstream in(list);
+        for (std::string t; std::getline(in, t);) seam.merged.demTiles.push_back(t);
       }
-      const char* kinds[] = {"dem", "json"};
-      for (int k = 0; k < 2; ++k) {
-        const int tag = 101 + k;
-        if (rank == from)
-          exchanged += sendFile(plan.partFile(rank, kinds[k]), tag, cancel);
+      for (const std::string& b : banks) {
+        if (b.empty()) continue;
+        const BankCheckFigures f = decodeBank(b);
+        if (!seam.merged.bankChecked)
+          seam.merged.bank = f;
         else
-          receivedBytes += receiveFile(plan.partFile(from, kinds[k]), from, tag, cancel);
+          seam.merged.bank.add(f);
+        seam.merged.bankChecked = true;
       }
-    } catch (const CancelledError&) {
-      sendStopped = true;
-    } catch (const std::exception& e) {
-      sendError = e.what();
+      seam.merged.demPieces = all[0];
+      seam.merged.pieceBytes = all[1];
     }
   }
-  collective(rank, size, "exchange from rank", [&] {
-    if (!sendError.empty()) throw Error(sendError);
-    if (sendStopped || cancelRequested(cancel)) throw CancelledError();
-  });
-  exchanged += receivedBytes - seam.received - records.receivedBytes;  // (the files, counted as received)
-  collective(rank, size, "commit on rank", [&] { commitStep(); });  // rank 0: the files it received
+  const double demSeconds = since(tDem);
   if (!localDir.empty()) {
     std::error_code ec;
     fs::remove_all(localDir, ec);
     localDir.clear();
   }
 
-  // 4. The merge on rank 0: the top of the seam, the DEM tiles left in pieces, the mosaics.
+  // 4. The merge on rank 0: the manifest of the TIN in parts, the GeoPackage TIN and the contours, the DEM's
+  // mosaics.
   const auto tMerge = Clock::now();
   RunReport merged;
   collective(rank, size, "merge on rank", [&] {
     if (rank != 0) return;
     PipelineOptions mo = options;
     mo.commandLine = plan.command;  // the parts' tiles record the plan's command: so do the merge's
-    if (planned.dem)
-      for (int i = 0; i < size; ++i) seam.merged.demTriangles.push_back(triangleFile(i));
     merged = runMerge(mo, plan, diag, &seam.merged);
   });
   const double mergeSeconds = since(tMerge);
@@ -1093,10 +1324,11 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   std::uint64_t exchangedAll = 0;
   mpi().reduce(&exchanged, &exchangedAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   // Every rank's figures (mpi.ranks): seam vertices settled, block steps, DEM pieces joined, bytes received.
-  std::uint64_t mine[4] = {seam.settled + (rank == 0 ? merged.seamVertices - seam.merged.seamVertices : 0),
-                           seam.blocks, rank == 0 ? merged.demPieces : 0, receivedBytes};
+  std::uint64_t mine[4] = {seam.settled, seam.blocks, dem.pieces, receivedBytes};
   std::vector<std::uint64_t> figures(4 * static_cast<std::size_t>(size));
   mpi().gather(mine, 4, figures.data(), kTinbuildMpiUint64, 0);
+  std::uint64_t reusedAll = 0;
+  mpi().reduce(&reused, &reusedAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   std::uint64_t recordsSent = records.sentRecords, recordsAll = 0;
   mpi().reduce(&recordsSent, &recordsAll, 1, kTinbuildMpiUint64, kTinbuildMpiSum, 0);
   // 5. The decision: one last vote.  A cancellation that has reached any rank by now stops all of them
@@ -1126,6 +1358,8 @@ static RunReport runMpiSteps(const MpiSession& session, const PipelineOptions& o
   merged.exchangeSeconds = exchangeSeconds;
   merged.mergeSeconds = mergeSeconds;
   merged.seamSeconds = seamSeconds;
+  merged.demSeconds = demSeconds;
+  merged.partsReused = reusedAll;
   for (int i = 0; i < size; ++i) {
     const std::uint64_t* f = &figures[4 * static_cast<std::size_t>(i)];
     merged.ranks.push_back(RunReport::RankFigures{f[0], f[1], f[2], f[3]});

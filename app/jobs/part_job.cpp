@@ -1,5 +1,6 @@
 #include "app/jobs/part_job.h"
 
+#include <cstdio>
 #include <filesystem>
 #include <memory>
 
@@ -162,10 +163,96 @@ class PartHooks : public BuildHooks {
 
 }  // namespace
 
+std::string keptPartDir(const Plan& plan, int part) {
+  char name[32];
+  std::snprintf(name, sizeof name, "/kept-%04d", part);
+  return plan.stateDir() + name;
+}
+
+namespace {
+// Where a kept output waits: keptPartDir/mesh/NAME or keptPartDir/dem/NAME.
+std::string keptPath(const Plan& plan, int part, const char* kind, const std::string& final) {
+  return keptPartDir(plan, part) + "/" + kind + "/" + std::filesystem::path(final).filename().string();
+}
+}  // namespace
+
+std::optional<PartDone> finishedPart(const Plan& plan, int part, std::string* why) {
+  namespace fs = std::filesystem;
+  const std::string json = plan.partFile(part, "json");
+  std::error_code ec;
+  if (!fs::exists(json, ec)) {
+    if (why) *why = "not finished";
+    return std::nullopt;
+  }
+  try {
+    PartDone d = readPartDone(json);
+    if (d.planId != plan.id || d.part != part) throw DataError(json, "the record of another plan's part");
+    // The outputs a failed MPI run moved aside, back under their names.
+    auto restore = [&](const std::string& final, const char* kind) {
+      if (final.empty() || fs::exists(final, ec)) return;
+      const std::string kept = keptPath(plan, part, kind, final);
+      if (!fs::exists(kept, ec)) return;
+      createParentDirectories(final);
+      fs::rename(kept, final, ec);
+      if (ec)
+        throw DataError(final, "cannot move the kept part's file back from " + kept + ": " + ec.message());
+    };
+    restore(d.mesh, "mesh");
+    for (const std::string& t : d.demTiles) restore(t, "dem");
+    checkPartFiles(d, plan);
+    for (const std::string& t : d.demTiles)
+      if (!fs::exists(t, ec)) throw DataError(t, "part " + std::to_string(part) + "'s DEM tile is missing");
+    fs::remove_all(keptPartDir(plan, part), ec);
+    return d;
+  } catch (const std::exception& e) {
+    if (why) *why = e.what();
+    fs::remove(json, ec);  // (the part runs again, and writes it anew)
+    return std::nullopt;
+  }
+}
+
+void keepPartOnFailure(const Plan& plan, int part) {
+  OutputTransaction* t = OutputTransaction::current();
+  if (!t) return;
+  const PartDone d = readPartDone(plan.partFile(part, "json"));
+  t->keepProvisional();
+  t->onRollback([plan, part, d] {
+    namespace fs = std::filesystem;
+    std::error_code ec;
+    auto moveAside = [&](const std::string& final, const char* kind) {
+      if (final.empty() || !fs::exists(final, ec)) return;
+      const std::string kept = keptPath(plan, part, kind, final);
+      fs::create_directories(fs::path(kept).parent_path(), ec);
+      fs::rename(final, kept, ec);
+    };
+    moveAside(d.mesh, "mesh");
+    for (const std::string& tile : d.demTiles) moveAside(tile, "dem");
+  });
+}
+
 RunReport runPart(const PipelineOptions& options, Diagnostics& diag) {
   const auto t0 = JobClock::now();
   const Plan& plan = *options.plan;
   checkPlanInputs(plan);
+  // A part run again that finished whole before: nothing to redo (unless --overwrite).
+  if (!options.overwrite) {
+    if (const std::optional<PartDone> done = finishedPart(plan, options.part)) {
+      diag.warn("part.reused", plan.path,
+                "part " + std::to_string(options.part) +
+                    " finished earlier and its files are whole: nothing redone (--overwrite runs it again)");
+      RunReport r;
+      r.command = "build";
+      r.inputs = options.inputs;
+      r.part = options.part;
+      r.parts = static_cast<int>(plan.parts.size());
+      r.planPath = plan.path;
+      r.partsReused = 1;
+      if (!done->mesh.empty()) r.outputs.push_back(done->mesh);
+      r.outputs.insert(r.outputs.end(), done->demTiles.begin(), done->demTiles.end());
+      finishReport(r, diag, t0);
+      return r;
+    }
+  }
   const PipelineOptions o = partOptions(options);
   if (o.meshOutput.empty() && o.dem.path.empty())
     throw UsageError("build: name at least one output: --mesh FILE, --dem DIR|FILE.tif|FILE.gpkg, --gpkg FILE, "

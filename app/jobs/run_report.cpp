@@ -237,8 +237,12 @@ std::string formatRunSummary(const RunReport& r) {
     }
   }
   if (r.dem.present && r.parts > 0 && r.part < 0) {
-    line("DEM", withCommas(r.demMergedTiles) + " tile files finished here from the parts' pieces and the seam's triangles, " +
-                    withCommas(r.demPartTiles) + " written whole by the parts; the mosaics cover them all");
+    line("DEM",
+         withCommas(r.demMergedTiles) +
+             (r.ranks.empty()
+                  ? " tile files finished here from the parts' pieces and the seam's triangles, "
+                  : " tile files finished past the parts (by the seam's ranks and the tiles' owners), ") +
+             withCommas(r.demPartTiles) + " written whole by the parts; the mosaics cover them all");
   } else if (r.dem.present) {
     const DemReport& d = r.dem;
     const std::string unit = d.unit.empty() ? std::string("units") : d.unit;
@@ -498,6 +502,8 @@ std::string formatRunJson(const RunReport& r) {
   if (!r.ranks.empty()) {
     j.key("mpi").beginObject();
     j.key("seam_seconds").value(r.seamSeconds);
+    j.key("dem_seconds").value(r.demSeconds);
+    j.key("parts_reused").value(r.partsReused);
     j.key("ranks").beginArray();
     for (std::size_t i = 0; i < r.ranks.size(); ++i) {
       const RunReport::RankFigures& f = r.ranks[i];

@@ -96,11 +96,13 @@ struct RunReport {
   struct RankFigures {
     std::uint64_t seamVertices = 0;   // settled by its seam steps (rank 0: with the top step's)
     std::uint64_t seamBlocks = 0;     // block steps it ran
-    std::uint64_t demPieces = 0;      // DEM tile pieces it received and joined
+    std::uint64_t demPieces = 0;      // DEM tile pieces it merged as the owner of their tiles
     std::uint64_t bytesReceived = 0;  // from other ranks: points, seam records, state files
   };
   std::vector<RankFigures> ranks;
   double seamSeconds = 0;
+  double demSeconds = 0;          // the DEM tiles' owners: the pieces' exchange and the tiles they wrote
+  std::uint64_t partsReused = 0;  // --mpi run again: parts of an earlier stopped run found finished
   bool secondaryRank = false;  // --mpi, rank > 0: rank 0 prints the summary and writes the report
   // --mpi: every rank voted to go on after the merge (mpi_run.cpp); a signal arriving later no longer
   // stops the commit, on any rank, so the exit codes agree with what rank 0 commits.

@@ -116,9 +116,16 @@ void OutputTransaction::rollback() {
       } catch (...) {
       }
     }
+  for (auto it = onRollback_.rbegin(); it != onRollback_.rend(); ++it) {
+    try {
+      (*it)();
+    } catch (...) {
+    }
+  }
   renames_.clear();
   provisional_.clear();
   after_.clear();
+  onRollback_.clear();
   locks_.clear();  // (their lock files go)
   lockedPaths_.clear();
   // The folders made for the outputs, deepest first, when nothing else is in them (rmdir refuses then).
@@ -171,6 +178,11 @@ void OutputTransaction::afterCommit(std::function<void()> step, std::function<vo
   after_.emplace_back(std::move(step), std::move(undo));
 }
 
+void OutputTransaction::onRollback(std::function<void()> undo) {
+  std::lock_guard<std::mutex> lock(mutex_);
+  onRollback_.push_back(std::move(undo));
+}
+
 void OutputTransaction::adopt(RunLock lock, const std::vector<std::string>& lockedPaths) {
   std::lock_guard<std::mutex> guard(mutex_);
   locks_.push_back(std::move(lock));
@@ -194,6 +206,7 @@ void OutputTransaction::commit() {
   std::lock_guard<std::mutex> lock(mutex_);
   commitLocked();
   provisional_.clear();
+  onRollback_.clear();
   createdDirs_.clear();  // (they hold the outputs now)
 }
 
@@ -203,6 +216,11 @@ void OutputTransaction::commitProvisionally() {
   for (const auto& r : renames_) finals.push_back(r.second);
   commitLocked();
   provisional_.insert(provisional_.end(), finals.begin(), finals.end());
+}
+
+void OutputTransaction::keepProvisional() {
+  std::lock_guard<std::mutex> lock(mutex_);
+  provisional_.clear();
 }
 
 void OutputTransaction::commitLocked() {

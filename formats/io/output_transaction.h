@@ -64,6 +64,9 @@ class OutputTransaction {
   // A step to run after the renames (and never when the transaction is rolled back); `undo` (optional) runs
   // instead when it is rolled back.
   void afterCommit(std::function<void()> step, std::function<void()> undo = nullptr);
+  // A step to run if the transaction is rolled back, whatever was committed provisionally before (an
+  // afterCommit step is done, and its undo forgotten, at the next provisional commit); forgotten at commit().
+  void onRollback(std::function<void()> undo);
   // Holds a lock of the run's until the transaction ends; journals go beside the locked paths.
   void adopt(RunLock lock, const std::vector<std::string>& lockedPaths);
   // The staged temporary of `final` ("" when none).
@@ -78,6 +81,9 @@ class OutputTransaction {
   // error, a cancellation), these files are removed again, so a stopped run leaves none of them.  Only
   // commit() makes them the run's for good.  (A run killed outright leaves them: docs/usage.md.)
   void commitProvisionally();
+  // The files committed provisionally so far are the run's for good: a later roll-back leaves them (an MPI
+  // run's finished parts, which the same command run again reuses: app/jobs/part_job.h).
+  void keepProvisional();
   // Rolls back now what the destructor would (staged temporaries, provisional files, undo steps) and
   // releases the run's locks; the transaction is then empty.  An MPI rank calls it before MPI_Finalize,
   // whose fence holds every rank until all have cleaned up: mpirun stops the whole job at the first rank
@@ -91,6 +97,7 @@ class OutputTransaction {
   std::vector<std::pair<std::string, std::string>> renames_;  // (temp, final) in staging order
   std::vector<std::string> provisional_;                      // renamed by commitProvisionally()
   std::vector<std::pair<std::function<void()>, std::function<void()>>> after_;
+  std::vector<std::function<void()>> onRollback_;
   std::vector<RunLock> locks_;
   std::vector<std::string> lockedPaths_;
   std::vector<std::string> claimedFiles_, claimedDirs_;  // absolute, normalized

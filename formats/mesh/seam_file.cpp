@@ -185,8 +185,6 @@ class ByteReader {
   const char* end_;
 };
 
-constexpr char kTriangleMagic[8] = {'T', 'B', 'S', 'E', 'A', 'M', 'T', '1'};
-
 }  // namespace
 
 void appendSeamVertex(std::string& out, std::uint32_t block, std::uint64_t id, double x, double y, double z,
@@ -214,76 +212,6 @@ void replaySeamRecords(const char* bytes, std::size_t n,
       readTagRecord(in, sinkOf(block));
     else
       throw Error("seam exchange: an unknown record");
-  }
-}
-
-SeamTriangleFileWriter::SeamTriangleFileWriter(const std::string& path)
-    : file_(std::make_unique<OutputFile>(path)) {
-  file_->write(kTriangleMagic, sizeof kTriangleMagic);
-}
-SeamTriangleFileWriter::~SeamTriangleFileWriter() = default;
-
-void SeamTriangleFileWriter::vertex(const MeshVertex& v) {
-  putRecord(*file_, 'V');
-  putRecord(*file_, v.x);
-  putRecord(*file_, v.y);
-  putRecord(*file_, v.z);
-  ++vertices_;
-}
-
-void SeamTriangleFileWriter::triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) {
-  putRecord(*file_, 'T');
-  for (const MeshVertex* v : {&a, &b, &c}) {
-    putRecord(*file_, v->x);
-    putRecord(*file_, v->y);
-    putRecord(*file_, v->z);
-  }
-  ++triangles_;
-}
-
-void SeamTriangleFileWriter::end() {
-  putRecord(*file_, 'E');
-  putRecord(*file_, vertices_);
-  putRecord(*file_, triangles_);
-  file_->commit();
-}
-
-void readSeamTriangleFile(const std::string& path, TriangleSink& sink, std::uint64_t& nextId,
-                          const CancelFlag* cancel) {
-  RecordReader in(path, "seam triangle file");
-  char magic[8];
-  in.bytes(magic, 8);
-  if (std::memcmp(magic, kTriangleMagic, 8) != 0) throw DataError(path, "not a tinbuild seam triangle file");
-  std::uint64_t vertices = 0, triangles = 0;
-  for (std::uint64_t record = 0;; ++record) {
-    if ((record & 4095) == 0) throwIfCancelled(cancel);
-    const char kind = in.get<char>();
-    if (kind == 'V') {
-      MeshVertex v;
-      v.id = nextId++;
-      v.x = in.get<double>();
-      v.y = in.get<double>();
-      v.z = in.get<double>();
-      sink.vertex(v);
-      ++vertices;
-    } else if (kind == 'T') {
-      MeshVertex c[3];
-      for (MeshVertex& v : c) {
-        v.id = nextId++;
-        v.x = in.get<double>();
-        v.y = in.get<double>();
-        v.z = in.get<double>();
-      }
-      sink.triangle(c[0], c[1], c[2]);
-      ++triangles;
-    } else if (kind == 'E') {
-      const std::uint64_t v = in.get<std::uint64_t>(), t = in.get<std::uint64_t>();
-      if (v != vertices || t != triangles)
-        throw DataError(path, "corrupt seam triangle file (counts differ)");
-      return;
-    } else {
-      throw DataError(path, "corrupt seam triangle file (unknown record)");
-    }
   }
 }
 

@@ -66,25 +66,4 @@ void appendSeamTag(std::string& out, std::uint32_t block, const CellTag& cell);
 void replaySeamRecords(const char* bytes, std::size_t n,
                        const std::function<SeamSink&(std::uint32_t)>& sinkOf);
 
-// The seam triangles a rank's block steps computed, for the DEM that another rank writes: the vertices
-// no part and no step below wrote (counted in the DEM where first written), and the triangles by their
-// corners.  Layout: the magic "TBSEAMT1", then 'V' f64 x, y, z | 'T' 9 x f64 | 'E' u64 vertices, u64
-// triangles.  Written to a temporary name and renamed by end().
-class SeamTriangleFileWriter : public TriangleSink {
- public:
-  explicit SeamTriangleFileWriter(const std::string& path);
-  ~SeamTriangleFileWriter() override;
-  void begin(const MeshInfo&) override {}
-  void vertex(const MeshVertex& v) override;
-  void triangle(const MeshVertex& a, const MeshVertex& b, const MeshVertex& c) override;
-  void end() override;
-
- private:
-  std::unique_ptr<OutputFile> file_;
-  std::uint64_t vertices_ = 0, triangles_ = 0;
-};
-// Replays such a file into `sink` (vertex ids from *nextId on, one for each vertex and each corner).
-void readSeamTriangleFile(const std::string& path, TriangleSink& sink, std::uint64_t& nextId,
-                          const CancelFlag* cancel = nullptr);
-
 }  // namespace tinbuild

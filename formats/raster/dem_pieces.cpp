@@ -62,25 +62,45 @@ DemPieceWriter::DemPieceWriter(const std::string& path) : file_(std::make_unique
 }
 DemPieceWriter::~DemPieceWriter() = default;
 
-void DemPieceWriter::write(const DemTile& t) {
-  OutputFile& f = *file_;
-  putRecord(f, 'T');
-  putRecord(f, t.tx);
-  putRecord(f, t.ty);
-  putRecord(f, t.col0);
-  putRecord(f, t.row0);
-  putRecord(f, static_cast<std::int32_t>(t.width));
-  putRecord(f, static_cast<std::int32_t>(t.height));
+namespace {
+template <class T>
+void put(std::string& out, const T& v) {
+  out.append(reinterpret_cast<const char*>(&v), sizeof v);
+}
+template <class T>
+void putAll(std::string& out, const std::vector<T>& a) {
+  out.append(reinterpret_cast<const char*>(a.data()), a.size() * sizeof(T));
+}
+}  // namespace
+
+void appendDemPiece(std::string& out, const DemTile& t) {
+  put(out, t.tx);
+  put(out, t.ty);
+  put(out, t.col0);
+  put(out, t.row0);
+  put(out, static_cast<std::int32_t>(t.width));
+  put(out, static_cast<std::int32_t>(t.height));
   const std::uint8_t bands = static_cast<std::uint8_t>((t.z.empty() ? 0 : 1) | (t.slope.empty() ? 0 : 2) |
                                                        (t.aspect.empty() ? 0 : 4) | (t.edgeLength.empty() ? 0 : 8) |
                                                        (t.hillshade.empty() ? 0 : 16) | (t.count.empty() ? 0 : 32));
-  putRecord(f, bands);
-  putRecords(f, t.z);
-  putRecords(f, t.slope);
-  putRecords(f, t.aspect);
-  putRecords(f, t.edgeLength);
-  putRecords(f, t.hillshade);
-  putRecords(f, t.count);
+  put(out, bands);
+  putAll(out, t.z);
+  putAll(out, t.slope);
+  putAll(out, t.aspect);
+  putAll(out, t.edgeLength);
+  putAll(out, t.hillshade);
+  putAll(out, t.count);
+}
+
+void DemPieceWriter::write(const DemTile& t) {
+  std::string bytes;
+  appendDemPiece(bytes, t);
+  writeEncoded(bytes.data(), bytes.size());
+}
+
+void DemPieceWriter::writeEncoded(const char* bytes, std::size_t size) {
+  putRecord(*file_, 'T');
+  file_->write(bytes, size);
   ++tiles_;
 }
 
@@ -115,6 +135,22 @@ void DemPieceIndex::add(const std::string& path) {
     ++count;
     ++pieces_;
   }
+}
+
+std::size_t DemPieceIndex::piecesOf(std::int64_t tx, std::int64_t ty) const {
+  const auto it = index_.find({ty, tx});
+  return it == index_.end() ? 0 : it->second.size();
+}
+
+void DemPieceIndex::forEachPiece(const std::function<void(const DemTile&)>& f,
+                                 const CancelFlag* cancel) const {
+  for (const auto& [key, where] : index_)
+    for (const Where& w : where) {
+      throwIfCancelled(cancel);
+      RecordReader in(files_[w.file], kWhat);
+      in.seek(w.offset);
+      f(readTile(in));
+    }
 }
 
 std::vector<std::pair<std::int64_t, std::int64_t>> DemPieceIndex::keys() const {

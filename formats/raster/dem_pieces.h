@@ -14,6 +14,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <string>
@@ -31,6 +32,8 @@ class DemPieceWriter {
   explicit DemPieceWriter(const std::string& path);
   ~DemPieceWriter();
   void write(const DemTile& tile);
+  // A piece as appendDemPiece encoded it (another process's, sent here).
+  void writeEncoded(const char* bytes, std::size_t size);
   void commit();
   std::uint64_t tiles() const { return tiles_; }
   std::uint64_t bytes() const;
@@ -40,6 +43,10 @@ class DemPieceWriter {
   std::uint64_t tiles_ = 0;
 };
 
+// A piece's record in a piece file (after its 'T'), appended to `out`: what DemPieceWriter::writeEncoded
+// writes back (an MPI run sends pieces so to their tile's owner).
+void appendDemPiece(std::string& out, const DemTile& tile);
+
 // The pieces of every part, found by tile.
 class DemPieceIndex {
  public:
@@ -48,6 +55,9 @@ class DemPieceIndex {
   // Tiles with at least one piece, ascending (ty, tx).
   std::vector<std::pair<std::int64_t, std::int64_t>> keys() const;
   bool has(std::int64_t tx, std::int64_t ty) const { return index_.count({ty, tx}) != 0; }
+  std::size_t piecesOf(std::int64_t tx, std::int64_t ty) const;
+  // Every piece, by tile (ascending (ty, tx)), then in the order indexed; `cancel` polled between them.
+  void forEachPiece(const std::function<void(const DemTile&)>& f, const CancelFlag* cancel = nullptr) const;
   // Adds every piece of tile (tx, ty) into `tile` (which holds a piece already, or nothing: then the
   // first piece is loaded as is).  Returns the number of pieces added.
   int addPieces(std::int64_t tx, std::int64_t ty, DemTile& tile, bool haveTile, float nodata) const;

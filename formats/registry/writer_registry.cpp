@@ -216,7 +216,7 @@ std::unique_ptr<OpenedOutput> openDem(const std::string& path, const WriterConte
   if (!c.demPieces.empty() || c.demMerge) {  // (only a tile directory is kWrittenByParts: the job checked)
     d.partial = true;  // tiles not full here are pieces (dem_pieces.h)
     wo.replace = false;  // the directory holds other processes' tiles
-    wo.mosaic = c.demMerge != nullptr;
+    wo.mosaic = c.demMerge != nullptr && c.demMosaic;
     wo.otherTiles = c.demOtherTiles;
   }
   return std::make_unique<DemOutput>(wo, d, c);

@@ -68,10 +68,12 @@ struct WriterContext {
   ContourOptions contours;  // --contours: --interval, --base, --index-every, --min-length
   // --dem DIR in a plan (formats/raster/dem_pieces.h).  A part: its unfinished tiles go to the piece
   // file `demPieces`, no mosaic.  The merge: `demMerge` holds the parts' pieces, `demOtherTiles` the
-  // tiles they wrote whole (for the mosaics).
+  // tiles they wrote whole (for the mosaics).  An MPI run's tile owners merge their tiles' pieces without a
+  // mosaic (demMosaic false); rank 0 then writes the mosaics over every tile (demMerge an empty index).
   std::string demPieces;
   const DemPieceIndex* demMerge = nullptr;
   std::vector<std::string> demOtherTiles;
+  bool demMosaic = true;
   // Polled by the writers' long loops (their last tiles, spatial index, lines: core/cancel.h); the DEM's
   // and the contours' options carry the same flag.
   const CancelFlag* cancel = nullptr;

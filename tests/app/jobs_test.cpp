@@ -3,12 +3,15 @@
 #include <gtest/gtest.h>
 #include <unistd.h>
 
+#include <algorithm>
 #include <cmath>
+#include <cstdint>
 #include <filesystem>
 #include <fstream>
 #include <string>
 #include <vector>
 
+#include "app/jobs/merge_job.h"
 #include "app/jobs/pipeline.h"
 #include "cli_support.h"
 #include "formats/io/plan_file.h"
@@ -280,6 +283,46 @@ TEST(Jobs, PlannedRunsRefuseAnExistingResult) {
   EXPECT_NE(r.err.find("not empty"), std::string::npos) << r.err;
   r = test::tinbuild(plan + " --overwrite");
   EXPECT_EQ(r.code, 0) << r.err;
+}
+
+// The owners of an MPI run's DEM tiles left in pieces (docs/parts.md): consecutive runs of tiles in their
+// order, each rank at most N/P pieces plus one tile's, every rank used when there are enough tiles.
+TEST(Jobs, DemTileOwnersDealEqualRunsOfPieces) {
+  std::uint64_t seed = 12345;
+  auto next = [&seed] {
+    seed = seed * 6364136223846793005ULL + 1442695040888963407ULL;
+    return seed >> 33;
+  };
+  for (const int ranks : {1, 2, 3, 4, 8, 16, 1024}) {
+    for (const std::size_t tiles :
+         {std::size_t{0}, std::size_t{1}, std::size_t{7}, std::size_t{100}, std::size_t{5000}}) {
+      std::vector<std::uint64_t> pieces(tiles);
+      std::uint64_t total = 0, most = 0;
+      for (auto& c : pieces) {
+        c = 1 + next() % 5;
+        total += c;
+        most = std::max(most, c);
+      }
+      const std::vector<int> owners = demTileOwners(pieces, ranks);
+      ASSERT_EQ(owners.size(), tiles);
+      std::vector<std::uint64_t> load(static_cast<std::size_t>(ranks), 0);
+      for (std::size_t k = 0; k < tiles; ++k) {
+        ASSERT_GE(owners[k], 0);
+        ASSERT_LT(owners[k], ranks);
+        if (k > 0) {
+          EXPECT_LE(owners[k - 1], owners[k]) << "runs of consecutive tiles";
+        }
+        load[static_cast<std::size_t>(owners[k])] += pieces[k];
+      }
+      for (std::uint64_t l : load)
+        EXPECT_LE(l * static_cast<std::uint64_t>(ranks), total + most * static_cast<std::uint64_t>(ranks))
+            << ranks << " ranks, " << tiles << " tiles";
+      if (tiles >= 5 * static_cast<std::size_t>(ranks)) {
+        for (std::uint64_t l : load)
+          EXPECT_GT(l, 0u) << ranks << " ranks, " << tiles << " tiles: an idle rank";
+      }
+    }
+  }
 }
 
 }  // namespace

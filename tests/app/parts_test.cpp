@@ -372,12 +372,22 @@ TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
     const CPLJSONObject root = doc.GetRoot();
     const CPLJSONArray list = root.GetArray("mpi/ranks");
     ASSERT_EQ(list.Size(), ranks) << what;
-    std::uint64_t sum = 0, largest = 0, received = 0;
+    std::uint64_t sum = 0, largest = 0, received = 0, pieces = 0, mostPieces = 0;
     for (int i = 0; i < list.Size(); ++i) {
       const auto v = static_cast<std::uint64_t>(list[i].GetLong("seam_vertices"));
       sum += v;
       largest = std::max(largest, v);
       received += static_cast<std::uint64_t>(list[i].GetLong("bytes_received"));
+      const auto p = static_cast<std::uint64_t>(list[i].GetLong("dem_pieces"));
+      pieces += p;
+      mostPieces = std::max(mostPieces, p);
+    }
+    // Every DEM piece merged once, by its tile's owner; the largest owner's share at most 2/P.
+    EXPECT_EQ(pieces, static_cast<std::uint64_t>(root.GetLong("plan/dem_pieces"))) << what;
+    EXPECT_GT(pieces, 0u) << what;
+    if (ranks >= 4) {
+      EXPECT_LE(mostPieces * static_cast<std::uint64_t>(ranks), 2 * pieces)
+          << what << ": " << mostPieces << " of " << pieces << " DEM pieces";
     }
     EXPECT_GT(received, 0u) << what;  // (a rank whose blocks are all its own part's may receive nothing)
     const auto seam = static_cast<std::uint64_t>(root.GetLong("plan/seam_vertices"));
@@ -390,6 +400,53 @@ TEST(Parts, SeamAcrossRanksEqualsOneProcess) {
     EXPECT_NE(slurp(dir / "tin.parts.json").find("seam_blocks"), std::string::npos) << what;
     for (const auto& f : listDir(dir)) EXPECT_EQ(f.find("mpi-plan"), std::string::npos) << what << ": " << f;
   }
+  // A lost rank costs only its part.  4 ranks; rank 2's part fails (the others finish theirs): the run fails,
+  // no output shows under its final name, the finished parts are kept in the plan's state; the same
+  // command run again redoes part 2 only and gives one process's result.  Then rank 1 is killed outright
+  // (SIGKILL, a lost node) once every part is done: run again, it reuses all 4 parts.
+  const std::string mpirun4 =
+      "OMPI_ALLOW_RUN_AS_ROOT=1 OMPI_ALLOW_RUN_AS_ROOT_CONFIRM=1 OMPI_MCA_rmaps_base_oversubscribe=1 "
+      "mpirun --oversubscribe --bind-to none -np 4 ";
+  const struct {
+    const char* step;
+    int rank;
+    int reused;
+  } faults[] = {{"part", 2, 3}, {"seam", 1, 4}};
+  for (const auto& fault : faults) {
+    const std::string what =
+        std::string("a fault at the ") + fault.step + " of rank " + std::to_string(fault.rank);
+    const fs::path dir = out / (std::string("resume-") + fault.step);
+    fs::create_directories(dir);
+    const std::string cd = "cd " + dir.string() + " && ";
+    auto failed = tinbuild("build" + build + " --mpi -q --threads 1 --report r.json",
+                           cd + "TINBUILD_FAULT_MPI_RANK=" + std::to_string(fault.rank) +
+                               " TINBUILD_FAULT_MPI_STEP=" + fault.step + " " + mpirun4);
+    ASSERT_NE(failed.code, 0) << what;
+    EXPECT_FALSE(fs::exists(dir / "tin.parts.json")) << what;
+    EXPECT_FALSE(fs::exists(dir / "dem" / "mosaic.vrt")) << what;
+    EXPECT_TRUE(fs::exists(dir / "tin.smb.mpi-plan.json")) << what;
+    if (std::string(fault.step) == "part") {
+      // (An error: the ranks roll back, and move their finished parts' outputs into the state.)
+      EXPECT_NE(failed.err.find("3 finished parts are kept"), std::string::npos)
+          << what << ": " << failed.err;
+      EXPECT_FALSE(fs::exists(dir / "tin.part-0000.smb")) << what;
+      EXPECT_TRUE(fs::exists(dir / "tin.smb.mpi-plan.parts" / "kept-0000")) << what;
+    }
+    auto again = tinbuild("build" + build + " --mpi -q --threads 1 --report r.json", cd + mpirun4);
+    ASSERT_EQ(again.code, 0) << what << ": " << again.out << again.err;
+    expectSameAsOneProcess(dir, out / "one", what);
+    EXPECT_TRUE(contourLines(dir / "c.gpkg") == oneContours) << what << ": the contours differ";
+    CPLJSONDocument doc;
+    ASSERT_TRUE(doc.Load((dir / "r.json").string())) << what;
+    EXPECT_EQ(doc.GetRoot().GetLong("mpi/parts_reused"), fault.reused) << what;
+    EXPECT_EQ(listDir(dir), listDir(out / "np4")) << what;  // (nothing of either run's state left)
+  }
+  // The plan's path likewise: a finished part run again is reused, unless --overwrite.
+  auto rerun =
+      tinbuild("build --plan plan.json --part 3 --threads 1", "cd " + (out / "p16").string() + " && ");
+  EXPECT_EQ(rerun.code, 0) << rerun.err;
+  EXPECT_NE(rerun.err.find("part 3 finished earlier and its files are whole"), std::string::npos)
+      << rerun.err;
 }
 
 TEST(Parts, PartTakesItsOwnTempDir) {

@@ -96,6 +96,40 @@ TEST(OutputTransaction, ProvisionalCommitsAreUndoneByARollBack) {
   EXPECT_EQ(slurp(dir / "merged.smb"), "m");
 }
 
+// An MPI run's finished part: kept (keepProvisional) past a later roll-back, which runs the run's
+// onRollback steps (here: moving the part's output aside) even after later provisional commits; a commit
+// forgets them.
+TEST(OutputTransaction, KeptProvisionalFilesOutliveARollBack) {
+  const fs::path dir = test::scratchDir();
+  fs::create_directories(dir / "state");
+  {
+    OutputTransaction t;
+    t.claimDirectory(dir.string());
+    write(dir / "part0.smb", "p");
+    write(dir / "state" / "part0.json", "done");
+    t.commitProvisionally();
+    t.keepProvisional();
+    t.onRollback([&dir] { fs::rename(dir / "part0.smb", dir / "state" / "part0.smb"); });
+    write(dir / "seam0.smb", "s");
+    t.commitProvisionally();  // (a later step's files, committed provisionally: still rolled back)
+    write(dir / "merged.smb", "m");
+  }  // (stopped before the commit)
+  EXPECT_FALSE(fs::exists(dir / "part0.smb"));
+  EXPECT_FALSE(fs::exists(dir / "seam0.smb"));
+  EXPECT_FALSE(fs::exists(dir / "merged.smb"));
+  EXPECT_EQ(slurp(dir / "state" / "part0.smb"), "p");
+  EXPECT_EQ(slurp(dir / "state" / "part0.json"), "done");
+  {
+    OutputTransaction t;
+    t.claimDirectory(dir.string());
+    t.onRollback([&dir] { fs::remove(dir / "state" / "part0.json"); });
+    write(dir / "merged.smb", "m");
+    t.commit();
+  }  // (committed: the step is forgotten)
+  EXPECT_TRUE(fs::exists(dir / "state" / "part0.json"));
+  EXPECT_EQ(slurp(dir / "merged.smb"), "m");
+}
+
 TEST(OutputTransaction, AKilledCommitIsFinishedFromItsJournal) {
   const fs::path dir = test::scratchDir();
   const std::string a = (dir / "a.txt").string(), b = (dir / "b.txt").string();
