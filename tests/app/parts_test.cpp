@@ -53,8 +53,18 @@ std::vector<std::pair<double, std::vector<std::array<double, 3>>>> contourLines(
     for (int i = 0; i < OGR_G_GetPointCount(g); ++i)
       pts.push_back({OGR_G_GetX(g, i), OGR_G_GetY(g, i), OGR_G_GetZ(g, i)});
     if (pts.size() > 2 && pts.front() == pts.back()) {
+      // A closed loop from its smallest point.  A loop may touch itself at a vertex exactly on its level,
+      // so that point can come twice: the smallest of those rotations (found on a 10M-point survey).
       pts.pop_back();
-      std::rotate(pts.begin(), std::min_element(pts.begin(), pts.end()), pts.end());
+      const auto smallest = *std::min_element(pts.begin(), pts.end());
+      std::vector<std::array<double, 3>> best;
+      for (std::size_t k = 0; k < pts.size(); ++k) {
+        if (pts[k] != smallest) continue;
+        std::vector<std::array<double, 3>> r(pts.begin() + static_cast<std::ptrdiff_t>(k), pts.end());
+        r.insert(r.end(), pts.begin(), pts.begin() + static_cast<std::ptrdiff_t>(k));
+        if (best.empty() || r < best) best = std::move(r);
+      }
+      pts = std::move(best);
       pts.push_back(pts.front());
     }
     lines.emplace_back(OGR_F_GetFieldAsDouble(f, OGR_F_GetFieldIndex(f, "elev")), std::move(pts));
