@@ -325,13 +325,20 @@ namespace tinbuild {
 
 int seamBlockOwner(const Plan& plan, int level, std::uint64_t index) {
   const auto parts = static_cast<std::uint64_t>(plan.parts.size());
+  if (parts <= 1) return 0;
+  const std::uint64_t others = parts - 1;  // (rank 0 runs the top step, and no block)
   const std::uint64_t blocks = std::uint64_t{1} << (2 * level);
-  if (blocks <= parts) return static_cast<int>(((2 * index + 1) * parts) / (2 * blocks));  // spread evenly
+  if (blocks <= others)
+    return 1 + static_cast<int>(((2 * index + 1) * others) / (2 * blocks));  // spread evenly
   const int shift = 2 * (plan.regionLevel - level);
   const std::uint64_t middle = (index << shift) + ((std::uint64_t{1} << shift) >> 1);
-  for (std::size_t p = 0; p < plan.parts.size(); ++p)
-    if (middle < plan.parts[p].end) return static_cast<int>(p);
-  return static_cast<int>(plan.parts.size()) - 1;
+  std::uint64_t owner = parts - 1;
+  for (std::uint64_t p = 0; p < parts; ++p)
+    if (middle < plan.parts[p].end) {
+      owner = p;
+      break;
+    }
+  return static_cast<int>(owner != 0 ? owner : 1 + index % others);  // (part 0's blocks: dealt to the others)
 }
 
 std::vector<int> demTileOwners(const std::vector<std::uint64_t>& pieces, int ranks) {

@@ -44,11 +44,13 @@ struct PreparedConstraints;
 std::shared_ptr<BankCheck> planBankCheck(const Plan& plan, PreparedConstraints& constraints);
 
 // The rank (the part) that settles block `index` of quadtree level `level` (0 < level < the plan's region
-// level).  A level of no more blocks than parts spreads them evenly over the ranks (block b of B to rank
-// floor((b + 1/2) P / B)), so the few large blocks near the top never share a rank; a level of more
-// blocks gives each to the part holding its middle region (Morton order at the plan's level), so a
-// block of four regions is mostly its own part's and its records need not travel.  (The top step, over
-// what the level-1 blocks leave, is rank 0's.)
+// level).  Rank 0 runs the top step, over what the level-1 blocks leave (about 1 / (2^L - 1) of the seam,
+// one part's share at an MPI plan's level: 2^L >= P), and owns no block.  A level of no more blocks than
+// the other ranks spreads them evenly over ranks 1 .. P - 1 (block b of B to rank 1 + floor((b + 1/2)
+// (P - 1) / B)), so the few large blocks near the top never share a rank; a level of more blocks gives
+// each to the part holding its middle region (Morton order at the plan's level), so a block of four
+// regions is mostly its own part's and its records need not travel -- but part 0's blocks, which are
+// dealt to ranks 1 .. P - 1 in turn (1 + b mod (P - 1)).
 int seamBlockOwner(const Plan& plan, int level, std::uint64_t index);
 
 // The owner ranks of an MPI run's DEM tiles left in pieces (docs/parts.md, "Who writes what").  `pieces`:

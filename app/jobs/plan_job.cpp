@@ -21,15 +21,15 @@ namespace {
 // The plan's region level: at least 4 regions a part (for balance), at least the regions one process
 // would use, at most 4^7 -- unless an MPI run's seam blocks need more (`seamBlocks`): the seam is then
 // settled block by block up the quadtree (merge_job.h, SeamBlockRunner), and the top step, over what the
-// level-1 blocks leave, settles about 1 / (2^level - 1) of it, so 2^level > parts keeps that share under
-// one part's (up to level 11, 4^11 regions, for 2,047 parts).  At most the grid's depth.  (A plan for
-// `tinbuild merge` does not: one process settles the whole seam there, and more regions only make it
-// longer.)
+// level-1 blocks leave, settles about 1 / (2^level - 1) of it, so 2^level >= parts keeps that share about
+// one part's (up to level 11, 4^11 regions, for 2,048 parts); rank 0, which runs it, owns no block
+// (seamBlockOwner).  A level more would double the seam (it grows as 2^level) for every rank.  At most
+// the grid's depth.  (A plan for `tinbuild merge` does not: one process settles the whole seam there, and
+// more regions only make it longer.)
 int planLevel(std::uint64_t points, int depth, int parts, bool seamBlocks) {
   int level = 1;
   while (level < 7 && (std::uint64_t{1} << (2 * level)) < 4 * static_cast<std::uint64_t>(parts)) ++level;
-  while (seamBlocks && level < 11 && (std::uint64_t{1} << level) <= static_cast<std::uint64_t>(parts))
-    ++level;
+  while (seamBlocks && level < 11 && (std::uint64_t{1} << level) < static_cast<std::uint64_t>(parts)) ++level;
   level = std::max(level, ParallelDelaunay::chooseRegionLevel(points, depth));
   return std::min(level, depth);
 }
