@@ -358,6 +358,15 @@ std::vector<int> demTileOwners(const std::vector<std::uint64_t>& pieces, int ran
   return owners;
 }
 
+RunOutputs rankOutputs(const PipelineOptions& o, const PartDone& part) {
+  RunOutputs outputs = resolveOutputs(o);
+  Diagnostics quiet;  // (the part said its warnings about the outputs already)
+  DemReport unused;
+  completeOutputs(outputs, o, part.crs, part.zUnitToMetre, unused, quiet);
+  outputs.context.overwrite = true;  // (claimed at the run's start)
+  return outputs;
+}
+
 struct SeamBlockRunner::Impl {
   const PipelineOptions& o;
   const Plan& plan;
@@ -385,12 +394,8 @@ SeamBlockRunner::SeamBlockRunner(const PipelineOptions& o, const Plan& plan, con
   m.info.crsWkt = part.crs.wkt;
   m.meshInfo.bounds = plan.bounds;
   m.meshInfo.crsWkt = part.crs.wkt;
-  m.outputs = resolveOutputs(o);
-  Diagnostics quiet;  // (the part said its warnings about the outputs already)
-  DemReport unused;
-  completeOutputs(m.outputs, o, part.crs, part.zUnitToMetre, unused, quiet);
+  m.outputs = rankOutputs(o, part);
   WriterContext& context = m.outputs.context;
-  context.overwrite = true;  // (claimed at the run's start)
   if (!meshPath.empty()) {
     m.mesh = m.outputs.mesh.row->open(meshPath, context);  // (the mesh's own format)
     if (!m.mesh->meshSink()) throw Error("the seam blocks need a streaming mesh output");

@@ -8,6 +8,7 @@
 #include <vector>
 
 #include "app/jobs/job_options.h"
+#include "app/jobs/run_outputs.h"
 #include "app/jobs/run_report.h"
 #include "formats/io/plan_file.h"
 #include "libterrain/hydro/bank_check.h"
@@ -60,6 +61,11 @@ int seamBlockOwner(const Plan& plan, int level, std::uint64_t index);
 // plus one tile's (a tile has at most a few: its parts' and its seam blocks'), and neighbouring tiles
 // (a row's) share an owner.
 std::vector<int> demTileOwners(const std::vector<std::uint64_t>& pieces, int ranks);
+
+// A rank's outputs past its part (the seam blocks', the DEM owners'): resolved, and completed with the CRS
+// and z unit its part recorded, without repeating the part's warnings; writable in place (the run claimed
+// them at its start).
+RunOutputs rankOutputs(const PipelineOptions& options, const PartDone& part);
 
 // What one rank of an MPI run writes for the seam blocks it owns (docs/design.md, "The seam across ranks"):
 // one seam mesh file for all of them (seamBlockMeshPath; none without a mesh output), the DEM of their

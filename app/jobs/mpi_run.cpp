@@ -122,6 +122,27 @@ void writeWhole(const std::string& path, const std::string& bytes) {
   f.commit();
 }
 
+// Every rank's string, on every rank (a few bytes to a few kilobytes each: error messages, tile names,
+// figures).
+std::vector<std::string> allgatherStrings(int size, const std::string& mine) {
+  int length = static_cast<int>(mine.size());
+  std::vector<int> lengths(static_cast<std::size_t>(size)), offsets(lengths);
+  mpi().allgather(&length, 1, lengths.data(), kTinbuildMpiInt);
+  std::int64_t total = 0;
+  for (std::size_t i = 0; i < lengths.size(); ++i) {
+    offsets[i] = static_cast<int>(total);
+    total += lengths[i];
+  }
+  if (total > std::int64_t{2147483647}) throw Error("MPI: more than 2 GiB to gather from the ranks");
+  if (total == 0) return std::vector<std::string>(static_cast<std::size_t>(size));  // (every rank knows it)
+  std::string all(static_cast<std::size_t>(total), '\0');
+  mpi().allgatherv(mine.data(), length, all.data(), lengths.data(), offsets.data(), kTinbuildMpiChar);
+  std::vector<std::string> out;
+  for (std::size_t i = 0; i < lengths.size(); ++i)
+    out.push_back(all.substr(static_cast<std::size_t>(offsets[i]), static_cast<std::size_t>(lengths[i])));
+  return out;
+}
+
 // Runs `step` on every rank; if it failed anywhere, every rank throws an Error naming each failure (the
 // ranks' messages are gathered), so all of them stop together and exit non-zero.  A cancellation
 // (SIGTERM or SIGINT, which mpirun forwards to every rank) anywhere is a cancellation everywhere: every
@@ -141,26 +162,15 @@ void collective(int rank, int size, const std::string& what, Step step) {
   }
   mpi().allreduceInPlace(&cancelled, 1, kTinbuildMpiInt, kTinbuildMpiMax);
   if (cancelled) throw CancelledError();
-  int length = static_cast<int>(message.size());
-  std::vector<int> lengths(static_cast<std::size_t>(size));
-  mpi().allgather(&length, 1, lengths.data(), kTinbuildMpiInt);
-  std::vector<int> offsets(static_cast<std::size_t>(size), 0);
-  int total = 0;
-  for (int i = 0; i < size; ++i) {
-    offsets[static_cast<std::size_t>(i)] = total;
-    total += lengths[static_cast<std::size_t>(i)];
-  }
-  if (total == 0) return;
-  std::string all(static_cast<std::size_t>(total), '\0');
-  mpi().allgatherv(message.data(), length, all.data(), lengths.data(), offsets.data(), kTinbuildMpiChar);
+  const std::vector<std::string> messages = allgatherStrings(size, message);
   std::string report;
   for (int i = 0; i < size; ++i) {
-    if (lengths[static_cast<std::size_t>(i)] == 0) continue;
+    const std::string& m = messages[static_cast<std::size_t>(i)];
+    if (m.empty()) continue;
     if (!report.empty()) report += "; ";
-    report += what + " " + std::to_string(i) + " (rank " + std::to_string(i) + ") failed: " +
-              all.substr(static_cast<std::size_t>(offsets[static_cast<std::size_t>(i)]),
-                         static_cast<std::size_t>(lengths[static_cast<std::size_t>(i)]));
+    report += what + " " + std::to_string(i) + " (rank " + std::to_string(i) + ") failed: " + m;
   }
+  if (report.empty()) return;
   (void)rank;
   throw Error(report);
 }
@@ -659,25 +669,6 @@ SeamAcrossRanks settleSeamAcrossRanks(int rank, int size, const Plan& plan, cons
   return r;
 }
 
-// Every rank's string, on every rank (a few bytes to a few kilobytes each: tile names, figures).
-std::vector<std::string> allgatherStrings(int size, const std::string& mine) {
-  int length = static_cast<int>(mine.size());
-  std::vector<int> lengths(static_cast<std::size_t>(size)), offsets(lengths);
-  mpi().allgather(&length, 1, lengths.data(), kTinbuildMpiInt);
-  std::int64_t total = 0;
-  for (std::size_t i = 0; i < lengths.size(); ++i) {
-    offsets[i] = static_cast<int>(total);
-    total += lengths[i];
-  }
-  if (total > std::int64_t{2147483647}) throw Error("MPI: more than 2 GiB of names to gather");
-  std::string all(static_cast<std::size_t>(total), '\0');
-  mpi().allgatherv(mine.data(), length, all.data(), lengths.data(), offsets.data(), kTinbuildMpiChar);
-  std::vector<std::string> out;
-  for (std::size_t i = 0; i < lengths.size(); ++i)
-    out.push_back(all.substr(static_cast<std::size_t>(offsets[i]), static_cast<std::size_t>(lengths[i])));
-  return out;
-}
-
 // The hydro-flattening check's figures as bytes (to gather them) and back.
 template <class T>
 void putBytes(std::string& out, const T& v) {
@@ -809,12 +800,8 @@ DemOwned mergeDemTilesAcrossRanks(int rank, int size, const Plan& plan, const Pi
     DemPieceIndex index;
     index.add(ownedPath);
     r.pieces = index.pieces();
-    RunOutputs outputs = resolveOutputs(options);
     const PartDone part = readPartDone(plan.partFile(rank, "json"));
-    Diagnostics quiet;  // (the part said its warnings about the DEM already)
-    DemReport unused;
-    completeOutputs(outputs, options, part.crs, part.zUnitToMetre, unused, quiet);
-    outputs.context.overwrite = true;  // (claimed at the run's start)
+    RunOutputs outputs = rankOutputs(options, part);
     outputs.context.demMerge = &index;
     outputs.context.demMosaic = false;
     std::unique_ptr<OpenedOutput> dem = outputs.dem.row->open(outputs.dem.path, outputs.context);
